@@ -1,0 +1,90 @@
+//! The flags every chapter accepts, so that scripts and tests can run them all alike.
+
+use std::path::PathBuf;
+
+/// Flags shared by every chapter. A chapter embeds these with `#[command(flatten)]` and adds its
+/// own (`--time` where it animates, `--scene` where it loads a model).
+#[derive(clap::Args, Debug, Clone)]
+pub struct CommonArgs {
+    /// No window: render offscreen and write images to --out.
+    #[arg(long)]
+    pub headless: bool,
+
+    /// Size of what the chapter renders or allocates, as WIDTHxHEIGHT.
+    #[arg(long, default_value = "800x600", value_parser = parse_size)]
+    pub size: Size,
+
+    /// How many frames to run before exiting (headless), or 0 to run until the window closes.
+    #[arg(long, default_value_t = 1)]
+    pub frames: u32,
+
+    /// Where images go [default: out/<chapter>/].
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+
+    /// Print exactly one JSON report on stdout; everything human-readable goes to stderr.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl AsRef<CommonArgs> for CommonArgs {
+    fn as_ref(&self) -> &CommonArgs {
+        self
+    }
+}
+
+impl CommonArgs {
+    /// The folder images go to: `--out`, or `out/<chapter>/`.
+    pub fn out_dir(&self, chapter: &str) -> PathBuf {
+        self.out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("out").join(chapter))
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Size {
+    pub width: u32,
+    pub height: u32,
+}
+
+fn parse_size(text: &str) -> Result<Size, String> {
+    let bad = || format!("expected WIDTHxHEIGHT, such as 800x600, not {text:?}");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
+    let width: u32 = w.trim().parse().map_err(|_| bad())?;
+    let height: u32 = h.trim().parse().map_err(|_| bad())?;
+    // A sanity bound for typing mistakes; the device's own limits are checked where images are made.
+    if !(1..=16384).contains(&width) || !(1..=16384).contains(&height) {
+        return Err(format!(
+            "{width}x{height}: each side must be between 1 and 16384"
+        ));
+    }
+    Ok(Size { width, height })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_sizes() {
+        assert_eq!(
+            parse_size("800x600"),
+            Ok(Size {
+                width: 800,
+                height: 600
+            })
+        );
+        assert_eq!(
+            parse_size("7X3"),
+            Ok(Size {
+                width: 7,
+                height: 3
+            })
+        );
+        assert!(parse_size("800").is_err());
+        assert!(parse_size("0x600").is_err());
+        assert!(parse_size("20000x10").is_err());
+        assert!(parse_size("axb").is_err());
+    }
+}

@@ -1,0 +1,98 @@
+//! Vulkan memory that another API can import (taught in chapter 01).
+//!
+//! gpu-allocator cannot do this (it has no way to chain `VkExportMemoryAllocateInfo`), so every
+//! shared resource gets its own plain `vkAllocateMemory`, bound at offset 0.
+
+use crate::VulkanContext;
+use anyhow::{Context as _, Result};
+use ash::vk;
+use std::os::fd::{FromRawFd, OwnedFd};
+
+/// The one handle type this tutorial shares memory through: a POSIX file descriptor whose
+/// contents only the same driver understands.
+pub const HANDLE_TYPE: vk::ExternalMemoryHandleTypeFlags =
+    vk::ExternalMemoryHandleTypeFlags::OPAQUE_FD;
+
+/// Extra bytes given to every exported buffer allocation. llvmpipe over-allocates GL buffers and
+/// refuses `glNamedBufferStorageMemEXT` with GL_OUT_OF_MEMORY unless the memory object is at least
+/// 48 bytes larger than the buffer. Elsewhere the slack is harmless.
+pub const BUFFER_IMPORT_SLACK: u64 = 256;
+
+/// What the memory is for. Dedicated memory belongs to one image or buffer; Vulkan requires its
+/// size to be exactly that resource's `VkMemoryRequirements::size`, so it gets no slack.
+#[derive(Clone, Copy, Debug)]
+pub enum Dedicated {
+    No,
+    Buffer(vk::Buffer),
+    Image(vk::Image),
+}
+
+/// One exportable allocation.
+#[derive(Debug)]
+pub struct ExportableMemory {
+    pub memory: vk::DeviceMemory,
+    /// `allocationSize`: what the importer must be told the memory object's size is.
+    pub size: u64,
+    pub memory_type_index: u32,
+    pub property_flags: vk::MemoryPropertyFlags,
+}
+
+// ANCHOR: allocate
+/// Allocates memory for `requirements` that can be exported as an opaque fd.
+pub fn allocate(
+    ctx: &VulkanContext,
+    requirements: &vk::MemoryRequirements,
+    properties: vk::MemoryPropertyFlags,
+    dedicated: Dedicated,
+) -> Result<ExportableMemory> {
+    let memory_type_index = ctx.find_memory_type(requirements.memory_type_bits, properties)?;
+    let size = match dedicated {
+        Dedicated::No => requirements.size + BUFFER_IMPORT_SLACK,
+        Dedicated::Buffer(_) | Dedicated::Image(_) => requirements.size,
+    };
+    // This is the whole difference from an ordinary allocation: a promise, made now, that the
+    // memory will be exported with this handle type. Drivers may place it differently for that.
+    let mut export = vk::ExportMemoryAllocateInfo::default().handle_types(HANDLE_TYPE);
+    let mut dedicated_info = match dedicated {
+        Dedicated::No => None,
+        Dedicated::Buffer(buffer) => {
+            Some(vk::MemoryDedicatedAllocateInfo::default().buffer(buffer))
+        }
+        Dedicated::Image(image) => Some(vk::MemoryDedicatedAllocateInfo::default().image(image)),
+    };
+    let mut info = vk::MemoryAllocateInfo::default()
+        .allocation_size(size)
+        .memory_type_index(memory_type_index)
+        .push_next(&mut export);
+    if let Some(dedicated_info) = dedicated_info.as_mut() {
+        info = info.push_next(dedicated_info);
+    }
+    let memory = unsafe { ctx.device.allocate_memory(&info, None) }.with_context(|| {
+        format!("allocating {size} bytes of exportable memory ({properties:?})")
+    })?;
+    let property_flags =
+        ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
+    Ok(ExportableMemory {
+        memory,
+        size,
+        memory_type_index,
+        property_flags,
+    })
+}
+// ANCHOR_END: allocate
+
+// ANCHOR: export_fd
+/// Exports `memory` as a new file descriptor. Each call makes a new fd, owned by the caller until
+/// an import (GL's or Vulkan's) succeeds and takes it over.
+pub fn export_fd(
+    loader: &ash::khr::external_memory_fd::Device,
+    memory: vk::DeviceMemory,
+) -> Result<OwnedFd> {
+    let info = vk::MemoryGetFdInfoKHR::default()
+        .memory(memory)
+        .handle_type(HANDLE_TYPE);
+    let fd = unsafe { loader.get_memory_fd(&info) }.context("vkGetMemoryFdKHR")?;
+    // SAFETY: vkGetMemoryFdKHR returned a fresh fd that nothing else owns.
+    Ok(unsafe { OwnedFd::from_raw_fd(fd) })
+}
+// ANCHOR_END: export_fd

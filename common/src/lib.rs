@@ -1,0 +1,37 @@
+//! What every chapter of the tutorial shares.
+//!
+//! Each item here was first taught, in the open, by one chapter (the book's introduction lists
+//! which); later chapters call it by name. Doc comments here say *what*; the book says *why*.
+
+pub mod cli;
+pub mod exportable;
+pub mod report;
+pub mod vulkan;
+
+pub use cli::CommonArgs;
+pub use report::Report;
+pub use vulkan::{Requirements, VulkanContext};
+
+use std::process::ExitCode;
+
+/// Runs a chapter with the contract every chapter shares: parse the flags, run, then print the
+/// report (as JSON with `--json`) and turn failed checks or validation errors into a non-zero exit.
+///
+/// Exit codes: 0 all checks passed; 1 a check failed or the validation layer reported an error;
+/// 2 the chapter could not run (missing extension, bad input ...), with the reason on stderr.
+pub fn run_chapter<A>(
+    chapter: &str,
+    run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>,
+) -> ExitCode
+where
+    A: clap::Parser + AsRef<CommonArgs>,
+{
+    let args = A::parse();
+    let common: &CommonArgs = args.as_ref();
+    let mut report = Report::new(chapter);
+    if let Err(error) = run(&args, &mut report) {
+        eprintln!("error: {error:#}");
+        return ExitCode::from(2);
+    }
+    report.finish(common.json)
+}

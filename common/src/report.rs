@@ -1,0 +1,146 @@
+//! The chapter report: what a chapter ran on, what it made, how long it took, and its own checks
+//! of what it teaches. `--json` prints it as one JSON document; tests snapshot it.
+
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::process::ExitCode;
+
+#[derive(Serialize, Debug)]
+pub struct Report {
+    pub chapter: String,
+    pub vulkan: Option<VulkanReport>,
+    pub gl: Option<GlReport>,
+    /// Do GL and Vulkan run on the same device and driver? `None` when the chapter uses no GL.
+    pub uuids_match: Option<bool>,
+    /// How the two APIs take turns: "semaphores", "host", or `None` when they never share work.
+    pub sync: Option<&'static str>,
+    pub images: Vec<ImageReport>,
+    pub timings_ms: BTreeMap<String, f64>,
+    /// The chapter's own verifications. Any `false` makes the chapter exit non-zero.
+    pub checks: BTreeMap<String, bool>,
+    pub validation: ValidationReport,
+    /// Chapter-specific fields, printed after the common ones.
+    #[serde(flatten)]
+    pub details: serde_json::Map<String, serde_json::Value>,
+}
+
+#[derive(Serialize, Debug, Clone)]
+pub struct VulkanReport {
+    pub device: String,
+    pub driver: String,
+    pub api: String,
+    pub device_uuid: String,
+    pub driver_uuid: String,
+    /// The device extensions this chapter enabled, and no others.
+    pub extensions: Vec<String>,
+}
+
+#[derive(Serialize, Debug, Clone)]
+pub struct GlReport {
+    pub renderer: String,
+    pub version: String,
+    pub device_uuid: String,
+    pub driver_uuid: String,
+    /// The GL extensions this chapter requires.
+    pub extensions: Vec<String>,
+}
+
+#[derive(Serialize, Debug, Clone)]
+pub struct ImageReport {
+    pub name: String,
+    pub path: String,
+    pub width: u32,
+    pub height: u32,
+    pub format: String,
+}
+
+#[derive(Serialize, Debug, Default, Clone, Copy)]
+pub struct ValidationReport {
+    /// Was `VK_LAYER_KHRONOS_validation` enabled for this run?
+    pub layer: bool,
+    pub errors: u32,
+    pub warnings: u32,
+}
+
+impl Report {
+    pub fn new(chapter: &str) -> Self {
+        Report {
+            chapter: chapter.to_owned(),
+            vulkan: None,
+            gl: None,
+            uuids_match: None,
+            sync: None,
+            images: Vec::new(),
+            timings_ms: BTreeMap::new(),
+            checks: BTreeMap::new(),
+            validation: ValidationReport::default(),
+            details: serde_json::Map::new(),
+        }
+    }
+
+    /// Records a check and logs it; returns `ok` so callers can branch on it.
+    pub fn check(&mut self, name: &str, ok: bool) -> bool {
+        eprintln!("  [{}] {name}", if ok { " ok " } else { "FAIL" });
+        let previous = self.checks.insert(name.to_owned(), ok);
+        assert!(previous.is_none(), "check {name:?} recorded twice");
+        ok
+    }
+
+    /// Adds a chapter-specific field.
+    pub fn set(&mut self, key: &str, value: impl Serialize) {
+        let value = serde_json::to_value(value).expect("report values are plain data");
+        self.details.insert(key.to_owned(), value);
+    }
+
+    pub fn time_ms(&mut self, name: &str, ms: f64) {
+        self.timings_ms.insert(name.to_owned(), ms);
+    }
+
+    /// Prints the report and decides the exit code (see [`crate::run_chapter`]).
+    pub fn finish(mut self, json: bool) -> ExitCode {
+        self.validation = crate::vulkan::validation_counts();
+        let failed: Vec<&str> = self
+            .checks
+            .iter()
+            .filter(|(_, ok)| !**ok)
+            .map(|(n, _)| n.as_str())
+            .collect();
+        let mut ok = true;
+        if self.checks.is_empty() {
+            eprintln!("error: {} recorded no checks", self.chapter);
+            ok = false;
+        }
+        if !failed.is_empty() {
+            eprintln!(
+                "error: {} check(s) failed: {}",
+                failed.len(),
+                failed.join(", ")
+            );
+            ok = false;
+        }
+        if self.validation.errors > 0 {
+            eprintln!(
+                "error: the validation layer reported {} error(s) (above)",
+                self.validation.errors
+            );
+            ok = false;
+        }
+        if json {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&self).expect("report serialises")
+            );
+        }
+        if ok {
+            eprintln!("{}: all {} checks passed", self.chapter, self.checks.len());
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(1)
+        }
+    }
+}
+
+/// Formats a UUID as Vulkan and GL both report it: 16 bytes, printed in hex.
+pub fn uuid_hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}

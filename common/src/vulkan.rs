@@ -1,0 +1,455 @@
+//! The Vulkan context every chapter starts from: an instance (with the validation layer when it is
+//! installed), the physical device that has every extension the chapter asks for, a logical device
+//! with exactly those extensions, and one queue that can do graphics and compute.
+
+use crate::report::{ValidationReport, VulkanReport, uuid_hex};
+use anyhow::{Context as _, Result, bail};
+use ash::vk;
+use std::ffi::{CStr, c_char, c_void};
+use std::fmt;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+/// The Vulkan version every chapter is written against.
+pub const API_VERSION: u32 = vk::API_VERSION_1_3;
+
+const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+
+/// What a chapter needs from the device. Later chapters add features here.
+#[derive(Default, Clone, Copy)]
+pub struct Requirements<'a> {
+    /// Device extensions to enable. Every one must be present; no others are enabled.
+    pub extensions: &'a [&'a CStr],
+}
+
+/// Facts about the chosen device that the report and the GL side need.
+#[derive(Debug, Clone)]
+pub struct DeviceInfo {
+    pub name: String,
+    /// Driver name and version, e.g. "llvmpipe (Mesa 25.0.7)".
+    pub driver: String,
+    pub api_version: u32,
+    pub device_type: vk::PhysicalDeviceType,
+    pub device_uuid: [u8; vk::UUID_SIZE],
+    pub driver_uuid: [u8; vk::UUID_SIZE],
+}
+
+pub struct VulkanContext {
+    pub entry: ash::Entry,
+    pub instance: ash::Instance,
+    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    pub physical_device: vk::PhysicalDevice,
+    pub info: DeviceInfo,
+    pub memory_properties: vk::PhysicalDeviceMemoryProperties,
+    pub device: ash::Device,
+    pub queue_family_index: u32,
+    pub queue: vk::Queue,
+    pub enabled_extensions: Vec<String>,
+}
+
+impl VulkanContext {
+    pub fn new(requirements: &Requirements) -> Result<Self> {
+        // SAFETY: loading libvulkan runs its initialisers; nothing else is loaded under that name.
+        let entry = unsafe { ash::Entry::load() }.context(
+            "could not load the Vulkan loader (libvulkan.so.1): install libvulkan1 and a driver \
+             (Debian 12: bash .ci/deps)",
+        )?;
+        let validation = validation_wanted(&entry);
+
+        let app_info = vk::ApplicationInfo::default()
+            .application_name(c"vkgl-interop")
+            .api_version(API_VERSION);
+        let layers: Vec<*const c_char> = if validation {
+            vec![VALIDATION_LAYER.as_ptr()]
+        } else {
+            vec![]
+        };
+        // The validation layer provides VK_EXT_debug_utils, through which its messages reach us.
+        let instance_extensions: Vec<*const c_char> = if validation {
+            vec![ash::ext::debug_utils::NAME.as_ptr()]
+        } else {
+            vec![]
+        };
+        let mut messenger_info = messenger_create_info();
+        let mut instance_info = vk::InstanceCreateInfo::default()
+            .application_info(&app_info)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&instance_extensions);
+        if validation {
+            // Chained here too, so that vkCreateInstance/vkDestroyInstance are validated as well.
+            instance_info = instance_info.push_next(&mut messenger_info);
+        }
+        let instance =
+            unsafe { entry.create_instance(&instance_info, None) }.context("vkCreateInstance")?;
+        VALIDATION_ON.store(validation, Ordering::Relaxed);
+        let debug = if validation {
+            let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
+            let messenger =
+                unsafe { loader.create_debug_utils_messenger(&messenger_create_info(), None) }
+                    .context("vkCreateDebugUtilsMessengerEXT")?;
+            Some((loader, messenger))
+        } else {
+            None
+        };
+
+        let chosen = match pick_physical_device(&instance, requirements) {
+            Ok(chosen) => chosen,
+            Err(error) => {
+                destroy_instance(&instance, &debug);
+                return Err(error);
+            }
+        };
+        let (physical_device, info, queue_family_index) = chosen;
+        eprintln!("vulkan: using {} ({})", info.name, info.driver);
+
+        let priorities = [1.0];
+        let queue_infos = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(queue_family_index)
+            .queue_priorities(&priorities)];
+        let extension_names: Vec<*const c_char> =
+            requirements.extensions.iter().map(|e| e.as_ptr()).collect();
+        let device_info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queue_infos)
+            .enabled_extension_names(&extension_names);
+        let device = match unsafe { instance.create_device(physical_device, &device_info, None) } {
+            Ok(device) => device,
+            Err(error) => {
+                destroy_instance(&instance, &debug);
+                bail!("vkCreateDevice on {}: {error}", info.name);
+            }
+        };
+        let queue = unsafe { device.get_device_queue(queue_family_index, 0) };
+        let memory_properties =
+            unsafe { instance.get_physical_device_memory_properties(physical_device) };
+        let enabled_extensions = requirements
+            .extensions
+            .iter()
+            .map(|e| e.to_string_lossy().into_owned())
+            .collect();
+
+        Ok(VulkanContext {
+            entry,
+            instance,
+            debug,
+            physical_device,
+            info,
+            memory_properties,
+            device,
+            queue_family_index,
+            queue,
+            enabled_extensions,
+        })
+    }
+
+    /// The `vulkan` section of the chapter report.
+    pub fn report(&self) -> VulkanReport {
+        VulkanReport {
+            device: self.info.name.clone(),
+            driver: self.info.driver.clone(),
+            api: version_string(self.info.api_version),
+            device_uuid: uuid_hex(&self.info.device_uuid),
+            driver_uuid: uuid_hex(&self.info.driver_uuid),
+            extensions: self.enabled_extensions.clone(),
+        }
+    }
+
+    /// The first memory type allowed by `type_bits` (from `VkMemoryRequirements`) that has all of `flags`.
+    pub fn find_memory_type(&self, type_bits: u32, flags: vk::MemoryPropertyFlags) -> Result<u32> {
+        let props = &self.memory_properties;
+        (0..props.memory_type_count)
+            .find(|&i| {
+                type_bits & (1 << i) != 0
+                    && props.memory_types[i as usize]
+                        .property_flags
+                        .contains(flags)
+            })
+            .with_context(|| {
+                format!(
+                    "{} has no memory type with {flags:?} in bits {type_bits:#b}",
+                    self.info.name
+                )
+            })
+    }
+}
+
+impl Drop for VulkanContext {
+    fn drop(&mut self) {
+        unsafe {
+            // Chapters destroy their own objects first; this only waits out anything in flight.
+            let _ = self.device.device_wait_idle();
+            self.device.destroy_device(None);
+        }
+        destroy_instance(&self.instance, &self.debug);
+    }
+}
+
+fn destroy_instance(
+    instance: &ash::Instance,
+    debug: &Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+) {
+    unsafe {
+        if let Some((loader, messenger)) = debug {
+            loader.destroy_debug_utils_messenger(*messenger, None);
+        }
+        instance.destroy_instance(None);
+    }
+}
+
+/// "1.4.305"
+pub fn version_string(version: u32) -> String {
+    format!(
+        "{}.{}.{}",
+        vk::api_version_major(version),
+        vk::api_version_minor(version),
+        vk::api_version_patch(version)
+    )
+}
+
+// ---------------------------------------------------------------------------------------------
+// Choosing a physical device
+
+/// Extensions named in `VKGL_HIDE_EXTENSIONS=a,b` are treated as absent, on the Vulkan and GL
+/// side alike, so that the "missing extension" path can be seen and tested on any machine.
+pub fn hidden_extensions() -> Vec<String> {
+    std::env::var("VKGL_HIDE_EXTENSIONS")
+        .unwrap_or_default()
+        .split(',')
+        .map(|s| s.trim().to_owned())
+        .filter(|s| !s.is_empty())
+        .collect()
+}
+
+/// Where to get an extension, for the error message when it is missing.
+pub fn extension_hint(name: &str) -> &'static str {
+    match name {
+        "VK_KHR_external_memory_fd" => "every Linux GPU driver has it, and so has Mesa's lavapipe",
+        "VK_KHR_external_semaphore_fd" => {
+            "NVIDIA, AMD and Intel drivers have it; lavapipe does not (chapters then synchronise on the host)"
+        }
+        "VK_KHR_acceleration_structure"
+        | "VK_KHR_ray_tracing_pipeline"
+        | "VK_KHR_deferred_host_operations" => {
+            "needs a ray-tracing GPU driver, or Mesa >= 24.1 lavapipe"
+        }
+        _ => "see the chapter's page in the book",
+    }
+}
+
+/// No physical device can run the chapter; says why for each one.
+#[derive(Debug)]
+pub struct NoSuitableDevice {
+    /// (device, reason it was skipped)
+    pub skipped: Vec<(String, String)>,
+    /// Every required extension some device lacked.
+    pub missing: Vec<String>,
+}
+
+impl fmt::Display for NoSuitableDevice {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        if self.skipped.is_empty() {
+            return write!(
+                f,
+                "the Vulkan loader found no device at all: install a driver (no GPU: Mesa's lavapipe, `bash .ci/deps`)"
+            );
+        }
+        writeln!(f, "no Vulkan device can run this chapter:")?;
+        for (device, reason) in &self.skipped {
+            writeln!(f, "  - {device}: {reason}")?;
+        }
+        for ext in &self.missing {
+            writeln!(f, "  {ext}: {}", extension_hint(ext))?;
+        }
+        write!(
+            f,
+            "fix: use a driver with these extensions; with no GPU, Mesa >= 24.1 lavapipe \
+             (Debian 12: `bash .ci/deps` installs it from bookworm-backports)"
+        )
+    }
+}
+
+impl std::error::Error for NoSuitableDevice {}
+
+/// Every physical device is considered; each one skipped is logged with its reason. Among the
+/// suitable ones a discrete GPU beats an integrated one, which beats a software rasteriser.
+fn pick_physical_device(
+    instance: &ash::Instance,
+    requirements: &Requirements,
+) -> Result<(vk::PhysicalDevice, DeviceInfo, u32)> {
+    let hidden = hidden_extensions();
+    let mut suitable = Vec::new();
+    let mut skipped = Vec::new();
+    let mut missing_any: Vec<String> = Vec::new();
+
+    for physical_device in
+        unsafe { instance.enumerate_physical_devices() }.context("vkEnumeratePhysicalDevices")?
+    {
+        let info = device_info(instance, physical_device);
+        let label = format!("{} ({})", info.name, info.driver);
+
+        if info.api_version < API_VERSION {
+            skipped.push((
+                label,
+                format!("Vulkan {} < 1.3", version_string(info.api_version)),
+            ));
+            continue;
+        }
+        let available: Vec<String> =
+            unsafe { instance.enumerate_device_extension_properties(physical_device) }
+                .context("vkEnumerateDeviceExtensionProperties")?
+                .iter()
+                .filter_map(|e| e.extension_name_as_c_str().ok())
+                .map(|e| e.to_string_lossy().into_owned())
+                .collect();
+        let missing: Vec<String> = requirements
+            .extensions
+            .iter()
+            .map(|e| e.to_string_lossy().into_owned())
+            .filter(|e| !available.contains(e) || hidden.contains(e))
+            .collect();
+        if !missing.is_empty() {
+            let list: Vec<String> = missing
+                .iter()
+                .map(|e| {
+                    if hidden.contains(e) {
+                        format!("{e} (hidden by VKGL_HIDE_EXTENSIONS)")
+                    } else {
+                        e.clone()
+                    }
+                })
+                .collect();
+            skipped.push((label, format!("lacks {}", list.join(", "))));
+            for e in missing {
+                if !missing_any.contains(&e) {
+                    missing_any.push(e);
+                }
+            }
+            continue;
+        }
+        let families =
+            unsafe { instance.get_physical_device_queue_family_properties(physical_device) };
+        let wanted = vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE;
+        let Some(family) = families.iter().position(|q| q.queue_flags.contains(wanted)) else {
+            skipped.push((label, "no queue family does graphics and compute".into()));
+            continue;
+        };
+        suitable.push((physical_device, info, family as u32));
+    }
+
+    for (device, reason) in &skipped {
+        eprintln!("vulkan: skipping {device}: {reason}");
+    }
+    let rank = |t: vk::PhysicalDeviceType| match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+        vk::PhysicalDeviceType::CPU => 3,
+        _ => 4,
+    };
+    suitable.sort_by_key(|(_, info, _)| rank(info.device_type));
+    suitable.into_iter().next().ok_or_else(|| {
+        NoSuitableDevice {
+            skipped,
+            missing: missing_any,
+        }
+        .into()
+    })
+}
+
+fn device_info(instance: &ash::Instance, physical_device: vk::PhysicalDevice) -> DeviceInfo {
+    let mut id = vk::PhysicalDeviceIDProperties::default();
+    let mut driver = vk::PhysicalDeviceDriverProperties::default();
+    let mut props2 = vk::PhysicalDeviceProperties2::default()
+        .push_next(&mut id)
+        .push_next(&mut driver);
+    unsafe { instance.get_physical_device_properties2(physical_device, &mut props2) };
+    let props = props2.properties;
+    let text = |s: Result<&CStr, _>| {
+        s.map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    DeviceInfo {
+        name: text(props.device_name_as_c_str()),
+        driver: format!(
+            "{} {}",
+            text(driver.driver_name_as_c_str()),
+            text(driver.driver_info_as_c_str())
+        )
+        .trim()
+        .to_owned(),
+        api_version: props.api_version,
+        device_type: props.device_type,
+        device_uuid: id.device_uuid,
+        driver_uuid: id.driver_uuid,
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Validation
+
+static VALIDATION_ON: AtomicBool = AtomicBool::new(false);
+static VALIDATION_ERRORS: AtomicU32 = AtomicU32::new(0);
+static VALIDATION_WARNINGS: AtomicU32 = AtomicU32::new(0);
+
+/// The validation layer is on whenever it is installed, unless `VKGL_VALIDATION=0`.
+fn validation_wanted(entry: &ash::Entry) -> bool {
+    if std::env::var("VKGL_VALIDATION").is_ok_and(|v| v == "0") {
+        return false;
+    }
+    let layers = unsafe { entry.enumerate_instance_layer_properties() }.unwrap_or_default();
+    let found = layers
+        .iter()
+        .any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER));
+    if !found {
+        eprintln!(
+            "vulkan: VK_LAYER_KHRONOS_validation is not installed; running without validation"
+        );
+    }
+    found
+}
+
+/// How many errors and warnings the validation layer reported in this process so far.
+pub fn validation_counts() -> ValidationReport {
+    ValidationReport {
+        layer: VALIDATION_ON.load(Ordering::Relaxed),
+        errors: VALIDATION_ERRORS.load(Ordering::Relaxed),
+        warnings: VALIDATION_WARNINGS.load(Ordering::Relaxed),
+    }
+}
+
+fn messenger_create_info() -> vk::DebugUtilsMessengerCreateInfoEXT<'static> {
+    vk::DebugUtilsMessengerCreateInfoEXT::default()
+        .message_severity(
+            vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+        )
+        .message_type(
+            vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+        )
+        .pfn_user_callback(Some(on_validation_message))
+}
+
+unsafe extern "system" fn on_validation_message(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    _user_data: *mut c_void,
+) -> vk::Bool32 {
+    // SAFETY: the layer passes a valid callback-data struct whose message is a C string or null.
+    let message = unsafe { data.as_ref() }
+        .filter(|d| !d.p_message.is_null())
+        .map(|d| {
+            unsafe { CStr::from_ptr(d.p_message) }
+                .to_string_lossy()
+                .into_owned()
+        })
+        .unwrap_or_default();
+    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+        VALIDATION_ERRORS.fetch_add(1, Ordering::Relaxed);
+        eprintln!("validation error: {message}");
+    } else {
+        VALIDATION_WARNINGS.fetch_add(1, Ordering::Relaxed);
+        eprintln!("validation warning: {message}");
+    }
+    vk::FALSE
+}
