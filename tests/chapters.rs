@@ -1,0 +1,104 @@
+//! Snapshot tests: every chapter runs headless on the software stack, passes its own checks,
+//! and produces the report and images recorded in `tests/snapshots/`.
+
+mod harness;
+
+use harness::{DEFAULT_TOLERANCE, assert_images_match, assert_report_snapshot, run_chapter};
+
+const RAY_TRACING_EXTENSIONS: [&str; 3] =
+    ["VK_KHR_acceleration_structure", "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations"];
+
+fn enabled_extensions(report: &serde_json::Value) -> Vec<&str> {
+    report["vulkan"]["extensions"].as_array().unwrap().iter().map(|e| e.as_str().unwrap()).collect()
+}
+
+#[test]
+fn ch01_exportable_memory() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "64x48"], &[]);
+    let report = run.succeeded();
+    let extensions = enabled_extensions(report);
+    assert_eq!(extensions, ["VK_KHR_external_memory_fd"], "01 enables exactly what it needs");
+    assert!(RAY_TRACING_EXTENSIONS.iter().all(|rt| !extensions.contains(rt)));
+    assert_report_snapshot("01-exportable-memory", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch01_missing_extension_is_named() {
+    let run = run_chapter(
+        env!("CARGO_BIN_EXE_01-exportable-memory"),
+        &[],
+        &[("VKGL_HIDE_EXTENSIONS", "VK_KHR_external_memory_fd")],
+    );
+    assert_eq!(run.output.status.code(), Some(2), "a missing extension is an error, not a crash:\n{}", run.stderr);
+    assert!(run.report.is_none(), "no report when the chapter could not run");
+    let error = run.stderr.split_once("error: ").map(|(_, e)| e).unwrap_or_default();
+    assert!(error.contains("lacks VK_KHR_external_memory_fd"), "names the extension:\n{}", run.stderr);
+    assert!(error.contains("llvmpipe") || std::env::var_os("VKGL_TEST_NATIVE").is_some(), "names the device:\n{}", run.stderr);
+    assert!(error.contains("fix: "), "gives a fix:\n{}", run.stderr);
+    assert!(!run.stderr.contains("panicked"), "no panic:\n{}", run.stderr);
+}
+
+#[test]
+fn bad_flags_are_rejected_with_a_reason() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
+    assert_eq!(run.output.status.code(), Some(2));
+    assert!(run.stderr.contains("expected WIDTHxHEIGHT"), "{}", run.stderr);
+}
+
+/// The image comparison itself: it must pass what it should and fail what it should.
+mod image_comparison {
+    use super::harness::{DEFAULT_TOLERANCE, compare_image};
+    use image::{Rgb, RgbImage};
+
+    fn gradient() -> RgbImage {
+        RgbImage::from_fn(64, 48, |x, y| Rgb([(x * 4) as u8, (y * 5) as u8, 128]))
+    }
+
+    #[test]
+    fn identical_and_rounding_differences_pass() {
+        let dir = tempfile::tempdir().unwrap();
+        let reference = dir.path().join("ref.png");
+        gradient().save(&reference).unwrap();
+        let same = dir.path().join("same.png");
+        gradient().save(&same).unwrap();
+        assert_eq!(compare_image(&same, &reference, DEFAULT_TOLERANCE), Ok(()));
+
+        // NVIDIA and llvmpipe round colours differently by one step.
+        let mut off_by_one = gradient();
+        off_by_one.pixels_mut().for_each(|p| p.0[0] = p.0[0].saturating_add(1));
+        let rounded = dir.path().join("rounded.png");
+        off_by_one.save(&rounded).unwrap();
+        assert_eq!(compare_image(&rounded, &reference, DEFAULT_TOLERANCE), Ok(()));
+    }
+
+    #[test]
+    fn a_changed_region_fails_and_writes_the_difference() {
+        let dir = tempfile::tempdir().unwrap();
+        let reference = dir.path().join("ref.png");
+        gradient().save(&reference).unwrap();
+        let mut changed = gradient();
+        for y in 10..30 {
+            for x in 10..40 {
+                changed.put_pixel(x, y, Rgb([255, 255, 255]));
+            }
+        }
+        let actual = dir.path().join("changed.png");
+        changed.save(&actual).unwrap();
+        let error = compare_image(&actual, &reference, DEFAULT_TOLERANCE).unwrap_err();
+        assert!(error.contains("FLIP mean"), "{error}");
+        assert!(dir.path().join("ref-actual.png").exists());
+        assert!(dir.path().join("ref-difference.png").exists());
+    }
+
+    #[test]
+    fn a_missing_reference_fails() {
+        let dir = tempfile::tempdir().unwrap();
+        let actual = dir.path().join("a.png");
+        gradient().save(&actual).unwrap();
+        if std::env::var_os("VKGL_UPDATE_IMAGES").is_none() {
+            let error = compare_image(&actual, &dir.path().join("missing.png"), DEFAULT_TOLERANCE).unwrap_err();
+            assert!(error.contains("VKGL_UPDATE_IMAGES"), "{error}");
+        }
+    }
+}

@@ -1,0 +1,195 @@
+//! What every chapter test shares: run a chapter binary headless, snapshot its report, and
+//! compare the images it wrote with reference PNGs.
+//!
+//! The tests pin Mesa's software stack (lavapipe + llvmpipe) when it is installed, so the
+//! snapshots mean the same thing on every machine; set `VKGL_TEST_NATIVE=1` to run the chapters
+//! on the machine's own driver instead (the checks still apply, the snapshots may then differ).
+//!
+//! A missing or changed reference fails. To write references, run with `INSTA_UPDATE=always`
+//! (reports) and `VKGL_UPDATE_IMAGES=1` (images), then look at every file that changed.
+
+#![allow(dead_code)] // each test crate uses part of the harness
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub struct Run {
+    pub output: Output,
+    /// The report printed with `--json`, when the chapter printed one.
+    pub report: Option<Value>,
+    pub stderr: String,
+    /// Where the chapter was told to write its images.
+    pub out_dir: tempfile::TempDir,
+}
+
+impl Run {
+    /// The report of a run that must have succeeded; panics with the chapter's stderr otherwise.
+    pub fn succeeded(&self) -> &Value {
+        assert!(
+            self.output.status.success(),
+            "chapter failed with {}:\n{}",
+            self.output.status,
+            self.stderr
+        );
+        let report = self.report.as_ref().expect("a successful --json run prints a report");
+        for (name, ok) in report["checks"].as_object().expect("checks is an object") {
+            assert_eq!(ok, &Value::Bool(true), "check {name} failed:\n{}", self.stderr);
+        }
+        assert_eq!(report["validation"]["errors"], 0, "validation errors:\n{}", self.stderr);
+        if std::env::var_os("CI").is_some() {
+            // CI installs the layer (.ci/deps); a run without it would prove nothing.
+            assert_eq!(report["validation"]["layer"], true, "CI must run with VK_LAYER_KHRONOS_validation");
+        }
+        report
+    }
+}
+
+/// Runs `bin` (from `env!("CARGO_BIN_EXE_<name>")`) with `--headless --json --out <temp dir>`
+/// plus `args`, with extra environment variables `env`.
+pub fn run_chapter(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
+    let out_dir = tempfile::tempdir().expect("temporary directory");
+    let mut command = Command::new(bin);
+    command.args(["--headless", "--json", "--out"]).arg(out_dir.path()).args(args);
+    pin_software_stack(&mut command);
+    command.envs(env.iter().copied());
+    let output = command.output().unwrap_or_else(|e| panic!("could not start {bin}: {e}"));
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let report = if stdout.trim().is_empty() {
+        None
+    } else {
+        Some(serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not one JSON document ({e}):\n{stdout}")))
+    };
+    Run { output, report, stderr, out_dir }
+}
+
+/// Points the Vulkan loader at lavapipe and EGL at Mesa, unless `VKGL_TEST_NATIVE` is set.
+fn pin_software_stack(command: &mut Command) {
+    if std::env::var_os("VKGL_TEST_NATIVE").is_some() {
+        return;
+    }
+    let icds = std::fs::read_dir("/usr/share/vulkan/icd.d").into_iter().flatten().flatten();
+    if let Some(lavapipe) = icds.map(|e| e.path()).find(|p| {
+        p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("lvp_icd"))
+    }) {
+        command.env("VK_DRIVER_FILES", lavapipe);
+    }
+    let mesa_egl = Path::new("/usr/share/glvnd/egl_vendor.d/50_mesa.json");
+    if mesa_egl.exists() {
+        command.env("__EGL_VENDOR_LIBRARY_FILENAMES", mesa_egl);
+    }
+}
+
+/// Snapshots a report with everything that differs between machines of the same software stack
+/// redacted: device and driver names and versions, UUIDs, file descriptor numbers, timings.
+pub fn assert_report_snapshot(name: &str, report: &Value) {
+    insta::with_settings!({
+        snapshot_path => "../snapshots",
+        prepend_module_to_snapshot => false,
+        omit_expression => true,
+    }, {
+        insta::assert_json_snapshot!(name, report, {
+            ".vulkan.device" => "[device]",
+            ".vulkan.driver" => "[driver]",
+            ".vulkan.api" => "[version]",
+            ".vulkan.device_uuid" => "[uuid]",
+            ".vulkan.driver_uuid" => "[uuid]",
+            ".gl.renderer" => "[renderer]",
+            ".gl.version" => "[version]",
+            ".gl.device_uuid" => "[uuid]",
+            ".gl.driver_uuid" => "[uuid]",
+            ".validation.layer" => "[checked in Run::succeeded]",
+            ".timings_ms.*" => "[ms]",
+            ".fds.*" => "[fd]",
+        });
+    });
+}
+
+pub fn snapshot_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/snapshots")
+}
+
+/// How far an image may be from its reference, in FLIP error (0 = identical, 1 = maximal).
+#[derive(Clone, Copy, Debug)]
+pub struct Tolerance {
+    pub mean: f32,
+    /// (percentile, largest error allowed at it)
+    pub percentile: (f32, f32),
+}
+
+/// llvmpipe and NVIDIA (H100/H200, driver 580) round colours differently by one step in 255.
+/// Such a difference over a whole image scores a FLIP mean of about 0.024 and a 99th percentile of
+/// about 0.04 (`image_comparison` in tests/chapters.rs measures it); a changed region scores far
+/// higher where it lies, which the percentile catches even when the region is small.
+pub const DEFAULT_TOLERANCE: Tolerance = Tolerance { mean: 0.04, percentile: (0.99, 0.15) };
+
+/// Compares every image the report lists with `tests/snapshots/<name>.png`.
+pub fn assert_images_match(report: &Value, tolerance: Tolerance) {
+    for image in report["images"].as_array().expect("images is an array") {
+        let name = image["name"].as_str().expect("image name");
+        let actual = Path::new(image["path"].as_str().expect("image path"));
+        let reference = snapshot_dir().join(format!("{name}.png"));
+        if let Err(message) = compare_image(actual, &reference, tolerance) {
+            panic!("{name}: {message}");
+        }
+    }
+}
+
+/// Compares two PNGs with the FLIP perceptual metric. On a mismatch writes `<reference>-actual.png`
+/// and `<reference>-difference.png` (FLIP's error map) beside the reference and says so.
+pub fn compare_image(actual: &Path, reference: &Path, tolerance: Tolerance) -> Result<(), String> {
+    let actual_image = image::open(actual).map_err(|e| format!("cannot read {}: {e}", actual.display()))?.to_rgb8();
+    if !reference.exists() {
+        if std::env::var_os("VKGL_UPDATE_IMAGES").is_some() {
+            actual_image.save(reference).map_err(|e| format!("cannot write {}: {e}", reference.display()))?;
+            eprintln!("wrote new reference {}", reference.display());
+            return Ok(());
+        }
+        return Err(format!(
+            "no reference image {}; run with VKGL_UPDATE_IMAGES=1 to write it, then look at it",
+            reference.display()
+        ));
+    }
+    let expected = image::open(reference).map_err(|e| format!("cannot read {}: {e}", reference.display()))?.to_rgb8();
+    let sibling = |suffix: &str| reference.with_file_name(format!("{}-{suffix}.png", stem(reference)));
+    if expected.dimensions() != actual_image.dimensions() {
+        actual_image.save(sibling("actual")).ok();
+        return Err(format!(
+            "size {:?} differs from the reference's {:?}; wrote {}",
+            actual_image.dimensions(),
+            expected.dimensions(),
+            sibling("actual").display()
+        ));
+    }
+    let (w, h) = expected.dimensions();
+    let error_map = nv_flip::flip(
+        nv_flip::FlipImageRgb8::with_data(w, h, expected.as_raw()),
+        nv_flip::FlipImageRgb8::with_data(w, h, actual_image.as_raw()),
+        nv_flip::DEFAULT_PIXELS_PER_DEGREE,
+    );
+    let mut pool = nv_flip::FlipPool::from_image(&error_map);
+    let mean = pool.mean();
+    let (p, limit) = tolerance.percentile;
+    let at_p = pool.get_percentile(p, true);
+    if mean <= tolerance.mean && at_p <= limit {
+        return Ok(());
+    }
+    actual_image.save(sibling("actual")).ok();
+    let difference = error_map.apply_color_lut(&nv_flip::magma_lut());
+    image::RgbImage::from_raw(w, h, difference.to_vec())
+        .expect("FLIP returns w*h RGB pixels")
+        .save(sibling("difference"))
+        .ok();
+    Err(format!(
+        "FLIP mean {mean:.4} (allowed {}), {}th percentile {at_p:.4} (allowed {limit}); wrote {} and {}",
+        tolerance.mean,
+        p * 100.0,
+        sibling("actual").display(),
+        sibling("difference").display()
+    ))
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem().and_then(|s| s.to_str()).unwrap_or("image").to_owned()
+}
