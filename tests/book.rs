@@ -23,7 +23,11 @@ fn includes_in(page: &Path, text: &str) -> Vec<Include> {
             if let Some(target) =
                 directive.strip_prefix("include ").or_else(|| directive.strip_prefix("rustdoc_include "))
             {
-                found.push(Include { page: page.to_owned(), line: number + 1, target: target.trim().to_owned() });
+                found.push(Include {
+                    page: page.to_owned(),
+                    line: number + 1,
+                    target: target.trim().to_owned(),
+                });
             }
             rest = &after[end + 2..];
         }
@@ -50,16 +54,16 @@ fn resolve(include: &Include) -> Result<String, String> {
         }
         Some(anchor) => {
             let is_marker = |line: &str, marker: &str| {
-                line.trim_start().trim_start_matches("//").trim_start_matches('#').trim() == format!("{marker}: {anchor}")
+                line.trim_start().trim_start_matches("//").trim_start_matches('#').trim()
+                    == format!("{marker}: {anchor}")
             };
             let start = lines
                 .iter()
                 .position(|l| is_marker(l, "ANCHOR"))
                 .ok_or_else(|| format!("{} has no `ANCHOR: {anchor}`", file.display()))?;
-            let end = lines[start..]
-                .iter()
-                .position(|l| is_marker(l, "ANCHOR_END"))
-                .ok_or_else(|| format!("{} has no `ANCHOR_END: {anchor}` after its ANCHOR", file.display()))?;
+            let end = lines[start..].iter().position(|l| is_marker(l, "ANCHOR_END")).ok_or_else(|| {
+                format!("{} has no `ANCHOR_END: {anchor}` after its ANCHOR", file.display())
+            })?;
             lines[start + 1..start + end].to_vec()
         }
     };

@@ -30,13 +30,45 @@ fn ch01_missing_extension_is_named() {
         &[],
         &[("VKGL_HIDE_EXTENSIONS", "VK_KHR_external_memory_fd")],
     );
-    assert_eq!(run.output.status.code(), Some(2), "a missing extension is an error, not a crash:\n{}", run.stderr);
+    assert_eq!(
+        run.output.status.code(),
+        Some(2),
+        "a missing extension is an error, not a crash:\n{}",
+        run.stderr
+    );
     assert!(run.report.is_none(), "no report when the chapter could not run");
     let error = run.stderr.split_once("error: ").map(|(_, e)| e).unwrap_or_default();
     assert!(error.contains("lacks VK_KHR_external_memory_fd"), "names the extension:\n{}", run.stderr);
-    assert!(error.contains("llvmpipe") || std::env::var_os("VKGL_TEST_NATIVE").is_some(), "names the device:\n{}", run.stderr);
+    assert!(
+        error.contains("llvmpipe") || std::env::var_os("VKGL_TEST_NATIVE").is_some(),
+        "names the device:\n{}",
+        run.stderr
+    );
     assert!(error.contains("fix: "), "gives a fix:\n{}", run.stderr);
     assert!(!run.stderr.contains("panicked"), "no panic:\n{}", run.stderr);
+}
+
+#[test]
+fn ch02_gl_buffer_import() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_02-gl-buffer-import"), &["--size", "160x120"], &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), ["VK_KHR_external_memory_fd"]);
+    assert_eq!(report["uuids_match"], true);
+    assert_report_snapshot("02-gl-buffer-import", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch02_missing_gl_extension_is_named() {
+    let run = run_chapter(
+        env!("CARGO_BIN_EXE_02-gl-buffer-import"),
+        &[],
+        &[("VKGL_HIDE_EXTENSIONS", "GL_EXT_memory_object_fd")],
+    );
+    assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+    assert!(run.stderr.contains("lacks GL_EXT_memory_object_fd"), "{}", run.stderr);
+    assert!(run.stderr.contains("hidden by VKGL_HIDE_EXTENSIONS"), "{}", run.stderr);
+    assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
 }
 
 #[test]
@@ -97,7 +129,8 @@ mod image_comparison {
         let actual = dir.path().join("a.png");
         gradient().save(&actual).unwrap();
         if std::env::var_os("VKGL_UPDATE_IMAGES").is_none() {
-            let error = compare_image(&actual, &dir.path().join("missing.png"), DEFAULT_TOLERANCE).unwrap_err();
+            let error =
+                compare_image(&actual, &dir.path().join("missing.png"), DEFAULT_TOLERANCE).unwrap_err();
             assert!(error.contains("VKGL_UPDATE_IMAGES"), "{error}");
         }
     }

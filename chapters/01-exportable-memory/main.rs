@@ -11,7 +11,7 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::report::uuid_hex;
-use common::{CommonArgs, Report, Requirements, VulkanContext};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use serde_json::json;
 use std::ffi::CStr;
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
@@ -28,11 +28,7 @@ const DEVICE_EXTENSIONS: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 
 // ANCHOR: resources
 /// One triangle of (x, y, u, v) vertices: what chapter 02 will draw from this buffer.
-const TRIANGLE: [[f32; 4]; 3] = [
-    [0.0, 0.8, 0.5, 0.0],
-    [-0.8, -0.8, 0.0, 1.0],
-    [0.8, -0.8, 1.0, 1.0],
-];
+const TRIANGLE: [[f32; 4]; 3] = [[0.0, 0.8, 0.5, 0.0], [-0.8, -0.8, 0.0, 1.0], [0.8, -0.8, 1.0, 1.0]];
 const BUFFER_BYTES: u64 = std::mem::size_of::<[[f32; 4]; 3]>() as u64;
 /// The image a compute shader will write and GL will sample (chapter 04).
 const IMAGE_FORMAT: vk::Format = vk::Format::R8G8B8A8_UNORM;
@@ -57,6 +53,7 @@ fn main() -> ExitCode {
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let started = Instant::now();
+    // ANCHOR: usage
     // What the buffer and the image will be used for. Export support is asked for, and
     // granted, per usage: ask for exactly what the resource will do.
     let buffer_usage = vk::BufferUsageFlags::VERTEX_BUFFER
@@ -67,12 +64,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         | vk::ImageUsageFlags::COLOR_ATTACHMENT
         | vk::ImageUsageFlags::TRANSFER_SRC
         | vk::ImageUsageFlags::TRANSFER_DST;
+    // ANCHOR_END: usage
 
     // 1. Create a device that can export memory
     // ANCHOR: context
-    let ctx = VulkanContext::new(&Requirements {
-        extensions: DEVICE_EXTENSIONS,
-    })?;
+    let ctx = VulkanContext::new(&Requirements { extensions: DEVICE_EXTENSIONS, ..Default::default() })?;
     report.vulkan = Some(ctx.report());
     eprintln!(
         "device UUID {}, driver UUID {}",
@@ -86,9 +82,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Ask what the driver can share
     // ANCHOR: query_buffer
-    let buffer_query = vk::PhysicalDeviceExternalBufferInfo::default()
-        .usage(buffer_usage)
-        .handle_type(HANDLE_TYPE);
+    let buffer_query =
+        vk::PhysicalDeviceExternalBufferInfo::default().usage(buffer_usage).handle_type(HANDLE_TYPE);
     let mut buffer_support = vk::ExternalBufferProperties::default();
     unsafe {
         ctx.instance.get_physical_device_external_buffer_properties(
@@ -100,13 +95,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let buffer_support = buffer_support.external_memory_properties;
     // ANCHOR_END: query_buffer
     // ANCHOR: query_image
-    let mut external_query =
-        vk::PhysicalDeviceExternalImageFormatInfo::default().handle_type(HANDLE_TYPE);
+    let mut external_query = vk::PhysicalDeviceExternalImageFormatInfo::default().handle_type(HANDLE_TYPE);
     let image_query = vk::PhysicalDeviceImageFormatInfo2::default()
         .format(IMAGE_FORMAT)
         .ty(vk::ImageType::TYPE_2D)
         .tiling(vk::ImageTiling::OPTIMAL)
         .usage(image_usage)
+        .flags(vk::ImageCreateFlags::MUTABLE_FORMAT) // as the image will be created, below
         .push_next(&mut external_query);
     let mut external_support = vk::ExternalImageFormatProperties::default();
     let mut image_format = vk::ImageFormatProperties2::default().push_next(&mut external_support);
@@ -124,14 +119,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     describe_support("buffer", &buffer_support);
     describe_support("image", &image_support);
     let exportable = vk::ExternalMemoryFeatureFlags::EXPORTABLE;
-    report.check(
-        "buffer_exportable",
-        buffer_support.external_memory_features.contains(exportable),
-    );
-    report.check(
-        "image_exportable",
-        image_support.external_memory_features.contains(exportable),
-    );
+    report.check("buffer_exportable", buffer_support.external_memory_features.contains(exportable));
+    report.check("image_exportable", image_support.external_memory_features.contains(exportable));
     let size = args.common.size;
     if size.width > max_extent.width || size.height > max_extent.height {
         anyhow::bail!(
@@ -145,103 +134,58 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 3. Create a buffer and an image that may be exported
     // ANCHOR: create
-    let mut buffer_external =
-        vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
+    let mut buffer_external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
     let buffer_info = vk::BufferCreateInfo::default()
         .size(BUFFER_BYTES)
         .usage(buffer_usage)
         .push_next(&mut buffer_external);
-    let buffer =
-        unsafe { ctx.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
+    let buffer = unsafe { ctx.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
 
-    let mut image_external = vk::ExternalMemoryImageCreateInfo::default().handle_types(HANDLE_TYPE);
-    let image_info = vk::ImageCreateInfo::default()
-        // Some drivers corrupt shared images unless views of other formats are allowed.
-        .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
-        .image_type(vk::ImageType::TYPE_2D)
-        .format(IMAGE_FORMAT)
-        .extent(vk::Extent3D {
-            width: size.width,
-            height: size.height,
-            depth: 1,
-        })
-        .mip_levels(1)
-        .array_layers(1)
-        .samples(vk::SampleCountFlags::TYPE_1)
-        // OPTIMAL: the driver's own layout. GL can read it only because it is the same driver
-        // (chapter 02 checks the UUIDs) and because GL is told so (GL_OPTIMAL_TILING_EXT).
-        .tiling(vk::ImageTiling::OPTIMAL)
-        .usage(image_usage)
-        .initial_layout(vk::ImageLayout::UNDEFINED)
-        .push_next(&mut image_external);
-    let image = unsafe { ctx.device.create_image(&image_info, None) }.context("vkCreateImage")?;
+    // The image is made the same way, with ExternalMemoryImageCreateInfo (see exportable.rs).
+    let extent = vk::Extent2D { width: size.width, height: size.height };
+    let image = exportable::create_image(&ctx, IMAGE_FORMAT, image_usage, extent)?;
     // ANCHOR_END: create
 
     // 4. Ask whether each needs memory of its own
     // ANCHOR: requirements
     let mut buffer_dedicated = vk::MemoryDedicatedRequirements::default();
-    let mut buffer_requirements =
-        vk::MemoryRequirements2::default().push_next(&mut buffer_dedicated);
+    let mut buffer_requirements = vk::MemoryRequirements2::default().push_next(&mut buffer_dedicated);
     let info = vk::BufferMemoryRequirementsInfo2::default().buffer(buffer);
-    unsafe {
-        ctx.device
-            .get_buffer_memory_requirements2(&info, &mut buffer_requirements)
-    };
+    unsafe { ctx.device.get_buffer_memory_requirements2(&info, &mut buffer_requirements) };
     let buffer_requirements = buffer_requirements.memory_requirements;
 
     let mut image_dedicated = vk::MemoryDedicatedRequirements::default();
     let mut image_requirements = vk::MemoryRequirements2::default().push_next(&mut image_dedicated);
     let info = vk::ImageMemoryRequirementsInfo2::default().image(image);
-    unsafe {
-        ctx.device
-            .get_image_memory_requirements2(&info, &mut image_requirements)
-    };
+    unsafe { ctx.device.get_image_memory_requirements2(&info, &mut image_requirements) };
     let image_requirements = image_requirements.memory_requirements;
     // ANCHOR_END: requirements
     let dedicated_only = vk::ExternalMemoryFeatureFlags::DEDICATED_ONLY;
     // A driver that calls the image's export "dedicated only" must also require dedicated memory.
     report.check(
         "dedicated_only_implies_required",
-        !image_support
-            .external_memory_features
-            .contains(dedicated_only)
+        !image_support.external_memory_features.contains(dedicated_only)
             || image_dedicated.requires_dedicated_allocation == vk::TRUE,
     );
 
     // 5. Allocate exportable memory and bind at offset 0
     // ANCHOR: allocate
     // The buffer is host-visible so that we can write the triangle into it from the CPU.
-    let host_visible =
-        vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-    let buffer_memory =
-        exportable::allocate(&ctx, &buffer_requirements, host_visible, Dedicated::No)?;
+    let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+    let buffer_memory = exportable::allocate(&ctx, &buffer_requirements, host_visible, Dedicated::No)?;
     // Images always get a dedicated allocation: the only kind every driver can share, and GL is
     // told so on import (GL_DEDICATED_MEMORY_OBJECT_EXT).
     let device_local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
-    let image_memory = exportable::allocate(
-        &ctx,
-        &image_requirements,
-        device_local,
-        Dedicated::Image(image),
-    )?;
+    let image_memory =
+        exportable::allocate(&ctx, &image_requirements, device_local, Dedicated::Image(image))?;
     unsafe {
         // Offset 0, always: llvmpipe ignores offsets into imported memory.
-        ctx.device
-            .bind_buffer_memory(buffer, buffer_memory.memory, 0)
-            .context("vkBindBufferMemory")?;
-        ctx.device
-            .bind_image_memory(image, image_memory.memory, 0)
-            .context("vkBindImageMemory")?;
+        ctx.device.bind_buffer_memory(buffer, buffer_memory.memory, 0).context("vkBindBufferMemory")?;
+        ctx.device.bind_image_memory(image, image_memory.memory, 0).context("vkBindImageMemory")?;
     }
     // ANCHOR_END: allocate
-    report.check(
-        "buffer_memory_has_import_slack",
-        buffer_memory.size >= buffer_requirements.size + 48,
-    );
-    report.check(
-        "image_memory_is_exact",
-        image_memory.size == image_requirements.size,
-    );
+    report.check("buffer_memory_has_import_slack", buffer_memory.size >= buffer_requirements.size + 48);
+    report.check("image_memory_is_exact", image_memory.size == image_requirements.size);
 
     // 6. Export file descriptors
     // ANCHOR: export
@@ -249,38 +193,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let buffer_fd = exportable::export_fd(&fd_loader, buffer_memory.memory)?;
     let image_fd = exportable::export_fd(&fd_loader, image_memory.memory)?;
     // ANCHOR_END: export
-    eprintln!(
-        "buffer fd {} -> {}",
-        buffer_fd.as_raw_fd(),
-        fd_target(&buffer_fd)
-    );
-    eprintln!(
-        "image  fd {} -> {}",
-        image_fd.as_raw_fd(),
-        fd_target(&image_fd)
-    );
+    eprintln!("buffer fd {} -> {}", buffer_fd.as_raw_fd(), fd_target(&buffer_fd));
+    eprintln!("image  fd {} -> {}", image_fd.as_raw_fd(), fd_target(&image_fd));
     report.check("fds_are_valid", is_open(&buffer_fd) && is_open(&image_fd));
-    report.check(
-        "fds_are_distinct",
-        buffer_fd.as_raw_fd() != image_fd.as_raw_fd(),
-    );
-    report.set(
-        "fds",
-        json!({ "buffer": buffer_fd.as_raw_fd(), "image": image_fd.as_raw_fd() }),
-    );
+    report.check("fds_are_distinct", buffer_fd.as_raw_fd() != image_fd.as_raw_fd());
+    report.set("fds", json!({ "buffer": buffer_fd.as_raw_fd(), "image": image_fd.as_raw_fd() }));
     report.time_ms("query_create_export", ms_since(started));
 
     // 7. Prove the descriptor is the memory: import it back and read the triangle through it
     // ANCHOR: reimport
-    let mapped = unsafe {
-        ctx.device.map_memory(
-            buffer_memory.memory,
-            0,
-            BUFFER_BYTES,
-            vk::MemoryMapFlags::empty(),
-        )
-    }
-    .context("mapping the exported buffer")?;
+    let mapped =
+        unsafe { ctx.device.map_memory(buffer_memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
+            .context("mapping the exported buffer")?;
     // SAFETY: the mapping is BUFFER_BYTES long and host-coherent; nothing else uses it.
     unsafe {
         std::ptr::copy_nonoverlapping(
@@ -292,23 +216,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     unsafe { ctx.device.unmap_memory(buffer_memory.memory) };
 
     // Same size and memory type as the export: for OPAQUE_FD the importer must match both.
-    let mut import = vk::ImportMemoryFdInfoKHR::default()
-        .handle_type(HANDLE_TYPE)
-        .fd(buffer_fd.as_raw_fd());
+    let mut import = vk::ImportMemoryFdInfoKHR::default().handle_type(HANDLE_TYPE).fd(buffer_fd.as_raw_fd());
     let import_info = vk::MemoryAllocateInfo::default()
         .allocation_size(buffer_memory.size)
         .memory_type_index(buffer_memory.memory_type_index)
         .push_next(&mut import);
-    let imported = unsafe { ctx.device.allocate_memory(&import_info, None) }
-        .context("importing the buffer's fd")?;
+    let imported =
+        unsafe { ctx.device.allocate_memory(&import_info, None) }.context("importing the buffer's fd")?;
     // SAFETY: the import succeeded, so the fd now belongs to the driver; it must not be closed.
     let _ = buffer_fd.into_raw_fd();
 
-    let view = unsafe {
-        ctx.device
-            .map_memory(imported, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
-    }
-    .context("mapping the imported memory")?;
+    let view = unsafe { ctx.device.map_memory(imported, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
+        .context("mapping the imported memory")?;
     // SAFETY: BUFFER_BYTES of host-coherent mapped memory.
     let read_back: [[f32; 4]; 3] = unsafe { std::ptr::read_unaligned(view.cast()) };
     unsafe { ctx.device.unmap_memory(imported) };
@@ -346,8 +265,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // Freeing the imported allocation releases the fd the driver took over.
         ctx.device.free_memory(imported, None);
         ctx.device.free_memory(image_memory.memory, None);
-        ctx.device.destroy_image(image, None);
         ctx.device.free_memory(buffer_memory.memory, None);
+        ctx.device.destroy_image(image, None);
         ctx.device.destroy_buffer(buffer, None);
     }
     // ANCHOR_END: cleanup
@@ -374,10 +293,7 @@ fn support_json(p: &vk::ExternalMemoryProperties) -> serde_json::Value {
     })
 }
 
-fn requirements_json(
-    r: &vk::MemoryRequirements,
-    d: &vk::MemoryDedicatedRequirements,
-) -> serde_json::Value {
+fn requirements_json(r: &vk::MemoryRequirements, d: &vk::MemoryDedicatedRequirements) -> serde_json::Value {
     json!({
         "size": r.size,
         "alignment": r.alignment,
@@ -400,14 +316,4 @@ fn fd_target(fd: &OwnedFd) -> String {
     std::fs::read_link(format!("/proc/self/fd/{}", fd.as_raw_fd()))
         .map(|p| p.display().to_string())
         .unwrap_or_else(|e| format!("? ({e})"))
-}
-
-fn open_fd_count() -> Result<usize> {
-    Ok(std::fs::read_dir("/proc/self/fd")
-        .context("listing /proc/self/fd")?
-        .count())
-}
-
-fn ms_since(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }

@@ -36,9 +36,7 @@ impl AsRef<CommonArgs> for CommonArgs {
 impl CommonArgs {
     /// The folder images go to: `--out`, or `out/<chapter>/`.
     pub fn out_dir(&self, chapter: &str) -> PathBuf {
-        self.out
-            .clone()
-            .unwrap_or_else(|| PathBuf::from("out").join(chapter))
+        self.out.clone().unwrap_or_else(|| PathBuf::from("out").join(chapter))
     }
 }
 
@@ -55,9 +53,7 @@ fn parse_size(text: &str) -> Result<Size, String> {
     let height: u32 = h.trim().parse().map_err(|_| bad())?;
     // A sanity bound for typing mistakes; the device's own limits are checked where images are made.
     if !(1..=16384).contains(&width) || !(1..=16384).contains(&height) {
-        return Err(format!(
-            "{width}x{height}: each side must be between 1 and 16384"
-        ));
+        return Err(format!("{width}x{height}: each side must be between 1 and 16384"));
     }
     Ok(Size { width, height })
 }
@@ -68,20 +64,8 @@ mod tests {
 
     #[test]
     fn parses_sizes() {
-        assert_eq!(
-            parse_size("800x600"),
-            Ok(Size {
-                width: 800,
-                height: 600
-            })
-        );
-        assert_eq!(
-            parse_size("7X3"),
-            Ok(Size {
-                width: 7,
-                height: 3
-            })
-        );
+        assert_eq!(parse_size("800x600"), Ok(Size { width: 800, height: 600 }));
+        assert_eq!(parse_size("7X3"), Ok(Size { width: 7, height: 3 }));
         assert!(parse_size("800").is_err());
         assert!(parse_size("0x600").is_err());
         assert!(parse_size("20000x10").is_err());

@@ -8,16 +8,20 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use std::os::fd::{FromRawFd, OwnedFd};
 
+// ANCHOR: handle_type
 /// The one handle type this tutorial shares memory through: a POSIX file descriptor whose
 /// contents only the same driver understands.
-pub const HANDLE_TYPE: vk::ExternalMemoryHandleTypeFlags =
-    vk::ExternalMemoryHandleTypeFlags::OPAQUE_FD;
+pub const HANDLE_TYPE: vk::ExternalMemoryHandleTypeFlags = vk::ExternalMemoryHandleTypeFlags::OPAQUE_FD;
+// ANCHOR_END: handle_type
 
+// ANCHOR: slack
 /// Extra bytes given to every exported buffer allocation. llvmpipe over-allocates GL buffers and
 /// refuses `glNamedBufferStorageMemEXT` with GL_OUT_OF_MEMORY unless the memory object is at least
 /// 48 bytes larger than the buffer. Elsewhere the slack is harmless.
 pub const BUFFER_IMPORT_SLACK: u64 = 256;
+// ANCHOR_END: slack
 
+// ANCHOR: dedicated
 /// What the memory is for. Dedicated memory belongs to one image or buffer; Vulkan requires its
 /// size to be exactly that resource's `VkMemoryRequirements::size`, so it gets no slack.
 #[derive(Clone, Copy, Debug)]
@@ -26,6 +30,7 @@ pub enum Dedicated {
     Buffer(vk::Buffer),
     Image(vk::Image),
 }
+// ANCHOR_END: dedicated
 
 /// One exportable allocation.
 #[derive(Debug)]
@@ -55,9 +60,7 @@ pub fn allocate(
     let mut export = vk::ExportMemoryAllocateInfo::default().handle_types(HANDLE_TYPE);
     let mut dedicated_info = match dedicated {
         Dedicated::No => None,
-        Dedicated::Buffer(buffer) => {
-            Some(vk::MemoryDedicatedAllocateInfo::default().buffer(buffer))
-        }
+        Dedicated::Buffer(buffer) => Some(vk::MemoryDedicatedAllocateInfo::default().buffer(buffer)),
         Dedicated::Image(image) => Some(vk::MemoryDedicatedAllocateInfo::default().image(image)),
     };
     let mut info = vk::MemoryAllocateInfo::default()
@@ -67,30 +70,47 @@ pub fn allocate(
     if let Some(dedicated_info) = dedicated_info.as_mut() {
         info = info.push_next(dedicated_info);
     }
-    let memory = unsafe { ctx.device.allocate_memory(&info, None) }.with_context(|| {
-        format!("allocating {size} bytes of exportable memory ({properties:?})")
-    })?;
-    let property_flags =
-        ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
-    Ok(ExportableMemory {
-        memory,
-        size,
-        memory_type_index,
-        property_flags,
-    })
+    let memory = unsafe { ctx.device.allocate_memory(&info, None) }
+        .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
+    let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
+    Ok(ExportableMemory { memory, size, memory_type_index, property_flags })
 }
 // ANCHOR_END: allocate
+
+// ANCHOR: create_image
+/// A 2D image, one mip level, whose memory may be exported. Every image this tutorial shares
+/// with GL is made here.
+pub fn create_image(
+    ctx: &VulkanContext,
+    format: vk::Format,
+    usage: vk::ImageUsageFlags,
+    extent: vk::Extent2D,
+) -> Result<vk::Image> {
+    let mut external = vk::ExternalMemoryImageCreateInfo::default().handle_types(HANDLE_TYPE);
+    let info = vk::ImageCreateInfo::default()
+        // Some drivers corrupt shared images unless views of other formats are allowed.
+        .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
+        .image_type(vk::ImageType::TYPE_2D)
+        .format(format)
+        .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
+        .mip_levels(1)
+        .array_layers(1)
+        .samples(vk::SampleCountFlags::TYPE_1)
+        // OPTIMAL: the driver's own layout. GL can use it only because it is the same driver
+        // (chapter 02 checks the UUIDs) and because it is told so (GL_OPTIMAL_TILING_EXT).
+        .tiling(vk::ImageTiling::OPTIMAL)
+        .usage(usage)
+        .initial_layout(vk::ImageLayout::UNDEFINED)
+        .push_next(&mut external);
+    unsafe { ctx.device.create_image(&info, None) }.with_context(|| format!("vkCreateImage ({format:?})"))
+}
+// ANCHOR_END: create_image
 
 // ANCHOR: export_fd
 /// Exports `memory` as a new file descriptor. Each call makes a new fd, owned by the caller until
 /// an import (GL's or Vulkan's) succeeds and takes it over.
-pub fn export_fd(
-    loader: &ash::khr::external_memory_fd::Device,
-    memory: vk::DeviceMemory,
-) -> Result<OwnedFd> {
-    let info = vk::MemoryGetFdInfoKHR::default()
-        .memory(memory)
-        .handle_type(HANDLE_TYPE);
+pub fn export_fd(loader: &ash::khr::external_memory_fd::Device, memory: vk::DeviceMemory) -> Result<OwnedFd> {
+    let info = vk::MemoryGetFdInfoKHR::default().memory(memory).handle_type(HANDLE_TYPE);
     let fd = unsafe { loader.get_memory_fd(&info) }.context("vkGetMemoryFdKHR")?;
     // SAFETY: vkGetMemoryFdKHR returned a fresh fd that nothing else owns.
     Ok(unsafe { OwnedFd::from_raw_fd(fd) })

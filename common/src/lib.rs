@@ -4,11 +4,17 @@
 //! which); later chapters call it by name. Doc comments here say *what*; the book says *why*.
 
 pub mod cli;
+pub mod commands;
 pub mod exportable;
+pub mod gl;
+pub mod interop;
+pub mod output;
 pub mod report;
+pub mod sync;
 pub mod vulkan;
 
 pub use cli::CommonArgs;
+pub use gl::GlContext;
 pub use report::Report;
 pub use vulkan::{Requirements, VulkanContext};
 
@@ -19,10 +25,7 @@ use std::process::ExitCode;
 ///
 /// Exit codes: 0 all checks passed; 1 a check failed or the validation layer reported an error;
 /// 2 the chapter could not run (missing extension, bad input ...), with the reason on stderr.
-pub fn run_chapter<A>(
-    chapter: &str,
-    run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>,
-) -> ExitCode
+pub fn run_chapter<A>(chapter: &str, run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>) -> ExitCode
 where
     A: clap::Parser + AsRef<CommonArgs>,
 {
@@ -34,4 +37,18 @@ where
         return ExitCode::from(2);
     }
     report.finish(common.json)
+}
+
+// ANCHOR: open_fd_count
+/// How many file descriptors this process has open: the chapters' leak check compares this
+/// before and after their work.
+pub fn open_fd_count() -> anyhow::Result<usize> {
+    use anyhow::Context as _;
+    Ok(std::fs::read_dir("/proc/self/fd").context("listing /proc/self/fd")?.count())
+}
+// ANCHOR_END: open_fd_count
+
+/// Milliseconds since `start` (CPU time; GPU work is timed with timestamps).
+pub fn ms_since(start: std::time::Instant) -> f64 {
+    start.elapsed().as_secs_f64() * 1e3
 }

@@ -60,6 +60,8 @@ pub struct ValidationReport {
     pub layer: bool,
     pub errors: u32,
     pub warnings: u32,
+    /// Errors from GL's debug output (`GL_DEBUG_TYPE_ERROR`).
+    pub gl_errors: u32,
 }
 
 impl Report {
@@ -96,40 +98,37 @@ impl Report {
         self.timings_ms.insert(name.to_owned(), ms);
     }
 
+    /// Records an image the chapter wrote.
+    pub fn image(&mut self, name: &str, path: &std::path::Path, width: u32, height: u32, format: &str) {
+        self.images.push(ImageReport {
+            name: name.to_owned(),
+            path: path.display().to_string(),
+            width,
+            height,
+            format: format.to_owned(),
+        });
+    }
+
     /// Prints the report and decides the exit code (see [`crate::run_chapter`]).
     pub fn finish(mut self, json: bool) -> ExitCode {
         self.validation = crate::vulkan::validation_counts();
-        let failed: Vec<&str> = self
-            .checks
-            .iter()
-            .filter(|(_, ok)| !**ok)
-            .map(|(n, _)| n.as_str())
-            .collect();
+        self.validation.gl_errors = crate::gl::gl_error_count();
+        let failed: Vec<&str> = self.checks.iter().filter(|(_, ok)| !**ok).map(|(n, _)| n.as_str()).collect();
         let mut ok = true;
         if self.checks.is_empty() {
             eprintln!("error: {} recorded no checks", self.chapter);
             ok = false;
         }
         if !failed.is_empty() {
-            eprintln!(
-                "error: {} check(s) failed: {}",
-                failed.len(),
-                failed.join(", ")
-            );
+            eprintln!("error: {} check(s) failed: {}", failed.len(), failed.join(", "));
             ok = false;
         }
         if self.validation.errors > 0 {
-            eprintln!(
-                "error: the validation layer reported {} error(s) (above)",
-                self.validation.errors
-            );
+            eprintln!("error: the validation layer reported {} error(s) (above)", self.validation.errors);
             ok = false;
         }
         if json {
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&self).expect("report serialises")
-            );
+            println!("{}", serde_json::to_string_pretty(&self).expect("report serialises"));
         }
         if ok {
             eprintln!("{}: all {} checks passed", self.chapter, self.checks.len());

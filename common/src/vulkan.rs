@@ -17,8 +17,10 @@ const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
 /// What a chapter needs from the device. Later chapters add features here.
 #[derive(Default, Clone, Copy)]
 pub struct Requirements<'a> {
-    /// Device extensions to enable. Every one must be present; no others are enabled.
+    /// Device extensions to enable. Every one must be present.
     pub extensions: &'a [&'a CStr],
+    /// Device extensions enabled when present (the chapter has a fallback). No others are enabled.
+    pub optional_extensions: &'a [&'a CStr],
 }
 
 /// Facts about the chosen device that the report and the GL side need.
@@ -55,20 +57,12 @@ impl VulkanContext {
         )?;
         let validation = validation_wanted(&entry);
 
-        let app_info = vk::ApplicationInfo::default()
-            .application_name(c"vkgl-interop")
-            .api_version(API_VERSION);
-        let layers: Vec<*const c_char> = if validation {
-            vec![VALIDATION_LAYER.as_ptr()]
-        } else {
-            vec![]
-        };
+        let app_info =
+            vk::ApplicationInfo::default().application_name(c"vkgl-interop").api_version(API_VERSION);
+        let layers: Vec<*const c_char> = if validation { vec![VALIDATION_LAYER.as_ptr()] } else { vec![] };
         // The validation layer provides VK_EXT_debug_utils, through which its messages reach us.
-        let instance_extensions: Vec<*const c_char> = if validation {
-            vec![ash::ext::debug_utils::NAME.as_ptr()]
-        } else {
-            vec![]
-        };
+        let instance_extensions: Vec<*const c_char> =
+            if validation { vec![ash::ext::debug_utils::NAME.as_ptr()] } else { vec![] };
         let mut messenger_info = messenger_create_info();
         let mut instance_info = vk::InstanceCreateInfo::default()
             .application_info(&app_info)
@@ -78,14 +72,12 @@ impl VulkanContext {
             // Chained here too, so that vkCreateInstance/vkDestroyInstance are validated as well.
             instance_info = instance_info.push_next(&mut messenger_info);
         }
-        let instance =
-            unsafe { entry.create_instance(&instance_info, None) }.context("vkCreateInstance")?;
+        let instance = unsafe { entry.create_instance(&instance_info, None) }.context("vkCreateInstance")?;
         VALIDATION_ON.store(validation, Ordering::Relaxed);
         let debug = if validation {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
-            let messenger =
-                unsafe { loader.create_debug_utils_messenger(&messenger_create_info(), None) }
-                    .context("vkCreateDebugUtilsMessengerEXT")?;
+            let messenger = unsafe { loader.create_debug_utils_messenger(&messenger_create_info(), None) }
+                .context("vkCreateDebugUtilsMessengerEXT")?;
             Some((loader, messenger))
         } else {
             None
@@ -98,15 +90,16 @@ impl VulkanContext {
                 return Err(error);
             }
         };
-        let (physical_device, info, queue_family_index) = chosen;
+        let (physical_device, info, queue_family_index, enabled_extensions) = chosen;
         eprintln!("vulkan: using {} ({})", info.name, info.driver);
 
         let priorities = [1.0];
         let queue_infos = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(queue_family_index)
             .queue_priorities(&priorities)];
-        let extension_names: Vec<*const c_char> =
-            requirements.extensions.iter().map(|e| e.as_ptr()).collect();
+        let extension_names: Vec<std::ffi::CString> =
+            enabled_extensions.iter().map(|e| std::ffi::CString::new(e.as_str()).unwrap()).collect();
+        let extension_names: Vec<*const c_char> = extension_names.iter().map(|e| e.as_ptr()).collect();
         let device_info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_infos)
             .enabled_extension_names(&extension_names);
@@ -118,13 +111,7 @@ impl VulkanContext {
             }
         };
         let queue = unsafe { device.get_device_queue(queue_family_index, 0) };
-        let memory_properties =
-            unsafe { instance.get_physical_device_memory_properties(physical_device) };
-        let enabled_extensions = requirements
-            .extensions
-            .iter()
-            .map(|e| e.to_string_lossy().into_owned())
-            .collect();
+        let memory_properties = unsafe { instance.get_physical_device_memory_properties(physical_device) };
 
         Ok(VulkanContext {
             entry,
@@ -152,21 +139,20 @@ impl VulkanContext {
         }
     }
 
+    /// Was `name` enabled on the device (required, or optional and present)?
+    pub fn has_extension(&self, name: &CStr) -> bool {
+        self.enabled_extensions.iter().any(|e| e.as_bytes() == name.to_bytes())
+    }
+
     /// The first memory type allowed by `type_bits` (from `VkMemoryRequirements`) that has all of `flags`.
     pub fn find_memory_type(&self, type_bits: u32, flags: vk::MemoryPropertyFlags) -> Result<u32> {
         let props = &self.memory_properties;
         (0..props.memory_type_count)
             .find(|&i| {
-                type_bits & (1 << i) != 0
-                    && props.memory_types[i as usize]
-                        .property_flags
-                        .contains(flags)
+                type_bits & (1 << i) != 0 && props.memory_types[i as usize].property_flags.contains(flags)
             })
             .with_context(|| {
-                format!(
-                    "{} has no memory type with {flags:?} in bits {type_bits:#b}",
-                    self.info.name
-                )
+                format!("{} has no memory type with {flags:?} in bits {type_bits:#b}", self.info.name)
             })
     }
 }
@@ -227,9 +213,7 @@ pub fn extension_hint(name: &str) -> &'static str {
         }
         "VK_KHR_acceleration_structure"
         | "VK_KHR_ray_tracing_pipeline"
-        | "VK_KHR_deferred_host_operations" => {
-            "needs a ray-tracing GPU driver, or Mesa >= 24.1 lavapipe"
-        }
+        | "VK_KHR_deferred_host_operations" => "needs a ray-tracing GPU driver, or Mesa >= 24.1 lavapipe",
         _ => "see the chapter's page in the book",
     }
 }
@@ -273,7 +257,7 @@ impl std::error::Error for NoSuitableDevice {}
 fn pick_physical_device(
     instance: &ash::Instance,
     requirements: &Requirements,
-) -> Result<(vk::PhysicalDevice, DeviceInfo, u32)> {
+) -> Result<(vk::PhysicalDevice, DeviceInfo, u32, Vec<String>)> {
     let hidden = hidden_extensions();
     let mut suitable = Vec::new();
     let mut skipped = Vec::new();
@@ -286,10 +270,7 @@ fn pick_physical_device(
         let label = format!("{} ({})", info.name, info.driver);
 
         if info.api_version < API_VERSION {
-            skipped.push((
-                label,
-                format!("Vulkan {} < 1.3", version_string(info.api_version)),
-            ));
+            skipped.push((label, format!("Vulkan {} < 1.3", version_string(info.api_version))));
             continue;
         }
         let available: Vec<String> =
@@ -324,14 +305,20 @@ fn pick_physical_device(
             }
             continue;
         }
-        let families =
-            unsafe { instance.get_physical_device_queue_family_properties(physical_device) };
+        let families = unsafe { instance.get_physical_device_queue_family_properties(physical_device) };
         let wanted = vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE;
         let Some(family) = families.iter().position(|q| q.queue_flags.contains(wanted)) else {
             skipped.push((label, "no queue family does graphics and compute".into()));
             continue;
         };
-        suitable.push((physical_device, info, family as u32));
+        let enabled: Vec<String> = requirements
+            .extensions
+            .iter()
+            .chain(requirements.optional_extensions)
+            .map(|e| e.to_string_lossy().into_owned())
+            .filter(|e| available.contains(e) && !hidden.contains(e))
+            .collect();
+        suitable.push((physical_device, info, family as u32, enabled));
     }
 
     for (device, reason) in &skipped {
@@ -344,37 +331,22 @@ fn pick_physical_device(
         vk::PhysicalDeviceType::CPU => 3,
         _ => 4,
     };
-    suitable.sort_by_key(|(_, info, _)| rank(info.device_type));
-    suitable.into_iter().next().ok_or_else(|| {
-        NoSuitableDevice {
-            skipped,
-            missing: missing_any,
-        }
-        .into()
-    })
+    suitable.sort_by_key(|(_, info, _, _)| rank(info.device_type));
+    suitable.into_iter().next().ok_or_else(|| NoSuitableDevice { skipped, missing: missing_any }.into())
 }
 
 fn device_info(instance: &ash::Instance, physical_device: vk::PhysicalDevice) -> DeviceInfo {
     let mut id = vk::PhysicalDeviceIDProperties::default();
     let mut driver = vk::PhysicalDeviceDriverProperties::default();
-    let mut props2 = vk::PhysicalDeviceProperties2::default()
-        .push_next(&mut id)
-        .push_next(&mut driver);
+    let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut id).push_next(&mut driver);
     unsafe { instance.get_physical_device_properties2(physical_device, &mut props2) };
     let props = props2.properties;
-    let text = |s: Result<&CStr, _>| {
-        s.map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
+    let text = |s: Result<&CStr, _>| s.map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     DeviceInfo {
         name: text(props.device_name_as_c_str()),
-        driver: format!(
-            "{} {}",
-            text(driver.driver_name_as_c_str()),
-            text(driver.driver_info_as_c_str())
-        )
-        .trim()
-        .to_owned(),
+        driver: format!("{} {}", text(driver.driver_name_as_c_str()), text(driver.driver_info_as_c_str()))
+            .trim()
+            .to_owned(),
         api_version: props.api_version,
         device_type: props.device_type,
         device_uuid: id.device_uuid,
@@ -395,13 +367,9 @@ fn validation_wanted(entry: &ash::Entry) -> bool {
         return false;
     }
     let layers = unsafe { entry.enumerate_instance_layer_properties() }.unwrap_or_default();
-    let found = layers
-        .iter()
-        .any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER));
+    let found = layers.iter().any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER));
     if !found {
-        eprintln!(
-            "vulkan: VK_LAYER_KHRONOS_validation is not installed; running without validation"
-        );
+        eprintln!("vulkan: VK_LAYER_KHRONOS_validation is not installed; running without validation");
     }
     found
 }
@@ -412,14 +380,14 @@ pub fn validation_counts() -> ValidationReport {
         layer: VALIDATION_ON.load(Ordering::Relaxed),
         errors: VALIDATION_ERRORS.load(Ordering::Relaxed),
         warnings: VALIDATION_WARNINGS.load(Ordering::Relaxed),
+        gl_errors: 0,
     }
 }
 
 fn messenger_create_info() -> vk::DebugUtilsMessengerCreateInfoEXT<'static> {
     vk::DebugUtilsMessengerCreateInfoEXT::default()
         .message_severity(
-            vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-                | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+            vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
         )
         .message_type(
             vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
@@ -438,11 +406,7 @@ unsafe extern "system" fn on_validation_message(
     // SAFETY: the layer passes a valid callback-data struct whose message is a C string or null.
     let message = unsafe { data.as_ref() }
         .filter(|d| !d.p_message.is_null())
-        .map(|d| {
-            unsafe { CStr::from_ptr(d.p_message) }
-                .to_string_lossy()
-                .into_owned()
-        })
+        .map(|d| unsafe { CStr::from_ptr(d.p_message) }.to_string_lossy().into_owned())
         .unwrap_or_default();
     if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
         VALIDATION_ERRORS.fetch_add(1, Ordering::Relaxed);

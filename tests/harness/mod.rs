@@ -26,12 +26,7 @@ pub struct Run {
 impl Run {
     /// The report of a run that must have succeeded; panics with the chapter's stderr otherwise.
     pub fn succeeded(&self) -> &Value {
-        assert!(
-            self.output.status.success(),
-            "chapter failed with {}:\n{}",
-            self.output.status,
-            self.stderr
-        );
+        assert!(self.output.status.success(), "chapter failed with {}:\n{}", self.output.status, self.stderr);
         let report = self.report.as_ref().expect("a successful --json run prints a report");
         for (name, ok) in report["checks"].as_object().expect("checks is an object") {
             assert_eq!(ok, &Value::Bool(true), "check {name} failed:\n{}", self.stderr);
@@ -59,7 +54,10 @@ pub fn run_chapter(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
     let report = if stdout.trim().is_empty() {
         None
     } else {
-        Some(serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not one JSON document ({e}):\n{stdout}")))
+        Some(
+            serde_json::from_str(&stdout)
+                .unwrap_or_else(|e| panic!("stdout is not one JSON document ({e}):\n{stdout}")),
+        )
     };
     Run { output, report, stderr, out_dir }
 }
@@ -70,9 +68,10 @@ fn pin_software_stack(command: &mut Command) {
         return;
     }
     let icds = std::fs::read_dir("/usr/share/vulkan/icd.d").into_iter().flatten().flatten();
-    if let Some(lavapipe) = icds.map(|e| e.path()).find(|p| {
-        p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("lvp_icd"))
-    }) {
+    if let Some(lavapipe) = icds
+        .map(|e| e.path())
+        .find(|p| p.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.starts_with("lvp_icd")))
+    {
         command.env("VK_DRIVER_FILES", lavapipe);
     }
     let mesa_egl = Path::new("/usr/share/glvnd/egl_vendor.d/50_mesa.json");
@@ -100,10 +99,24 @@ pub fn assert_report_snapshot(name: &str, report: &Value) {
             ".gl.device_uuid" => "[uuid]",
             ".gl.driver_uuid" => "[uuid]",
             ".validation.layer" => "[checked in Run::succeeded]",
-            ".timings_ms.*" => "[ms]",
-            ".fds.*" => "[fd]",
+            ".images[].path" => "[out]",
+            ".timings_ms" => insta::dynamic_redaction(redact_values("[ms]")),
+            ".fds" => insta::dynamic_redaction(redact_values("[fd]")),
         });
     });
+}
+
+/// Keeps a map's keys (which timings, which fds) and hides the values (how long, which number).
+fn redact_values(
+    placeholder: &'static str,
+) -> impl Fn(insta::internals::Content, insta::internals::ContentPath) -> insta::internals::Content {
+    use insta::internals::Content;
+    move |value, _path| match value {
+        Content::Map(entries) => {
+            Content::Map(entries.into_iter().map(|(key, _)| (key, Content::from(placeholder))).collect())
+        }
+        other => other,
+    }
 }
 
 pub fn snapshot_dir() -> PathBuf {
@@ -139,7 +152,8 @@ pub fn assert_images_match(report: &Value, tolerance: Tolerance) {
 /// Compares two PNGs with the FLIP perceptual metric. On a mismatch writes `<reference>-actual.png`
 /// and `<reference>-difference.png` (FLIP's error map) beside the reference and says so.
 pub fn compare_image(actual: &Path, reference: &Path, tolerance: Tolerance) -> Result<(), String> {
-    let actual_image = image::open(actual).map_err(|e| format!("cannot read {}: {e}", actual.display()))?.to_rgb8();
+    let actual_image =
+        image::open(actual).map_err(|e| format!("cannot read {}: {e}", actual.display()))?.to_rgb8();
     if !reference.exists() {
         if std::env::var_os("VKGL_UPDATE_IMAGES").is_some() {
             actual_image.save(reference).map_err(|e| format!("cannot write {}: {e}", reference.display()))?;
@@ -151,7 +165,8 @@ pub fn compare_image(actual: &Path, reference: &Path, tolerance: Tolerance) -> R
             reference.display()
         ));
     }
-    let expected = image::open(reference).map_err(|e| format!("cannot read {}: {e}", reference.display()))?.to_rgb8();
+    let expected =
+        image::open(reference).map_err(|e| format!("cannot read {}: {e}", reference.display()))?.to_rgb8();
     let sibling = |suffix: &str| reference.with_file_name(format!("{}-{suffix}.png", stem(reference)));
     if expected.dimensions() != actual_image.dimensions() {
         actual_image.save(sibling("actual")).ok();

@@ -1,0 +1,211 @@
+//! Chapter 02: GL buffer import.
+//!
+//! Vulkan exports a vertex buffer (as in chapter 01); OpenGL imports the fd as a memory object,
+//! makes a buffer whose storage *is* that memory, and draws a triangle straight from it. Then
+//! each API writes bytes that the other reads, with no copy in between.
+//!
+//! Run: `cargo run --bin 02-gl-buffer-import` (writes out/02-gl-buffer-import/*.png).
+
+use anyhow::{Context as _, Result};
+use ash::vk;
+use common::exportable::{self, Dedicated, HANDLE_TYPE};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device};
+use common::{CommonArgs, Report, Requirements, VulkanContext, interop, ms_since, open_fd_count, output};
+use glow::HasContext;
+use std::ffi::CStr;
+use std::process::ExitCode;
+use std::time::Instant;
+
+const CHAPTER: &str = "02-gl-buffer-import";
+const DEVICE_EXTENSIONS: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
+
+// ANCHOR: vertices
+/// (x, y, u, v) per vertex, 16 bytes: the layout both APIs agree on.
+type Triangle = [[f32; 4]; 3];
+const TRIANGLE: Triangle = [[0.0, 0.8, 0.5, 0.0], [-0.8, -0.8, 0.0, 1.0], [0.8, -0.8, 1.0, 1.0]];
+/// The same triangle upside down: what Vulkan writes once GL has drawn the first.
+const FLIPPED: Triangle = [[0.0, -0.8, 0.5, 1.0], [-0.8, 0.8, 0.0, 0.0], [0.8, 0.8, 1.0, 0.0]];
+const BUFFER_BYTES: u64 = std::mem::size_of::<Triangle>() as u64;
+const STRIDE: i32 = 16;
+// ANCHOR_END: vertices
+
+const VERTEX_SHADER: &str = include_str!("../../shaders/gl/textured_triangle.vert");
+const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/uv_colour.frag");
+const CLEAR: [f32; 4] = [0.1, 0.1, 0.12, 1.0];
+
+/// Chapter 02: OpenGL draws from a buffer whose memory Vulkan allocated.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+}
+
+impl AsRef<CommonArgs> for Args {
+    fn as_ref(&self) -> &CommonArgs {
+        &self.common
+    }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter::<Args>(CHAPTER, run)
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let (width, height) = (args.common.size.width, args.common.size.height);
+    let out_dir = args.common.out_dir(CHAPTER);
+
+    // 1. Create both contexts
+    // ANCHOR: contexts
+    let vk = VulkanContext::new(&Requirements { extensions: DEVICE_EXTENSIONS, ..Default::default() })?;
+    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let gl = &gl_context.gl;
+    // ANCHOR_END: contexts
+    report.vulkan = Some(vk.report());
+    report.gl = Some(gl_context.report());
+
+    // 2. Check that both run on the same device
+    // ANCHOR: uuids
+    report.uuids_match =
+        Some(vk.info.device_uuid == gl_context.device_uuid && vk.info.driver_uuid == gl_context.driver_uuid);
+    ensure_same_device(&vk.info, &gl_context)?;
+    // ANCHOR_END: uuids
+    let open_fds_before = open_fd_count()?;
+
+    // 3. Export a vertex buffer from Vulkan
+    // ANCHOR: export
+    let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
+    let buffer_info = vk::BufferCreateInfo::default()
+        .size(BUFFER_BYTES)
+        .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
+        .push_next(&mut external);
+    let buffer = unsafe { vk.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
+    let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
+    let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+    let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
+    unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
+    // Mapped for the whole chapter: Vulkan's view of the bytes.
+    let mapped = unsafe { vk.device.map_memory(memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
+        .context("vkMapMemory")?
+        .cast::<Triangle>();
+    // SAFETY: `mapped` is BUFFER_BYTES of host-coherent memory that only this thread touches.
+    unsafe { mapped.write_unaligned(TRIANGLE) };
+    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
+    let fd = exportable::export_fd(&fd_loader, memory.memory)?;
+    // ANCHOR_END: export
+
+    // 4. Import it into GL
+    // ANCHOR: import
+    let started = Instant::now();
+    // From here on GL owns the fd: `import_buffer` takes the OwnedFd and never gives it back.
+    let shared = interop::import_buffer(&gl_context, &memory, fd, BUFFER_BYTES)?;
+    report.time_ms("import", ms_since(started));
+    // ANCHOR_END: import
+
+    // 5. Draw from it
+    // ANCHOR: draw_setup
+    let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
+    let vertex_array = unsafe {
+        let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
+        // The imported buffer is an ordinary GL buffer now: bind it like any other.
+        gl.vertex_array_vertex_buffer(vao, 0, Some(shared.buffer), 0, STRIDE);
+        for (location, offset) in [(0, 0), (1, 8)] {
+            gl.enable_vertex_array_attrib(vao, location);
+            gl.vertex_array_attrib_format_f32(vao, location, 2, glow::FLOAT, false, offset);
+            gl.vertex_array_attrib_binding_f32(vao, location, 0);
+        }
+        vao
+    };
+    let target = RenderTarget::new(gl, width, height)?;
+    // ANCHOR_END: draw_setup
+    let draw = |name: &str, report: &mut Report| -> Result<Vec<u8>> {
+        unsafe {
+            target.bind(gl);
+            gl.clear_color(CLEAR[0], CLEAR[1], CLEAR[2], CLEAR[3]);
+            gl.clear(glow::COLOR_BUFFER_BIT);
+            gl.use_program(Some(program));
+            gl.bind_vertex_array(Some(vertex_array));
+            gl.draw_arrays(glow::TRIANGLES, 0, 3);
+        }
+        gl_context.check_error("drawing from the imported buffer")?;
+        let pixels = output::read_gl_rgba8(gl, width, height);
+        output::save_rgba8(report, &out_dir, name, width, height, &pixels)?;
+        Ok(pixels)
+    };
+    let first = draw(CHAPTER, report)?;
+    // Left of the base (bottom) is inside the triangle; the same spot mirrored to the top is not.
+    let bottom_left = pixel(&first, width, height, -0.6, -0.7);
+    let top_left = pixel(&first, width, height, -0.6, 0.7);
+    report.check("triangle_drawn_from_vulkan_memory", is_lit(bottom_left) && !is_lit(top_left));
+    // uv (0.125, 0.9375) there: the colour proves the uv attribute came through too.
+    report.check("uv_attribute_read_correctly", close(bottom_left, [32, 239, 16]));
+
+    // 6. Vulkan writes, GL reads
+    // ANCHOR: vulkan_writes
+    // A plain CPU store into Vulkan's mapping. No GL call touches the buffer before it draws again.
+    unsafe { mapped.write_unaligned(FLIPPED) };
+    let second = draw(&format!("{CHAPTER}-flipped"), report)?;
+    let mut seen_by_gl = [0u8; BUFFER_BYTES as usize];
+    unsafe {
+        gl.bind_buffer(glow::COPY_READ_BUFFER, Some(shared.buffer));
+        gl.get_buffer_sub_data(glow::COPY_READ_BUFFER, 0, &mut seen_by_gl);
+        gl.bind_buffer(glow::COPY_READ_BUFFER, None);
+    }
+    // ANCHOR_END: vulkan_writes
+    report.check("gl_reads_what_vulkan_wrote", seen_by_gl == bytes_of(&FLIPPED));
+    let flipped_ok = !is_lit(pixel(&second, width, height, -0.6, -0.7))
+        && is_lit(pixel(&second, width, height, -0.6, 0.7));
+    report.check("gl_draws_what_vulkan_wrote", flipped_ok);
+
+    // 7. GL writes, Vulkan reads
+    // ANCHOR: gl_writes
+    unsafe { gl.named_buffer_sub_data_u8_slice(shared.buffer, 0, &bytes_of(&TRIANGLE)) };
+    // glFinish: the write has reached memory before the CPU looks (no semaphores yet: chapter 03).
+    unsafe { gl.finish() };
+    let seen_by_vulkan = unsafe { mapped.read_unaligned() };
+    // ANCHOR_END: gl_writes
+    report.check("vulkan_reads_what_gl_wrote", seen_by_vulkan == TRIANGLE);
+
+    // 8. Clean up, newest first
+    // ANCHOR: cleanup
+    target.delete(gl);
+    unsafe {
+        gl.delete_vertex_array(vertex_array);
+        gl.delete_program(program);
+    }
+    // The GL buffer, then its memory object; deleting that releases GL's fd.
+    shared.delete(&gl_context);
+    unsafe {
+        vk.device.unmap_memory(memory.memory);
+        vk.device.free_memory(memory.memory, None);
+        vk.device.destroy_buffer(buffer, None);
+    }
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    let open_fds_after = open_fd_count()?;
+    eprintln!("open fds: {open_fds_before} before exporting, {open_fds_after} after cleaning up");
+    report.check("no_fd_leaked", open_fds_after == open_fds_before);
+    report.set("shared_bytes", memory.size);
+    Ok(())
+}
+
+/// The pixel at normalised device coordinates (x, y), from an image whose top row comes first.
+fn pixel(pixels: &[u8], width: u32, height: u32, x: f32, y: f32) -> [u8; 4] {
+    let column = (((x + 1.0) / 2.0) * width as f32) as usize;
+    let row = (((1.0 - y) / 2.0) * height as f32) as usize;
+    let at = (row.min(height as usize - 1) * width as usize + column.min(width as usize - 1)) * 4;
+    pixels[at..at + 4].try_into().unwrap()
+}
+
+fn is_lit(p: [u8; 4]) -> bool {
+    !close(p, CLEAR.map(|c| (c * 255.0).round() as u8)[..3].try_into().unwrap())
+}
+
+/// Equal within the interpolation and rounding differences between drivers.
+fn close(p: [u8; 4], rgb: [u8; 3]) -> bool {
+    p.iter().zip(rgb).all(|(&a, b)| a.abs_diff(b) <= 12)
+}
+
+fn bytes_of(triangle: &Triangle) -> [u8; BUFFER_BYTES as usize] {
+    // SAFETY: [[f32; 4]; 3] is plain data with no padding.
+    unsafe { std::mem::transmute_copy(triangle) }
+}

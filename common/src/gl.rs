@@ -1,0 +1,412 @@
+//! The OpenGL side (taught in chapter 02): a GL 4.5 core context, headless through EGL's device
+//! platform, plus the `GL_EXT_memory_object` / `GL_EXT_semaphore` entry points that glow lacks.
+//!
+//! Support is decided from GL's extension list only: Mesa's `eglGetProcAddress` returns a
+//! non-null stub for any name at all, so a non-null pointer proves nothing.
+
+use crate::vulkan::{DeviceInfo, hidden_extensions};
+use anyhow::{Context as _, Result, bail};
+use glow::HasContext;
+use glutin::api::egl;
+use glutin::config::{ConfigSurfaceTypes, ConfigTemplateBuilder};
+use glutin::context::{ContextApi, ContextAttributesBuilder, GlProfile, PossiblyCurrentContext, Version};
+use glutin::prelude::*;
+use std::collections::HashSet;
+use std::ffi::{CStr, CString, c_void};
+use std::sync::atomic::{AtomicU32, Ordering};
+
+/// Sharing memory: memory objects, buffer and texture storage in them, and the device UUIDs.
+pub const MEMORY_EXTENSIONS: [&str; 2] = ["GL_EXT_memory_object", "GL_EXT_memory_object_fd"];
+/// Sharing semaphores.
+pub const SEMAPHORE_EXTENSIONS: [&str; 2] = ["GL_EXT_semaphore", "GL_EXT_semaphore_fd"];
+
+// Enums from GL_EXT_memory_object(_fd) and GL_EXT_semaphore, which glow does not define.
+pub const TEXTURE_TILING_EXT: u32 = 0x9580;
+pub const DEDICATED_MEMORY_OBJECT_EXT: u32 = 0x9581;
+pub const OPTIMAL_TILING_EXT: u32 = 0x9584;
+pub const HANDLE_TYPE_OPAQUE_FD_EXT: u32 = 0x9586;
+pub const DEVICE_UUID_EXT: u32 = 0x9597;
+pub const DRIVER_UUID_EXT: u32 = 0x9598;
+pub const UUID_SIZE_EXT: usize = 16;
+/// GL's names for the Vulkan image layouts a semaphore signal or wait can hand over.
+pub mod layout {
+    pub const GENERAL: u32 = 0x958D;
+    pub const COLOR_ATTACHMENT: u32 = 0x958E;
+    pub const SHADER_READ_ONLY: u32 = 0x9591;
+    pub const TRANSFER_SRC: u32 = 0x9592;
+    pub const TRANSFER_DST: u32 = 0x9593;
+}
+
+/// Declares a struct of GL function pointers and a loader that refuses null ones.
+macro_rules! gl_functions {
+    ($(#[$meta:meta])* $struct:ident { $($name:ident: fn($($ty:ty),*) $(-> $ret:ty)?;)* }) => {
+        $(#[$meta])*
+        #[allow(non_snake_case)]
+        pub struct $struct {
+            $(pub $name: unsafe extern "system" fn($($ty),*) $(-> $ret)?,)*
+        }
+        impl $struct {
+            fn load(get: &dyn Fn(&CStr) -> *const c_void) -> Result<Self> {
+                Ok($struct {
+                    $($name: {
+                        let name = CString::new(concat!("gl", stringify!($name))).unwrap();
+                        let pointer = get(&name);
+                        if pointer.is_null() {
+                            bail!("the GL driver lists the extension but has no {name:?}");
+                        }
+                        // SAFETY: a non-null GL entry point with this signature (from the extension spec).
+                        unsafe { std::mem::transmute::<*const c_void, _>(pointer) }
+                    },)*
+                })
+            }
+        }
+    };
+}
+
+gl_functions! {
+    /// `GL_EXT_memory_object` and `GL_EXT_memory_object_fd`.
+    MemoryObjectFns {
+        CreateMemoryObjectsEXT: fn(i32, *mut u32);
+        DeleteMemoryObjectsEXT: fn(i32, *const u32);
+        MemoryObjectParameterivEXT: fn(u32, u32, *const i32);
+        ImportMemoryFdEXT: fn(u32, u64, u32, i32);
+        NamedBufferStorageMemEXT: fn(u32, isize, u32, u64);
+        TextureStorageMem2DEXT: fn(u32, i32, u32, i32, i32, u32, u64);
+        GetUnsignedBytevEXT: fn(u32, *mut u8);
+        GetUnsignedBytei_vEXT: fn(u32, u32, *mut u8);
+    }
+}
+
+gl_functions! {
+    /// `GL_EXT_semaphore` and `GL_EXT_semaphore_fd`.
+    SemaphoreFns {
+        GenSemaphoresEXT: fn(i32, *mut u32);
+        DeleteSemaphoresEXT: fn(i32, *const u32);
+        ImportSemaphoreFdEXT: fn(u32, u32, i32);
+        SignalSemaphoreEXT: fn(u32, u32, *const u32, u32, *const u32, *const u32);
+        WaitSemaphoreEXT: fn(u32, u32, *const u32, u32, *const u32, *const u32);
+    }
+}
+
+/// A current GL context and what the chapters need to know about it.
+pub struct GlContext {
+    pub gl: glow::Context,
+    /// Present when the chapter asked for [`MEMORY_EXTENSIONS`].
+    pub memory: Option<MemoryObjectFns>,
+    /// Present when the driver has [`SEMAPHORE_EXTENSIONS`] (and they are not hidden).
+    pub semaphores: Option<SemaphoreFns>,
+    pub renderer: String,
+    pub version: String,
+    pub device_uuid: [u8; UUID_SIZE_EXT],
+    pub driver_uuid: [u8; UUID_SIZE_EXT],
+    /// The required extensions, for the report.
+    pub required: Vec<String>,
+    extensions: HashSet<String>,
+    context: PossiblyCurrentContext,
+}
+
+impl GlContext {
+    /// A headless GL 4.5 core context on the EGL device whose device UUID is Vulkan's, or on the
+    /// first EGL device when none matches (the chapter's UUID check then says why that is fatal).
+    /// Fails, naming each one, when an extension in `required` is missing.
+    pub fn headless(vulkan: &DeviceInfo, required: &[&str]) -> Result<Self> {
+        let devices: Vec<egl::device::Device> = egl::device::Device::query_devices()
+            .context("EGL cannot list devices (EGL_EXT_device_enumeration): install libegl1 with Mesa's or the GPU vendor's EGL")?
+            .collect();
+        let mut fallback = None;
+        let mut errors = Vec::new();
+        for (index, device) in devices.iter().enumerate() {
+            let label = match (device.name(), device.vendor()) {
+                (Some(name), _) | (None, Some(name)) => name.to_owned(),
+                _ if device.extensions().contains("EGL_MESA_device_software") => "Mesa software".to_owned(),
+                _ => format!("#{index}"),
+            };
+            match Self::on_device(device, required) {
+                Ok(context) if context.device_uuid == vulkan.device_uuid => {
+                    eprintln!("gl: using {} (EGL device {label})", context.renderer);
+                    return Ok(context);
+                }
+                Ok(context) => {
+                    eprintln!(
+                        "gl: EGL device {label} ({}) is not Vulkan's {}",
+                        context.renderer, vulkan.name
+                    );
+                    fallback.get_or_insert(index);
+                }
+                Err(error) => {
+                    eprintln!("gl: skipping EGL device {label}: {error:#}");
+                    errors.push(format!("{label}: {error:#}"));
+                }
+            }
+        }
+        match fallback {
+            // The probe's context is gone; make a fresh one current for the chapter to report on.
+            Some(index) => Self::on_device(&devices[index], required),
+            None if errors.is_empty() => {
+                bail!("EGL lists no devices: install Mesa's EGL (libegl-mesa0) or a GPU driver")
+            }
+            None => bail!("no EGL device can run this chapter:\n  {}", errors.join("\n  ")),
+        }
+    }
+
+    fn on_device(device: &egl::device::Device, required: &[&str]) -> Result<Self> {
+        // SAFETY: the device comes from eglQueryDevicesEXT; no native display is involved.
+        let display =
+            unsafe { egl::display::Display::with_device(device, None) }.context("eglGetPlatformDisplay")?;
+        // Device displays have no window surfaces: ask for any surface type, or nothing matches.
+        let template = ConfigTemplateBuilder::new().with_surface_type(ConfigSurfaceTypes::empty()).build();
+        let config = unsafe { display.find_configs(template) }?.next().context("no EGL config")?;
+        let attributes = ContextAttributesBuilder::new()
+            .with_context_api(ContextApi::OpenGl(Some(Version::new(4, 5))))
+            .with_profile(GlProfile::Core)
+            .with_debug(true)
+            .build(None);
+        let context =
+            unsafe { display.create_context(&config, &attributes) }.context("a GL 4.5 core context")?;
+        let context = context.make_current_surfaceless().context("eglMakeCurrent without a surface")?;
+        let loader = |name: &CStr| display.get_proc_address(name);
+        Self::new(PossiblyCurrentContext::Egl(context), &loader, required)
+    }
+
+    /// Wraps a context that is already current (headless here, or a window's in chapter 04).
+    pub fn new(
+        context: PossiblyCurrentContext,
+        loader: &dyn Fn(&CStr) -> *const c_void,
+        required: &[&str],
+    ) -> Result<Self> {
+        // SAFETY: the context is current on this thread and `loader` resolves its functions.
+        let mut gl = unsafe { glow::Context::from_loader_function_cstr(|name| loader(name)) };
+        let hidden = hidden_extensions();
+        let extensions: HashSet<String> =
+            gl.supported_extensions().iter().filter(|e| !hidden.contains(e)).cloned().collect();
+        let (renderer, version) =
+            unsafe { (gl.get_parameter_string(glow::RENDERER), gl.get_parameter_string(glow::VERSION)) };
+        let missing: Vec<&str> = required.iter().copied().filter(|e| !extensions.contains(*e)).collect();
+        if !missing.is_empty() {
+            let hint = if missing.iter().any(|e| e.contains("semaphore")) {
+                "GL_EXT_semaphore_fd: NVIDIA, AMD and Intel GL drivers have it; llvmpipe does not"
+            } else {
+                "GL_EXT_memory_object_fd: Mesa >= 21 (llvmpipe too) and NVIDIA's GL have it"
+            };
+            let hidden_note = if missing.iter().any(|e| hidden.iter().any(|h| h == e)) {
+                " (some hidden by VKGL_HIDE_EXTENSIONS)"
+            } else {
+                ""
+            };
+            bail!("{renderer} (GL {version}) lacks {}{hidden_note}\n  {hint}", missing.join(", "));
+        }
+        enable_debug_output(&mut gl);
+        let memory = if MEMORY_EXTENSIONS.iter().all(|e| extensions.contains(*e)) {
+            Some(MemoryObjectFns::load(loader)?)
+        } else {
+            None
+        };
+        let semaphores = if SEMAPHORE_EXTENSIONS.iter().all(|e| extensions.contains(*e)) {
+            Some(SemaphoreFns::load(loader)?)
+        } else {
+            None
+        };
+        let mut device_uuid = [0; UUID_SIZE_EXT];
+        let mut driver_uuid = [0; UUID_SIZE_EXT];
+        if let Some(m) = &memory {
+            // SAFETY: both queries write exactly GL_UUID_SIZE_EXT bytes.
+            unsafe {
+                (m.GetUnsignedBytei_vEXT)(DEVICE_UUID_EXT, 0, device_uuid.as_mut_ptr());
+                (m.GetUnsignedBytevEXT)(DRIVER_UUID_EXT, driver_uuid.as_mut_ptr());
+            }
+        }
+        Ok(GlContext {
+            gl,
+            memory,
+            semaphores,
+            renderer,
+            version,
+            device_uuid,
+            driver_uuid,
+            required: required.iter().map(|e| e.to_string()).collect(),
+            extensions,
+            context,
+        })
+    }
+
+    pub fn has_extension(&self, name: &str) -> bool {
+        self.extensions.contains(name)
+    }
+
+    /// The memory-object functions; an error when the chapter did not require them.
+    pub fn memory_fns(&self) -> Result<&MemoryObjectFns> {
+        self.memory.as_ref().context("GL_EXT_memory_object_fd was not required by this chapter")
+    }
+
+    /// The glutin context, for swapping buffers in a window.
+    pub fn context(&self) -> &PossiblyCurrentContext {
+        &self.context
+    }
+
+    /// The `gl` section of the chapter report.
+    pub fn report(&self) -> crate::report::GlReport {
+        crate::report::GlReport {
+            renderer: self.renderer.clone(),
+            version: self.version.clone(),
+            device_uuid: crate::report::uuid_hex(&self.device_uuid),
+            driver_uuid: crate::report::uuid_hex(&self.driver_uuid),
+            extensions: self.required.clone(),
+        }
+    }
+
+    /// Fails with the first error GL has recorded, naming `what` was being done.
+    pub fn check_error(&self, what: &str) -> Result<()> {
+        let error = unsafe { self.gl.get_error() };
+        if error != glow::NO_ERROR {
+            bail!("{what}: GL error {error:#06x} ({})", error_name(error));
+        }
+        Ok(())
+    }
+}
+
+// ANCHOR: same_device
+/// GL and Vulkan must run on the same device and driver: an OPAQUE_FD handle means something
+/// only to the driver that made it. On a laptop with two GPUs, GL may well run on the other one.
+pub fn ensure_same_device(vulkan: &DeviceInfo, gl: &GlContext) -> Result<()> {
+    let hex = crate::report::uuid_hex;
+    if vulkan.device_uuid != gl.device_uuid || vulkan.driver_uuid != gl.driver_uuid {
+        bail!(
+            "GL and Vulkan run on different devices or drivers, so they cannot share memory:\n  \
+             Vulkan: {} device {} driver {}\n  GL: {} device {} driver {}\n  \
+             fix: make both use one GPU (e.g. __EGL_VENDOR_LIBRARY_FILENAMES / VK_DRIVER_FILES, or \
+             PRIME offload variables on a laptop)",
+            vulkan.name,
+            hex(&vulkan.device_uuid),
+            hex(&vulkan.driver_uuid),
+            gl.renderer,
+            hex(&gl.device_uuid),
+            hex(&gl.driver_uuid),
+        );
+    }
+    Ok(())
+}
+// ANCHOR_END: same_device
+
+fn error_name(error: u32) -> &'static str {
+    match error {
+        glow::INVALID_ENUM => "GL_INVALID_ENUM",
+        glow::INVALID_VALUE => "GL_INVALID_VALUE",
+        glow::INVALID_OPERATION => "GL_INVALID_OPERATION",
+        glow::OUT_OF_MEMORY => "GL_OUT_OF_MEMORY",
+        glow::INVALID_FRAMEBUFFER_OPERATION => "GL_INVALID_FRAMEBUFFER_OPERATION",
+        _ => "unknown",
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Debug output: GL's counterpart of the validation layer
+
+static GL_ERRORS: AtomicU32 = AtomicU32::new(0);
+
+/// How many errors GL's debug output reported in this process.
+pub fn gl_error_count() -> u32 {
+    GL_ERRORS.load(Ordering::Relaxed)
+}
+
+fn enable_debug_output(gl: &mut glow::Context) {
+    unsafe {
+        // Synchronous: the message arrives inside the call that caused it, so a backtrace helps.
+        gl.enable(glow::DEBUG_OUTPUT);
+        gl.enable(glow::DEBUG_OUTPUT_SYNCHRONOUS);
+        gl.debug_message_callback(|_source, kind, _id, severity, message| {
+            if kind == glow::DEBUG_TYPE_ERROR {
+                GL_ERRORS.fetch_add(1, Ordering::Relaxed);
+                eprintln!("gl debug error: {message}");
+            } else if severity == glow::DEBUG_SEVERITY_HIGH || severity == glow::DEBUG_SEVERITY_MEDIUM {
+                eprintln!("gl debug: {message}");
+            }
+        });
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Small GL helpers every drawing chapter uses
+
+/// Compiles and links a program from GLSL sources; a failure carries GL's info log.
+pub fn program(gl: &glow::Context, vertex: &str, fragment: &str) -> Result<glow::Program> {
+    unsafe {
+        let program = gl.create_program().map_err(anyhow::Error::msg)?;
+        let mut shaders = Vec::new();
+        for (kind, source, name) in
+            [(glow::VERTEX_SHADER, vertex, "vertex"), (glow::FRAGMENT_SHADER, fragment, "fragment")]
+        {
+            let shader = gl.create_shader(kind).map_err(anyhow::Error::msg)?;
+            gl.shader_source(shader, source);
+            gl.compile_shader(shader);
+            if !gl.get_shader_compile_status(shader) {
+                let log = gl.get_shader_info_log(shader);
+                gl.delete_shader(shader);
+                shaders.into_iter().for_each(|s| gl.delete_shader(s));
+                gl.delete_program(program);
+                bail!("the {name} shader does not compile:\n{log}");
+            }
+            gl.attach_shader(program, shader);
+            shaders.push(shader);
+        }
+        gl.link_program(program);
+        for shader in shaders {
+            gl.detach_shader(program, shader);
+            gl.delete_shader(shader);
+        }
+        if !gl.get_program_link_status(program) {
+            let log = gl.get_program_info_log(program);
+            gl.delete_program(program);
+            bail!("the program does not link:\n{log}");
+        }
+        Ok(program)
+    }
+}
+
+/// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::output`].
+pub struct RenderTarget {
+    pub framebuffer: glow::Framebuffer,
+    pub colour: glow::Renderbuffer,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl RenderTarget {
+    pub fn new(gl: &glow::Context, width: u32, height: u32) -> Result<Self> {
+        unsafe {
+            let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
+            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
+            gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, width as i32, height as i32);
+            gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+            gl.named_framebuffer_renderbuffer(
+                Some(framebuffer),
+                glow::COLOR_ATTACHMENT0,
+                glow::RENDERBUFFER,
+                Some(colour),
+            );
+            let status = gl.check_named_framebuffer_status(Some(framebuffer), glow::FRAMEBUFFER);
+            if status != glow::FRAMEBUFFER_COMPLETE {
+                gl.delete_framebuffer(framebuffer);
+                gl.delete_renderbuffer(colour);
+                bail!("offscreen framebuffer incomplete: {status:#x}");
+            }
+            Ok(RenderTarget { framebuffer, colour, width, height })
+        }
+    }
+
+    /// Binds it for drawing and reading, with a viewport that covers it.
+    pub fn bind(&self, gl: &glow::Context) {
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.viewport(0, 0, self.width as i32, self.height as i32);
+        }
+    }
+
+    pub fn delete(self, gl: &glow::Context) {
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+            gl.delete_framebuffer(self.framebuffer);
+            gl.delete_renderbuffer(self.colour);
+        }
+    }
+}

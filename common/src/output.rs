@@ -1,0 +1,47 @@
+//! Writing what a chapter rendered: GL read-back and PNG files.
+
+use crate::Report;
+use anyhow::{Context as _, Result};
+use glow::HasContext;
+use std::path::Path;
+
+/// Reads the bound read framebuffer's RGBA8 pixels, top row first (GL's rows start at the bottom).
+pub fn read_gl_rgba8(gl: &glow::Context, width: u32, height: u32) -> Vec<u8> {
+    let mut pixels = vec![0u8; (width * height * 4) as usize];
+    unsafe {
+        gl.pixel_store_i32(glow::PACK_ALIGNMENT, 1);
+        gl.read_pixels(
+            0,
+            0,
+            width as i32,
+            height as i32,
+            glow::RGBA,
+            glow::UNSIGNED_BYTE,
+            glow::PixelPackData::Slice(Some(&mut pixels)),
+        );
+    }
+    let row = (width * 4) as usize;
+    let mut flipped = Vec::with_capacity(pixels.len());
+    for y in (0..height as usize).rev() {
+        flipped.extend_from_slice(&pixels[y * row..(y + 1) * row]);
+    }
+    flipped
+}
+
+/// Writes RGBA8 pixels (top row first) as `<dir>/<name>.png` and lists the image in the report.
+pub fn save_rgba8(
+    report: &mut Report,
+    dir: &Path,
+    name: &str,
+    width: u32,
+    height: u32,
+    pixels: &[u8],
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let path = dir.join(format!("{name}.png"));
+    image::save_buffer(&path, pixels, width, height, image::ExtendedColorType::Rgba8)
+        .with_context(|| format!("writing {}", path.display()))?;
+    eprintln!("wrote {}", path.display());
+    report.image(name, &path, width, height, "RGBA8");
+    Ok(())
+}

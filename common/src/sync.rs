@@ -1,0 +1,209 @@
+//! How GL and Vulkan take turns on shared memory (taught in chapter 03): two exported
+//! semaphores where both drivers can share them, or the CPU waiting for each side where not.
+
+use crate::{GlContext, VulkanContext};
+use anyhow::{Context as _, Result};
+use ash::vk;
+use glow::HasContext;
+use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
+
+/// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Sync::Host`].
+pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
+
+/// One semaphore, seen by both APIs.
+pub struct SharedSemaphore {
+    pub vk: vk::Semaphore,
+    pub gl: u32,
+}
+
+/// The two hand-overs of every frame, and how they are made.
+pub enum Sync {
+    /// GL and Vulkan wait for each other on the GPU; the CPU never waits.
+    Semaphores {
+        /// Signalled by GL when it is done with the shared images; Vulkan waits on it.
+        gl_done: SharedSemaphore,
+        /// Signalled by Vulkan when it is done; GL waits on it.
+        vulkan_done: SharedSemaphore,
+    },
+    /// The driver cannot share semaphores (lavapipe, llvmpipe): the CPU waits for GL to finish
+    /// (`glFinish`) before submitting Vulkan's work, and for Vulkan's fence before GL goes on.
+    /// Correct, but each API sits idle while the other works, and the CPU blocks twice a frame.
+    Host,
+}
+
+impl Sync {
+    /// Semaphores when both sides support them (and `VKGL_HIDE_EXTENSIONS` hides neither), else
+    /// the host fallback; says which on stderr.
+    pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Sync> {
+        let vulkan_can = vk.has_extension(SEMAPHORE_EXTENSION) && vulkan_can_export_semaphores(vk);
+        let (Some(_), true) = (&gl.semaphores, vulkan_can) else {
+            let missing = match (vulkan_can, gl.semaphores.is_some()) {
+                (false, false) => "neither Vulkan nor GL shares semaphores",
+                (false, true) => "Vulkan cannot export semaphores as fds",
+                _ => "GL cannot import semaphores (no GL_EXT_semaphore_fd)",
+            };
+            eprintln!("sync: host ({missing}): the CPU waits for each API in turn");
+            return Ok(Sync::Host);
+        };
+        let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
+        let vulkan_done = match SharedSemaphore::new(vk, gl) {
+            Ok(s) => s,
+            Err(error) => {
+                gl_done.destroy(vk, gl);
+                return Err(error.context("sharing the vulkan_done semaphore"));
+            }
+        };
+        eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
+        Ok(Sync::Semaphores { gl_done, vulkan_done })
+    }
+
+    /// "semaphores" or "host", for the report.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Sync::Semaphores { .. } => "semaphores",
+            Sync::Host => "host",
+        }
+    }
+
+    // ANCHOR: gl_release
+    /// GL has finished with `textures`; Vulkan may start. `layouts` are the Vulkan layouts
+    /// (`common::gl::layout`) Vulkan's first barrier will find the textures in.
+    pub fn gl_release(&self, gl: &GlContext, textures: &[glow::Texture], layouts: &[u32]) {
+        match self {
+            Sync::Semaphores { gl_done, .. } => {
+                let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
+                let ext = gl.semaphores.as_ref().expect("Sync::Semaphores implies GL semaphores");
+                unsafe {
+                    (ext.SignalSemaphoreEXT)(
+                        gl_done.gl,
+                        0,
+                        std::ptr::null(),
+                        names.len() as u32,
+                        names.as_ptr(),
+                        layouts.as_ptr(),
+                    );
+                    // The signal sits in GL's command queue until flushed: without this, Vulkan
+                    // could wait for it forever.
+                    gl.gl.flush();
+                }
+            }
+            Sync::Host => unsafe { gl.gl.finish() },
+        }
+    }
+    // ANCHOR_END: gl_release
+
+    /// What Vulkan's submission waits on: GL's release (`None` on the host path, where the CPU
+    /// already waited).
+    pub fn vulkan_waits_on(&self) -> Option<vk::Semaphore> {
+        match self {
+            Sync::Semaphores { gl_done, .. } => Some(gl_done.vk),
+            Sync::Host => None,
+        }
+    }
+
+    /// What Vulkan's submission signals for GL (`None` on the host path).
+    pub fn vulkan_signals(&self) -> Option<vk::Semaphore> {
+        match self {
+            Sync::Semaphores { vulkan_done, .. } => Some(vulkan_done.vk),
+            Sync::Host => None,
+        }
+    }
+
+    // ANCHOR: gl_acquire
+    /// Vulkan's work (submitted with `fence`) must be done before GL uses `textures`, which
+    /// Vulkan left in `layouts`. Semaphores: GL's queue waits, the CPU does not. Host: the CPU
+    /// waits for the fence.
+    pub fn gl_acquire(
+        &self,
+        vk: &VulkanContext,
+        gl: &GlContext,
+        fence: vk::Fence,
+        textures: &[glow::Texture],
+        layouts: &[u32],
+    ) -> Result<()> {
+        match self {
+            Sync::Semaphores { vulkan_done, .. } => {
+                let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
+                let ext = gl.semaphores.as_ref().expect("Sync::Semaphores implies GL semaphores");
+                unsafe {
+                    (ext.WaitSemaphoreEXT)(
+                        vulkan_done.gl,
+                        0,
+                        std::ptr::null(),
+                        names.len() as u32,
+                        names.as_ptr(),
+                        layouts.as_ptr(),
+                    )
+                };
+                Ok(())
+            }
+            Sync::Host => unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
+                .context("waiting for Vulkan's work on the CPU"),
+        }
+    }
+    // ANCHOR_END: gl_acquire
+
+    /// Destroys the semaphores on both sides (GL's first: it holds the imported payload).
+    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
+        if let Sync::Semaphores { gl_done, vulkan_done } = self {
+            vulkan_done.destroy(vk, gl);
+            gl_done.destroy(vk, gl);
+        }
+    }
+}
+
+/// Can this device export binary semaphores as opaque fds?
+fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
+    let info = vk::PhysicalDeviceExternalSemaphoreInfo::default()
+        .handle_type(vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD);
+    let mut properties = vk::ExternalSemaphoreProperties::default();
+    unsafe {
+        vk.instance.get_physical_device_external_semaphore_properties(vk.physical_device, &info, &mut properties)
+    };
+    properties.external_semaphore_features.contains(vk::ExternalSemaphoreFeatureFlags::EXPORTABLE)
+}
+
+impl SharedSemaphore {
+    // ANCHOR: share_semaphore
+    /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd.
+    pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Self> {
+        let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
+        let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
+        let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
+        let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
+        let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
+        let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
+        let fd = match unsafe { loader.get_semaphore_fd(&get) } {
+            // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns.
+            Ok(fd) => unsafe { OwnedFd::from_raw_fd(fd) },
+            Err(error) => {
+                unsafe { vk.device.destroy_semaphore(semaphore, None) };
+                return Err(error).context("vkGetSemaphoreFdKHR");
+            }
+        };
+        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
+        let mut name = 0;
+        unsafe {
+            (ext.GenSemaphoresEXT)(1, &mut name);
+            (ext.ImportSemaphoreFdEXT)(name, crate::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd());
+        }
+        if let Err(error) = gl.check_error("glImportSemaphoreFdEXT") {
+            unsafe {
+                (ext.DeleteSemaphoresEXT)(1, &name);
+                vk.device.destroy_semaphore(semaphore, None);
+            }
+            return Err(error); // `fd` is dropped, and so closed: the failed import did not take it.
+        }
+        // SAFETY: the import succeeded; the fd is GL's now.
+        let _ = fd.into_raw_fd();
+        Ok(SharedSemaphore { vk: semaphore, gl: name })
+    }
+    // ANCHOR_END: share_semaphore
+
+    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
+        if let Some(ext) = &gl.semaphores {
+            unsafe { (ext.DeleteSemaphoresEXT)(1, &self.gl) };
+        }
+        unsafe { vk.device.destroy_semaphore(self.vk, None) };
+    }
+}
