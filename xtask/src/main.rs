@@ -1,0 +1,56 @@
+//! `cargo run -p xtask -- shaders`: compile each Vulkan shader in `shaders/` to the `.spv` committed
+//! beside it (so `cargo build` needs no glslc) and rewrite `shaders/spirv.lock`.
+//! `-- shaders --check` writes nothing: it lists stale shaders and exits 1 if there are any.
+
+mod spirv_lock;
+
+use std::path::Path;
+use std::process::{Command, ExitCode};
+use std::{env, fs, io};
+
+use anyhow::{Context, Result, bail, ensure};
+
+fn main() -> Result<ExitCode> {
+    let shaders = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().join("shaders");
+    let args: Vec<String> = env::args().skip(1).collect();
+    match args.iter().map(String::as_str).collect::<Vec<_>>()[..] {
+        ["shaders"] => build(&shaders).map(|()| ExitCode::SUCCESS),
+        ["shaders", "--check"] => check(&shaders),
+        _ => bail!("usage: cargo run -p xtask -- shaders [--check] (got {args:?})"),
+    }
+}
+
+fn build(dir: &Path) -> Result<()> {
+    // Hashed before compiling: a source edited while glslc runs then reads as stale, not as built.
+    let lock = spirv_lock::render_lock(dir)?;
+    for name in spirv_lock::vulkan_sources(dir)? {
+        // vulkan1.3: SPIR-V 1.6, what our Vulkan 1.3 devices consume. -O: spirv-opt's size and speed
+        // passes. -I .: `#include` resolves in shaders/ wherever the includer lives.
+        let mut glslc = Command::new("glslc");
+        glslc.current_dir(dir).args(["--target-env=vulkan1.3", "-O", "-I", "."]);
+        // glslc's own errors and warnings go straight to our stderr.
+        let status = match glslc.args(["-o", &format!("{name}.spv"), &name]).status() {
+            Err(e) if e.kind() == io::ErrorKind::NotFound => bail!(
+                "glslc (shaderc's compiler) is not on PATH: install it with `apt-get install glslc` (or the \
+                 Vulkan SDK) and rerun. Only editing shaders needs it; the committed .spv build without it."
+            ),
+            status => status.context("running glslc")?,
+        };
+        ensure!(status.success(), "glslc could not compile shaders/{name} (its errors are above)");
+        println!("compiled shaders/{name} -> shaders/{name}.spv");
+    }
+    fs::write(dir.join(spirv_lock::LOCK_FILE), lock).context("writing shaders/spirv.lock")?;
+    println!("wrote shaders/{}", spirv_lock::LOCK_FILE);
+    Ok(())
+}
+
+fn check(dir: &Path) -> Result<ExitCode> {
+    let problems = spirv_lock::stale(dir)?;
+    problems.iter().for_each(|problem| eprintln!("stale: shaders/{problem}"));
+    if problems.is_empty() {
+        println!("SPIR-V in shaders/ is up to date");
+        return Ok(ExitCode::SUCCESS);
+    }
+    eprintln!("fix: `cargo run -p xtask -- shaders`, then commit the .spv files and shaders/spirv.lock");
+    Ok(ExitCode::FAILURE)
+}
