@@ -72,6 +72,18 @@ fn ch02_missing_gl_extension_is_named() {
 }
 
 #[test]
+fn ch03_semaphores() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_03-semaphores"), &["--size", "96x64", "--frames", "8"], &[]);
+    let report = run.succeeded();
+    // lavapipe and llvmpipe share memory but not semaphores: the host path, and it says so.
+    assert_eq!(report["sync"], "host");
+    assert!(run.stderr.contains("sync: host"), "{}", run.stderr);
+    assert_eq!(enabled_extensions(report), ["VK_KHR_external_memory_fd"], "the optional one is absent here");
+    assert_report_snapshot("03-semaphores", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
 fn bad_flags_are_rejected_with_a_reason() {
     let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
     assert_eq!(run.output.status.code(), Some(2));

@@ -20,8 +20,10 @@ impl Commands {
                 .queue_family_index(vk.queue_family_index)
                 .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
             let pool = vk.device.create_command_pool(&pool_info, None).context("vkCreateCommandPool")?;
-            let allocate = vk::CommandBufferAllocateInfo::default().command_pool(pool).command_buffer_count(1);
-            let buffer = vk.device.allocate_command_buffers(&allocate).context("vkAllocateCommandBuffers")?[0];
+            let allocate =
+                vk::CommandBufferAllocateInfo::default().command_pool(pool).command_buffer_count(1);
+            let buffer =
+                vk.device.allocate_command_buffers(&allocate).context("vkAllocateCommandBuffers")?[0];
             // Created signalled, so that the first `begin` need not wait for anything.
             let fence_info = vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED);
             let fence = vk.device.create_fence(&fence_info, None).context("vkCreateFence")?;
@@ -36,7 +38,8 @@ impl Commands {
             vk.device.wait_for_fences(&[self.fence], true, u64::MAX).context("vkWaitForFences")?;
             vk.device.reset_fences(&[self.fence])?;
             vk.device.reset_command_buffer(self.buffer, vk::CommandBufferResetFlags::empty())?;
-            let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+            let begin =
+                vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
             vk.device.begin_command_buffer(self.buffer, &begin)?;
         }
         Ok(self.buffer)
@@ -91,3 +94,123 @@ pub const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
     base_array_layer: 0,
     layer_count: 1,
 };
+
+/// A plain (not shared) buffer in host-visible, host-coherent memory, mapped for its lifetime:
+/// staging data in, reading results out.
+pub struct HostBuffer {
+    pub buffer: vk::Buffer,
+    pub memory: vk::DeviceMemory,
+    pub mapped: *mut u8,
+    pub size: u64,
+}
+
+impl HostBuffer {
+    pub fn new(vk: &VulkanContext, size: u64, usage: vk::BufferUsageFlags) -> Result<Self> {
+        unsafe {
+            let info = vk::BufferCreateInfo::default().size(size).usage(usage);
+            let buffer = vk.device.create_buffer(&info, None).context("vkCreateBuffer")?;
+            let requirements = vk.device.get_buffer_memory_requirements(buffer);
+            let flags = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+            let memory_type = match vk.find_memory_type(requirements.memory_type_bits, flags) {
+                Ok(t) => t,
+                Err(error) => {
+                    vk.device.destroy_buffer(buffer, None);
+                    return Err(error);
+                }
+            };
+            let allocate = vk::MemoryAllocateInfo::default()
+                .allocation_size(requirements.size)
+                .memory_type_index(memory_type);
+            let memory = match vk.device.allocate_memory(&allocate, None) {
+                Ok(memory) => memory,
+                Err(error) => {
+                    vk.device.destroy_buffer(buffer, None);
+                    return Err(error).context("vkAllocateMemory");
+                }
+            };
+            vk.device.bind_buffer_memory(buffer, memory, 0)?;
+            let mapped = vk.device.map_memory(memory, 0, size, vk::MemoryMapFlags::empty())?.cast();
+            Ok(HostBuffer { buffer, memory, mapped, size })
+        }
+    }
+
+    /// The mapped bytes. The GPU must not be writing them (wait for the fence first).
+    pub fn bytes(&self) -> &[u8] {
+        // SAFETY: `mapped` is `size` bytes of coherent memory, mapped until `destroy`.
+        unsafe { std::slice::from_raw_parts(self.mapped, self.size as usize) }
+    }
+
+    /// The mapped bytes, to fill. The GPU must not be reading them.
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        // SAFETY: as above, and `&mut self` makes this the only view.
+        unsafe { std::slice::from_raw_parts_mut(self.mapped, self.size as usize) }
+    }
+
+    pub fn destroy(self, vk: &VulkanContext) {
+        unsafe {
+            vk.device.unmap_memory(self.memory);
+            vk.device.free_memory(self.memory, None);
+            vk.device.destroy_buffer(self.buffer, None);
+        }
+    }
+}
+
+/// GPU timestamps around each frame's Vulkan work, read back once the frame's fence has signalled.
+pub struct Timestamps {
+    pub pool: vk::QueryPool,
+    /// Nanoseconds per timestamp tick (`VkPhysicalDeviceLimits::timestampPeriod`).
+    period_ns: f64,
+}
+
+impl Timestamps {
+    /// `None` when the queue cannot write timestamps (`timestampValidBits` is 0).
+    pub fn new(vk: &VulkanContext) -> Result<Option<Self>> {
+        let families = unsafe { vk.instance.get_physical_device_queue_family_properties(vk.physical_device) };
+        if families[vk.queue_family_index as usize].timestamp_valid_bits == 0 {
+            return Ok(None);
+        }
+        let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
+        let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(2);
+        let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
+        Ok(Some(Timestamps { pool, period_ns: limits.timestamp_period as f64 }))
+    }
+
+    /// Resets the queries; record before anything else in the command buffer.
+    pub fn reset(&self, vk: &VulkanContext, cb: vk::CommandBuffer) {
+        unsafe { vk.device.cmd_reset_query_pool(cb, self.pool, 0, 2) };
+    }
+
+    /// Records the "start" timestamp, written once earlier commands reach `stage`. Record it
+    /// after the barrier that waits for GL, so that waiting for GL is not counted as work.
+    pub fn start(&self, vk: &VulkanContext, cb: vk::CommandBuffer, stage: vk::PipelineStageFlags) {
+        unsafe { vk.device.cmd_write_timestamp(cb, stage, self.pool, 0) };
+    }
+
+    /// Records the "end" timestamp, once all earlier commands have completed.
+    pub fn end(&self, vk: &VulkanContext, cb: vk::CommandBuffer) {
+        unsafe { vk.device.cmd_write_timestamp(cb, vk::PipelineStageFlags::BOTTOM_OF_PIPE, self.pool, 1) };
+    }
+
+    /// Milliseconds between start and end of the last finished submission.
+    pub fn read_ms(&self, vk: &VulkanContext) -> Result<f64> {
+        let mut ticks = [0u64; 2];
+        unsafe { vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64) }
+            .context("vkGetQueryPoolResults")?;
+        Ok(ticks[1].wrapping_sub(ticks[0]) as f64 * self.period_ns / 1e6)
+    }
+
+    pub fn destroy(self, vk: &VulkanContext) {
+        unsafe { vk.device.destroy_query_pool(self.pool, None) };
+    }
+}
+
+/// Median and 95th percentile of a series of timings, for the report.
+pub fn median_p95(samples: &[f64]) -> (f64, f64) {
+    if samples.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mut sorted = samples.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+    (at(0.5), at(0.95))
+}

@@ -2,12 +2,12 @@
 //! in chapter 02) or a 2D texture (chapter 03) stored in it.
 
 use crate::exportable::{self, Dedicated, ExportableMemory};
-use crate::{GlContext, VulkanContext};
-use ash::vk;
 use crate::gl::{
     DEDICATED_MEMORY_OBJECT_EXT, HANDLE_TYPE_OPAQUE_FD_EXT, OPTIMAL_TILING_EXT, TEXTURE_TILING_EXT,
 };
+use crate::{GlContext, VulkanContext};
 use anyhow::{Context as _, Result};
+use ash::vk;
 use glow::HasContext;
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
 

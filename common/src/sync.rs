@@ -158,7 +158,11 @@ fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
         .handle_type(vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD);
     let mut properties = vk::ExternalSemaphoreProperties::default();
     unsafe {
-        vk.instance.get_physical_device_external_semaphore_properties(vk.physical_device, &info, &mut properties)
+        vk.instance.get_physical_device_external_semaphore_properties(
+            vk.physical_device,
+            &info,
+            &mut properties,
+        )
     };
     properties.external_semaphore_features.contains(vk::ExternalSemaphoreFeatureFlags::EXPORTABLE)
 }

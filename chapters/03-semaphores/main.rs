@@ -1,0 +1,334 @@
+//! Chapter 03: semaphores.
+//!
+//! GL and Vulkan now share an image and take turns with it every frame: GL draws into it, Vulkan
+//! reads what GL drew and writes its own pattern, GL reads that. Two exported semaphores order the
+//! turns on the GPU; where the driver cannot share semaphores (lavapipe, llvmpipe) the CPU waits
+//! for each side instead. Each frame's colours are new, so a turn taken too early would see the
+//! previous frame's colours, and the checks would fail.
+//!
+//! Run: `cargo run --bin 03-semaphores -- --frames 60` (add `--unsynchronised` to see it break).
+
+use anyhow::Result;
+use ash::vk;
+use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, layout};
+use common::interop::SharedImage;
+use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
+use glow::HasContext;
+use std::ffi::CStr;
+use std::process::ExitCode;
+use std::time::Instant;
+
+const CHAPTER: &str = "03-semaphores";
+const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
+/// Without it the chapter still runs, synchronising on the host.
+const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
+
+// ANCHOR: layouts
+/// Where GL leaves the image for Vulkan: ready to be copied from (GL makes the transition as
+/// part of its signal, so Vulkan's first barrier starts from here).
+const HANDED_TO_VULKAN: (vk::ImageLayout, u32) =
+    (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, layout::TRANSFER_SRC);
+/// Where Vulkan leaves it for GL: ready to be a framebuffer attachment, which is how GL both
+/// reads Vulkan's pattern and draws the next frame.
+const HANDED_TO_GL: (vk::ImageLayout, u32) =
+    (vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL, layout::COLOR_ATTACHMENT);
+// ANCHOR_END: layouts
+
+/// Chapter 03: GL and Vulkan take turns with a shared image, ordered by shared semaphores.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Skip every wait (semaphore or host) to see the checks fail: the order is real.
+    #[arg(long)]
+    unsynchronised: bool,
+}
+
+impl AsRef<CommonArgs> for Args {
+    fn as_ref(&self) -> &CommonArgs {
+        &self.common
+    }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter::<Args>(CHAPTER, run)
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    let frames = args.common.frames.max(1);
+
+    // 1. Create both contexts and a shared image
+    let vk = VulkanContext::new(&Requirements { extensions: REQUIRED, optional_extensions: OPTIONAL })?;
+    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let gl = &gl_context.gl;
+    report.vulkan = Some(vk.report());
+    report.gl = Some(gl_context.report());
+    report.uuids_match = Some(vk.info.device_uuid == gl_context.device_uuid);
+    ensure_same_device(&vk.info, &gl_context)?;
+    let open_fds_before = common::open_fd_count()?;
+    // ANCHOR: shared_image
+    let usage = vk::ImageUsageFlags::COLOR_ATTACHMENT // GL draws into it
+        | vk::ImageUsageFlags::TRANSFER_SRC // Vulkan copies GL's pixels out
+        | vk::ImageUsageFlags::TRANSFER_DST; // Vulkan writes its own
+    let image = SharedImage::new(&vk, &gl_context, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    // ANCHOR_END: shared_image
+    let framebuffer = unsafe {
+        let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+        gl.named_framebuffer_texture(Some(fb), glow::COLOR_ATTACHMENT0, Some(image.texture.texture), 0);
+        fb
+    };
+
+    // 2. Share two semaphores, or fall back to the host
+    // ANCHOR: sync
+    let sync = Sync::new(&vk, &gl_context)?;
+    report.sync = Some(if args.unsynchronised { "none" } else { sync.name() });
+    // ANCHOR_END: sync
+
+    let pixels = (extent.width * extent.height) as usize;
+    let commands = Commands::new(&vk)?;
+    let timestamps = Timestamps::new(&vk)?;
+    let transfer = vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST;
+    let mut vulkan_pattern = HostBuffer::new(&vk, pixels as u64 * 4, transfer)?;
+    let gl_pixels_seen_by_vulkan = HostBuffer::new(&vk, pixels as u64 * 4, transfer)?;
+
+    let (mut vulkan_saw_gl, mut gl_saw_vulkan) = (true, true);
+    let (mut handshake_ms, mut vulkan_gpu_ms, mut frame_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut last_seen_by_gl = Vec::new();
+    for frame in 0..frames {
+        let started = Instant::now();
+        let (gl_colour, vulkan_colour) = frame_colours(frame);
+
+        // 3. GL draws, then hands the image to Vulkan
+        // ANCHOR: gl_turn
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.viewport(0, 0, extent.width as i32, extent.height as i32);
+            let [r, g, b] = gl_colour.map(|c| c as f32 / 255.0);
+            gl.clear_color(r, g, b, 1.0);
+            gl.clear(glow::COLOR_BUFFER_BIT);
+        }
+        let handshake = Instant::now();
+        if !args.unsynchronised {
+            sync.gl_release(&gl_context, &[image.texture.texture], &[HANDED_TO_VULKAN.1]);
+        }
+        let mut handshake_cpu = ms_since(handshake);
+        // ANCHOR_END: gl_turn
+
+        // 4. Vulkan waits, reads GL's pixels, writes its own, hands the image back
+        // The CPU fills Vulkan's pattern; the previous frame's copy has finished (its fence).
+        let cb = commands.begin(&vk)?;
+        if frame > 0 {
+            vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frame - 1).0);
+            if let Some(t) = &timestamps {
+                vulkan_gpu_ms.push(t.read_ms(&vk)?);
+            }
+        }
+        checkerboard(vulkan_pattern.bytes_mut(), extent, vulkan_colour);
+        if let Some(t) = &timestamps {
+            t.reset(&vk, cb);
+        }
+        record_vulkan_turn(&vk, cb, &image, &vulkan_pattern, &gl_pixels_seen_by_vulkan, timestamps.as_ref());
+        let handshake = Instant::now();
+        // ANCHOR: submit
+        // Wait for GL's signal before the copy (TRANSFER) stage; nothing earlier touches the image.
+        let (wait, signal) = match args.unsynchronised {
+            false => {
+                (sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER)), sync.vulkan_signals())
+            }
+            true => (None, None),
+        };
+        commands.submit(&vk, wait, signal)?;
+        // ANCHOR_END: submit
+
+        // 5. GL waits for Vulkan and reads its pattern
+        // ANCHOR: gl_reads
+        if !args.unsynchronised {
+            let texture = image.texture.texture;
+            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[HANDED_TO_GL.1])?;
+        }
+        handshake_cpu += ms_since(handshake);
+        let seen = output::read_gl_rgba8(gl, extent.width, extent.height);
+        // ANCHOR_END: gl_reads
+        // GL numbers rows from the bottom, Vulkan from the top: the image's first row in memory,
+        // Vulkan's top row (a lit square), is GL's bottom row, which read_gl_rgba8 puts last.
+        let memory_row_0 = (extent.height - 1) as usize * extent.width as usize * 4;
+        gl_saw_vulkan &= seen[memory_row_0..memory_row_0 + 3] == vulkan_colour;
+        handshake_ms.push(handshake_cpu);
+        frame_ms.push(ms_since(started));
+        last_seen_by_gl = seen;
+    }
+
+    // The last frame's copy: wait for its fence (Commands::begin would) before reading it.
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frames - 1).0);
+    if let Some(t) = &timestamps {
+        vulkan_gpu_ms.push(t.read_ms(&vk)?);
+    }
+    report.check("vulkan_sees_each_frame_gl_drew", vulkan_saw_gl);
+    report.check("gl_sees_each_frame_vulkan_wrote", gl_saw_vulkan);
+    output::save_rgba8(
+        report,
+        &args.common.out_dir(CHAPTER),
+        CHAPTER,
+        extent.width,
+        extent.height,
+        &last_seen_by_gl,
+    )?;
+    let from_gl = gl_pixels_seen_by_vulkan.bytes().to_vec();
+    output::save_rgba8(
+        report,
+        &args.common.out_dir(CHAPTER),
+        &format!("{CHAPTER}-gl"),
+        extent.width,
+        extent.height,
+        &from_gl,
+    )?;
+    record_timings(report, &handshake_ms, &vulkan_gpu_ms, &frame_ms, &sync);
+    report.set("frames", frames);
+
+    // 6. Clean up, newest first (the GPU is idle: the last fence has signalled, GL has read)
+    // ANCHOR: cleanup
+    unsafe { gl.finish() };
+    gl_pixels_seen_by_vulkan.destroy(&vk);
+    vulkan_pattern.destroy(&vk);
+    if let Some(t) = timestamps {
+        t.destroy(&vk);
+    }
+    commands.destroy(&vk);
+    sync.destroy(&vk, &gl_context);
+    unsafe { gl.delete_framebuffer(framebuffer) };
+    image.destroy(&vk, &gl_context);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    // Every fd (image memory, two semaphores) went to GL and was released with its object.
+    report.check("no_fd_leaked", common::open_fd_count()? == open_fds_before);
+    Ok(())
+}
+
+// ANCHOR: vulkan_turn
+/// Copy GL's pixels out, write Vulkan's pattern in. Every barrier says which earlier work must
+/// finish (src) before which later work may start (dst), and moves the image between layouts.
+fn record_vulkan_turn(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    image: &SharedImage,
+    pattern: &HostBuffer,
+    readback: &HostBuffer,
+    timestamps: Option<&Timestamps>,
+) {
+    let barrier = |old, new, src_access, dst_access, src_family, dst_family| {
+        vk::ImageMemoryBarrier::default()
+            .image(image.image)
+            .subresource_range(COLOR_RANGE)
+            .old_layout(old)
+            .new_layout(new)
+            .src_access_mask(src_access)
+            .dst_access_mask(dst_access)
+            .src_queue_family_index(src_family)
+            .dst_queue_family_index(dst_family)
+    };
+    let (external, ours) = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
+    let region = vk::BufferImageCopy::default()
+        .image_subresource(vk::ImageSubresourceLayers {
+            aspect_mask: vk::ImageAspectFlags::COLOR,
+            mip_level: 0,
+            base_array_layer: 0,
+            layer_count: 1,
+        })
+        .image_extent(vk::Extent3D { width: image.extent.width, height: image.extent.height, depth: 1 });
+    let device = &vk.device;
+    unsafe {
+        // Acquire from GL: ownership moves from "outside Vulkan" to our queue family. The layout
+        // is the one GL promised in its signal; the semaphore wait already made GL's writes
+        // available, so there is no source access to wait for.
+        let acquire = barrier(
+            HANDED_TO_VULKAN.0,
+            HANDED_TO_VULKAN.0,
+            vk::AccessFlags::NONE,
+            vk::AccessFlags::TRANSFER_READ,
+            external,
+            ours,
+        );
+        let (top, transfer) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::TRANSFER);
+        let none = vk::DependencyFlags::empty();
+        device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &[acquire]);
+        if let Some(t) = timestamps {
+            t.start(vk, cb, transfer);
+        }
+        device.cmd_copy_image_to_buffer(cb, image.image, HANDED_TO_VULKAN.0, readback.buffer, &[region]);
+        // The copy's reads must finish before the image is overwritten: a write-after-read hazard,
+        // so an execution dependency is enough, plus the move to TRANSFER_DST for the write.
+        let to_write = barrier(
+            HANDED_TO_VULKAN.0,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            vk::AccessFlags::NONE,
+            vk::AccessFlags::TRANSFER_WRITE,
+            ours,
+            ours,
+        );
+        device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &[to_write]);
+        device.cmd_copy_buffer_to_image(
+            cb,
+            pattern.buffer,
+            image.image,
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            &[region],
+        );
+        // Release to GL: make the write available, move to the layout GL will wait with, and hand
+        // ownership back outside Vulkan. GL's wait on our semaphore does the rest.
+        let release = barrier(
+            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+            HANDED_TO_GL.0,
+            vk::AccessFlags::TRANSFER_WRITE,
+            vk::AccessFlags::NONE,
+            ours,
+            external,
+        );
+        let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+        device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &[release]);
+        // The CPU reads `readback` after the fence: make the copy's writes visible to the host.
+        let to_host = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+            .dst_access_mask(vk::AccessFlags::HOST_READ);
+        device.cmd_pipeline_barrier(cb, transfer, vk::PipelineStageFlags::HOST, none, &[to_host], &[], &[]);
+        if let Some(t) = timestamps {
+            t.end(vk, cb);
+        }
+    }
+}
+// ANCHOR_END: vulkan_turn
+
+/// Colours no earlier frame used: GL's for the frame, and Vulkan's.
+fn frame_colours(frame: u32) -> ([u8; 3], [u8; 3]) {
+    let step = (40 + 50 * (frame % 4)) as u8;
+    let shade = (frame * 23 % 200) as u8 + 40;
+    ([shade, step, 230], [230, shade, step])
+}
+
+/// Vulkan's pattern: a checkerboard of `colour` and black, in 16-pixel squares.
+fn checkerboard(bytes: &mut [u8], extent: vk::Extent2D, colour: [u8; 3]) {
+    for (i, pixel) in bytes.chunks_exact_mut(4).enumerate() {
+        let (x, y) = (i as u32 % extent.width, i as u32 / extent.width);
+        let lit = (x / 16 + y / 16) % 2 == 0;
+        let [r, g, b] = if lit { colour } else { [0, 0, 0] };
+        pixel.copy_from_slice(&[r, g, b, 255]);
+    }
+}
+
+/// Does the image Vulkan copied out start with GL's colour? (Its first square is all GL's.)
+fn first_pixel_is(readback: &HostBuffer, colour: [u8; 3]) -> bool {
+    readback.bytes()[..3].iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 1)
+}
+
+fn record_timings(report: &mut Report, handshake: &[f64], vulkan_gpu: &[f64], frame: &[f64], sync: &Sync) {
+    for (name, samples) in [("handshake_cpu", handshake), ("vulkan_gpu", vulkan_gpu), ("frame", frame)] {
+        let (median, p95) = median_p95(samples);
+        report.time_ms(&format!("{name}_median"), median);
+        report.time_ms(&format!("{name}_p95"), p95);
+    }
+    let (median, _) = median_p95(handshake);
+    eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", sync.name());
+}
