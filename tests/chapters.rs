@@ -147,3 +147,33 @@ mod image_comparison {
         }
     }
 }
+
+/// Images made elsewhere (the NVIDIA GPU, through the `--out` of each chapter) against the same
+/// references: `VKGL_COMPARE_IMAGES=<dir> cargo test --test chapters images_from_elsewhere`.
+/// Every `<name>.png` under the directory whose reference exists is compared.
+#[test]
+fn images_from_elsewhere_match_the_references() {
+    let Some(dir) = std::env::var_os("VKGL_COMPARE_IMAGES") else { return };
+    let mut compared = 0;
+    let mut failures = Vec::new();
+    let mut pending = vec![std::path::PathBuf::from(dir)];
+    while let Some(dir) = pending.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                pending.push(path);
+                continue;
+            }
+            let reference = harness::snapshot_dir().join(path.file_name().unwrap());
+            if path.extension().is_some_and(|e| e == "png") && reference.exists() {
+                compared += 1;
+                if let Err(e) = harness::compare_image(&path, &reference, DEFAULT_TOLERANCE) {
+                    failures.push(format!("{}: {e}", path.display()));
+                }
+            }
+        }
+    }
+    eprintln!("compared {compared} images");
+    assert!(compared > 0, "no image there has a reference");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
