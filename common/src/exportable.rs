@@ -70,6 +70,11 @@ pub fn allocate(
     if let Some(dedicated_info) = dedicated_info.as_mut() {
         info = info.push_next(dedicated_info);
     }
+    // With ray tracing on, buffers may need GPU addresses (acceleration-structure inputs).
+    let mut flags = vk::MemoryAllocateFlagsInfo::default().flags(vk::MemoryAllocateFlags::DEVICE_ADDRESS);
+    if ctx.device_addresses && !matches!(dedicated, Dedicated::Image(_)) {
+        info = info.push_next(&mut flags);
+    }
     let memory = unsafe { ctx.device.allocate_memory(&info, None) }
         .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
@@ -116,3 +121,50 @@ pub fn export_fd(loader: &ash::khr::external_memory_fd::Device, memory: vk::Devi
     Ok(unsafe { OwnedFd::from_raw_fd(fd) })
 }
 // ANCHOR_END: export_fd
+
+/// A buffer in exportable, host-visible memory, mapped for its lifetime (taught in chapters 01
+/// and 02): Vulkan's side of every buffer GL imports.
+pub struct ExportedBuffer {
+    pub buffer: vk::Buffer,
+    pub memory: ExportableMemory,
+    /// Vulkan's view of the bytes, coherent with the GPU's.
+    pub mapped: *mut u8,
+    pub bytes: u64,
+}
+
+impl ExportedBuffer {
+    /// A buffer of `data.len()` bytes holding `data`.
+    pub fn new(ctx: &VulkanContext, data: &[u8], usage: vk::BufferUsageFlags) -> Result<Self> {
+        let bytes = data.len() as u64;
+        let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
+        let info = vk::BufferCreateInfo::default().size(bytes).usage(usage).push_next(&mut external);
+        let buffer = unsafe { ctx.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
+        let requirements = unsafe { ctx.device.get_buffer_memory_requirements(buffer) };
+        let host = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+        let memory = allocate(ctx, &requirements, host, Dedicated::No).inspect_err(|_| unsafe {
+            ctx.device.destroy_buffer(buffer, None);
+        })?;
+        let mapped = unsafe {
+            ctx.device.bind_buffer_memory(buffer, memory.memory, 0)?;
+            ctx.device.map_memory(memory.memory, 0, bytes, vk::MemoryMapFlags::empty())?.cast::<u8>()
+        };
+        // SAFETY: `mapped` is `bytes` long, coherent, and nothing else uses it yet.
+        unsafe { std::ptr::copy_nonoverlapping(data.as_ptr(), mapped, data.len()) };
+        Ok(ExportedBuffer { buffer, memory, mapped, bytes })
+    }
+
+    /// The buffer's GPU address (needs SHADER_DEVICE_ADDRESS usage and a context with
+    /// `Requirements::ray_tracing`).
+    pub fn device_address(&self, ctx: &VulkanContext) -> vk::DeviceAddress {
+        let info = vk::BufferDeviceAddressInfo::default().buffer(self.buffer);
+        unsafe { ctx.device.get_buffer_device_address(&info) }
+    }
+
+    pub fn destroy(self, ctx: &VulkanContext) {
+        unsafe {
+            ctx.device.unmap_memory(self.memory.memory);
+            ctx.device.free_memory(self.memory.memory, None);
+            ctx.device.destroy_buffer(self.buffer, None);
+        }
+    }
+}

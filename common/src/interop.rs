@@ -70,6 +70,27 @@ pub fn import_buffer(
 }
 // ANCHOR_END: import_buffer
 
+/// Vulkan makes a buffer holding `data` and exports it; GL imports it. Vulkan and GL now see the
+/// same bytes: `exported.mapped` from the CPU, `shared.buffer` from GL.
+pub fn share_buffer(
+    vk: &VulkanContext,
+    gl: &GlContext,
+    data: &[u8],
+    usage: vk::BufferUsageFlags,
+) -> Result<(exportable::ExportedBuffer, SharedBuffer)> {
+    let exported = exportable::ExportedBuffer::new(vk, data, usage)?;
+    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
+    let shared = exportable::export_fd(&fd_loader, exported.memory.memory)
+        .and_then(|fd| import_buffer(gl, &exported.memory, fd, exported.bytes));
+    match shared {
+        Ok(shared) => Ok((exported, shared)),
+        Err(error) => {
+            exported.destroy(vk);
+            Err(error)
+        }
+    }
+}
+
 /// A GL 2D texture (one mip level) stored in an image's dedicated, exported `memory`.
 /// `internal_format` must be the GL twin of the Vulkan format (GL_RGBA8 for R8G8B8A8_UNORM).
 pub fn import_texture_2d(

@@ -10,13 +10,15 @@ pub mod gl;
 pub mod interop;
 pub mod output;
 pub mod report;
+pub mod scene;
 pub mod sync;
 pub mod vulkan;
+pub mod window;
 
 pub use cli::CommonArgs;
 pub use gl::GlContext;
 pub use report::Report;
-pub use vulkan::{Requirements, VulkanContext};
+pub use vulkan::{RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};
 
 use std::process::ExitCode;
 

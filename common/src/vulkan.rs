@@ -21,7 +21,18 @@ pub struct Requirements<'a> {
     pub extensions: &'a [&'a CStr],
     /// Device extensions enabled when present (the chapter has a fallback). No others are enabled.
     pub optional_extensions: &'a [&'a CStr],
+    /// Enable the features ray tracing needs: buffer device addresses, acceleration structures
+    /// and ray tracing pipelines. `extensions` must then list [`RAY_TRACING_EXTENSIONS`].
+    pub ray_tracing: bool,
 }
+
+/// The device extensions for building acceleration structures and tracing rays through them.
+pub const RAY_TRACING_EXTENSIONS: [&CStr; 3] = [
+    ash::khr::acceleration_structure::NAME,
+    ash::khr::ray_tracing_pipeline::NAME,
+    // Required by VK_KHR_acceleration_structure, though this tutorial builds on the device.
+    ash::khr::deferred_host_operations::NAME,
+];
 
 /// Facts about the chosen device that the report and the GL side need.
 #[derive(Debug, Clone)]
@@ -46,6 +57,8 @@ pub struct VulkanContext {
     pub queue_family_index: u32,
     pub queue: vk::Queue,
     pub enabled_extensions: Vec<String>,
+    /// Buffers may be given device addresses (`Requirements::ray_tracing`).
+    pub device_addresses: bool,
 }
 
 impl VulkanContext {
@@ -100,9 +113,15 @@ impl VulkanContext {
         let extension_names: Vec<std::ffi::CString> =
             enabled_extensions.iter().map(|e| std::ffi::CString::new(e.as_str()).unwrap()).collect();
         let extension_names: Vec<*const c_char> = extension_names.iter().map(|e| e.as_ptr()).collect();
-        let device_info = vk::DeviceCreateInfo::default()
+        let mut vulkan12 = vk::PhysicalDeviceVulkan12Features::default().buffer_device_address(true);
+        let mut acceleration = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
+        let mut pipelines = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default().ray_tracing_pipeline(true);
+        let mut device_info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queue_infos)
             .enabled_extension_names(&extension_names);
+        if requirements.ray_tracing {
+            device_info = device_info.push_next(&mut vulkan12).push_next(&mut acceleration).push_next(&mut pipelines);
+        }
         let device = match unsafe { instance.create_device(physical_device, &device_info, None) } {
             Ok(device) => device,
             Err(error) => {
@@ -124,6 +143,7 @@ impl VulkanContext {
             queue_family_index,
             queue,
             enabled_extensions,
+            device_addresses: requirements.ray_tracing,
         })
     }
 

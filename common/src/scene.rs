@@ -1,0 +1,366 @@
+//! Scenes (chapter 05): meshes, instances, the default scene of many tetrahedra over a ground
+//! plane, OBJ loading, and a camera that frames whatever was loaded.
+
+use anyhow::{Result, bail};
+use glam::{Mat4, Vec3};
+use std::ops::Range;
+use std::path::Path;
+
+/// One vertex as both GL (two vec3 attributes) and the BLAS build (R32G32B32 position at offset
+/// 0, stride 24) read it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Vertex {
+    pub position: [f32; 3],
+    pub normal: [f32; 3],
+}
+
+pub struct Mesh {
+    pub name: String,
+    pub vertices: Vec<Vertex>,
+    /// Triangles, three indices each.
+    pub indices: Vec<u32>,
+}
+
+// ANCHOR: instance
+/// One instance, laid out exactly as `VkAccelerationStructureInstanceKHR` (64 bytes), so that
+/// one buffer feeds both GL's instanced draw (chapter 05) and the TLAS build (chapter 06).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Instance {
+    /// Object to world, the top three rows of a 4x4 matrix, row-major.
+    pub transform: [[f32; 4]; 3],
+    /// Low 24 bits: the instance's albedo as 0xBBGGRR (`instanceCustomIndex` to a ray, a
+    /// `uint` attribute to GL). High 8 bits: the ray visibility mask.
+    pub custom_index_and_mask: u32,
+    /// Low 24 bits: hit-group offset (unused: no hit groups here). High 8 bits: instance flags.
+    pub sbt_offset_and_flags: u32,
+    /// The BLAS's device address, filled in by chapter 06; GL ignores it.
+    pub blas_address: u64,
+}
+// ANCHOR_END: instance
+
+impl Instance {
+    pub fn new(object_to_world: Mat4, albedo: [u8; 3]) -> Self {
+        let rows = object_to_world.transpose().to_cols_array_2d();
+        let colour = albedo[0] as u32 | (albedo[1] as u32) << 8 | (albedo[2] as u32) << 16;
+        Instance {
+            transform: [rows[0], rows[1], rows[2]],
+            custom_index_and_mask: colour | 0xFF << 24,
+            sbt_offset_and_flags: 0,
+            blas_address: 0,
+        }
+    }
+
+    pub fn object_to_world(&self) -> Mat4 {
+        let t = self.transform;
+        Mat4::from_cols_array_2d(&[t[0], t[1], t[2], [0.0, 0.0, 0.0, 1.0]]).transpose()
+    }
+}
+
+pub struct Scene {
+    pub meshes: Vec<Mesh>,
+    /// Grouped by mesh: `instances[mesh_instances[m]]` are mesh `m`'s, one instanced draw each.
+    pub instances: Vec<Instance>,
+    pub mesh_instances: Vec<Range<u32>>,
+    /// World-space bounds of every instance.
+    pub bounds: (Vec3, Vec3),
+}
+
+impl Scene {
+    pub fn triangles(&self) -> u64 {
+        self.mesh_instances.iter().zip(&self.meshes).map(|(r, m)| (r.len() * m.indices.len() / 3) as u64).sum()
+    }
+
+    /// The diagonal of the bounds: the scene's size, for anything that must scale with it.
+    pub fn size(&self) -> f32 {
+        (self.bounds.1 - self.bounds.0).length()
+    }
+
+    fn with_bounds(meshes: Vec<Mesh>, instances: Vec<Instance>, mesh_instances: Vec<Range<u32>>) -> Self {
+        let (mut low, mut high) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for (mesh, range) in meshes.iter().zip(&mesh_instances) {
+            for instance in &instances[range.start as usize..range.end as usize] {
+                let m = instance.object_to_world();
+                for v in &mesh.vertices {
+                    let p = m.transform_point3(Vec3::from(v.position));
+                    low = low.min(p);
+                    high = high.max(p);
+                }
+            }
+        }
+        Scene { meshes, instances, mesh_instances, bounds: (low, high) }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The default scene
+
+/// `count` faceted tetrahedra, placed and scaled by a seeded normal distribution, over a
+/// 20 x 20 ground plane: two meshes, `count + 1` instances. The same seed gives the same scene.
+pub fn default_scene(count: u32, seed: u64) -> Scene {
+    let mut random = Random(seed);
+    let ground = Instance::new(Mat4::IDENTITY, [200, 200, 200]);
+    let tetrahedra = (0..count).map(|_| {
+        let scale = 0.15 + 0.1 * random.normal().abs();
+        let x = (2.5 * random.normal()).clamp(-9.5, 9.5);
+        let z = (2.5 * random.normal()).clamp(-9.5, 9.5);
+        let y = scale + 1.5 * random.normal().abs();
+        let rotation = glam::Quat::from_euler(
+            glam::EulerRot::YXZ,
+            random.uniform() * std::f32::consts::TAU,
+            random.uniform() * std::f32::consts::TAU,
+            0.0,
+        );
+        let transform = Mat4::from_scale_rotation_translation(Vec3::splat(scale), rotation, Vec3::new(x, y, z));
+        Instance::new(transform, hue_to_rgb(random.uniform()))
+    });
+    let instances: Vec<Instance> = std::iter::once(ground).chain(tetrahedra).collect();
+    Scene::with_bounds(vec![ground_plane(10.0), tetrahedron()], instances, vec![0..1, 1..count + 1])
+}
+
+/// A regular tetrahedron of circumradius 1 with one normal per face (12 vertices).
+pub fn tetrahedron() -> Mesh {
+    let corners = [Vec3::new(1.0, 1.0, 1.0), Vec3::new(1.0, -1.0, -1.0), Vec3::new(-1.0, 1.0, -1.0), Vec3::new(-1.0, -1.0, 1.0)]
+        .map(|c| c / 3f32.sqrt());
+    let faces = [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]];
+    let mut vertices = Vec::new();
+    for [a, b, c] in faces {
+        let normal = (corners[b] - corners[a]).cross(corners[c] - corners[a]).normalize();
+        for i in [a, b, c] {
+            vertices.push(Vertex { position: corners[i].into(), normal: normal.into() });
+        }
+    }
+    Mesh { name: "tetrahedron".into(), vertices, indices: (0..12).collect() }
+}
+
+/// A square in the y = 0 plane, `half` units from the centre to each side, facing up.
+pub fn ground_plane(half: f32) -> Mesh {
+    let vertices = [(-half, -half), (half, -half), (half, half), (-half, half)]
+        .map(|(x, z)| Vertex { position: [x, 0.0, z], normal: [0.0, 1.0, 0.0] })
+        .to_vec();
+    // Counter-clockwise seen from above (+y).
+    Mesh { name: "ground".into(), vertices, indices: vec![0, 3, 2, 0, 2, 1] }
+}
+
+/// A small, seeded generator (SplitMix64): the scene must be the same on every machine.
+struct Random(u64);
+
+impl Random {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    fn uniform(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    /// Standard normal (Box-Muller).
+    fn normal(&mut self) -> f32 {
+        let u = self.uniform().max(f32::MIN_POSITIVE);
+        let v = self.uniform();
+        (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
+    }
+}
+
+fn hue_to_rgb(hue: f32) -> [u8; 3] {
+    let channel = |offset: f32| {
+        let x = ((hue + offset).fract() * 6.0 - 3.0).abs() - 1.0;
+        (60.0 + 180.0 * x.clamp(0.0, 1.0)) as u8
+    };
+    [channel(0.0), channel(2.0 / 3.0), channel(1.0 / 3.0)]
+}
+
+// ---------------------------------------------------------------------------------------------
+// OBJ files
+
+/// How to make normals for a file that has none.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Normals {
+    /// One normal per face: facets show.
+    Flat,
+    /// Area-weighted average of the faces around each vertex: curved surfaces look smooth.
+    Smooth,
+}
+
+/// Loads every object in an OBJ file (triangulated) as a mesh with one instance, its albedo the
+/// material's diffuse colour (light grey without one). Errors name the file and the problem.
+pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
+    let shown = path.display();
+    let options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    let (models, materials) = tobj::load_obj(path, &options).map_err(|e| match e {
+        tobj::LoadError::OpenFileFailed => anyhow::anyhow!("{shown}: cannot open the file (does it exist?)"),
+        other => anyhow::anyhow!("{shown}: not a valid OBJ file ({other})"),
+    })?;
+    // A missing .mtl is not fatal: the objects fall back to grey.
+    let materials = materials.unwrap_or_else(|e| {
+        eprintln!("scene: {shown}: materials not loaded ({e}); using grey");
+        Vec::new()
+    });
+    let mut meshes = Vec::new();
+    for model in models {
+        let m = &model.mesh;
+        if m.indices.is_empty() {
+            continue;
+        }
+        if m.positions.iter().any(|c| !c.is_finite()) {
+            bail!("{shown}: object {:?} has a vertex that is not a finite number (NaN or infinity)", model.name);
+        }
+        let count = (m.positions.len() / 3) as u32;
+        if let Some(bad) = m.indices.iter().find(|&&i| i >= count) {
+            bail!("{shown}: object {:?} refers to vertex {} but has only {count}", model.name, bad + 1);
+        }
+        let albedo = m
+            .material_id
+            .and_then(|id| materials.get(id))
+            .and_then(|mat| mat.diffuse)
+            .map(|d| d.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8))
+            .unwrap_or([180, 180, 180]);
+        let mut mesh = Mesh {
+            name: model.name.clone(),
+            vertices: m
+                .positions
+                .chunks_exact(3)
+                .map(|p| Vertex { position: [p[0], p[1], p[2]], normal: [0.0; 3] })
+                .collect(),
+            indices: m.indices.clone(),
+        };
+        if m.normals.len() == m.positions.len() && m.normals.iter().all(|c| c.is_finite()) {
+            for (v, n) in mesh.vertices.iter_mut().zip(m.normals.chunks_exact(3)) {
+                v.normal = Vec3::new(n[0], n[1], n[2]).normalize_or_zero().into();
+            }
+        } else {
+            compute_normals(&mut mesh, normals);
+        }
+        meshes.push((mesh, albedo));
+    }
+    if meshes.is_empty() {
+        bail!("{shown}: the file has no faces");
+    }
+    let instances = meshes.iter().map(|(_, albedo)| Instance::new(Mat4::IDENTITY, *albedo)).collect();
+    let mesh_instances = (0..meshes.len() as u32).map(|i| i..i + 1).collect();
+    let meshes = meshes.into_iter().map(|(m, _)| m).collect();
+    Ok(Scene::with_bounds(meshes, instances, mesh_instances))
+}
+
+/// Fills in normals for a mesh that has none.
+pub fn compute_normals(mesh: &mut Mesh, normals: Normals) {
+    if normals == Normals::Flat {
+        // Every triangle gets its own three vertices, so each can carry the face's normal.
+        let old = std::mem::take(&mut mesh.vertices);
+        mesh.vertices = mesh.indices.iter().map(|&i| old[i as usize]).collect();
+        mesh.indices = (0..mesh.vertices.len() as u32).collect();
+    }
+    let mut sums = vec![Vec3::ZERO; mesh.vertices.len()];
+    for t in mesh.indices.chunks_exact(3) {
+        let [a, b, c] = [t[0], t[1], t[2]].map(|i| Vec3::from(mesh.vertices[i as usize].position));
+        // Not normalised: its length is twice the area, which weights the average.
+        let face = (b - a).cross(c - a);
+        for &i in t {
+            sums[i as usize] += face;
+        }
+    }
+    for (v, n) in mesh.vertices.iter_mut().zip(sums) {
+        v.normal = n.normalize_or(Vec3::Y).into();
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Camera
+
+// ANCHOR: camera
+/// A perspective camera. GL rasterises with `view` and `projection`; the ray tracer (chapter 06)
+/// builds the very same rays from `eye` and the inverse of `view_projection`.
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    pub eye: Vec3,
+    pub target: Vec3,
+    pub fov_y: f32,
+    pub near: f32,
+    pub far: f32,
+}
+
+impl Camera {
+    /// Looks at the bounds' centre from above and in front, far enough that they fit; near and
+    /// far hug the bounds, so depth precision follows the scene's scale.
+    pub fn framing(bounds: (Vec3, Vec3), aspect: f32) -> Camera {
+        let centre = (bounds.0 + bounds.1) / 2.0;
+        let radius = ((bounds.1 - bounds.0).length() / 2.0).max(1e-6);
+        let fov_y = 45f32.to_radians();
+        let fov = if aspect < 1.0 { 2.0 * ((fov_y / 2.0).tan() * aspect).atan() } else { fov_y };
+        let distance = radius / (fov / 2.0).sin();
+        let direction = Vec3::new(0.55, 0.6, 1.0).normalize();
+        Camera {
+            eye: centre + direction * distance,
+            target: centre,
+            fov_y,
+            near: (distance - radius).max(distance * 1e-3),
+            far: distance + radius,
+        }
+    }
+
+    pub fn view(&self) -> Mat4 {
+        Mat4::look_at_rh(self.eye, self.target, Vec3::Y)
+    }
+
+    /// GL's clip space: depth from -1 to 1.
+    pub fn projection(&self, aspect: f32) -> Mat4 {
+        Mat4::perspective_rh_gl(self.fov_y, aspect, self.near, self.far)
+    }
+
+    pub fn view_projection(&self, aspect: f32) -> Mat4 {
+        self.projection(aspect) * self.view()
+    }
+}
+// ANCHOR_END: camera
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn instance_is_laid_out_as_vulkan_wants() {
+        assert_eq!(std::mem::size_of::<Instance>(), 64);
+        assert_eq!(std::mem::offset_of!(Instance, custom_index_and_mask), 48);
+        assert_eq!(std::mem::offset_of!(Instance, blas_address), 56);
+        assert_eq!(std::mem::size_of::<Vertex>(), 24);
+        let m = Mat4::from_translation(Vec3::new(1.0, 2.0, 3.0)) * Mat4::from_scale(Vec3::splat(2.0));
+        let instance = Instance::new(m, [1, 2, 3]);
+        assert_eq!(instance.transform[0], [2.0, 0.0, 0.0, 1.0], "row-major, translation last");
+        assert_eq!(instance.custom_index_and_mask, 0xFF03_0201);
+        assert_eq!(instance.object_to_world(), m);
+    }
+
+    #[test]
+    fn default_scene_is_deterministic_and_sized() {
+        let a = default_scene(100, 7);
+        let b = default_scene(100, 7);
+        assert_eq!(a.instances, b.instances);
+        assert_eq!(a.instances.len(), 101);
+        assert_eq!(a.triangles(), 2 + 100 * 4);
+        assert!(a.bounds.0.y > -1e-3 && a.bounds.1.x <= 10.0 + 1e-3);
+    }
+
+    #[test]
+    fn tetrahedron_normals_point_outwards() {
+        let t = tetrahedron();
+        for v in &t.vertices {
+            assert!(Vec3::from(v.normal).dot(Vec3::from(v.position)) > 0.0);
+        }
+    }
+
+    #[test]
+    fn smooth_and_flat_normals() {
+        let mut m = tetrahedron();
+        compute_normals(&mut m, Normals::Flat);
+        assert_eq!(m.vertices.len(), 12);
+        let mut shared = ground_plane(1.0);
+        compute_normals(&mut shared, Normals::Smooth);
+        assert!(shared.vertices.iter().all(|v| (Vec3::from(v.normal) - Vec3::Y).length() < 1e-6));
+    }
+}
