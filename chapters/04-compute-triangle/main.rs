@@ -1,0 +1,633 @@
+//! Chapter 04: compute triangle.
+//!
+//! NVIDIA's gl_vk_simple_interop, in Rust. Every frame a Vulkan compute shader writes an animated
+//! image and OpenGL draws a triangle textured with it. Both the image and the triangle's vertex
+//! buffer are Vulkan memory that GL imported; the CPU moves the triangle by writing through
+//! Vulkan's mapping, and chapter 03's `Sync` orders the two APIs. In a window, `+` and `-` double
+//! and halve the image, which recreates it (and leaks nothing); Esc quits.
+//!
+//! Run: `cargo run --bin 04-compute-triangle` (a window; `--headless` writes out/04-compute-triangle/*.png).
+
+use anyhow::{Context as _, Result, bail};
+use ash::vk;
+use common::commands::{COLOR_RANGE, Commands, Timestamps, median_p95};
+use common::exportable::{self, Dedicated, HANDLE_TYPE};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device, layout};
+use common::interop::{self, SharedImage};
+use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::window::{self, Key, NamedKey, Window};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
+use glow::HasContext;
+use std::f32::consts::{FRAC_PI_2, TAU};
+use std::ffi::CStr;
+use std::process::ExitCode;
+use std::time::Instant;
+
+const CHAPTER: &str = "04-compute-triangle";
+const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
+/// Without it the chapter still runs, synchronising on the host.
+const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
+const COMPUTE_SPIRV: &[u8] = include_bytes!("../../shaders/compute_triangle.comp.spv");
+const VERTEX_SHADER: &str = include_str!("../../shaders/gl/textured_triangle.vert");
+const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/textured_triangle.frag");
+const CLEAR: [f32; 4] = [0.1, 0.1, 0.12, 1.0];
+
+// ANCHOR: interface
+/// The compute shader's push constants (`Push` in compute_triangle.comp).
+#[repr(C)]
+struct Push {
+    time: f32,
+}
+const _: () = assert!(size_of::<Push>() == 4);
+/// `local_size_x` and `local_size_y` in compute_triangle.comp.
+const WORKGROUP: u32 = 16;
+// ANCHOR_END: interface
+
+// ANCHOR: vertices
+/// (x, y, u, v) per vertex, as in chapter 02: a 16-byte stride.
+type Triangle = [[f32; 4]; 3];
+const TRIANGLE_BYTES: u64 = size_of::<Triangle>() as u64;
+const STRIDE: i32 = 16;
+/// Copies of the triangle in the shared buffer. Frames write them in turn, so the CPU never
+/// writes the copy that GL may still be drawing from (see step 7).
+const SLOTS: u64 = 2;
+
+/// The triangle at `time` seconds: it turns and breathes about the centre of the screen, which it
+/// always covers (the reference animated its vertices with sin and cos of time too).
+fn triangle_at(time: f32) -> Triangle {
+    let radius = 0.75 + 0.1 * (2.0 * time).sin();
+    let corner = |k: f32, u: f32, v: f32| {
+        let angle = FRAC_PI_2 + 0.5 * time + k * TAU / 3.0;
+        [radius * angle.cos(), radius * angle.sin(), u, v]
+    };
+    [corner(0.0, 0.5, 0.0), corner(1.0, 0.0, 1.0), corner(2.0, 1.0, 1.0)]
+}
+// ANCHOR_END: vertices
+
+/// Chapter 04: a Vulkan compute shader animates the image an OpenGL triangle shows.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real time].
+    #[arg(long, value_name = "T")]
+    time: Option<f32>,
+    /// Every K frames, make the compute image anew at full, half, then quarter size (a leak test).
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(1..))]
+    resize_every: Option<u32>,
+}
+
+impl AsRef<CommonArgs> for Args {
+    fn as_ref(&self) -> &CommonArgs {
+        &self.common
+    }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter::<Args>(CHAPTER, run)
+}
+
+// ANCHOR: share_image
+/// The compute shader's output: a storage image that GL samples as a texture. Writes it into
+/// the descriptor set, so a resize is this call again.
+fn share_image(
+    vk: &VulkanContext,
+    gl: &GlContext,
+    set: vk::DescriptorSet,
+    extent: vk::Extent2D,
+) -> Result<SharedImage> {
+    // STORAGE: the compute shader's imageStore. SAMPLED: GL's texture().
+    let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
+    let image = SharedImage::new(vk, gl, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    let texture = image.texture.texture;
+    for (parameter, value) in [
+        (glow::TEXTURE_MIN_FILTER, glow::LINEAR), // one mip level: no mipmap filter
+        (glow::TEXTURE_MAG_FILTER, glow::LINEAR),
+        (glow::TEXTURE_WRAP_S, glow::CLAMP_TO_EDGE),
+        (glow::TEXTURE_WRAP_T, glow::CLAMP_TO_EDGE),
+    ] {
+        unsafe { gl.gl.texture_parameter_i32(texture, parameter, value as i32) };
+    }
+    // GENERAL: the only layout in which a shader may write a storage image.
+    let info =
+        [vk::DescriptorImageInfo::default().image_view(image.view).image_layout(vk::ImageLayout::GENERAL)];
+    let write = vk::WriteDescriptorSet::default()
+        .dst_set(set)
+        .dst_binding(0)
+        .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
+        .image_info(&info);
+    unsafe { vk.device.update_descriptor_sets(&[write], &[]) };
+    Ok(image)
+}
+// ANCHOR_END: share_image
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let size = args.common.size;
+    let windowed = !args.common.headless && window::display_available();
+    if !args.common.headless && !windowed {
+        eprintln!("no display (DISPLAY and WAYLAND_DISPLAY are unset): running headless");
+    }
+    // 0 frames: until the window is closed.
+    let frames = if windowed { window::frame_limit(&args.common) } else { args.common.frames.max(1) };
+    if let Some(k) = args.resize_every
+        && frames != 0
+        && frames <= 3 * k
+    {
+        bail!("--resize-every {k} needs more than {} --frames: one whole cycle of sizes", 3 * k);
+    }
+
+    // 1. Create both contexts, in a window or headless
+    // ANCHOR: contexts
+    let vk = VulkanContext::new(&Requirements {
+        extensions: REQUIRED,
+        optional_extensions: OPTIONAL,
+        ..Default::default()
+    })?;
+    let (mut window, gl_context) = match windowed {
+        true => Window::open(CHAPTER, size, &MEMORY_EXTENSIONS).map(|(w, gl)| (Some(w), gl))?,
+        false => (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?),
+    };
+    let gl = &gl_context.gl;
+    // ANCHOR_END: contexts
+    report.vulkan = Some(vk.report());
+    report.gl = Some(gl_context.report());
+    report.uuids_match = Some(vk.info.device_uuid == gl_context.device_uuid);
+    ensure_same_device(&vk.info, &gl_context)?;
+    report.set("window", windowed);
+    let open_fds_before = open_fd_count()?;
+    let sync = Sync::new(&vk, &gl_context)?;
+    report.sync = Some(sync.name());
+    let commands = Commands::new(&vk)?;
+    let timestamps = Timestamps::new(&vk)?;
+
+    // 2. Share the vertex buffer
+    // ANCHOR: vertex_buffer
+    let bytes = SLOTS * TRIANGLE_BYTES;
+    let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
+    let buffer_info = vk::BufferCreateInfo::default()
+        .size(bytes)
+        .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
+        .push_next(&mut external);
+    let buffer = unsafe { vk.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
+    let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
+    let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+    let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
+    let mapped = unsafe {
+        vk.device.bind_buffer_memory(buffer, memory.memory, 0).context("vkBindBufferMemory")?;
+        vk.device.map_memory(memory.memory, 0, bytes, vk::MemoryMapFlags::empty()).context("vkMapMemory")?
+    }
+    .cast::<Triangle>();
+    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
+    let vertices_gl = interop::import_buffer(
+        &gl_context,
+        &memory,
+        exportable::export_fd(&fd_loader, memory.memory)?,
+        bytes,
+    )?;
+    // ANCHOR_END: vertex_buffer
+
+    // 3. Build the compute pipeline
+    // ANCHOR: pipeline
+    let device = &vk.device;
+    let compute = vk::ShaderStageFlags::COMPUTE;
+    let bindings = [vk::DescriptorSetLayoutBinding::default()
+        .binding(0) // `binding = 0` in the shader: the image it writes
+        .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
+        .descriptor_count(1)
+        .stage_flags(compute)];
+    let set_layout_info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+    let set_layout = unsafe { device.create_descriptor_set_layout(&set_layout_info, None) }?;
+    let push_range = [vk::PushConstantRange::default().stage_flags(compute).size(size_of::<Push>() as u32)];
+    let set_layouts = [set_layout];
+    let layout_info =
+        vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&push_range);
+    let pipeline_layout = unsafe { device.create_pipeline_layout(&layout_info, None) }?;
+    // read_spv copies the bytes into u32 words: include_bytes! promises no 4-byte alignment.
+    let code = ash::util::read_spv(&mut std::io::Cursor::new(COMPUTE_SPIRV)).context("reading the SPIR-V")?;
+    let module =
+        unsafe { device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None) }?;
+    let stage = vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module).name(c"main");
+    let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(pipeline_layout);
+    let pipeline =
+        unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None) }
+            .map_err(|(_, e)| e)
+            .context("vkCreateComputePipelines")?[0];
+    unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
+    let pool_sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];
+    let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes);
+    let descriptor_pool = unsafe { device.create_descriptor_pool(&pool_info, None) }?;
+    let allocate =
+        vk::DescriptorSetAllocateInfo::default().descriptor_pool(descriptor_pool).set_layouts(&set_layouts);
+    let set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
+    // ANCHOR_END: pipeline
+
+    // 4. Share the image it writes
+    let mut extent = vk::Extent2D { width: size.width, height: size.height };
+    let mut image = share_image(&vk, &gl_context, set, extent)?;
+    // A new image has never been GL's: there is nothing to hand over yet (step 8).
+    let mut image_is_new = true;
+    let largest = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }
+        .limits
+        .max_image_dimension2_d;
+
+    // 5. Prepare GL's draw
+    let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
+    let vertex_array = unsafe {
+        let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
+        for (location, offset) in [(0, 0), (1, 8)] {
+            gl.enable_vertex_array_attrib(vao, location);
+            gl.vertex_array_attrib_format_f32(vao, location, 2, glow::FLOAT, false, offset);
+            gl.vertex_array_attrib_binding_f32(vao, location, 0);
+        }
+        vao
+    };
+    let target = match window {
+        Some(_) => None, // the window's own back buffer
+        None => Some(RenderTarget::new(gl, size.width, size.height)?),
+    };
+
+    let out_dir = args.common.out_dir(CHAPTER);
+    let started = Instant::now();
+    let (mut gpu_ms, mut frame_ms) = (Vec::new(), Vec::new());
+    let (mut centre_lit, mut shows_image) = (true, true);
+    let (mut first_seen, mut last_seen) = (None, None);
+    let (mut resizes, mut fds_after_cycle) = (0, None);
+    let mut frame = 0;
+    while frames == 0 || frame < frames {
+        let frame_started = Instant::now();
+        let time = args.time.map_or(started.elapsed().as_secs_f32(), |t| t + frame as f32 / 60.0);
+
+        // 6. Resize the image: on a key, or every K frames
+        let mut wanted = extent;
+        if let Some(window) = window.as_mut() {
+            let mut quit = window.close_requested();
+            for key in window.poll(&gl_context) {
+                match key.as_ref() {
+                    Key::Named(NamedKey::Escape) => quit = true,
+                    Key::Character("+" | "=") => wanted = scale(extent, |side| (side * 2).min(largest)),
+                    Key::Character("-") => wanted = scale(extent, |side| (side / 2).max(1)),
+                    _ => {}
+                }
+            }
+            if quit || window.close_requested() {
+                break;
+            }
+        }
+        if let Some(k) = args.resize_every
+            && frame > 0
+            && frame % k == 0
+        {
+            wanted = scale(vk::Extent2D { width: size.width, height: size.height }, |side| {
+                (side >> (frame / k % 3)).max(1)
+            });
+        }
+        // ANCHOR: resize
+        if wanted != extent {
+            // The old image may still be in use: by GL's last draw and by Vulkan's last dispatch.
+            // Wait for both (a resize is rare; no frame waits like this), then destroy it, GL's
+            // side first, and make the new one. The reference skipped the wait and leaked.
+            unsafe {
+                gl.finish();
+                device.wait_for_fences(&[commands.fence], true, u64::MAX)?;
+            }
+            image.destroy(&vk, &gl_context);
+            image = share_image(&vk, &gl_context, set, wanted)?;
+            (extent, image_is_new, resizes) = (wanted, true, resizes + 1);
+            eprintln!("compute image: {}x{}", extent.width, extent.height);
+            if resizes == 3 && args.resize_every.is_some() {
+                fds_after_cycle = Some(open_fd_count()?); // back at full size
+            }
+        }
+        // ANCHOR_END: resize
+
+        // 7. Move the triangle
+        // ANCHOR: animate
+        // `begin` waits for the last frame's Vulkan work, which waited for GL's signal after the
+        // frame before it: GL has finished drawing from the copy written two frames ago. Write that one.
+        let cb = commands.begin(&vk)?;
+        if frame > 0
+            && let Some(t) = &timestamps
+        {
+            gpu_ms.push(t.read_ms(&vk)?);
+        }
+        let slot = frame as u64 % SLOTS;
+        let triangle = triangle_at(time);
+        // SAFETY: slot < SLOTS copies are mapped, and neither API reads this one now (above).
+        unsafe { mapped.add(slot as usize).write(triangle) };
+        // ANCHOR_END: animate
+
+        // 8. GL hands the image to Vulkan, which computes
+        // ANCHOR: compute
+        let texture = [image.texture.texture];
+        // GL names the layout its release leaves the image in; Vulkan's barrier starts from the same.
+        let handed = if image_is_new { 0 } else { 1 };
+        sync.gl_release(&gl_context, &texture[..handed], &[layout::SHADER_READ_ONLY][..handed]);
+        if let Some(t) = &timestamps {
+            t.reset(&vk, cb);
+        }
+        record_compute(
+            &vk,
+            cb,
+            pipeline,
+            pipeline_layout,
+            set,
+            &image,
+            image_is_new,
+            time,
+            timestamps.as_ref(),
+        );
+        // Wait for GL at the compute stage: nothing before the dispatch touches the image.
+        let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::COMPUTE_SHADER));
+        commands.submit(&vk, wait, sync.vulkan_signals())?;
+        // ANCHOR_END: compute
+
+        // 9. Vulkan hands the image back; GL draws
+        // ANCHOR: draw
+        // SHADER_READ_ONLY: where Vulkan's release barrier left it. GL must be told the same.
+        sync.gl_acquire(&vk, &gl_context, commands.fence, &texture, &[layout::SHADER_READ_ONLY])?;
+        image_is_new = false;
+        let (width, height) = window.as_ref().map_or((size.width, size.height), |w| w.size());
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, target.as_ref().map(|t| t.framebuffer));
+            gl.viewport(0, 0, width as i32, height as i32);
+            gl.clear_color(CLEAR[0], CLEAR[1], CLEAR[2], CLEAR[3]);
+            gl.clear(glow::COLOR_BUFFER_BIT);
+            gl.use_program(Some(program));
+            // This frame's copy of the triangle: an offset inside GL's buffer, not the memory object.
+            let offset = (slot * TRIANGLE_BYTES) as i32;
+            gl.vertex_array_vertex_buffer(vertex_array, 0, Some(vertices_gl.buffer), offset, STRIDE);
+            gl.bind_vertex_array(Some(vertex_array));
+            gl.bind_texture_unit(0, Some(image.texture.texture)); // `binding = 0` in the shader
+            gl.draw_arrays(glow::TRIANGLES, 0, 3);
+        }
+        // ANCHOR_END: draw
+        gl_context.check_error("drawing the triangle")?;
+
+        // 10. Check the frame (a window's before it is shown)
+        let last = frames != 0 && frame + 1 == frames;
+        if (window.is_none() || frame == 0 || last) && width > 0 && height > 0 {
+            let pixels = output::read_gl_rgba8(gl, width, height);
+            let name = if frames == 1 { CHAPTER.to_owned() } else { format!("{CHAPTER}-frame{frame}") };
+            output::save_rgba8(report, &out_dir, &name, width, height, &pixels)?;
+            centre_lit &= is_lit(pixel(&pixels, width, height, [0.0, 0.0]));
+            shows_image &= shows_compute_image(&pixels, width, height, &triangle, extent, time);
+            match first_seen {
+                None => first_seen = Some(pixels),
+                Some(_) => last_seen = Some(pixels),
+            }
+        }
+        if let Some(window) = &window {
+            window.swap_buffers(&gl_context)?;
+        }
+        frame_ms.push(ms_since(frame_started));
+        frame += 1;
+    }
+    unsafe { device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    if let Some(t) = &timestamps {
+        gpu_ms.push(t.read_ms(&vk)?);
+    }
+
+    report.check("centre_pixel_inside_triangle", centre_lit);
+    report.check("triangle_shows_computed_image", shows_image);
+    if let (Some(first), Some(last)) = (&first_seen, &last_seen) {
+        report.check("frames_differ_over_time", differ(first, last));
+    }
+    if args.resize_every.is_some() {
+        let at_end = open_fd_count()?;
+        report.check("no_fd_growth_across_resizes", fds_after_cycle == Some(at_end));
+        report.set("fds", serde_json::json!({ "after_first_cycle": fds_after_cycle, "at_end": at_end }));
+    }
+    for (name, samples) in [("compute_gpu", &gpu_ms), ("frame_cpu", &frame_ms)] {
+        let (median, p95) = median_p95(samples);
+        report.time_ms(&format!("{name}_median"), median);
+        report.time_ms(&format!("{name}_p95"), p95);
+    }
+    report.set("frames", frame);
+    report.set("resizes", resizes);
+    report.set("compute_image", [extent.width, extent.height]);
+
+    // 11. Clean up, newest first, once both APIs are idle
+    // ANCHOR: cleanup
+    unsafe {
+        gl.finish();
+        device.device_wait_idle()?;
+    }
+    if let Some(target) = target {
+        target.delete(gl);
+    }
+    unsafe {
+        gl.delete_vertex_array(vertex_array);
+        gl.delete_program(program);
+    }
+    image.destroy(&vk, &gl_context); // GL's texture and memory object, then view, memory, image
+    unsafe {
+        device.destroy_descriptor_pool(descriptor_pool, None); // and the set allocated from it
+        device.destroy_pipeline(pipeline, None);
+        device.destroy_pipeline_layout(pipeline_layout, None);
+        device.destroy_descriptor_set_layout(set_layout, None);
+    }
+    vertices_gl.delete(&gl_context);
+    unsafe {
+        device.unmap_memory(memory.memory);
+        device.free_memory(memory.memory, None);
+        device.destroy_buffer(buffer, None);
+    }
+    if let Some(t) = timestamps {
+        t.destroy(&vk);
+    }
+    commands.destroy(&vk);
+    sync.destroy(&vk, &gl_context);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    Ok(())
+}
+
+// ANCHOR: record_compute
+/// Takes the image from GL, runs the compute shader over it, and gives it back.
+#[allow(clippy::too_many_arguments)]
+fn record_compute(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    pipeline: vk::Pipeline,
+    pipeline_layout: vk::PipelineLayout,
+    set: vk::DescriptorSet,
+    image: &SharedImage,
+    image_is_new: bool,
+    time: f32,
+    timestamps: Option<&Timestamps>,
+) {
+    let barrier = |old, new, src_access, dst_access, src_family, dst_family| {
+        vk::ImageMemoryBarrier::default()
+            .image(image.image)
+            .subresource_range(COLOR_RANGE)
+            .old_layout(old)
+            .new_layout(new)
+            .src_access_mask(src_access)
+            .dst_access_mask(dst_access)
+            .src_queue_family_index(src_family)
+            .dst_queue_family_index(dst_family)
+    };
+    let (external, ours) = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
+    let (compute, none) = (vk::PipelineStageFlags::COMPUTE_SHADER, vk::DependencyFlags::empty());
+    let (read_only, general) = (vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, vk::ImageLayout::GENERAL);
+    let device = &vk.device;
+    let acquire = if image_is_new {
+        // Nothing to take over: UNDEFINED says the old contents may go, and the shader writes
+        // every pixel anyway. No ownership transfer (IGNORED): Vulkan's first use claims it.
+        let ignored = vk::QUEUE_FAMILY_IGNORED;
+        barrier(
+            vk::ImageLayout::UNDEFINED,
+            general,
+            vk::AccessFlags::NONE,
+            vk::AccessFlags::SHADER_WRITE,
+            ignored,
+            ignored,
+        )
+    } else {
+        // Acquire from GL: ownership moves from outside Vulkan (QUEUE_FAMILY_EXTERNAL) to our
+        // queue family, and the image from the layout GL released it in to GENERAL, the layout
+        // imageStore needs. No source access: GL only sampled it, and its semaphore (or glFinish)
+        // already ordered that before us. Destination: the shader's writes.
+        barrier(read_only, general, vk::AccessFlags::NONE, vk::AccessFlags::SHADER_WRITE, external, ours)
+    };
+    let extent = image.extent;
+    let push = Push { time };
+    unsafe {
+        // Source stage COMPUTE_SHADER: the stage the submission waits for GL at, so this barrier
+        // (and its layout change) happens after GL's release. Destination: the dispatch below.
+        device.cmd_pipeline_barrier(cb, compute, compute, none, &[], &[], &[acquire]);
+        if let Some(t) = timestamps {
+            t.start(vk, cb, compute); // after the wait for GL: time the dispatch, not the wait
+        }
+        device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, pipeline);
+        device.cmd_bind_descriptor_sets(cb, vk::PipelineBindPoint::COMPUTE, pipeline_layout, 0, &[set], &[]);
+        device.cmd_push_constants(
+            cb,
+            pipeline_layout,
+            vk::ShaderStageFlags::COMPUTE,
+            0,
+            &push.time.to_ne_bytes(),
+        );
+        // One invocation per pixel, in whole 16x16 workgroups; the shader skips the overhang.
+        device.cmd_dispatch(cb, extent.width.div_ceil(WORKGROUP), extent.height.div_ceil(WORKGROUP), 1);
+        // Release to GL: make the shader's writes available (source COMPUTE_SHADER, SHADER_WRITE),
+        // move to SHADER_READ_ONLY_OPTIMAL, the layout GL's acquire will name, and hand ownership
+        // back outside Vulkan. Destination: nothing more in this submission (BOTTOM_OF_PIPE, no
+        // access); the semaphore signal (or fence) that ends it carries the rest to GL.
+        let release =
+            barrier(general, read_only, vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::NONE, ours, external);
+        device.cmd_pipeline_barrier(
+            cb,
+            compute,
+            vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+            none,
+            &[],
+            &[],
+            &[release],
+        );
+        if let Some(t) = timestamps {
+            t.end(vk, cb);
+        }
+    }
+}
+// ANCHOR_END: record_compute
+
+fn scale(extent: vk::Extent2D, side: impl Fn(u32) -> u32) -> vk::Extent2D {
+    vk::Extent2D { width: side(extent.width), height: side(extent.height) }
+}
+
+// ANCHOR: shader_on_cpu
+/// compute_triangle.comp's colour for texel (x, y) of a `size` image at `time`, line by line.
+fn shader_colour(x: u32, y: u32, size: vk::Extent2D, time: f32) -> [f32; 3] {
+    let (w, h) = (size.width as f32, size.height as f32);
+    let p = [((x as f32 + 0.5) / w * 2.0 - 1.0) * (w / h), (y as f32 + 0.5) / h * 2.0 - 1.0];
+    let radius = p[0].hypot(p[1]);
+    let angle = p[1].atan2(p[0]);
+    let rings = 0.5 + 0.5 * (20.0 * radius - 3.0 * time).cos();
+    let hue = angle / TAU + 0.5 * radius + 0.1 * time;
+    [0.0, 0.33, 0.67].map(|offset| (0.5 + 0.5 * (TAU * (hue + offset)).cos()) * (0.3 + 0.7 * rings))
+}
+
+/// What GL_LINEAR sampling of that image returns at `uv`: the four nearest texels (clamped to
+/// the edge), each stored as 8-bit UNORM, weighted by distance. In 0-255.
+fn sampled_colour(uv: [f32; 2], size: vk::Extent2D, time: f32) -> [f32; 3] {
+    let (x, y) = (uv[0] * size.width as f32 - 0.5, uv[1] * size.height as f32 - 0.5);
+    let (fx, fy) = (x - x.floor(), y - y.floor());
+    let texel = |dx: f32, dy: f32| {
+        let tx = (x.floor() + dx).clamp(0.0, size.width as f32 - 1.0) as u32;
+        let ty = (y.floor() + dy).clamp(0.0, size.height as f32 - 1.0) as u32;
+        shader_colour(tx, ty, size, time).map(|c| (c.clamp(0.0, 1.0) * 255.0).round())
+    };
+    let (a, b, c, d) = (texel(0.0, 0.0), texel(1.0, 0.0), texel(0.0, 1.0), texel(1.0, 1.0));
+    std::array::from_fn(|i| {
+        (a[i] * (1.0 - fx) + b[i] * fx) * (1.0 - fy) + (c[i] * (1.0 - fx) + d[i] * fx) * fy
+    })
+}
+
+/// Does the frame show the computed image on the triangle? At the triangle's centre and halfway
+/// to each corner, the pixel must be what the shader computed at that pixel's texture coordinate.
+fn shows_compute_image(
+    pixels: &[u8],
+    width: u32,
+    height: u32,
+    triangle: &Triangle,
+    size: vk::Extent2D,
+    time: f32,
+) -> bool {
+    let centre = [0, 1].map(|i| triangle.iter().map(|v| v[i]).sum::<f32>() / 3.0);
+    let points = [centre]
+        .into_iter()
+        .chain(triangle.iter().map(|v| [(centre[0] + v[0]) / 2.0, (centre[1] + v[1]) / 2.0]));
+    points.into_iter().all(|p| {
+        let (column, row) = pixel_at(width, height, p);
+        // The centre of that pixel, where GL interpolated the texture coordinate.
+        let ndc = [
+            (column as f32 + 0.5) / width as f32 * 2.0 - 1.0,
+            1.0 - (row as f32 + 0.5) / height as f32 * 2.0,
+        ];
+        let expected = sampled_colour(uv_at(triangle, ndc), size, time);
+        let seen = pixel(pixels, width, height, p);
+        seen.iter().zip(expected).all(|(&s, e)| (s as f32 - e).abs() <= 6.0)
+    })
+}
+// ANCHOR_END: shader_on_cpu
+
+/// The texture coordinate GL interpolates at `p` (normalised device coordinates) in `triangle`.
+fn uv_at(triangle: &Triangle, p: [f32; 2]) -> [f32; 2] {
+    let [a, b, c] = triangle;
+    let area = |p: [f32; 2], q: &[f32; 4], r: &[f32; 4]| {
+        (q[0] - p[0]) * (r[1] - p[1]) - (r[0] - p[0]) * (q[1] - p[1])
+    };
+    let whole = area([a[0], a[1]], b, c);
+    let (wa, wb) = (area(p, b, c) / whole, area(p, c, a) / whole);
+    [2, 3].map(|i| wa * a[i] + wb * b[i] + (1.0 - wa - wb) * c[i])
+}
+
+/// The (column, row) of the pixel at normalised device coordinates `p`, rows from the top.
+fn pixel_at(width: u32, height: u32, p: [f32; 2]) -> (u32, u32) {
+    let column = ((p[0] + 1.0) / 2.0 * width as f32) as u32;
+    let row = ((1.0 - p[1]) / 2.0 * height as f32) as u32;
+    (column.min(width - 1), row.min(height - 1))
+}
+
+fn pixel(pixels: &[u8], width: u32, height: u32, p: [f32; 2]) -> [u8; 4] {
+    let (column, row) = pixel_at(width, height, p);
+    let at = (row * width + column) as usize * 4;
+    pixels[at..at + 4].try_into().unwrap()
+}
+
+fn is_lit(p: [u8; 4]) -> bool {
+    CLEAR.iter().zip(p).any(|(c, p)| ((c * 255.0).round() as u8).abs_diff(p) > 12)
+}
+
+/// Two frames differ when at least 1% of their pixels changed visibly.
+fn differ(a: &[u8], b: &[u8]) -> bool {
+    a.len() != b.len()
+        || a.chunks_exact(4)
+            .zip(b.chunks_exact(4))
+            .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 8))
+            .count()
+            * 100
+            >= a.len() / 4
+}

@@ -1,0 +1,188 @@
+//! A window with a GL 4.5 core context (taught in chapter 04): winit makes the window and
+//! delivers its events, glutin makes the context, glutin-winit's `DisplayBuilder` matches the two.
+//!
+//! The chapters own their frame loop, so that one loop draws offscreen (`--headless`) or into a
+//! window. The window therefore does not hand control to winit's `run_app`; it *pumps* winit's
+//! event loop once a frame (`pump_app_events`, which X11 and Wayland support) through an
+//! `ApplicationHandler` that keeps only what is safe to handle later on Linux: key presses,
+//! resizes and the close request. Rendering stays in the chapter's loop.
+
+use crate::GlContext;
+use crate::cli::{CommonArgs, Size};
+use anyhow::{Context as _, Result, anyhow, bail};
+use glutin::config::{Config, ConfigTemplateBuilder, GlConfig as _};
+use glutin::context::{ContextApi, ContextAttributesBuilder, GlProfile, PossiblyCurrentContext, Version};
+use glutin::display::{Display, GetGlDisplay as _};
+use glutin::prelude::*;
+use glutin::surface::{Surface, SwapInterval, WindowSurface};
+use glutin_winit::{ApiPreference, DisplayBuilder, GlWindow as _};
+use std::num::NonZeroU32;
+use std::time::Duration;
+use winit::application::ApplicationHandler;
+use winit::dpi::PhysicalSize;
+use winit::event::{ElementState, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, EventLoop};
+use winit::platform::pump_events::{EventLoopExtPumpEvents as _, PumpStatus};
+use winit::raw_window_handle::HasWindowHandle as _;
+use winit::window::WindowId;
+
+pub use winit::keyboard::{Key, NamedKey};
+
+/// Is there a display to open a window on? (X11's `DISPLAY` or Wayland's `WAYLAND_DISPLAY`.)
+pub fn display_available() -> bool {
+    ["DISPLAY", "WAYLAND_DISPLAY"].iter().any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()))
+}
+
+/// How many frames a window shows before closing itself: `--frames N` when given, else 0 (until
+/// the window is closed). `CommonArgs::frames` defaults to 1, which suits headless runs only.
+pub fn frame_limit(args: &CommonArgs) -> u32 {
+    let given = std::env::args_os()
+        .any(|a| a.to_str().is_some_and(|a| a == "--frames" || a.starts_with("--frames=")));
+    if given { args.frames } else { 0 }
+}
+
+/// An open window whose GL surface is current with the chapter's [`GlContext`].
+pub struct Window {
+    event_loop: EventLoop<()>,
+    app: App,
+}
+
+#[derive(Default)]
+struct App {
+    title: String,
+    size: Option<Size>,
+    /// Made in `resumed`, the first moment winit allows it.
+    opened: Option<Opened>,
+    /// The context made in `resumed`, until `Window::open` wraps it in a `GlContext`.
+    context: Option<(PossiblyCurrentContext, Display)>,
+    error: Option<anyhow::Error>,
+    keys: Vec<Key>,
+    resized: Option<PhysicalSize<u32>>,
+    close_requested: bool,
+}
+
+struct Opened {
+    // Field order is drop order: the surface goes before the window it draws into.
+    surface: Surface<WindowSurface>,
+    window: winit::window::Window,
+}
+
+impl Window {
+    /// Opens a `size` window with a GL 4.5 core context current on it, and wraps the context as
+    /// [`GlContext::new`] does (failing, naming each one, when an extension in `required` is missing).
+    pub fn open(title: &str, size: Size, required: &[&str]) -> Result<(Window, GlContext)> {
+        let mut event_loop = EventLoop::new().context("connecting to the display (winit)")?;
+        let mut app = App { title: title.to_owned(), size: Some(size), ..Default::default() };
+        // winit allows windows only once its loop runs (`resumed`): pump until then.
+        while app.opened.is_none() && app.error.is_none() {
+            if let PumpStatus::Exit(code) =
+                event_loop.pump_app_events(Some(Duration::from_millis(100)), &mut app)
+            {
+                bail!("the event loop stopped (code {code}) before the window opened");
+            }
+        }
+        if let Some(error) = app.error.take() {
+            return Err(error);
+        }
+        let (context, display) = app.context.take().expect("resumed made a context with the window");
+        let gl = GlContext::new(context, &|name| display.get_proc_address(name), required)?;
+        let opened = app.opened.as_ref().expect("checked above");
+        // Wait for one vertical blank per swap when the driver can; a window needs no more frames.
+        let _ = opened.surface.set_swap_interval(gl.context(), SwapInterval::Wait(NonZeroU32::MIN));
+        eprintln!(
+            "window: {}x{}, {}",
+            opened.window.inner_size().width,
+            opened.window.inner_size().height,
+            gl.renderer
+        );
+        Ok((Window { event_loop, app }, gl))
+    }
+
+    /// Handles what happened since the last call, without blocking: resizes the GL surface to the
+    /// window, and returns the keys pressed since.
+    pub fn poll(&mut self, gl: &GlContext) -> std::vec::Drain<'_, Key> {
+        if let PumpStatus::Exit(_) = self.event_loop.pump_app_events(Some(Duration::ZERO), &mut self.app) {
+            self.app.close_requested = true;
+        }
+        if let (Some(size), Some(opened)) = (self.app.resized.take(), &self.app.opened) {
+            if let (Some(w), Some(h)) = (NonZeroU32::new(size.width), NonZeroU32::new(size.height)) {
+                opened.surface.resize(gl.context(), w, h);
+            }
+        }
+        self.app.keys.drain(..)
+    }
+
+    /// Did the user close the window (or the window system end the loop)?
+    pub fn close_requested(&self) -> bool {
+        self.app.close_requested
+    }
+
+    /// The size of the window's drawable area, in pixels (0 when minimised).
+    pub fn size(&self) -> (u32, u32) {
+        self.app.opened.as_ref().map_or((0, 0), |o| o.window.inner_size().into())
+    }
+
+    /// Shows the back buffer.
+    pub fn swap_buffers(&self, gl: &GlContext) -> Result<()> {
+        let opened = self.app.opened.as_ref().expect("an open Window has a surface");
+        opened.surface.swap_buffers(gl.context()).context("swapping the window's buffers")
+    }
+}
+
+impl App {
+    fn open(&mut self, event_loop: &ActiveEventLoop) -> Result<()> {
+        let size = self.size.take().expect("opened once");
+        let attributes = winit::window::Window::default_attributes()
+            .with_title(&self.title)
+            .with_inner_size(PhysicalSize::new(size.width, size.height));
+        // EGL first: the same API as the headless path, and the one NVIDIA and Mesa share.
+        let (window, config) = DisplayBuilder::new()
+            .with_preference(ApiPreference::PreferEgl)
+            .with_window_attributes(Some(attributes))
+            .build(event_loop, ConfigTemplateBuilder::new(), pick_config)
+            .map_err(|e| anyhow!("no GL configuration for a window: {e}"))?;
+        let window = window.context("glutin-winit made no window")?;
+        let display = config.display();
+        let handle = window.window_handle().context("the window's native handle")?.as_raw();
+        let attributes = ContextAttributesBuilder::new()
+            .with_context_api(ContextApi::OpenGl(Some(Version::new(4, 5))))
+            .with_profile(GlProfile::Core)
+            .with_debug(true)
+            .build(Some(handle));
+        let context =
+            unsafe { display.create_context(&config, &attributes) }.context("a GL 4.5 core context")?;
+        let surface_attributes = window.build_surface_attributes(Default::default())?;
+        let surface = unsafe { display.create_window_surface(&config, &surface_attributes) }
+            .context("a GL surface for the window")?;
+        let context = context.make_current(&surface).context("making the window's context current")?;
+        self.context = Some((context, display));
+        self.opened = Some(Opened { surface, window });
+        Ok(())
+    }
+}
+
+/// A single-sampled configuration if there is one: the chapters read the back buffer back.
+fn pick_config(configs: Box<dyn Iterator<Item = Config> + '_>) -> Config {
+    configs.min_by_key(|c| c.num_samples()).expect("glutin offers at least one configuration")
+}
+
+impl ApplicationHandler for App {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.opened.is_none() && self.error.is_none() {
+            if let Err(error) = self.open(event_loop) {
+                self.error = Some(error);
+            }
+        }
+    }
+
+    fn window_event(&mut self, _: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+        match event {
+            WindowEvent::CloseRequested => self.close_requested = true,
+            WindowEvent::Resized(size) => self.resized = Some(size),
+            WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
+                self.keys.push(event.logical_key)
+            }
+            _ => {}
+        }
+    }
+}
