@@ -84,6 +84,55 @@ fn ch03_semaphores() {
 }
 
 #[test]
+fn ch05_g_buffers_default_scene() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_05-g-buffers"), &["--size", "160x120"], &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), ["VK_KHR_external_memory_fd"], "05 needs no ray tracing");
+    assert_eq!(report["instances"], 10_001, "the default scene: 10,000 tetrahedra and the ground");
+    assert_eq!(report["draw_calls"], 2, "one instanced draw per mesh");
+    assert_report_snapshot("05-g-buffers", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch05_g_buffers_bunny() {
+    let bunny = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/bunny.obj");
+    let run = run_chapter(env!("CARGO_BIN_EXE_05-g-buffers"), &["--size", "160x120", "--scene", bunny], &[]);
+    let report = run.succeeded();
+    assert_eq!(report["triangles"], 27_864);
+    assert_report_snapshot("05-g-buffers-bunny", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+/// Bad OBJ input is an error naming the file and the problem (exit 2), never a panic.
+#[test]
+fn ch05_bad_obj_files_are_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        ("missing.obj", None, "cannot open"),
+        ("garbage.obj", Some("v 1 2\nf 1 2 3 4 5 x\n"), "not a valid OBJ"),
+        ("empty.obj", Some("# nothing\nv 0 0 0\nv 1 0 0\n"), "no faces"),
+        ("nan.obj", Some("v 0 0 0\nv NaN 0 0\nv 0 1 0\nf 1 2 3\n"), "not a finite number"),
+        ("range.obj", Some("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"), "out of bounds"),
+    ];
+    for (name, contents, expected) in cases {
+        let path = dir.path().join(name);
+        if let Some(text) = contents {
+            std::fs::write(&path, text).unwrap();
+        }
+        let run = run_chapter(
+            env!("CARGO_BIN_EXE_05-g-buffers"),
+            &["--size", "32x32", "--scene", path.to_str().unwrap()],
+            &[],
+        );
+        assert_eq!(run.output.status.code(), Some(2), "{name}: {}", run.stderr);
+        assert!(run.stderr.contains(path.to_str().unwrap()), "{name}: names the file:\n{}", run.stderr);
+        assert!(run.stderr.contains(expected), "{name}: says {expected:?}:\n{}", run.stderr);
+        assert!(!run.stderr.contains("panicked"), "{name}: {}", run.stderr);
+    }
+}
+
+#[test]
 fn bad_flags_are_rejected_with_a_reason() {
     let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
     assert_eq!(run.output.status.code(), Some(2));

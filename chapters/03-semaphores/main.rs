@@ -61,7 +61,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let frames = args.common.frames.max(1);
 
     // 1. Create both contexts and a shared image
-    let vk = VulkanContext::new(&Requirements { extensions: REQUIRED, optional_extensions: OPTIONAL, ..Default::default() })?;
+    let vk = VulkanContext::new(&Requirements {
+        extensions: REQUIRED,
+        optional_extensions: OPTIONAL,
+        ..Default::default()
+    })?;
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     report.vulkan = Some(vk.report());

@@ -5,6 +5,17 @@ use anyhow::{Context as _, Result};
 use glow::HasContext;
 use std::path::Path;
 
+/// Reverses the order of the rows of RGBA8 pixels. GL numbers rows from the bottom and Vulkan
+/// from the top, so an image GL drew, read back by Vulkan, has its bottom row first.
+pub fn flip_rows(pixels: &[u8], width: u32, height: u32) -> Vec<u8> {
+    let row = (width * 4) as usize;
+    let mut flipped = Vec::with_capacity(pixels.len());
+    for y in (0..height as usize).rev() {
+        flipped.extend_from_slice(&pixels[y * row..(y + 1) * row]);
+    }
+    flipped
+}
+
 /// Reads the bound read framebuffer's RGBA8 pixels, top row first (GL's rows start at the bottom).
 pub fn read_gl_rgba8(gl: &glow::Context, width: u32, height: u32) -> Vec<u8> {
     let mut pixels = vec![0u8; (width * height * 4) as usize];
@@ -20,12 +31,7 @@ pub fn read_gl_rgba8(gl: &glow::Context, width: u32, height: u32) -> Vec<u8> {
             glow::PixelPackData::Slice(Some(&mut pixels)),
         );
     }
-    let row = (width * 4) as usize;
-    let mut flipped = Vec::with_capacity(pixels.len());
-    for y in (0..height as usize).rev() {
-        flipped.extend_from_slice(&pixels[y * row..(y + 1) * row]);
-    }
-    flipped
+    flip_rows(&pixels, width, height)
 }
 
 /// Writes RGBA8 pixels (top row first) as `<dir>/<name>.png` and lists the image in the report.

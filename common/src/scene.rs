@@ -69,7 +69,11 @@ pub struct Scene {
 
 impl Scene {
     pub fn triangles(&self) -> u64 {
-        self.mesh_instances.iter().zip(&self.meshes).map(|(r, m)| (r.len() * m.indices.len() / 3) as u64).sum()
+        self.mesh_instances
+            .iter()
+            .zip(&self.meshes)
+            .map(|(r, m)| (r.len() * m.indices.len() / 3) as u64)
+            .sum()
     }
 
     /// The diagonal of the bounds: the scene's size, for anything that must scale with it.
@@ -112,7 +116,8 @@ pub fn default_scene(count: u32, seed: u64) -> Scene {
             random.uniform() * std::f32::consts::TAU,
             0.0,
         );
-        let transform = Mat4::from_scale_rotation_translation(Vec3::splat(scale), rotation, Vec3::new(x, y, z));
+        let transform =
+            Mat4::from_scale_rotation_translation(Vec3::splat(scale), rotation, Vec3::new(x, y, z));
         Instance::new(transform, hue_to_rgb(random.uniform()))
     });
     let instances: Vec<Instance> = std::iter::once(ground).chain(tetrahedra).collect();
@@ -121,8 +126,13 @@ pub fn default_scene(count: u32, seed: u64) -> Scene {
 
 /// A regular tetrahedron of circumradius 1 with one normal per face (12 vertices).
 pub fn tetrahedron() -> Mesh {
-    let corners = [Vec3::new(1.0, 1.0, 1.0), Vec3::new(1.0, -1.0, -1.0), Vec3::new(-1.0, 1.0, -1.0), Vec3::new(-1.0, -1.0, 1.0)]
-        .map(|c| c / 3f32.sqrt());
+    let corners = [
+        Vec3::new(1.0, 1.0, 1.0),
+        Vec3::new(1.0, -1.0, -1.0),
+        Vec3::new(-1.0, 1.0, -1.0),
+        Vec3::new(-1.0, -1.0, 1.0),
+    ]
+    .map(|c| c / 3f32.sqrt());
     let faces = [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]];
     let mut vertices = Vec::new();
     for [a, b, c] in faces {
@@ -209,7 +219,10 @@ pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
             continue;
         }
         if m.positions.iter().any(|c| !c.is_finite()) {
-            bail!("{shown}: object {:?} has a vertex that is not a finite number (NaN or infinity)", model.name);
+            bail!(
+                "{shown}: object {:?} has a vertex that is not a finite number (NaN or infinity)",
+                model.name
+            );
         }
         let count = (m.positions.len() / 3) as u32;
         if let Some(bad) = m.indices.iter().find(|&&i| i >= count) {
@@ -293,13 +306,15 @@ impl Camera {
         let radius = ((bounds.1 - bounds.0).length() / 2.0).max(1e-6);
         let fov_y = 45f32.to_radians();
         let fov = if aspect < 1.0 { 2.0 * ((fov_y / 2.0).tan() * aspect).atan() } else { fov_y };
-        let distance = radius / (fov / 2.0).sin();
+        // radius / sin fits the whole bounding sphere; most scenes (a flat ground, a bunny) fill
+        // far less of it, so come closer by a quarter.
+        let distance = 0.75 * radius / (fov / 2.0).sin();
         let direction = Vec3::new(0.55, 0.6, 1.0).normalize();
         Camera {
             eye: centre + direction * distance,
             target: centre,
             fov_y,
-            near: (distance - radius).max(distance * 1e-3),
+            near: (distance - radius).max(distance * 1e-2),
             far: distance + radius,
         }
     }

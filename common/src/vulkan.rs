@@ -114,8 +114,10 @@ impl VulkanContext {
             enabled_extensions.iter().map(|e| std::ffi::CString::new(e.as_str()).unwrap()).collect();
         let extension_names: Vec<*const c_char> = extension_names.iter().map(|e| e.as_ptr()).collect();
         let mut vulkan12 = vk::PhysicalDeviceVulkan12Features::default().buffer_device_address(true);
-        let mut acceleration = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
-        let mut pipelines = vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default().ray_tracing_pipeline(true);
+        let mut acceleration =
+            vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
+        let mut pipelines =
+            vk::PhysicalDeviceRayTracingPipelineFeaturesKHR::default().ray_tracing_pipeline(true);
         // SPIR-V 1.6 (glslc --target-env=vulkan1.3) gives compute shaders' workgroup sizes as
         // LocalSizeId, which needs maintenance4: core in Vulkan 1.3, and every 1.3 device has it.
         let mut vulkan13 = vk::PhysicalDeviceVulkan13Features::default().maintenance4(true);
@@ -124,7 +126,8 @@ impl VulkanContext {
             .enabled_extension_names(&extension_names)
             .push_next(&mut vulkan13);
         if requirements.ray_tracing {
-            device_info = device_info.push_next(&mut vulkan12).push_next(&mut acceleration).push_next(&mut pipelines);
+            device_info =
+                device_info.push_next(&mut vulkan12).push_next(&mut acceleration).push_next(&mut pipelines);
         }
         let device = match unsafe { instance.create_device(physical_device, &device_info, None) } {
             Ok(device) => device,

@@ -1,0 +1,36 @@
+#version 450 core
+// Chapter 05: one instanced draw per mesh writes the G-buffers.
+
+// Per vertex (buffer binding 0, 24-byte stride): common::scene::Vertex.
+layout(location = 0) in vec3 position;
+layout(location = 1) in vec3 normal;
+// Per instance (buffer binding 1, 64-byte stride, divisor 1): common::scene::Instance, which is
+// laid out as VkAccelerationStructureInstanceKHR so that chapter 06 builds the TLAS from the same
+// buffer. Its 3x4 object-to-world matrix arrives as three rows.
+layout(location = 2) in vec4 row0;
+layout(location = 3) in vec4 row1;
+layout(location = 4) in vec4 row2;
+// instanceCustomIndex (low 24 bits) holds the albedo as 0xBBGGRR; the mask is in the high 8.
+layout(location = 5) in uint custom_index_and_mask;
+
+uniform mat4 view;
+uniform mat4 projection;
+
+out vec3 world_position;
+out vec3 world_normal;
+out float view_depth;
+flat out vec3 albedo;
+
+void main() {
+    // GLSL matrices are built from columns: the rows become columns, then transpose.
+    mat4 object_to_world = transpose(mat4(row0, row1, row2, vec4(0.0, 0.0, 0.0, 1.0)));
+    vec4 world = object_to_world * vec4(position, 1.0);
+    // Normals take the inverse transpose, which stays right under non-uniform scale.
+    world_normal = transpose(inverse(mat3(object_to_world))) * normal;
+    world_position = world.xyz;
+    vec4 in_view = view * world;
+    view_depth = -in_view.z; // the camera looks down -z in view space
+    uint c = custom_index_and_mask;
+    albedo = vec3(c & 0xFFu, (c >> 8) & 0xFFu, (c >> 16) & 0xFFu) / 255.0;
+    gl_Position = projection * in_view;
+}
