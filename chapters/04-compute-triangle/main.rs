@@ -8,10 +8,11 @@
 //!
 //! Run: `cargo run --bin 04-compute-triangle` (a window; `--headless` writes out/04-compute-triangle/*.png).
 
+mod check;
+
 use anyhow::{Context as _, Result, bail};
 use ash::vk;
 use common::commands::{COLOR_RANGE, Commands, Timestamps, median_p95};
-use common::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device, layout};
 use common::interop::{self, SharedImage};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
@@ -162,28 +163,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Share the vertex buffer
     // ANCHOR: vertex_buffer
-    let bytes = SLOTS * TRIANGLE_BYTES;
-    let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
-    let buffer_info = vk::BufferCreateInfo::default()
-        .size(bytes)
-        .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
-        .push_next(&mut external);
-    let buffer = unsafe { vk.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
-    let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
-    let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-    let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
-    let mapped = unsafe {
-        vk.device.bind_buffer_memory(buffer, memory.memory, 0).context("vkBindBufferMemory")?;
-        vk.device.map_memory(memory.memory, 0, bytes, vk::MemoryMapFlags::empty()).context("vkMapMemory")?
-    }
-    .cast::<Triangle>();
-    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-    let vertices_gl = interop::import_buffer(
-        &gl_context,
-        &memory,
-        exportable::export_fd(&fd_loader, memory.memory)?,
-        bytes,
-    )?;
+    // Chapter 02's buffer, SLOTS triangles long. Its contents are written before each use.
+    let zeros = [0; (SLOTS * TRIANGLE_BYTES) as usize];
+    let usage = vk::BufferUsageFlags::VERTEX_BUFFER;
+    let (vertices_vk, vertices_gl) = interop::share_buffer(&vk, &gl_context, &zeros, usage)?;
+    // Vulkan's mapping: the CPU writes the triangle here, GL draws from the same bytes.
+    let mapped = vertices_vk.mapped.cast::<Triangle>();
     // ANCHOR_END: vertex_buffer
 
     // 3. Build the compute pipeline
@@ -260,7 +245,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // 6. Resize the image: on a key, or every K frames
         let mut wanted = extent;
         if let Some(window) = window.as_mut() {
-            let mut quit = window.close_requested();
+            let mut quit = false;
             for key in window.poll(&gl_context) {
                 match key.as_ref() {
                     Key::Named(NamedKey::Escape) => quit = true,
@@ -369,8 +354,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let pixels = output::read_gl_rgba8(gl, width, height);
             let name = if frames == 1 { CHAPTER.to_owned() } else { format!("{CHAPTER}-frame{frame}") };
             output::save_rgba8(report, &out_dir, &name, width, height, &pixels)?;
-            centre_lit &= is_lit(pixel(&pixels, width, height, [0.0, 0.0]));
-            shows_image &= shows_compute_image(&pixels, width, height, &triangle, extent, time);
+            centre_lit &= check::is_lit(check::pixel(&pixels, width, height, [0.0, 0.0]));
+            shows_image &= check::shows_compute_image(&pixels, width, height, &triangle, extent, time);
             match first_seen {
                 None => first_seen = Some(pixels),
                 Some(_) => last_seen = Some(pixels),
@@ -390,7 +375,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("centre_pixel_inside_triangle", centre_lit);
     report.check("triangle_shows_computed_image", shows_image);
     if let (Some(first), Some(last)) = (&first_seen, &last_seen) {
-        report.check("frames_differ_over_time", differ(first, last));
+        report.check("frames_differ_over_time", check::differ(first, last));
     }
     if args.resize_every.is_some() {
         let at_end = open_fd_count()?;
@@ -426,12 +411,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         device.destroy_pipeline_layout(pipeline_layout, None);
         device.destroy_descriptor_set_layout(set_layout, None);
     }
-    vertices_gl.delete(&gl_context);
-    unsafe {
-        device.unmap_memory(memory.memory);
-        device.free_memory(memory.memory, None);
-        device.destroy_buffer(buffer, None);
-    }
+    vertices_gl.delete(&gl_context); // GL's buffer and memory object, then Vulkan's
+    vertices_vk.destroy(&vk);
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
@@ -535,99 +516,4 @@ fn record_compute(
 
 fn scale(extent: vk::Extent2D, side: impl Fn(u32) -> u32) -> vk::Extent2D {
     vk::Extent2D { width: side(extent.width), height: side(extent.height) }
-}
-
-// ANCHOR: shader_on_cpu
-/// compute_triangle.comp's colour for texel (x, y) of a `size` image at `time`, line by line.
-fn shader_colour(x: u32, y: u32, size: vk::Extent2D, time: f32) -> [f32; 3] {
-    let (w, h) = (size.width as f32, size.height as f32);
-    let p = [((x as f32 + 0.5) / w * 2.0 - 1.0) * (w / h), (y as f32 + 0.5) / h * 2.0 - 1.0];
-    let radius = p[0].hypot(p[1]);
-    let angle = p[1].atan2(p[0]);
-    let rings = 0.5 + 0.5 * (20.0 * radius - 3.0 * time).cos();
-    let hue = angle / TAU + 0.5 * radius + 0.1 * time;
-    [0.0, 0.33, 0.67].map(|offset| (0.5 + 0.5 * (TAU * (hue + offset)).cos()) * (0.3 + 0.7 * rings))
-}
-
-/// What GL_LINEAR sampling of that image returns at `uv`: the four nearest texels (clamped to
-/// the edge), each stored as 8-bit UNORM, weighted by distance. In 0-255.
-fn sampled_colour(uv: [f32; 2], size: vk::Extent2D, time: f32) -> [f32; 3] {
-    let (x, y) = (uv[0] * size.width as f32 - 0.5, uv[1] * size.height as f32 - 0.5);
-    let (fx, fy) = (x - x.floor(), y - y.floor());
-    let texel = |dx: f32, dy: f32| {
-        let tx = (x.floor() + dx).clamp(0.0, size.width as f32 - 1.0) as u32;
-        let ty = (y.floor() + dy).clamp(0.0, size.height as f32 - 1.0) as u32;
-        shader_colour(tx, ty, size, time).map(|c| (c.clamp(0.0, 1.0) * 255.0).round())
-    };
-    let (a, b, c, d) = (texel(0.0, 0.0), texel(1.0, 0.0), texel(0.0, 1.0), texel(1.0, 1.0));
-    std::array::from_fn(|i| {
-        (a[i] * (1.0 - fx) + b[i] * fx) * (1.0 - fy) + (c[i] * (1.0 - fx) + d[i] * fx) * fy
-    })
-}
-
-/// Does the frame show the computed image on the triangle? At the triangle's centre and halfway
-/// to each corner, the pixel must be what the shader computed at that pixel's texture coordinate.
-fn shows_compute_image(
-    pixels: &[u8],
-    width: u32,
-    height: u32,
-    triangle: &Triangle,
-    size: vk::Extent2D,
-    time: f32,
-) -> bool {
-    let centre = [0, 1].map(|i| triangle.iter().map(|v| v[i]).sum::<f32>() / 3.0);
-    let points = [centre]
-        .into_iter()
-        .chain(triangle.iter().map(|v| [(centre[0] + v[0]) / 2.0, (centre[1] + v[1]) / 2.0]));
-    points.into_iter().all(|p| {
-        let (column, row) = pixel_at(width, height, p);
-        // The centre of that pixel, where GL interpolated the texture coordinate.
-        let ndc = [
-            (column as f32 + 0.5) / width as f32 * 2.0 - 1.0,
-            1.0 - (row as f32 + 0.5) / height as f32 * 2.0,
-        ];
-        let expected = sampled_colour(uv_at(triangle, ndc), size, time);
-        let seen = pixel(pixels, width, height, p);
-        seen.iter().zip(expected).all(|(&s, e)| (s as f32 - e).abs() <= 6.0)
-    })
-}
-// ANCHOR_END: shader_on_cpu
-
-/// The texture coordinate GL interpolates at `p` (normalised device coordinates) in `triangle`.
-fn uv_at(triangle: &Triangle, p: [f32; 2]) -> [f32; 2] {
-    let [a, b, c] = triangle;
-    let area = |p: [f32; 2], q: &[f32; 4], r: &[f32; 4]| {
-        (q[0] - p[0]) * (r[1] - p[1]) - (r[0] - p[0]) * (q[1] - p[1])
-    };
-    let whole = area([a[0], a[1]], b, c);
-    let (wa, wb) = (area(p, b, c) / whole, area(p, c, a) / whole);
-    [2, 3].map(|i| wa * a[i] + wb * b[i] + (1.0 - wa - wb) * c[i])
-}
-
-/// The (column, row) of the pixel at normalised device coordinates `p`, rows from the top.
-fn pixel_at(width: u32, height: u32, p: [f32; 2]) -> (u32, u32) {
-    let column = ((p[0] + 1.0) / 2.0 * width as f32) as u32;
-    let row = ((1.0 - p[1]) / 2.0 * height as f32) as u32;
-    (column.min(width - 1), row.min(height - 1))
-}
-
-fn pixel(pixels: &[u8], width: u32, height: u32, p: [f32; 2]) -> [u8; 4] {
-    let (column, row) = pixel_at(width, height, p);
-    let at = (row * width + column) as usize * 4;
-    pixels[at..at + 4].try_into().unwrap()
-}
-
-fn is_lit(p: [u8; 4]) -> bool {
-    CLEAR.iter().zip(p).any(|(c, p)| ((c * 255.0).round() as u8).abs_diff(p) > 12)
-}
-
-/// Two frames differ when at least 1% of their pixels changed visibly.
-fn differ(a: &[u8], b: &[u8]) -> bool {
-    a.len() != b.len()
-        || a.chunks_exact(4)
-            .zip(b.chunks_exact(4))
-            .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 8))
-            .count()
-            * 100
-            >= a.len() / 4
 }

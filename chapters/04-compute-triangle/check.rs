@@ -1,0 +1,100 @@
+//! Chapter 04's checks: what the frame should show, computed on the CPU.
+
+use crate::{CLEAR, Triangle};
+use ash::vk;
+use std::f32::consts::TAU;
+
+// ANCHOR: shader_on_cpu
+/// compute_triangle.comp's colour for texel (x, y) of a `size` image at `time`, line by line.
+fn shader_colour(x: u32, y: u32, size: vk::Extent2D, time: f32) -> [f32; 3] {
+    let (w, h) = (size.width as f32, size.height as f32);
+    let p = [((x as f32 + 0.5) / w * 2.0 - 1.0) * (w / h), (y as f32 + 0.5) / h * 2.0 - 1.0];
+    let radius = p[0].hypot(p[1]);
+    let angle = p[1].atan2(p[0]);
+    let rings = 0.5 + 0.5 * (20.0 * radius - 3.0 * time).cos();
+    let hue = angle / TAU + 0.5 * radius + 0.1 * time;
+    [0.0, 0.33, 0.67].map(|offset| (0.5 + 0.5 * (TAU * (hue + offset)).cos()) * (0.3 + 0.7 * rings))
+}
+
+/// What GL_LINEAR sampling of that image returns at `uv`: the four nearest texels (clamped to
+/// the edge), each stored as 8-bit UNORM, weighted by distance. In 0-255.
+fn sampled_colour(uv: [f32; 2], size: vk::Extent2D, time: f32) -> [f32; 3] {
+    let (x, y) = (uv[0] * size.width as f32 - 0.5, uv[1] * size.height as f32 - 0.5);
+    let (fx, fy) = (x - x.floor(), y - y.floor());
+    let texel = |dx: f32, dy: f32| {
+        let tx = (x.floor() + dx).clamp(0.0, size.width as f32 - 1.0) as u32;
+        let ty = (y.floor() + dy).clamp(0.0, size.height as f32 - 1.0) as u32;
+        shader_colour(tx, ty, size, time).map(|c| (c.clamp(0.0, 1.0) * 255.0).round())
+    };
+    let (a, b, c, d) = (texel(0.0, 0.0), texel(1.0, 0.0), texel(0.0, 1.0), texel(1.0, 1.0));
+    std::array::from_fn(|i| {
+        (a[i] * (1.0 - fx) + b[i] * fx) * (1.0 - fy) + (c[i] * (1.0 - fx) + d[i] * fx) * fy
+    })
+}
+
+/// Does the frame show the computed image on the triangle? At the triangle's centre and halfway
+/// to each corner, the pixel must be what the shader computed at that pixel's texture coordinate.
+pub fn shows_compute_image(
+    pixels: &[u8],
+    width: u32,
+    height: u32,
+    triangle: &Triangle,
+    size: vk::Extent2D,
+    time: f32,
+) -> bool {
+    let centre = [0, 1].map(|i| triangle.iter().map(|v| v[i]).sum::<f32>() / 3.0);
+    let points = [centre]
+        .into_iter()
+        .chain(triangle.iter().map(|v| [(centre[0] + v[0]) / 2.0, (centre[1] + v[1]) / 2.0]));
+    points.into_iter().all(|p| {
+        let (column, row) = pixel_at(width, height, p);
+        // The centre of that pixel, where GL interpolated the texture coordinate.
+        let ndc = [
+            (column as f32 + 0.5) / width as f32 * 2.0 - 1.0,
+            1.0 - (row as f32 + 0.5) / height as f32 * 2.0,
+        ];
+        let expected = sampled_colour(uv_at(triangle, ndc), size, time);
+        let seen = pixel(pixels, width, height, p);
+        seen.iter().zip(expected).all(|(&s, e)| (s as f32 - e).abs() <= 6.0)
+    })
+}
+// ANCHOR_END: shader_on_cpu
+
+/// The texture coordinate GL interpolates at `p` (normalised device coordinates) in `triangle`.
+fn uv_at(triangle: &Triangle, p: [f32; 2]) -> [f32; 2] {
+    let [a, b, c] = triangle;
+    let area = |p: [f32; 2], q: &[f32; 4], r: &[f32; 4]| {
+        (q[0] - p[0]) * (r[1] - p[1]) - (r[0] - p[0]) * (q[1] - p[1])
+    };
+    let whole = area([a[0], a[1]], b, c);
+    let (wa, wb) = (area(p, b, c) / whole, area(p, c, a) / whole);
+    [2, 3].map(|i| wa * a[i] + wb * b[i] + (1.0 - wa - wb) * c[i])
+}
+
+/// The (column, row) of the pixel at normalised device coordinates `p`, rows from the top.
+fn pixel_at(width: u32, height: u32, p: [f32; 2]) -> (u32, u32) {
+    let column = ((p[0] + 1.0) / 2.0 * width as f32) as u32;
+    let row = ((1.0 - p[1]) / 2.0 * height as f32) as u32;
+    (column.min(width - 1), row.min(height - 1))
+}
+
+pub fn pixel(pixels: &[u8], width: u32, height: u32, p: [f32; 2]) -> [u8; 4] {
+    let (column, row) = pixel_at(width, height, p);
+    let at = (row * width + column) as usize * 4;
+    pixels[at..at + 4].try_into().unwrap()
+}
+
+pub fn is_lit(p: [u8; 4]) -> bool {
+    CLEAR.iter().zip(p).any(|(c, p)| ((c * 255.0).round() as u8).abs_diff(p) > 12)
+}
+
+/// Two frames differ when at least 1% of their pixels changed visibly.
+pub fn differ(a: &[u8], b: &[u8]) -> bool {
+    a.len() != b.len()
+        || a.chunks_exact(4)
+            .zip(b.chunks_exact(4))
+            .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 8))
+            .count()
+            * 100
+            >= a.len() / 4
+}
