@@ -8,10 +8,11 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::commands::{COLOR_RANGE, Commands, HostBuffer};
+use common::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
+use common::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
 use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, layout};
-use common::interop::{SharedBuffer, SharedImage, share_buffer};
-use common::scene::{self, Camera, Instance, Normals, Scene, Vertex};
+use common::interop::{acquire_from_gl, release_to_gl};
+use common::scene::{self, Camera, Normals, Scene};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
 use glow::HasContext;
@@ -23,18 +24,6 @@ use std::time::Instant;
 const CHAPTER: &str = "05-g-buffers";
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
-const VERTEX_SHADER: &str = include_str!("../../shaders/gl/gbuffer.vert");
-const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/gbuffer.frag");
-
-// ANCHOR: gbuffers
-/// The G-buffers: (name, Vulkan format, GL's name for it, bytes per pixel).
-const GBUFFERS: [(&str, vk::Format, u32, u32); 3] = [
-    // World position; w = view depth (0 where nothing was drawn), for chapter 08's filter.
-    ("position", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
-    ("normal", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
-    ("albedo", vk::Format::R8G8B8A8_UNORM, glow::RGBA8, 4),
-];
-// ANCHOR_END: gbuffers
 
 /// Chapter 05: GL rasterises G-buffers into Vulkan-owned images.
 #[derive(clap::Parser)]
@@ -62,12 +51,6 @@ fn main() -> ExitCode {
     common::run_chapter::<Args>(CHAPTER, run)
 }
 
-/// The scene's buffers, shared: Vulkan's side (for chapter 06) and GL's (for drawing).
-struct SceneBuffers {
-    meshes: Vec<[(common::exportable::ExportedBuffer, SharedBuffer); 2]>,
-    instances: (common::exportable::ExportedBuffer, SharedBuffer),
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
 
@@ -79,19 +62,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     // ANCHOR_END: load
-    eprintln!(
-        "scene: {} meshes, {} instances, {} triangles",
-        scene.meshes.len(),
-        scene.instances.len(),
-        scene.triangles()
-    );
+    let (meshes, instances, triangles) = (scene.meshes.len(), scene.instances.len(), scene.triangles());
+    eprintln!("scene: {meshes} meshes, {instances} instances, {triangles} triangles");
 
     // 2. Create both contexts
-    let vk = VulkanContext::new(&Requirements {
-        extensions: REQUIRED,
-        optional_extensions: OPTIONAL,
-        ..Default::default()
-    })?;
+    let requirements =
+        Requirements { extensions: REQUIRED, optional_extensions: OPTIONAL, ..Default::default() };
+    let vk = VulkanContext::new(&requirements)?;
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     report.vulkan = Some(vk.report());
@@ -103,70 +80,24 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
 
     // 3. Share the scene's buffers
-    let buffers = share_scene(&vk, &gl_context, &scene)?;
+    // ANCHOR: share
+    // Vulkan does nothing with them itself until chapter 06: no usage of its own.
+    let buffers = SceneBuffers::share(&vk, &gl_context, &scene, vk::BufferUsageFlags::empty())?;
+    // ANCHOR_END: share
 
     // 4. Share the G-buffer images, and make them GL's render targets
-    // ANCHOR: images
-    // COLOR_ATTACHMENT: GL draws into them. TRANSFER_SRC: this chapter copies them out.
-    // STORAGE: chapter 07's ray tracer reads them.
-    let usage = vk::ImageUsageFlags::COLOR_ATTACHMENT
-        | vk::ImageUsageFlags::TRANSFER_SRC
-        | vk::ImageUsageFlags::STORAGE;
-    let mut images = Vec::new();
-    for (_, format, gl_format, _) in GBUFFERS {
-        images.push(SharedImage::new(&vk, &gl_context, format, gl_format, usage, extent)?);
-    }
-    let framebuffer = unsafe { gbuffer_framebuffer(gl, &images, extent)? };
-    // ANCHOR_END: images
-    let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
-    let vertex_arrays: Vec<glow::VertexArray> = buffers
-        .meshes
-        .iter()
-        .map(|[v, i]| unsafe { vertex_array(gl, &v.1, &i.1, &buffers.instances.1) })
-        .collect::<Result<_>>()?;
+    // ANCHOR: gbuffers
+    // TRANSFER_SRC: this chapter copies them out. STORAGE: chapter 07's ray tracer reads them.
+    let usage = vk::ImageUsageFlags::TRANSFER_SRC | vk::ImageUsageFlags::STORAGE;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, usage)?;
+    // ANCHOR_END: gbuffers
 
     // 5. Rasterise: one instanced draw per mesh
     let started = Instant::now();
     let query = unsafe { gl.create_query() }.map_err(anyhow::Error::msg)?;
-    // ANCHOR: draw
-    unsafe {
-        gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer.0));
-        gl.viewport(0, 0, extent.width as i32, extent.height as i32);
-        gl.enable(glow::DEPTH_TEST);
-        for attachment in 0..GBUFFERS.len() as u32 {
-            gl.clear_buffer_f32_slice(glow::COLOR, attachment, &[0.0; 4]);
-        }
-        gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
-        gl.use_program(Some(program));
-        let aspect = extent.width as f32 / extent.height as f32;
-        let uniform = |name| gl.get_uniform_location(program, name);
-        gl.uniform_matrix_4_f32_slice(uniform("view").as_ref(), false, &camera.view().to_cols_array());
-        gl.uniform_matrix_4_f32_slice(
-            uniform("projection").as_ref(),
-            false,
-            &camera.projection(aspect).to_cols_array(),
-        );
-        gl.begin_query(glow::TIME_ELAPSED, query);
-        for ((mesh, instances), vertex_array) in
-            scene.meshes.iter().zip(&scene.mesh_instances).zip(&vertex_arrays)
-        {
-            gl.bind_vertex_array(Some(*vertex_array));
-            let (count, first) = (instances.len() as i32, instances.start);
-            // base_instance: this mesh's instances start `first` entries into the shared buffer.
-            let indices = mesh.indices.len() as i32;
-            gl.draw_elements_instanced_base_vertex_base_instance(
-                glow::TRIANGLES,
-                indices,
-                glow::UNSIGNED_INT,
-                0,
-                count,
-                0,
-                first,
-            );
-        }
-        gl.end_query(glow::TIME_ELAPSED);
-    }
-    // ANCHOR_END: draw
+    unsafe { gl.begin_query(glow::TIME_ELAPSED, query) };
+    gbuffers.draw(gl, &scene, &camera);
+    unsafe { gl.end_query(glow::TIME_ELAPSED) };
     gl_context.check_error("drawing the G-buffers")?;
 
     // 6. Hand the G-buffers to Vulkan, which copies them out
@@ -177,21 +108,48 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         readbacks.push(HostBuffer::new(&vk, bytes, vk::BufferUsageFlags::TRANSFER_DST)?);
     }
     // ANCHOR: handover
-    let textures: Vec<glow::Texture> = images.iter().map(|i| i.texture.texture).collect();
+    let textures = gbuffers.textures();
+    // GL puts them in TRANSFER_SRC for Vulkan's copies; Vulkan gives them back as attachments.
     sync.gl_release(&gl_context, &textures, &[layout::TRANSFER_SRC; 3]);
     let cb = commands.begin(&vk)?;
-    unsafe { record_copies(&vk, cb, &images, &readbacks) };
-    let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
+    let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
+    let (acquire, release): (Vec<_>, Vec<_>) = gbuffers
+        .images
+        .iter()
+        .map(|image| {
+            let read = vk::AccessFlags::TRANSFER_READ;
+            let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
+            let none = vk::AccessFlags::NONE; // reads only: nothing to make available to GL
+            (
+                acquire_from_gl(&vk, image, transfer_src, transfer_src, read),
+                release_to_gl(&vk, image, transfer_src, attachment, none),
+            )
+        })
+        .unzip();
+    let (top, transfer, bottom) = (
+        vk::PipelineStageFlags::TOP_OF_PIPE,
+        vk::PipelineStageFlags::TRANSFER,
+        vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+    );
+    let none = vk::DependencyFlags::empty();
+    unsafe { vk.device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &acquire) };
+    for (image, readback) in gbuffers.images.iter().zip(&readbacks) {
+        copy_image_to_buffer(&vk, cb, image.image, transfer_src, extent, readback.buffer);
+    }
+    unsafe { vk.device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &release) };
+    transfers_to_host(&vk, cb);
+    let wait = sync.vulkan_waits_on().map(|s| (s, transfer));
     commands.submit(&vk, wait, sync.vulkan_signals())?;
     sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[layout::COLOR_ATTACHMENT; 3])?;
+    // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     // ANCHOR_END: handover
     report.time_ms("raster_and_handover_cpu", ms_since(started));
-    report
-        .time_ms("raster_gpu", unsafe { gl.get_query_parameter_u32(query, glow::QUERY_RESULT) } as f64 / 1e6);
+    let raster_ns = unsafe { gl.get_query_parameter_u32(query, glow::QUERY_RESULT) };
+    report.time_ms("raster_gpu", raster_ns as f64 / 1e6);
 
     // 7. Check what Vulkan sees, and write it out
-    let seen = GBufferPixels::from(&readbacks);
+    let seen = GBufferPixels { position: readbacks[0].rgba32f(), normal: readbacks[1].rgba32f() };
     check_gbuffers(report, &seen, &camera, &scene);
     let out = args.common.out_dir(CHAPTER);
     // Pictures of a loaded model carry its name: 05-g-buffers-bunny-albedo.png.
@@ -208,195 +166,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let upright = output::flip_rows(&pixels, extent.width, extent.height);
         output::save_rgba8(report, &out, &format!("{prefix}-{name}"), extent.width, extent.height, &upright)?;
     }
-    report.set("draw_calls", scene.meshes.len());
-    report.set("instances", scene.instances.len());
-    report.set("triangles", scene.triangles());
-    let shared: u64 = buffers.meshes.iter().flatten().map(|b| b.0.memory.size).sum::<u64>()
-        + buffers.instances.0.memory.size
-        + images.iter().map(|i| i.memory.size).sum::<u64>();
-    report.set("bytes_shared", shared);
+    report.set("draw_calls", meshes);
+    report.set("instances", instances);
+    report.set("triangles", triangles);
+    report.set("bytes_shared", buffers.bytes() + gbuffers.images.iter().map(|i| i.memory.size).sum::<u64>());
 
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     readbacks.into_iter().for_each(|b| b.destroy(&vk));
     commands.destroy(&vk);
-    unsafe {
-        gl.delete_query(query);
-        vertex_arrays.into_iter().for_each(|v| gl.delete_vertex_array(v));
-        gl.delete_program(program);
-        gl.delete_framebuffer(framebuffer.0);
-        gl.delete_renderbuffer(framebuffer.1);
-    }
-    images.into_iter().for_each(|i| i.destroy(&vk, &gl_context));
-    let SceneBuffers { meshes, instances } = buffers;
-    for (exported, shared) in meshes.into_iter().flatten().chain([instances]) {
-        shared.delete(&gl_context);
-        exported.destroy(&vk);
-    }
+    unsafe { gl.delete_query(query) };
+    gbuffers.destroy(&vk, &gl_context);
+    buffers.destroy(&vk, &gl_context);
     sync.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
     Ok(())
-}
-
-// ANCHOR: share_scene
-/// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocates and GL imports.
-fn share_scene(vk: &VulkanContext, gl: &GlContext, scene: &Scene) -> Result<SceneBuffers> {
-    let usage = vk::BufferUsageFlags::empty(); // Vulkan itself does not use them until chapter 06
-    let mut meshes = Vec::new();
-    for mesh in &scene.meshes {
-        let vertices =
-            share_buffer(vk, gl, as_bytes(&mesh.vertices), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
-        let indices =
-            share_buffer(vk, gl, as_bytes(&mesh.indices), usage | vk::BufferUsageFlags::INDEX_BUFFER)?;
-        meshes.push([vertices, indices]);
-    }
-    let instances =
-        share_buffer(vk, gl, as_bytes(&scene.instances), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
-    Ok(SceneBuffers { meshes, instances })
-}
-// ANCHOR_END: share_scene
-
-// ANCHOR: vertex_array
-/// How GL reads a mesh: per-vertex attributes from its vertex buffer (binding 0) and
-/// per-instance ones from the shared instance buffer (binding 1, advancing once per instance).
-unsafe fn vertex_array(
-    gl: &glow::Context,
-    vertices: &SharedBuffer,
-    indices: &SharedBuffer,
-    instances: &SharedBuffer,
-) -> Result<glow::VertexArray> {
-    unsafe {
-        let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
-        gl.vertex_array_vertex_buffer(vao, 0, Some(vertices.buffer), 0, size_of::<Vertex>() as i32);
-        gl.vertex_array_vertex_buffer(vao, 1, Some(instances.buffer), 0, size_of::<Instance>() as i32);
-        gl.vertex_array_element_buffer(vao, Some(indices.buffer));
-        // (location, binding, components, byte offset): position, normal, then the transform's rows.
-        let float_attributes = [(0, 0, 3, 0), (1, 0, 3, 12), (2, 1, 4, 0), (3, 1, 4, 16), (4, 1, 4, 32)];
-        for (location, binding, size, offset) in float_attributes {
-            gl.enable_vertex_array_attrib(vao, location);
-            gl.vertex_array_attrib_format_f32(vao, location, size, glow::FLOAT, false, offset);
-            gl.vertex_array_attrib_binding_f32(vao, location, binding);
-        }
-        // The custom index + mask word, read as an integer (not converted to float).
-        gl.enable_vertex_array_attrib(vao, 5);
-        gl.vertex_array_attrib_format_i32(vao, 5, 1, glow::UNSIGNED_INT, 48);
-        gl.vertex_array_attrib_binding_f32(vao, 5, 1);
-        // glow has no glVertexArrayBindingDivisor: bind, then set binding 1's divisor.
-        gl.bind_vertex_array(Some(vao));
-        gl.vertex_binding_divisor(1, 1);
-        gl.bind_vertex_array(None);
-        Ok(vao)
-    }
-}
-// ANCHOR_END: vertex_array
-
-/// One FBO over the three imported textures, plus a depth buffer only GL needs.
-unsafe fn gbuffer_framebuffer(
-    gl: &glow::Context,
-    images: &[SharedImage],
-    extent: vk::Extent2D,
-) -> Result<(glow::Framebuffer, glow::Renderbuffer)> {
-    unsafe {
-        let depth = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
-        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
-        gl.renderbuffer_storage(
-            glow::RENDERBUFFER,
-            glow::DEPTH_COMPONENT32F,
-            extent.width as i32,
-            extent.height as i32,
-        );
-        let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
-        let mut draw_buffers = Vec::new();
-        for (i, image) in images.iter().enumerate() {
-            let attachment = glow::COLOR_ATTACHMENT0 + i as u32;
-            gl.named_framebuffer_texture(Some(fb), attachment, Some(image.texture.texture), 0);
-            draw_buffers.push(attachment);
-        }
-        gl.named_framebuffer_draw_buffers(Some(fb), &draw_buffers);
-        gl.named_framebuffer_renderbuffer(Some(fb), glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER, Some(depth));
-        let status = gl.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
-        anyhow::ensure!(status == glow::FRAMEBUFFER_COMPLETE, "G-buffer framebuffer incomplete: {status:#x}");
-        Ok((fb, depth))
-    }
-}
-
-/// Acquire each image from GL (in TRANSFER_SRC, as GL's release promised), copy it into its
-/// read-back buffer, and release it to GL again as a colour attachment.
-unsafe fn record_copies(
-    vk: &VulkanContext,
-    cb: vk::CommandBuffer,
-    images: &[SharedImage],
-    readbacks: &[HostBuffer],
-) {
-    let (external, ours) = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
-    let barrier = |image: &SharedImage, old, new, src_access, dst_access, from, to| {
-        vk::ImageMemoryBarrier::default()
-            .image(image.image)
-            .subresource_range(COLOR_RANGE)
-            .old_layout(old)
-            .new_layout(new)
-            .src_access_mask(src_access)
-            .dst_access_mask(dst_access)
-            .src_queue_family_index(from)
-            .dst_queue_family_index(to)
-    };
-    let src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
-    let acquire: Vec<_> = images
-        .iter()
-        .map(|i| barrier(i, src, src, vk::AccessFlags::NONE, vk::AccessFlags::TRANSFER_READ, external, ours))
-        .collect();
-    let release: Vec<_> = images
-        .iter()
-        .map(|i| {
-            barrier(
-                i,
-                src,
-                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
-                vk::AccessFlags::NONE,
-                vk::AccessFlags::NONE,
-                ours,
-                external,
-            )
-        })
-        .collect();
-    let (top, transfer, bottom) = (
-        vk::PipelineStageFlags::TOP_OF_PIPE,
-        vk::PipelineStageFlags::TRANSFER,
-        vk::PipelineStageFlags::BOTTOM_OF_PIPE,
-    );
-    let none = vk::DependencyFlags::empty();
-    unsafe {
-        vk.device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &acquire);
-        for (image, readback) in images.iter().zip(readbacks) {
-            let region = vk::BufferImageCopy::default()
-                .image_subresource(
-                    vk::ImageSubresourceLayers::default()
-                        .aspect_mask(vk::ImageAspectFlags::COLOR)
-                        .layer_count(1),
-                )
-                .image_extent(vk::Extent3D {
-                    width: image.extent.width,
-                    height: image.extent.height,
-                    depth: 1,
-                });
-            vk.device.cmd_copy_image_to_buffer(cb, image.image, src, readback.buffer, &[region]);
-        }
-        vk.device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &release);
-        let to_host = vk::MemoryBarrier::default()
-            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-            .dst_access_mask(vk::AccessFlags::HOST_READ);
-        vk.device.cmd_pipeline_barrier(
-            cb,
-            transfer,
-            vk::PipelineStageFlags::HOST,
-            none,
-            &[to_host],
-            &[],
-            &[],
-        );
-    }
 }
 
 /// The G-buffers as Vulkan read them back, as floats.
@@ -406,16 +192,6 @@ struct GBufferPixels {
 }
 
 impl GBufferPixels {
-    fn from(readbacks: &[HostBuffer]) -> Self {
-        let floats = |b: &HostBuffer| -> Vec<[f32; 4]> {
-            b.bytes()
-                .chunks_exact(16)
-                .map(|p| std::array::from_fn(|i| f32::from_le_bytes(p[i * 4..i * 4 + 4].try_into().unwrap())))
-                .collect()
-        };
-        GBufferPixels { position: floats(&readbacks[0]), normal: floats(&readbacks[1]) }
-    }
-
     /// Positions mapped into the scene's bounds as colours; background black.
     fn position_picture(&self, scene: &Scene) -> Vec<u8> {
         let (low, high) = scene.bounds;
@@ -473,9 +249,4 @@ fn check_gbuffers(report: &mut Report, seen: &GBufferPixels, camera: &Camera, sc
         p.cmpge(scene.bounds.0 - tolerance).all() && p.cmple(scene.bounds.1 + tolerance).all()
     });
     report.check("positions_lie_in_the_scene_bounds", inside);
-}
-
-fn as_bytes<T: Copy>(items: &[T]) -> &[u8] {
-    // SAFETY: Vertex, Instance and u32 are plain #[repr(C)] data without padding.
-    unsafe { std::slice::from_raw_parts(items.as_ptr().cast(), std::mem::size_of_val(items)) }
 }

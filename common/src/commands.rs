@@ -140,6 +140,15 @@ impl HostBuffer {
         unsafe { std::slice::from_raw_parts(self.mapped, self.size as usize) }
     }
 
+    /// The mapped bytes as RGBA32F pixels.
+    pub fn rgba32f(&self) -> Vec<[f32; 4]> {
+        let f = |b: &[u8]| f32::from_ne_bytes(b.try_into().unwrap());
+        self.bytes()
+            .chunks_exact(16)
+            .map(|p| [f(&p[0..4]), f(&p[4..8]), f(&p[8..12]), f(&p[12..16])])
+            .collect()
+    }
+
     /// The mapped bytes, to fill. The GPU must not be reading them.
     pub fn bytes_mut(&mut self) -> &mut [u8] {
         // SAFETY: as above, and `&mut self` makes this the only view.
@@ -153,6 +162,34 @@ impl HostBuffer {
             vk.device.destroy_buffer(self.buffer, None);
         }
     }
+}
+
+/// Records a copy of a whole single-layer colour `image` (in `layout`) into `buffer`, tightly packed.
+pub fn copy_image_to_buffer(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    image: vk::Image,
+    layout: vk::ImageLayout,
+    extent: vk::Extent2D,
+    buffer: vk::Buffer,
+) {
+    let region = vk::BufferImageCopy::default()
+        .image_subresource(
+            vk::ImageSubresourceLayers::default().aspect_mask(vk::ImageAspectFlags::COLOR).layer_count(1),
+        )
+        .image_extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 });
+    unsafe { vk.device.cmd_copy_image_to_buffer(cb, image, layout, buffer, &[region]) };
+}
+
+/// Makes transfer writes visible to the CPU, which reads them once the fence has signalled.
+pub fn transfers_to_host(vk: &VulkanContext, cb: vk::CommandBuffer) {
+    let barrier = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+        .dst_access_mask(vk::AccessFlags::HOST_READ);
+    let (from, to) = (vk::PipelineStageFlags::TRANSFER, vk::PipelineStageFlags::HOST);
+    unsafe {
+        vk.device.cmd_pipeline_barrier(cb, from, to, vk::DependencyFlags::empty(), &[barrier], &[], &[])
+    };
 }
 
 /// GPU timestamps around each frame's Vulkan work, read back once the frame's fence has signalled.

@@ -231,3 +231,46 @@ impl SharedImage {
         }
     }
 }
+
+// ANCHOR: ownership
+/// The barrier that takes `image` over from GL: ownership moves from outside Vulkan
+/// (`VK_QUEUE_FAMILY_EXTERNAL`) to our queue family, from the layout GL's release promised. The
+/// semaphore (or the host wait) already made GL's writes available: no source access.
+pub fn acquire_from_gl<'a>(
+    vk: &VulkanContext,
+    image: &SharedImage,
+    from_gl: vk::ImageLayout,
+    layout: vk::ImageLayout,
+    access: vk::AccessFlags,
+) -> vk::ImageMemoryBarrier<'a> {
+    vk::ImageMemoryBarrier::default()
+        .image(image.image)
+        .subresource_range(crate::commands::COLOR_RANGE)
+        .old_layout(from_gl)
+        .new_layout(layout)
+        .src_access_mask(vk::AccessFlags::NONE)
+        .dst_access_mask(access)
+        .src_queue_family_index(vk::QUEUE_FAMILY_EXTERNAL)
+        .dst_queue_family_index(vk.queue_family_index)
+}
+
+/// The barrier that hands `image` back to GL in `for_gl`, the layout GL's acquire will name,
+/// making the writes in `access` available first.
+pub fn release_to_gl<'a>(
+    vk: &VulkanContext,
+    image: &SharedImage,
+    layout: vk::ImageLayout,
+    for_gl: vk::ImageLayout,
+    access: vk::AccessFlags,
+) -> vk::ImageMemoryBarrier<'a> {
+    vk::ImageMemoryBarrier::default()
+        .image(image.image)
+        .subresource_range(crate::commands::COLOR_RANGE)
+        .old_layout(layout)
+        .new_layout(for_gl)
+        .src_access_mask(access)
+        .dst_access_mask(vk::AccessFlags::NONE)
+        .src_queue_family_index(vk.queue_family_index)
+        .dst_queue_family_index(vk::QUEUE_FAMILY_EXTERNAL)
+}
+// ANCHOR_END: ownership

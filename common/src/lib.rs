@@ -6,6 +6,7 @@
 pub mod cli;
 pub mod commands;
 pub mod exportable;
+pub mod gbuffer;
 pub mod gl;
 pub mod interop;
 pub mod output;

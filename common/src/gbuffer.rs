@@ -1,0 +1,239 @@
+//! The scene's shared buffers and the G-buffers GL rasterises them into (taught in chapter 05;
+//! chapters 06-08 draw the same way).
+
+use crate::exportable::ExportedBuffer;
+use crate::interop::{SharedBuffer, SharedImage, share_buffer};
+use crate::scene::{Camera, Instance, Scene, Vertex};
+use crate::{GlContext, VulkanContext};
+use anyhow::{Result, ensure};
+use ash::vk;
+use glow::HasContext;
+
+// ANCHOR: gbuffers
+/// The G-buffers: (name, Vulkan format, GL's name for it, bytes per pixel).
+pub const GBUFFERS: [(&str, vk::Format, u32, u32); 3] = [
+    // World position; w = view depth (0 where nothing was drawn), for chapter 08's filter.
+    ("position", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
+    ("normal", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
+    ("albedo", vk::Format::R8G8B8A8_UNORM, glow::RGBA8, 4),
+];
+// ANCHOR_END: gbuffers
+
+const VERTEX_SHADER: &str = include_str!("../../shaders/gl/gbuffer.vert");
+const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/gbuffer.frag");
+
+/// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocated and GL
+/// imported: Vulkan's side (`.0`, for the acceleration structures) and GL's (`.1`, for drawing).
+pub struct SceneBuffers {
+    pub meshes: Vec<[(ExportedBuffer, SharedBuffer); 2]>,
+    pub instances: (ExportedBuffer, SharedBuffer),
+}
+
+impl SceneBuffers {
+    // ANCHOR: share_scene
+    /// `usage`: what Vulkan will do with the buffers itself (nothing in chapter 05; build
+    /// acceleration structures from them in chapter 06).
+    pub fn share(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        scene: &Scene,
+        usage: vk::BufferUsageFlags,
+    ) -> Result<Self> {
+        let mut meshes = Vec::new();
+        for mesh in &scene.meshes {
+            let vertices =
+                share_buffer(vk, gl, as_bytes(&mesh.vertices), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
+            let indices =
+                share_buffer(vk, gl, as_bytes(&mesh.indices), usage | vk::BufferUsageFlags::INDEX_BUFFER)?;
+            meshes.push([vertices, indices]);
+        }
+        let instances =
+            share_buffer(vk, gl, as_bytes(&scene.instances), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
+        Ok(SceneBuffers { meshes, instances })
+    }
+    // ANCHOR_END: share_scene
+
+    /// Bytes of Vulkan memory GL sees through these buffers.
+    pub fn bytes(&self) -> u64 {
+        self.meshes.iter().flatten().chain([&self.instances]).map(|(v, _)| v.memory.size).sum()
+    }
+
+    /// GL's buffer, then its memory object, then Vulkan's buffer and memory, for each.
+    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
+        for (exported, shared) in self.meshes.into_iter().flatten().chain([self.instances]) {
+            shared.delete(gl);
+            exported.destroy(vk);
+        }
+    }
+}
+
+/// The three G-buffer images (Vulkan's, imported by GL), GL's framebuffer over them with a
+/// depth buffer only GL needs, and what GL draws the scene with.
+pub struct GBuffers {
+    pub images: Vec<SharedImage>,
+    pub extent: vk::Extent2D,
+    framebuffer: glow::Framebuffer,
+    depth: glow::Renderbuffer,
+    program: glow::Program,
+    vertex_arrays: Vec<glow::VertexArray>,
+}
+
+impl GBuffers {
+    /// `usage`: what Vulkan does with the images besides GL drawing into them (COLOR_ATTACHMENT
+    /// is always added).
+    pub fn new(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        buffers: &SceneBuffers,
+        extent: vk::Extent2D,
+        usage: vk::ImageUsageFlags,
+    ) -> Result<Self> {
+        // ANCHOR: images
+        let usage = usage | vk::ImageUsageFlags::COLOR_ATTACHMENT; // GL draws into them
+        let mut images = Vec::new();
+        for (_, format, gl_format, _) in GBUFFERS {
+            images.push(SharedImage::new(vk, gl, format, gl_format, usage, extent)?);
+        }
+        // ANCHOR_END: images
+        let gl_ = &gl.gl;
+        let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
+        let program = crate::gl::program(gl_, VERTEX_SHADER, FRAGMENT_SHADER)?;
+        let instances = &buffers.instances.1;
+        let vertex_arrays = buffers
+            .meshes
+            .iter()
+            .map(|[v, i]| unsafe { vertex_array(gl_, &v.1, &i.1, instances) })
+            .collect::<Result<_>>()?;
+        Ok(GBuffers { images, extent, framebuffer, depth, program, vertex_arrays })
+    }
+
+    /// GL's textures, in `GBUFFERS` order, for the hand-overs.
+    pub fn textures(&self) -> Vec<glow::Texture> {
+        self.images.iter().map(|i| i.texture.texture).collect()
+    }
+
+    // ANCHOR: draw
+    /// Clears the G-buffers and draws the scene: one instanced draw per mesh.
+    pub fn draw(&self, gl: &glow::Context, scene: &Scene, camera: &Camera) {
+        let (width, height) = (self.extent.width, self.extent.height);
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.viewport(0, 0, width as i32, height as i32);
+            gl.enable(glow::DEPTH_TEST);
+            for attachment in 0..GBUFFERS.len() as u32 {
+                gl.clear_buffer_f32_slice(glow::COLOR, attachment, &[0.0; 4]);
+            }
+            gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
+            gl.use_program(Some(self.program));
+            let uniform = |name| gl.get_uniform_location(self.program, name);
+            let projection = camera.projection(width as f32 / height as f32);
+            gl.uniform_matrix_4_f32_slice(uniform("view").as_ref(), false, &camera.view().to_cols_array());
+            gl.uniform_matrix_4_f32_slice(uniform("projection").as_ref(), false, &projection.to_cols_array());
+            for ((mesh, instances), vao) in
+                scene.meshes.iter().zip(&scene.mesh_instances).zip(&self.vertex_arrays)
+            {
+                gl.bind_vertex_array(Some(*vao));
+                let (indices, count) = (mesh.indices.len() as i32, instances.len() as i32);
+                // base_instance: this mesh's instances start this many entries into the buffer.
+                let first = instances.start;
+                gl.draw_elements_instanced_base_vertex_base_instance(
+                    glow::TRIANGLES,
+                    indices,
+                    glow::UNSIGNED_INT,
+                    0,
+                    count,
+                    0,
+                    first,
+                );
+            }
+            gl.bind_vertex_array(None);
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+        }
+    }
+    // ANCHOR_END: draw
+
+    /// GL's objects, then the images (each GL side first).
+    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
+        unsafe {
+            self.vertex_arrays.into_iter().for_each(|v| gl.gl.delete_vertex_array(v));
+            gl.gl.delete_program(self.program);
+            gl.gl.delete_framebuffer(self.framebuffer);
+            gl.gl.delete_renderbuffer(self.depth);
+        }
+        self.images.into_iter().for_each(|i| i.destroy(vk, gl));
+    }
+}
+
+// ANCHOR: vertex_array
+/// How GL reads a mesh: per-vertex attributes from its vertex buffer (binding 0) and
+/// per-instance ones from the shared instance buffer (binding 1, advancing once per instance).
+unsafe fn vertex_array(
+    gl: &glow::Context,
+    vertices: &SharedBuffer,
+    indices: &SharedBuffer,
+    instances: &SharedBuffer,
+) -> Result<glow::VertexArray> {
+    unsafe {
+        let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
+        gl.vertex_array_vertex_buffer(vao, 0, Some(vertices.buffer), 0, size_of::<Vertex>() as i32);
+        gl.vertex_array_vertex_buffer(vao, 1, Some(instances.buffer), 0, size_of::<Instance>() as i32);
+        gl.vertex_array_element_buffer(vao, Some(indices.buffer));
+        // (location, binding, components, byte offset): position, normal, the transform's rows.
+        let float_attributes = [(0, 0, 3, 0), (1, 0, 3, 12), (2, 1, 4, 0), (3, 1, 4, 16), (4, 1, 4, 32)];
+        for (location, binding, size, offset) in float_attributes {
+            gl.enable_vertex_array_attrib(vao, location);
+            gl.vertex_array_attrib_format_f32(vao, location, size, glow::FLOAT, false, offset);
+            gl.vertex_array_attrib_binding_f32(vao, location, binding);
+        }
+        // The custom index + mask word, read as an integer (not converted to float).
+        gl.enable_vertex_array_attrib(vao, 5);
+        gl.vertex_array_attrib_format_i32(vao, 5, 1, glow::UNSIGNED_INT, 48);
+        gl.vertex_array_attrib_binding_f32(vao, 5, 1);
+        // glow has no glVertexArrayBindingDivisor: bind, then set binding 1's divisor.
+        gl.bind_vertex_array(Some(vao));
+        gl.vertex_binding_divisor(1, 1);
+        gl.bind_vertex_array(None);
+        Ok(vao)
+    }
+}
+// ANCHOR_END: vertex_array
+
+// ANCHOR: framebuffer
+/// One FBO over the three imported textures, plus a depth buffer only GL needs.
+unsafe fn framebuffer(
+    gl: &glow::Context,
+    images: &[SharedImage],
+    extent: vk::Extent2D,
+) -> Result<(glow::Framebuffer, glow::Renderbuffer)> {
+    unsafe {
+        let depth = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
+        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
+        let (width, height) = (extent.width as i32, extent.height as i32);
+        gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, width, height);
+        gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+        let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+        let mut draw_buffers = Vec::new();
+        for (i, image) in images.iter().enumerate() {
+            let attachment = glow::COLOR_ATTACHMENT0 + i as u32;
+            gl.named_framebuffer_texture(Some(fb), attachment, Some(image.texture.texture), 0);
+            draw_buffers.push(attachment);
+        }
+        // Fragment output location i goes to attachment i.
+        gl.named_framebuffer_draw_buffers(Some(fb), &draw_buffers);
+        gl.named_framebuffer_renderbuffer(Some(fb), glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER, Some(depth));
+        let status = gl.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
+        if status != glow::FRAMEBUFFER_COMPLETE {
+            gl.delete_framebuffer(fb);
+            gl.delete_renderbuffer(depth);
+        }
+        ensure!(status == glow::FRAMEBUFFER_COMPLETE, "G-buffer framebuffer incomplete: {status:#x}");
+        Ok((fb, depth))
+    }
+}
+// ANCHOR_END: framebuffer
+
+/// The bytes of plain `#[repr(C)]` data, to upload.
+pub fn as_bytes<T: Copy>(items: &[T]) -> &[u8] {
+    // SAFETY: every caller passes Vertex, Instance or u32: plain data without padding.
+    unsafe { std::slice::from_raw_parts(items.as_ptr().cast(), std::mem::size_of_val(items)) }
+}
