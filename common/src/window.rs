@@ -73,6 +73,7 @@ impl Window {
     pub fn open(title: &str, size: Size, required: &[&str]) -> Result<(Window, GlContext)> {
         let mut event_loop = EventLoop::new().context("connecting to the display (winit)")?;
         let mut app = App { title: title.to_owned(), size: Some(size), ..Default::default() };
+        // ANCHOR: pump
         // winit allows windows only once its loop runs (`resumed`): pump until then.
         while app.opened.is_none() && app.error.is_none() {
             if let PumpStatus::Exit(code) =
@@ -86,6 +87,7 @@ impl Window {
         }
         let (context, display) = app.context.take().expect("resumed made a context with the window");
         let gl = GlContext::new(context, &|name| display.get_proc_address(name), required)?;
+        // ANCHOR_END: pump
         let opened = app.opened.as_ref().expect("checked above");
         // Wait for one vertical blank per swap when the driver can; a window needs no more frames.
         let _ = opened.surface.set_swap_interval(gl.context(), SwapInterval::Wait(NonZeroU32::MIN));
