@@ -368,8 +368,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         frame += 1;
     }
     unsafe { device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-    if let Some(t) = &timestamps {
-        gpu_ms.push(t.read_ms(&vk)?);
+    if frame > 0
+        && let Some(t) = &timestamps
+    {
+        gpu_ms.push(t.read_ms(&vk)?); // the last frame's
     }
 
     report.check("centre_pixel_inside_triangle", centre_lit);
