@@ -133,6 +133,41 @@ fn ch05_bad_obj_files_are_rejected() {
 }
 
 #[test]
+fn ch06_blas_tlas_default_scene() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_06-blas-tlas"), &["--size", "160x120"], &[]);
+    let report = run.succeeded();
+    let extensions = enabled_extensions(report);
+    assert!(RAY_TRACING_EXTENSIONS.iter().all(|rt| extensions.contains(rt)), "{extensions:?}");
+    assert_eq!(report["instances"], 10_001);
+    assert_eq!(report["acceleration_structures"]["blas_count"], 2, "one BLAS per mesh");
+    assert!(report["mismatch_fraction"].as_f64().unwrap() < 0.01);
+    assert_report_snapshot("06-blas-tlas", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch06_blas_tlas_bunny() {
+    let bunny = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/bunny.obj");
+    let run = run_chapter(env!("CARGO_BIN_EXE_06-blas-tlas"), &["--size", "160x120", "--scene", bunny], &[]);
+    let report = run.succeeded();
+    assert_eq!(report["triangles"], 27_864);
+    assert_report_snapshot("06-blas-tlas-bunny", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch06_without_ray_tracing_names_the_extension() {
+    let run = run_chapter(
+        env!("CARGO_BIN_EXE_06-blas-tlas"),
+        &["--size", "32x32"],
+        &[("VKGL_HIDE_EXTENSIONS", "VK_KHR_ray_tracing_pipeline")],
+    );
+    assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+    assert!(run.stderr.contains("lacks VK_KHR_ray_tracing_pipeline"), "{}", run.stderr);
+    assert!(run.stderr.contains("Mesa >= 24.1"), "gives the hint:\n{}", run.stderr);
+}
+
+#[test]
 fn bad_flags_are_rejected_with_a_reason() {
     let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
     assert_eq!(run.output.status.code(), Some(2));

@@ -195,26 +195,33 @@ pub fn transfers_to_host(vk: &VulkanContext, cb: vk::CommandBuffer) {
 /// GPU timestamps around each frame's Vulkan work, read back once the frame's fence has signalled.
 pub struct Timestamps {
     pub pool: vk::QueryPool,
+    count: u32,
     /// Nanoseconds per timestamp tick (`VkPhysicalDeviceLimits::timestampPeriod`).
     period_ns: f64,
 }
 
 impl Timestamps {
-    /// `None` when the queue cannot write timestamps (`timestampValidBits` is 0).
+    /// Two timestamps, start and end; `None` when the queue cannot write timestamps.
     pub fn new(vk: &VulkanContext) -> Result<Option<Self>> {
+        Self::with_count(vk, 2)
+    }
+
+    /// `count` timestamps, written with [`Timestamps::write`]; `None` when the queue cannot
+    /// write timestamps (`timestampValidBits` is 0).
+    pub fn with_count(vk: &VulkanContext, count: u32) -> Result<Option<Self>> {
         let families = unsafe { vk.instance.get_physical_device_queue_family_properties(vk.physical_device) };
         if families[vk.queue_family_index as usize].timestamp_valid_bits == 0 {
             return Ok(None);
         }
         let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
-        let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(2);
+        let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
         let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
-        Ok(Some(Timestamps { pool, period_ns: limits.timestamp_period as f64 }))
+        Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64 }))
     }
 
     /// Resets the queries; record before anything else in the command buffer.
     pub fn reset(&self, vk: &VulkanContext, cb: vk::CommandBuffer) {
-        unsafe { vk.device.cmd_reset_query_pool(cb, self.pool, 0, 2) };
+        unsafe { vk.device.cmd_reset_query_pool(cb, self.pool, 0, self.count) };
     }
 
     /// Records the "start" timestamp, written once earlier commands reach `stage`. Record it
@@ -234,6 +241,29 @@ impl Timestamps {
         unsafe { vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64) }
             .context("vkGetQueryPoolResults")?;
         Ok(ticks[1].wrapping_sub(ticks[0]) as f64 * self.period_ns / 1e6)
+    }
+
+    /// Records timestamp `index`, written once earlier commands reach `stage`.
+    pub fn write(
+        &self,
+        vk: &VulkanContext,
+        cb: vk::CommandBuffer,
+        stage: vk::PipelineStageFlags,
+        index: u32,
+    ) {
+        unsafe { vk.device.cmd_write_timestamp(cb, stage, self.pool, index) };
+    }
+
+    /// Milliseconds between timestamps `from` and `to` of the last finished submission.
+    pub fn between_ms(&self, vk: &VulkanContext, from: u32, to: u32) -> Result<f64> {
+        let mut ticks = [0u64; 1];
+        let mut read = |i| unsafe {
+            vk.device
+                .get_query_pool_results(self.pool, i, &mut ticks, vk::QueryResultFlags::TYPE_64)
+                .map(|_| ticks[0])
+        };
+        let (start, end) = (read(from)?, read(to)?);
+        Ok(end.wrapping_sub(start) as f64 * self.period_ns / 1e6)
     }
 
     pub fn destroy(self, vk: &VulkanContext) {

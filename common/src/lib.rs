@@ -3,6 +3,7 @@
 //! Each item here was first taught, in the open, by one chapter (the book's introduction lists
 //! which); later chapters call it by name. Doc comments here say *what*; the book says *why*.
 
+pub mod accel;
 pub mod cli;
 pub mod commands;
 pub mod exportable;
@@ -10,6 +11,7 @@ pub mod gbuffer;
 pub mod gl;
 pub mod interop;
 pub mod output;
+pub mod raytrace;
 pub mod report;
 pub mod scene;
 pub mod sync;

@@ -1,0 +1,351 @@
+//! Chapter 06: BLAS and TLAS.
+//!
+//! Vulkan builds one bottom-level acceleration structure per mesh straight from the vertex and
+//! index buffers GL draws from, compacts them, and builds the top level from the very instance
+//! buffer GL's instanced draws read. Then it proves the structures hold what GL rasterised: one
+//! primary ray per pixel must hit exactly where the G-buffers are covered.
+//!
+//! Run: `cargo run --release --bin 06-blas-tlas` (or `-- --scene assets/bunny.obj`).
+
+use anyhow::Result;
+use ash::vk;
+use common::accel;
+use common::commands::{Commands, HostBuffer, Timestamps, copy_image_to_buffer, transfers_to_host};
+use common::gbuffer::{GBuffers, SceneBuffers};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, layout};
+use common::interop::{acquire_from_gl, release_to_gl};
+use common::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
+use common::scene::{self, Camera, Normals};
+use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::{
+    CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
+};
+use std::ffi::CStr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+const CHAPTER: &str = "06-blas-tlas";
+const REQUIRED: [&CStr; 4] = [
+    ash::khr::external_memory_fd::NAME,
+    RAY_TRACING_EXTENSIONS[0],
+    RAY_TRACING_EXTENSIONS[1],
+    RAY_TRACING_EXTENSIONS[2],
+];
+const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
+const RAYGEN: &[u8] = include_bytes!("../../shaders/primary.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+
+/// Chapter 06: acceleration structures from the buffers GL draws, checked against GL's picture.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// An OBJ file to use instead of the default scene.
+    #[arg(long)]
+    scene: Option<PathBuf>,
+    /// Normals for an OBJ file that has none.
+    #[arg(long, value_enum, default_value = "smooth")]
+    normals: Normals,
+    /// Tetrahedra in the default scene.
+    #[arg(long, default_value_t = 10_000)]
+    instances: u32,
+}
+
+impl AsRef<CommonArgs> for Args {
+    fn as_ref(&self) -> &CommonArgs {
+        &self.common
+    }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter::<Args>(CHAPTER, run)
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    let aspect = extent.width as f32 / extent.height as f32;
+
+    // 1. Load the scene (chapter 05)
+    let scene = match &args.scene {
+        Some(path) => scene::load_obj(path, args.normals)?,
+        None => scene::default_scene(args.instances, 1),
+    };
+    let camera = Camera::framing(scene.bounds, aspect);
+
+    // 2. Create both contexts, with ray tracing
+    // ANCHOR: context
+    let requirements =
+        Requirements { extensions: &REQUIRED, optional_extensions: OPTIONAL, ray_tracing: true };
+    let vk = VulkanContext::new(&requirements)?;
+    // ANCHOR_END: context
+    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let gl = &gl_context.gl;
+    report.vulkan = Some(vk.report());
+    report.gl = Some(gl_context.report());
+    report.uuids_match = Some(vk.info.device_uuid == gl_context.device_uuid);
+    ensure_same_device(&vk.info, &gl_context)?;
+    let sync = Sync::new(&vk, &gl_context)?;
+    report.sync = Some(sync.name());
+    let open_fds_before = open_fd_count()?;
+    let mut allocator = accel::allocator(&vk)?;
+
+    // 3. Share the scene's buffers, readable by acceleration-structure builds
+    // ANCHOR: share
+    // Build inputs are read through device addresses.
+    let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
+        | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
+    let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
+    // ANCHOR_END: share
+
+    // 4. Build the acceleration structures
+    // ANCHOR: build
+    let commands = Commands::new(&vk)?;
+    let structures = accel::build(&vk, &mut allocator, &commands, &scene, &buffers)?;
+    // ANCHOR_END: build
+    report.set("instances", scene.instances.len());
+    report.set("triangles", scene.triangles());
+    report.set("acceleration_structures", &structures.stats);
+    let stats = &structures.stats;
+    let timings = [
+        ("blas_build_gpu", stats.blas_build_ms),
+        ("compaction_gpu", stats.compaction_ms),
+        ("tlas_build_gpu", stats.tlas_build_ms),
+    ];
+    for (name, ms) in timings {
+        ms.inspect(|&ms| report.time_ms(name, ms));
+    }
+    eprintln!(
+        "BLAS: {} bytes built, {} compacted; TLAS: {} bytes",
+        stats.blas_bytes, stats.compacted_bytes, stats.tlas_bytes
+    );
+    report.check("compaction_did_not_grow", stats.compacted_bytes <= stats.blas_bytes);
+
+    // 5. GL draws the G-buffers (chapter 05)
+    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
+    gbuffers.draw(gl, &scene, &camera);
+    gl_context.check_error("drawing the G-buffers")?;
+
+    // 6. Trace one primary ray per pixel
+    // ANCHOR: pipeline
+    let stage = vk::ShaderStageFlags::RAYGEN_KHR;
+    let bindings = [
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(0)
+            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+            .descriptor_count(1)
+            .stage_flags(stage),
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(1)
+            .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
+            .descriptor_count(1)
+            .stage_flags(stage),
+    ];
+    let push = PrimaryRays::new(&camera, aspect);
+    let pipeline =
+        RayPipeline::new(&vk, &mut allocator, RAYGEN, MISS, &bindings, size_of::<PrimaryRays>() as u32)?;
+    let mask = StorageImage::new(
+        &vk,
+        &mut allocator,
+        vk::Format::R8G8B8A8_UNORM,
+        vk::ImageUsageFlags::TRANSFER_SRC,
+        extent,
+    )?;
+    pipeline.write_tlas(&vk, 0, structures.tlas.handle);
+    pipeline.write_storage_image(&vk, 1, mask.view);
+    // ANCHOR_END: pipeline
+    let pixels = (extent.width * extent.height) as u64;
+    let hits = HostBuffer::new(&vk, pixels * 4, vk::BufferUsageFlags::TRANSFER_DST)?;
+    let coverage = HostBuffer::new(&vk, pixels * 16, vk::BufferUsageFlags::TRANSFER_DST)?;
+    let timestamps = Timestamps::new(&vk)?;
+    let textures = gbuffers.textures();
+    sync.gl_release(&gl_context, &textures, &[layout::TRANSFER_SRC; 3]);
+    let cb = commands.begin(&vk)?;
+    unsafe {
+        record_trace(&vk, cb, &gbuffers, &pipeline, &mask, &push, (&hits, &coverage), timestamps.as_ref())
+    };
+    let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
+    commands.submit(&vk, wait, sync.vulkan_signals())?;
+    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[layout::COLOR_ATTACHMENT; 3])?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    if let Some(t) = &timestamps {
+        report.time_ms("trace_gpu", t.read_ms(&vk)?);
+    }
+
+    // 7. Compare what the rays hit with what GL covered
+    // ANCHOR: compare
+    let hit: Vec<bool> = hits.bytes().chunks_exact(4).map(|p| p[0] > 127).collect();
+    let covered: Vec<bool> = coverage.rgba32f().iter().map(|p| p[3] > 0.0).collect();
+    let (w, h) = (extent.width as usize, extent.height as usize);
+    // A silhouette pixel has both covered and uncovered pixels among its 3x3 neighbours: there,
+    // sampling differences between the rasteriser and the rays may legitimately disagree.
+    let silhouette = |i: usize| {
+        let (x, y) = (i % w, i / w);
+        let around = (y.saturating_sub(1)..(y + 2).min(h))
+            .flat_map(|v| (x.saturating_sub(1)..(x + 2).min(w)).map(move |u| v * w + u));
+        around.map(|j| covered[j]).collect::<std::collections::HashSet<_>>().len() == 2
+    };
+    let mismatched: Vec<usize> = (0..w * h).filter(|&i| hit[i] != covered[i]).collect();
+    let fraction = mismatched.len() as f64 / (w * h) as f64;
+    // ANCHOR_END: compare
+    eprintln!(
+        "rays and raster disagree on {} of {} pixels ({:.3}%)",
+        mismatched.len(),
+        w * h,
+        fraction * 100.0
+    );
+    report.set("mismatch_fraction", (fraction * 1e5).round() / 1e5);
+    report.set(
+        "covered_fraction",
+        (covered.iter().filter(|&&c| c).count() as f64 / (w * h) as f64 * 1e3).round() / 1e3,
+    );
+    report.check("rays_hit_where_gl_drew", covered.iter().any(|&c| c) && fraction < 0.01);
+    report.check("mismatches_only_on_silhouettes", mismatched.iter().all(|&i| silhouette(i)));
+
+    // White: both; black: neither; red: only the rays hit; blue: only GL drew.
+    let picture: Vec<u8> = hit
+        .iter()
+        .zip(&covered)
+        .flat_map(|(&hit, &covered)| match (hit, covered) {
+            (true, true) => [255, 255, 255, 255],
+            (false, false) => [0, 0, 0, 255],
+            (true, false) => [255, 0, 0, 255],
+            (false, true) => [0, 80, 255, 255],
+        })
+        .collect();
+    let prefix = match args.scene.as_ref().and_then(|p| p.file_stem()) {
+        Some(stem) => format!("{CHAPTER}-{}", stem.to_string_lossy()),
+        None => CHAPTER.to_owned(),
+    };
+    let upright = output::flip_rows(&picture, extent.width, extent.height);
+    output::save_rgba8(
+        report,
+        &args.common.out_dir(CHAPTER),
+        &prefix,
+        extent.width,
+        extent.height,
+        &upright,
+    )?;
+
+    // 8. Clean up, newest first
+    // ANCHOR: cleanup
+    if let Some(t) = timestamps {
+        t.destroy(&vk);
+    }
+    coverage.destroy(&vk);
+    hits.destroy(&vk);
+    mask.destroy(&vk, &mut allocator);
+    pipeline.destroy(&vk, &mut allocator);
+    gbuffers.destroy(&vk, &gl_context);
+    structures.destroy(&vk, &mut allocator);
+    commands.destroy(&vk);
+    drop(allocator); // gpu-allocator frees its memory blocks: before the device goes
+    buffers.destroy(&vk, &gl_context);
+    sync.destroy(&vk, &gl_context);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    Ok(())
+}
+
+// ANCHOR: record_trace
+/// Take the position G-buffer from GL and copy it out (GL's coverage); trace the rays into the
+/// mask and copy that out; give the G-buffers back.
+#[allow(clippy::too_many_arguments)]
+unsafe fn record_trace(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    gbuffers: &GBuffers,
+    pipeline: &RayPipeline,
+    mask: &StorageImage,
+    push: &PrimaryRays,
+    (hits, coverage): (&HostBuffer, &HostBuffer),
+    timestamps: Option<&Timestamps>,
+) {
+    let device = &vk.device;
+    let none = vk::DependencyFlags::empty();
+    let (transfer_src, general) = (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::GENERAL);
+    let (top, transfer, rays) = (
+        vk::PipelineStageFlags::TOP_OF_PIPE,
+        vk::PipelineStageFlags::TRANSFER,
+        vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR,
+    );
+    // The mask starts undefined (its old contents do not matter) and becomes a storage image.
+    let mask_barrier = |old, new, src, dst| {
+        vk::ImageMemoryBarrier::default()
+            .image(mask.image)
+            .subresource_range(common::commands::COLOR_RANGE)
+            .old_layout(old)
+            .new_layout(new)
+            .src_access_mask(src)
+            .dst_access_mask(dst)
+            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+    };
+    let acquire: Vec<_> = gbuffers
+        .images
+        .iter()
+        .map(|i| acquire_from_gl(vk, i, transfer_src, transfer_src, vk::AccessFlags::TRANSFER_READ))
+        .collect();
+    let release: Vec<_> = gbuffers
+        .images
+        .iter()
+        .map(|i| {
+            release_to_gl(
+                vk,
+                i,
+                transfer_src,
+                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                vk::AccessFlags::NONE,
+            )
+        })
+        .collect();
+    unsafe {
+        if let Some(t) = timestamps {
+            t.reset(vk, cb);
+        }
+        device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &acquire);
+        copy_image_to_buffer(
+            vk,
+            cb,
+            gbuffers.images[0].image,
+            transfer_src,
+            gbuffers.extent,
+            coverage.buffer,
+        );
+        device.cmd_pipeline_barrier(
+            cb,
+            transfer,
+            vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+            none,
+            &[],
+            &[],
+            &release,
+        );
+
+        let to_storage = mask_barrier(
+            vk::ImageLayout::UNDEFINED,
+            general,
+            vk::AccessFlags::NONE,
+            vk::AccessFlags::SHADER_WRITE,
+        );
+        device.cmd_pipeline_barrier(cb, top, rays, none, &[], &[], &[to_storage]);
+        if let Some(t) = timestamps {
+            t.start(vk, cb, rays);
+        }
+        pipeline.trace(vk, cb, push_bytes(push), mask.extent);
+        if let Some(t) = timestamps {
+            t.end(vk, cb);
+        }
+        // The shader's writes finish before the copy reads them.
+        let to_copy = mask_barrier(
+            general,
+            transfer_src,
+            vk::AccessFlags::SHADER_WRITE,
+            vk::AccessFlags::TRANSFER_READ,
+        );
+        device.cmd_pipeline_barrier(cb, rays, transfer, none, &[], &[], &[to_copy]);
+        copy_image_to_buffer(vk, cb, mask.image, transfer_src, mask.extent, hits.buffer);
+        transfers_to_host(vk, cb);
+    }
+}
+// ANCHOR_END: record_trace

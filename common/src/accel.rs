@@ -1,0 +1,438 @@
+//! Acceleration structures (taught in chapter 06): one BLAS per mesh, built straight from the
+//! buffers GL draws from, compacted; one TLAS over the shared instance buffer.
+//!
+//! Nothing here is shared with GL, so it lives in ordinary memory from gpu-allocator.
+
+use crate::VulkanContext;
+use crate::commands::{Commands, Timestamps};
+use crate::exportable::ExportedBuffer;
+use crate::gbuffer::SceneBuffers;
+use crate::scene::{Instance, Scene};
+use anyhow::{Context as _, Result};
+use ash::vk;
+use gpu_allocator::MemoryLocation;
+use gpu_allocator::vulkan::{
+    Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc,
+};
+
+/// gpu-allocator for everything Vulkan keeps to itself, with device addresses on.
+pub fn allocator(vk: &VulkanContext) -> Result<Allocator> {
+    Allocator::new(&AllocatorCreateDesc {
+        instance: vk.instance.clone(),
+        device: vk.device.clone(),
+        physical_device: vk.physical_device,
+        debug_settings: Default::default(),
+        buffer_device_address: vk.device_addresses,
+        allocation_sizes: Default::default(),
+    })
+    .context("creating gpu-allocator's allocator")
+}
+
+/// A buffer in memory from gpu-allocator, with its device address.
+pub struct DeviceBuffer {
+    pub buffer: vk::Buffer,
+    pub allocation: Allocation,
+    pub address: vk::DeviceAddress,
+}
+
+impl DeviceBuffer {
+    pub fn new(
+        vk: &VulkanContext,
+        allocator: &mut Allocator,
+        name: &str,
+        size: u64,
+        usage: vk::BufferUsageFlags,
+        location: MemoryLocation,
+    ) -> Result<Self> {
+        let usage = usage | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
+        let info = vk::BufferCreateInfo::default().size(size).usage(usage);
+        let buffer = unsafe { vk.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
+        let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
+        let description = AllocationCreateDesc {
+            name,
+            requirements,
+            location,
+            linear: true,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        };
+        let allocation = match allocator.allocate(&description) {
+            Ok(allocation) => allocation,
+            Err(error) => {
+                unsafe { vk.device.destroy_buffer(buffer, None) };
+                return Err(error).with_context(|| format!("allocating {size} bytes for {name}"));
+            }
+        };
+        unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
+        let address = unsafe {
+            vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
+        };
+        Ok(DeviceBuffer { buffer, allocation, address })
+    }
+
+    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        unsafe { vk.device.destroy_buffer(self.buffer, None) };
+        let _ = allocator.free(self.allocation);
+    }
+}
+
+/// One acceleration structure and the buffer that holds it.
+pub struct AccelerationStructure {
+    pub handle: vk::AccelerationStructureKHR,
+    pub buffer: DeviceBuffer,
+    pub address: vk::DeviceAddress,
+    pub bytes: u64,
+}
+
+impl AccelerationStructure {
+    fn new(
+        vk: &VulkanContext,
+        loader: &ash::khr::acceleration_structure::Device,
+        allocator: &mut Allocator,
+        ty: vk::AccelerationStructureTypeKHR,
+        bytes: u64,
+    ) -> Result<Self> {
+        let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR;
+        let buffer = DeviceBuffer::new(
+            vk,
+            allocator,
+            "acceleration structure",
+            bytes,
+            usage,
+            MemoryLocation::GpuOnly,
+        )?;
+        let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(buffer.buffer).size(bytes).ty(ty);
+        let handle = match unsafe { loader.create_acceleration_structure(&info, None) } {
+            Ok(handle) => handle,
+            Err(error) => {
+                buffer.destroy(vk, allocator);
+                return Err(error).context("vkCreateAccelerationStructureKHR");
+            }
+        };
+        let address_info =
+            vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
+        let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
+        Ok(AccelerationStructure { handle, buffer, address, bytes })
+    }
+
+    pub fn destroy(
+        self,
+        vk: &VulkanContext,
+        loader: &ash::khr::acceleration_structure::Device,
+        allocator: &mut Allocator,
+    ) {
+        unsafe { loader.destroy_acceleration_structure(self.handle, None) };
+        self.buffer.destroy(vk, allocator);
+    }
+}
+
+/// The scene's acceleration structures and what building them cost.
+pub struct SceneAccel {
+    pub loader: ash::khr::acceleration_structure::Device,
+    pub blases: Vec<AccelerationStructure>,
+    pub tlas: AccelerationStructure,
+    pub stats: AccelStats,
+}
+
+#[derive(Debug, Default, Clone, serde::Serialize)]
+pub struct AccelStats {
+    pub blas_count: usize,
+    /// Every BLAS as built, before compaction.
+    pub blas_bytes: u64,
+    /// Every BLAS after compaction.
+    pub compacted_bytes: u64,
+    pub tlas_bytes: u64,
+    /// GPU time of the BLAS builds, the compaction copies and the TLAS build (None without
+    /// timestamps). Not serialised: the report lists timings under `timings_ms`.
+    #[serde(skip)]
+    pub blas_build_ms: Option<f64>,
+    #[serde(skip)]
+    pub compaction_ms: Option<f64>,
+    #[serde(skip)]
+    pub tlas_build_ms: Option<f64>,
+}
+
+/// Builds, compacts and links the scene's acceleration structures. The BLASes read the meshes'
+/// shared vertex and index buffers; each instance's BLAS address is written into the shared
+/// instance buffer, which the TLAS then reads as it is.
+pub fn build(
+    vk: &VulkanContext,
+    allocator: &mut Allocator,
+    commands: &Commands,
+    scene: &Scene,
+    buffers: &SceneBuffers,
+) -> Result<SceneAccel> {
+    let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
+    let timestamps = Timestamps::with_count(vk, 2)?;
+    let mut stats = AccelStats { blas_count: scene.meshes.len(), ..Default::default() };
+
+    // ANCHOR: blas_geometry
+    // One geometry per mesh: its triangles, read in place from the buffers GL draws.
+    let geometries: Vec<vk::AccelerationStructureGeometryKHR> = scene
+        .meshes
+        .iter()
+        .zip(&buffers.meshes)
+        .map(|(mesh, [vertices, indices])| {
+            let triangles = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
+                .vertex_format(vk::Format::R32G32B32_SFLOAT) // Vertex::position, at offset 0
+                .vertex_data(vk::DeviceOrHostAddressConstKHR {
+                    device_address: vertices.0.device_address(vk),
+                })
+                .vertex_stride(size_of::<crate::scene::Vertex>() as u64) // skipping the normal
+                .max_vertex(mesh.vertices.len() as u32 - 1)
+                .index_type(vk::IndexType::UINT32)
+                .index_data(vk::DeviceOrHostAddressConstKHR { device_address: indices.0.device_address(vk) });
+            vk::AccelerationStructureGeometryKHR::default()
+                .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
+                .geometry(vk::AccelerationStructureGeometryDataKHR { triangles })
+                // Opaque: no any-hit shader will ever be asked about these triangles.
+                .flags(vk::GeometryFlagsKHR::OPAQUE)
+        })
+        .collect();
+    // ANCHOR_END: blas_geometry
+
+    // ANCHOR: blas_build
+    let blas_flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE
+        | vk::BuildAccelerationStructureFlagsKHR::ALLOW_COMPACTION;
+    let mut blases = Vec::new();
+    let mut builds = Vec::new();
+    let mut scratch_sizes = Vec::new();
+    for (geometry, mesh) in geometries.iter().zip(&scene.meshes) {
+        let triangles = mesh.indices.len() as u32 / 3;
+        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+            .flags(blas_flags)
+            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+            .geometries(std::slice::from_ref(geometry));
+        let sizes = build_sizes(&loader, &info, triangles);
+        let blas =
+            AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+        stats.blas_bytes += blas.bytes;
+        scratch_sizes.push(sizes.build_scratch_size);
+        builds.push((info.dst_acceleration_structure(blas.handle), triangles));
+        blases.push(blas);
+    }
+    // One scratch buffer, a separately aligned region for each build, so they may overlap on the GPU.
+    let scratch = Scratch::new(vk, allocator, &scratch_sizes)?;
+    let compacted_sizes =
+        query_pool(vk, vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR, blases.len() as u32)?;
+    commands.run_once(vk, |cb| unsafe {
+        if let Some(t) = &timestamps {
+            t.reset(vk, cb);
+            t.write(vk, cb, vk::PipelineStageFlags::TOP_OF_PIPE, 0);
+        }
+        vk.device.cmd_reset_query_pool(cb, compacted_sizes, 0, blases.len() as u32);
+        for (i, (info, triangles)) in builds.iter().enumerate() {
+            let info = info.scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch.address(i) });
+            let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(*triangles);
+            loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]);
+        }
+        // The builds must finish before their compacted sizes can be read.
+        build_barrier(vk, cb);
+        let handles: Vec<_> = blases.iter().map(|b| b.handle).collect();
+        let query = vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR;
+        loader.cmd_write_acceleration_structures_properties(cb, &handles, query, compacted_sizes, 0);
+        if let Some(t) = &timestamps {
+            t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
+        }
+    })?;
+    // ANCHOR_END: blas_build
+    stats.blas_build_ms = timestamps.as_ref().map(|t| t.between_ms(vk, 0, 1)).transpose()?;
+    scratch.destroy(vk, allocator);
+
+    // ANCHOR: compact
+    // Compaction: a BLAS built with ALLOW_COMPACTION knows how small it can be; copy it into a
+    // structure of that size and free the original.
+    let mut sizes = vec![0u64; blases.len()];
+    unsafe {
+        vk.device.get_query_pool_results(
+            compacted_sizes,
+            0,
+            &mut sizes,
+            vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+        )
+    }
+    .context("reading the compacted sizes")?;
+    unsafe { vk.device.destroy_query_pool(compacted_sizes, None) };
+    let mut compacted = Vec::new();
+    for &size in &sizes {
+        compacted.push(AccelerationStructure::new(
+            vk,
+            &loader,
+            allocator,
+            vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+            size,
+        )?);
+        stats.compacted_bytes += size;
+    }
+    commands.run_once(vk, |cb| unsafe {
+        if let Some(t) = &timestamps {
+            t.reset(vk, cb);
+            t.write(vk, cb, vk::PipelineStageFlags::TOP_OF_PIPE, 0);
+        }
+        for (from, to) in blases.iter().zip(&compacted) {
+            let copy = vk::CopyAccelerationStructureInfoKHR::default()
+                .src(from.handle)
+                .dst(to.handle)
+                .mode(vk::CopyAccelerationStructureModeKHR::COMPACT);
+            loader.cmd_copy_acceleration_structure(cb, &copy);
+        }
+        if let Some(t) = &timestamps {
+            t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
+        }
+    })?;
+    stats.compaction_ms = timestamps.as_ref().map(|t| t.between_ms(vk, 0, 1)).transpose()?;
+    for original in std::mem::replace(&mut blases, compacted) {
+        original.destroy(vk, &loader, allocator);
+    }
+    // ANCHOR_END: compact
+
+    // ANCHOR: instances
+    // Each instance points at its mesh's BLAS. The write goes straight into the instance buffer
+    // GL draws from (GL never reads these 8 bytes): the TLAS is built from the same buffer.
+    let instances = &buffers.instances.0;
+    for (blas, range) in blases.iter().zip(&scene.mesh_instances) {
+        for i in range.clone() {
+            set_blas_address(instances, i as usize, blas.address);
+        }
+    }
+    // ANCHOR_END: instances
+
+    // ANCHOR: tlas
+    let data = vk::AccelerationStructureGeometryInstancesDataKHR::default()
+        .array_of_pointers(false) // an array of VkAccelerationStructureInstanceKHR, as Instance is
+        .data(vk::DeviceOrHostAddressConstKHR { device_address: instances.device_address(vk) });
+    let geometry = vk::AccelerationStructureGeometryKHR::default()
+        .geometry_type(vk::GeometryTypeKHR::INSTANCES)
+        .geometry(vk::AccelerationStructureGeometryDataKHR { instances: data });
+    let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
+        .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
+        .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+        .geometries(std::slice::from_ref(&geometry));
+    let count = scene.instances.len() as u32;
+    let sizes = build_sizes(&loader, &info, count);
+    let tlas =
+        AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+    let scratch = Scratch::new(vk, allocator, &[sizes.build_scratch_size])?;
+    let info = info
+        .dst_acceleration_structure(tlas.handle)
+        .scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch.address(0) });
+    commands.run_once(vk, |cb| unsafe {
+        if let Some(t) = &timestamps {
+            t.reset(vk, cb);
+            t.write(vk, cb, vk::PipelineStageFlags::TOP_OF_PIPE, 0);
+        }
+        // The compacting copies wrote the BLASes the TLAS build reads: a barrier is needed even
+        // across submissions, as the earlier fence only ordered the CPU.
+        build_barrier(vk, cb);
+        let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(count);
+        loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]);
+        build_barrier(vk, cb);
+        if let Some(t) = &timestamps {
+            t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
+        }
+    })?;
+    // ANCHOR_END: tlas
+    stats.tlas_build_ms = timestamps.as_ref().map(|t| t.between_ms(vk, 0, 1)).transpose()?;
+    stats.tlas_bytes = tlas.bytes;
+    scratch.destroy(vk, allocator);
+    if let Some(t) = timestamps {
+        t.destroy(vk);
+    }
+    Ok(SceneAccel { loader, blases, tlas, stats })
+}
+
+impl SceneAccel {
+    /// The TLAS first (it refers to the BLASes), then the BLASes.
+    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        self.tlas.destroy(vk, &self.loader, allocator);
+        for blas in self.blases {
+            blas.destroy(vk, &self.loader, allocator);
+        }
+    }
+}
+
+fn build_sizes(
+    loader: &ash::khr::acceleration_structure::Device,
+    info: &vk::AccelerationStructureBuildGeometryInfoKHR,
+    primitives: u32,
+) -> vk::AccelerationStructureBuildSizesInfoKHR<'static> {
+    let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
+    unsafe {
+        loader.get_acceleration_structure_build_sizes(
+            vk::AccelerationStructureBuildTypeKHR::DEVICE,
+            info,
+            &[primitives],
+            &mut sizes,
+        )
+    };
+    sizes
+}
+
+/// Acceleration-structure writes finish before later builds, copies or queries read them.
+fn build_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
+    let barrier = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+        .dst_access_mask(
+            vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR
+                | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
+        );
+    let stage = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
+    unsafe {
+        vk.device.cmd_pipeline_barrier(cb, stage, stage, vk::DependencyFlags::empty(), &[barrier], &[], &[])
+    };
+}
+
+fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::QueryPool> {
+    let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
+    unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")
+}
+
+/// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.
+fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::DeviceAddress) {
+    let offset = index * size_of::<Instance>() + std::mem::offset_of!(Instance, blas_address);
+    assert!(offset + 8 <= instances.bytes as usize, "instance {index} is outside the buffer");
+    // SAFETY: in bounds (checked above) of the coherent mapping; no GPU work is using it now.
+    unsafe { instances.mapped.add(offset).cast::<u64>().write_unaligned(address) };
+}
+
+/// Scratch memory for several builds: one buffer, each region aligned as the device requires.
+struct Scratch {
+    buffer: DeviceBuffer,
+    offsets: Vec<u64>,
+}
+
+impl Scratch {
+    fn new(vk: &VulkanContext, allocator: &mut Allocator, sizes: &[u64]) -> Result<Self> {
+        let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+        let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
+        unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+        let alignment = properties.min_acceleration_structure_scratch_offset_alignment.max(1) as u64;
+        let mut offsets = Vec::new();
+        let mut total = 0;
+        for size in sizes {
+            offsets.push(total);
+            total += size.next_multiple_of(alignment);
+        }
+        // Room to slide the start up to the next aligned address.
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
+        let buffer = DeviceBuffer::new(
+            vk,
+            allocator,
+            "build scratch",
+            total + alignment,
+            usage,
+            MemoryLocation::GpuOnly,
+        )?;
+        let start = buffer.address.next_multiple_of(alignment) - buffer.address;
+        Ok(Scratch { buffer, offsets: offsets.into_iter().map(|o| o + start).collect() })
+    }
+
+    fn address(&self, i: usize) -> vk::DeviceAddress {
+        self.buffer.address + self.offsets[i]
+    }
+
+    fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        self.buffer.destroy(vk, allocator);
+    }
+}

@@ -1,0 +1,322 @@
+//! A ray tracing pipeline with a ray generation and a miss shader and no hit group at all, its
+//! shader binding table, and a storage image for results (taught in chapter 06; chapter 07
+//! traces its ambient occlusion rays through the same kind of pipeline).
+
+use crate::VulkanContext;
+use crate::accel::DeviceBuffer;
+use anyhow::{Context as _, Result};
+use ash::vk;
+use gpu_allocator::MemoryLocation;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme, Allocator};
+
+pub struct RayPipeline {
+    pub loader: ash::khr::ray_tracing_pipeline::Device,
+    pub pipeline: vk::Pipeline,
+    pub layout: vk::PipelineLayout,
+    pub set_layout: vk::DescriptorSetLayout,
+    pool: vk::DescriptorPool,
+    pub set: vk::DescriptorSet,
+    sbt: DeviceBuffer,
+    /// Where the shader binding table's ray generation, miss, hit and callable records are.
+    pub regions: [vk::StridedDeviceAddressRegionKHR; 4],
+}
+
+fn shader_module(vk: &VulkanContext, spirv: &[u8]) -> Result<vk::ShaderModule> {
+    let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv)).context("reading SPIR-V")?;
+    let info = vk::ShaderModuleCreateInfo::default().code(&words);
+    unsafe { vk.device.create_shader_module(&info, None) }.context("vkCreateShaderModule")
+}
+
+impl RayPipeline {
+    /// `bindings`: descriptor set 0; `push_bytes`: the push constants both shaders may read.
+    pub fn new(
+        vk: &VulkanContext,
+        allocator: &mut Allocator,
+        raygen: &[u8],
+        miss: &[u8],
+        bindings: &[vk::DescriptorSetLayoutBinding],
+        push_bytes: u32,
+    ) -> Result<Self> {
+        let loader = ash::khr::ray_tracing_pipeline::Device::new(&vk.instance, &vk.device);
+        let device = &vk.device;
+        let set_layout = unsafe {
+            device.create_descriptor_set_layout(
+                &vk::DescriptorSetLayoutCreateInfo::default().bindings(bindings),
+                None,
+            )
+        }?;
+        let push = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR)
+            .size(push_bytes)];
+        let set_layouts = [set_layout];
+        let layout_info =
+            vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&push);
+        let layout = unsafe { device.create_pipeline_layout(&layout_info, None) }?;
+
+        // ANCHOR: pipeline
+        let modules = [shader_module(vk, raygen)?, shader_module(vk, miss)?];
+        let stages = [
+            vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::RAYGEN_KHR)
+                .module(modules[0])
+                .name(c"main"),
+            vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::MISS_KHR)
+                .module(modules[1])
+                .name(c"main"),
+        ];
+        // Two "general" groups, one shader each. No hit group: with SkipClosestHitShader and
+        // opaque geometry, a hit calls no shader at all, so there is nothing to put in one.
+        let general = |shader| {
+            vk::RayTracingShaderGroupCreateInfoKHR::default()
+                .ty(vk::RayTracingShaderGroupTypeKHR::GENERAL)
+                .general_shader(shader)
+                .closest_hit_shader(vk::SHADER_UNUSED_KHR)
+                .any_hit_shader(vk::SHADER_UNUSED_KHR)
+                .intersection_shader(vk::SHADER_UNUSED_KHR)
+        };
+        let groups = [general(0), general(1)];
+        let info = vk::RayTracingPipelineCreateInfoKHR::default()
+            .stages(&stages)
+            .groups(&groups)
+            .max_pipeline_ray_recursion_depth(1) // rays start in raygen only
+            .layout(layout);
+        let pipeline = unsafe {
+            loader.create_ray_tracing_pipelines(
+                vk::DeferredOperationKHR::null(),
+                vk::PipelineCache::null(),
+                &[info],
+                None,
+            )
+        };
+        unsafe { modules.iter().for_each(|m| device.destroy_shader_module(*m, None)) };
+        let pipeline = pipeline.map_err(|(_, e)| e).context("vkCreateRayTracingPipelinesKHR")?[0];
+        // ANCHOR_END: pipeline
+
+        let (sbt, regions) = shader_binding_table(vk, &loader, allocator, pipeline, groups.len() as u32)?;
+
+        let mut sizes: Vec<vk::DescriptorPoolSize> = Vec::new();
+        for binding in bindings {
+            sizes.push(vk::DescriptorPoolSize {
+                ty: binding.descriptor_type,
+                descriptor_count: binding.descriptor_count,
+            });
+        }
+        let pool = unsafe {
+            device.create_descriptor_pool(
+                &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes),
+                None,
+            )
+        }?;
+        let allocate =
+            vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&set_layouts);
+        let set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
+        Ok(RayPipeline { loader, pipeline, layout, set_layout, pool, set, sbt, regions })
+    }
+
+    /// Points binding `binding` at the TLAS.
+    pub fn write_tlas(&self, vk: &VulkanContext, binding: u32, tlas: vk::AccelerationStructureKHR) {
+        let structures = [tlas];
+        let mut tlas_info =
+            vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&structures);
+        let mut write = vk::WriteDescriptorSet::default()
+            .dst_set(self.set)
+            .dst_binding(binding)
+            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+            .push_next(&mut tlas_info);
+        write.descriptor_count = 1; // the count lives in the chained struct's array
+        unsafe { vk.device.update_descriptor_sets(&[write], &[]) };
+    }
+
+    /// Points binding `binding` at a storage image view, used in the GENERAL layout.
+    pub fn write_storage_image(&self, vk: &VulkanContext, binding: u32, view: vk::ImageView) {
+        let images =
+            [vk::DescriptorImageInfo::default().image_view(view).image_layout(vk::ImageLayout::GENERAL)];
+        let write = vk::WriteDescriptorSet::default()
+            .dst_set(self.set)
+            .dst_binding(binding)
+            .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
+            .image_info(&images);
+        unsafe { vk.device.update_descriptor_sets(&[write], &[]) };
+    }
+
+    // ANCHOR: trace
+    /// Records one ray generation invocation per pixel of `extent`.
+    pub fn trace(&self, vk: &VulkanContext, cb: vk::CommandBuffer, push: &[u8], extent: vk::Extent2D) {
+        let bind = vk::PipelineBindPoint::RAY_TRACING_KHR;
+        let stages = vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR;
+        let [raygen, miss, hit, callable] = &self.regions;
+        unsafe {
+            vk.device.cmd_bind_pipeline(cb, bind, self.pipeline);
+            vk.device.cmd_bind_descriptor_sets(cb, bind, self.layout, 0, &[self.set], &[]);
+            vk.device.cmd_push_constants(cb, self.layout, stages, 0, push);
+            self.loader.cmd_trace_rays(cb, raygen, miss, hit, callable, extent.width, extent.height, 1);
+        }
+    }
+    // ANCHOR_END: trace
+
+    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        unsafe {
+            vk.device.destroy_descriptor_pool(self.pool, None);
+            vk.device.destroy_pipeline(self.pipeline, None);
+            vk.device.destroy_pipeline_layout(self.layout, None);
+            vk.device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+        self.sbt.destroy(vk, allocator);
+    }
+}
+
+// ANCHOR: sbt
+/// The shader binding table: the pipeline's group handles copied into a buffer, each region
+/// starting at the device's base alignment. Group 0 is ray generation, group 1 miss; the hit and
+/// callable regions stay empty (address 0, size 0).
+fn shader_binding_table(
+    vk: &VulkanContext,
+    loader: &ash::khr::ray_tracing_pipeline::Device,
+    allocator: &mut Allocator,
+    pipeline: vk::Pipeline,
+    groups: u32,
+) -> Result<(DeviceBuffer, [vk::StridedDeviceAddressRegionKHR; 4])> {
+    let mut properties = vk::PhysicalDeviceRayTracingPipelinePropertiesKHR::default();
+    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
+    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    let handle_size = properties.shader_group_handle_size as u64;
+    let record = handle_size.next_multiple_of(properties.shader_group_handle_alignment as u64);
+    let region = record.next_multiple_of(properties.shader_group_base_alignment as u64);
+    let handles = unsafe {
+        loader.get_ray_tracing_shader_group_handles(
+            pipeline,
+            0,
+            groups,
+            (groups as u64 * handle_size) as usize,
+        )
+    }
+    .context("vkGetRayTracingShaderGroupHandlesKHR")?;
+    let usage = vk::BufferUsageFlags::SHADER_BINDING_TABLE_KHR;
+    // One region per group, plus room to align the start to the base alignment.
+    let bytes = region * groups as u64 + properties.shader_group_base_alignment as u64;
+    let mut buffer =
+        DeviceBuffer::new(vk, allocator, "shader binding table", bytes, usage, MemoryLocation::CpuToGpu)?;
+    let start =
+        buffer.address.next_multiple_of(properties.shader_group_base_alignment as u64) - buffer.address;
+    let mapped = buffer.allocation.mapped_slice_mut().context("the SBT's memory is not mapped")?;
+    for g in 0..groups as u64 {
+        let at = (start + g * region) as usize;
+        let handle = &handles[(g * handle_size) as usize..((g + 1) * handle_size) as usize];
+        mapped[at..at + handle.len()].copy_from_slice(handle);
+    }
+    let address = |g: u64| buffer.address + start + g * region;
+    let regions = [
+        // Ray generation: exactly one record, so size == stride.
+        vk::StridedDeviceAddressRegionKHR { device_address: address(0), stride: record, size: record },
+        vk::StridedDeviceAddressRegionKHR { device_address: address(1), stride: record, size: record },
+        vk::StridedDeviceAddressRegionKHR::default(), // no hit groups
+        vk::StridedDeviceAddressRegionKHR::default(), // no callable shaders
+    ];
+    Ok((buffer, regions))
+}
+// ANCHOR_END: sbt
+
+/// An image only Vulkan uses (a ray tracer's output), in memory from gpu-allocator, with a view.
+pub struct StorageImage {
+    pub image: vk::Image,
+    pub allocation: Allocation,
+    pub view: vk::ImageView,
+    pub extent: vk::Extent2D,
+}
+
+impl StorageImage {
+    pub fn new(
+        vk: &VulkanContext,
+        allocator: &mut Allocator,
+        format: vk::Format,
+        usage: vk::ImageUsageFlags,
+        extent: vk::Extent2D,
+    ) -> Result<Self> {
+        let info = vk::ImageCreateInfo::default()
+            .image_type(vk::ImageType::TYPE_2D)
+            .format(format)
+            .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
+            .mip_levels(1)
+            .array_layers(1)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .tiling(vk::ImageTiling::OPTIMAL)
+            .usage(usage | vk::ImageUsageFlags::STORAGE);
+        let image = unsafe { vk.device.create_image(&info, None) }.context("vkCreateImage")?;
+        let requirements = unsafe { vk.device.get_image_memory_requirements(image) };
+        let description = AllocationCreateDesc {
+            name: "storage image",
+            requirements,
+            location: MemoryLocation::GpuOnly,
+            linear: false,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        };
+        let allocation = allocator
+            .allocate(&description)
+            .inspect_err(|_| unsafe { vk.device.destroy_image(image, None) })?;
+        unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }?;
+        let view_info = vk::ImageViewCreateInfo::default()
+            .image(image)
+            .view_type(vk::ImageViewType::TYPE_2D)
+            .format(format)
+            .subresource_range(crate::commands::COLOR_RANGE);
+        let view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
+        Ok(StorageImage { image, allocation, view, extent })
+    }
+
+    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        unsafe {
+            vk.device.destroy_image_view(self.view, None);
+            vk.device.destroy_image(self.image, None);
+        }
+        let _ = allocator.free(self.allocation);
+    }
+}
+
+// ANCHOR: primary_rays
+/// The push constants of `shaders/primary.rgen`, laid out as GLSL lays out its push-constant
+/// block (std430): a mat4, a vec4 and two floats, 88 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct PrimaryRays {
+    /// GL's clip space back to world space: the inverse of the camera's view-projection.
+    pub inverse_view_projection: [f32; 16],
+    /// The camera position (w unused).
+    pub eye: [f32; 4],
+    /// Ray extent: GL's near and far planes, so both renderers see the same slab of the scene.
+    pub t_min: f32,
+    pub t_max: f32,
+}
+// ANCHOR_END: primary_rays
+
+impl PrimaryRays {
+    pub fn new(camera: &crate::scene::Camera, aspect: f32) -> Self {
+        PrimaryRays {
+            inverse_view_projection: camera.view_projection(aspect).inverse().to_cols_array(),
+            eye: camera.eye.extend(1.0).into(),
+            t_min: camera.near,
+            t_max: camera.far,
+        }
+    }
+}
+
+/// The bytes of a `#[repr(C)]` push-constant struct.
+pub fn push_bytes<T: Copy>(value: &T) -> &[u8] {
+    // SAFETY: push-constant structs are plain f32/u32 data with no padding (tested below).
+    unsafe { std::slice::from_raw_parts((value as *const T).cast(), size_of::<T>()) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::offset_of;
+
+    #[test]
+    fn primary_rays_match_the_glsl_block() {
+        assert_eq!(offset_of!(PrimaryRays, inverse_view_projection), 0);
+        assert_eq!(offset_of!(PrimaryRays, eye), 64);
+        assert_eq!(offset_of!(PrimaryRays, t_min), 80);
+        assert_eq!(offset_of!(PrimaryRays, t_max), 84);
+        assert_eq!(size_of::<PrimaryRays>(), 88);
+    }
+}
