@@ -186,7 +186,7 @@ pub fn compare_image(actual: &Path, reference: &Path, tolerance: Tolerance) -> R
     let mut pool = nv_flip::FlipPool::from_image(&error_map);
     let mean = pool.mean();
     let (p, limit) = tolerance.percentile;
-    let at_p = pool.get_percentile(p, true);
+    let at_p = pool.get_percentile(p, false); // unweighted: the error below which p of the pixels lie
     if mean <= tolerance.mean && at_p <= limit {
         return Ok(());
     }
