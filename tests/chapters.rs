@@ -168,6 +168,52 @@ fn ch06_without_ray_tracing_names_the_extension() {
 }
 
 #[test]
+fn ch07_ao_default_scene() {
+    let args = ["--size", "96x72", "--frames", "4", "--samples", "4"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_07-ao-ray-pipeline"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["samples_per_pixel"], 16);
+    let mean = report["ao_mean"].as_f64().unwrap();
+    assert!(mean > 0.2 && mean < 0.95, "the tetrahedra occlude one another and the ground: {mean}");
+    assert_report_snapshot("07-ao-ray-pipeline", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch07_ao_bunny() {
+    let bunny = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/bunny.obj");
+    let args = ["--size", "96x72", "--frames", "2", "--samples", "8", "--scene", bunny];
+    let run = run_chapter(env!("CARGO_BIN_EXE_07-ao-ray-pipeline"), &args, &[]);
+    let report = run.succeeded();
+    // The bunny is 0.15 units tall: the radius follows the scene's size.
+    assert!(report["radius"].as_f64().unwrap() < 0.05, "{}", report["radius"]);
+    assert_report_snapshot("07-ao-ray-pipeline-bunny", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+/// A lone plane occludes nothing: any ray that hits is the plane hitting itself. Far from the
+/// origin and at a tiny scale alike, the ray origins must clear the surface they start on.
+#[test]
+fn ch07_a_lone_plane_is_unoccluded_at_any_scale_and_distance() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, centre, half) in
+        [("far", [20_000.0, 3_000.0, -15_000.0], 10.0), ("tiny", [0.3, 0.002, 0.1], 0.001)]
+    {
+        let [x, y, z] = centre;
+        let corners = [(-half, -half), (half, -half), (half, half), (-half, half)];
+        let mut obj: String =
+            corners.iter().map(|(dx, dz)| format!("v {} {y} {}\n", x + dx, z + dz)).collect();
+        obj.push_str("f 1 4 3\nf 1 3 2\n");
+        let path = dir.path().join(format!("{name}.obj"));
+        std::fs::write(&path, obj).unwrap();
+        let args = ["--size", "64x48", "--frames", "2", "--samples", "8", "--scene", path.to_str().unwrap()];
+        let run = run_chapter(env!("CARGO_BIN_EXE_07-ao-ray-pipeline"), &args, &[]);
+        let report = run.succeeded();
+        assert_eq!(report["ao_min"], 1.0, "{name}: a ray hit the plane it started on");
+    }
+}
+
+#[test]
 fn bad_flags_are_rejected_with_a_reason() {
     let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
     assert_eq!(run.output.status.code(), Some(2));

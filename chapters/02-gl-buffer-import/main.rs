@@ -65,8 +65,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Check that both run on the same device
     // ANCHOR: uuids
-    report.uuids_match =
-        Some(vk.info.device_uuid == gl_context.device_uuid && vk.info.driver_uuid == gl_context.driver_uuid);
+    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     // ANCHOR_END: uuids
     let open_fds_before = open_fd_count()?;

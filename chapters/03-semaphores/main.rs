@@ -70,7 +70,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     report.vulkan = Some(vk.report());
     report.gl = Some(gl_context.report());
-    report.uuids_match = Some(vk.info.device_uuid == gl_context.device_uuid);
+    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     let open_fds_before = common::open_fd_count()?;
     // ANCHOR: shared_image
@@ -256,9 +256,12 @@ fn record_vulkan_turn(
             external,
             ours,
         );
-        let (top, transfer) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::TRANSFER);
+        // From TRANSFER, the stage the submission waits for GL at (step 4): a barrier chains after
+        // a semaphore wait only through the stages they share, so an acquire from an earlier
+        // stage could change the layout before GL has signalled.
+        let transfer = vk::PipelineStageFlags::TRANSFER;
         let none = vk::DependencyFlags::empty();
-        device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &[acquire]);
+        device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &[acquire]);
         if let Some(t) = timestamps {
             t.start(vk, cb, transfer);
         }

@@ -152,7 +152,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: contexts
     report.vulkan = Some(vk.report());
     report.gl = Some(gl_context.report());
-    report.uuids_match = Some(vk.info.device_uuid == gl_context.device_uuid);
+    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     report.set("window", windowed);
     let open_fds_before = open_fd_count()?;

@@ -73,7 +73,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     report.vulkan = Some(vk.report());
     report.gl = Some(gl_context.report());
-    report.uuids_match = Some(vk.info.device_uuid == gl_context.device_uuid);
+    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
@@ -126,13 +126,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             )
         })
         .unzip();
-    let (top, transfer, bottom) = (
-        vk::PipelineStageFlags::TOP_OF_PIPE,
-        vk::PipelineStageFlags::TRANSFER,
-        vk::PipelineStageFlags::BOTTOM_OF_PIPE,
-    );
+    let (transfer, bottom) = (vk::PipelineStageFlags::TRANSFER, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
     let none = vk::DependencyFlags::empty();
-    unsafe { vk.device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &acquire) };
+    // From TRANSFER, the stage the submission waits for GL at: the acquire comes after GL's signal.
+    unsafe { vk.device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &acquire) };
     for (image, readback) in gbuffers.images.iter().zip(&readbacks) {
         copy_image_to_buffer(&vk, cb, image.image, transfer_src, extent, readback.buffer);
     }

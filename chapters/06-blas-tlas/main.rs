@@ -82,7 +82,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     report.vulkan = Some(vk.report());
     report.gl = Some(gl_context.report());
-    report.uuids_match = Some(vk.info.device_uuid == gl_context.device_uuid);
+    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
@@ -303,7 +303,8 @@ unsafe fn record_trace(
         if let Some(t) = timestamps {
             t.reset(vk, cb);
         }
-        device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &acquire);
+        // From TRANSFER, the stage the submission waits for GL at: the acquire comes after GL's signal.
+        device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &acquire);
         copy_image_to_buffer(
             vk,
             cb,

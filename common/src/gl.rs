@@ -264,12 +264,17 @@ impl GlContext {
     }
 }
 
+/// Do GL and Vulkan report the same device and driver UUIDs? (The report's `uuids_match`.)
+pub fn uuids_match(vulkan: &DeviceInfo, gl: &GlContext) -> bool {
+    vulkan.device_uuid == gl.device_uuid && vulkan.driver_uuid == gl.driver_uuid
+}
+
 // ANCHOR: same_device
 /// GL and Vulkan must run on the same device and driver: an OPAQUE_FD handle means something
 /// only to the driver that made it. On a laptop with two GPUs, GL may well run on the other one.
 pub fn ensure_same_device(vulkan: &DeviceInfo, gl: &GlContext) -> Result<()> {
     let hex = crate::report::uuid_hex;
-    if vulkan.device_uuid != gl.device_uuid || vulkan.driver_uuid != gl.driver_uuid {
+    if !uuids_match(vulkan, gl) {
         bail!(
             "GL and Vulkan run on different devices or drivers, so they cannot share memory:\n  \
              Vulkan: {} device {} driver {}\n  GL: {} device {} driver {}\n  \

@@ -51,3 +51,40 @@ pub fn save_rgba8(
     report.image(name, &path, width, height, "RGBA8");
     Ok(())
 }
+
+/// Reads a GL texture's level 0 as `components` floats per pixel (1 for R32F, 4 for RGBA32F),
+/// in memory order: GL's bottom row first.
+pub fn read_texture_f32(
+    gl: &glow::Context,
+    texture: glow::Texture,
+    width: u32,
+    height: u32,
+    components: u32,
+) -> Vec<f32> {
+    let format = if components == 1 { glow::RED } else { glow::RGBA };
+    let mut bytes = vec![0u8; (width * height * components * 4) as usize];
+    unsafe {
+        gl.pixel_store_i32(glow::PACK_ALIGNMENT, 4);
+        gl.bind_texture(glow::TEXTURE_2D, Some(texture));
+        gl.get_tex_image(
+            glow::TEXTURE_2D,
+            0,
+            format,
+            glow::FLOAT,
+            glow::PixelPackData::Slice(Some(&mut bytes)),
+        );
+        gl.bind_texture(glow::TEXTURE_2D, None);
+    }
+    bytes.chunks_exact(4).map(|b| f32::from_ne_bytes(b.try_into().unwrap())).collect()
+}
+
+/// Greyscale RGBA8 pixels from values in [0, 1].
+pub fn grey(values: &[f32]) -> Vec<u8> {
+    values
+        .iter()
+        .flat_map(|&v| {
+            let g = (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+            [g, g, g, 255]
+        })
+        .collect()
+}

@@ -320,3 +320,30 @@ mod tests {
         assert_eq!(size_of::<PrimaryRays>(), 88);
     }
 }
+
+// ANCHOR: ao_rays
+/// The push constants of `shaders/ao.rgen` (std430: three 4-byte members, 12 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct AoRays {
+    /// Rays per pixel this frame.
+    pub samples: u32,
+    /// Rays per pixel already in the running mean.
+    pub accumulated: u32,
+    /// How far an occluder counts, in world units.
+    pub radius: f32,
+}
+// ANCHOR_END: ao_rays
+
+#[cfg(test)]
+mod ao_tests {
+    use super::*;
+
+    #[test]
+    fn ao_rays_match_the_glsl_block() {
+        assert_eq!(std::mem::offset_of!(AoRays, samples), 0);
+        assert_eq!(std::mem::offset_of!(AoRays, accumulated), 4);
+        assert_eq!(std::mem::offset_of!(AoRays, radius), 8);
+        assert_eq!(size_of::<AoRays>(), 12);
+    }
+}

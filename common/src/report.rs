@@ -127,6 +127,10 @@ impl Report {
             eprintln!("error: the validation layer reported {} error(s) (above)", self.validation.errors);
             ok = false;
         }
+        if self.validation.gl_errors > 0 {
+            eprintln!("error: GL's debug output reported {} error(s) (above)", self.validation.gl_errors);
+            ok = false;
+        }
         if json {
             println!("{}", serde_json::to_string_pretty(&self).expect("report serialises"));
         }

@@ -1,8 +1,8 @@
 #version 450 core
-// Chapter 04: the triangle that shows the image Vulkan computed.
+// Chapters 02 and 04: a triangle of (x, y, u, v) vertices straight from a shared buffer.
 
 // The vertex buffer is tightly packed (x, y, u, v) f32 per vertex: 16-byte stride, position at
-// offset 0 and uv at offset 8. The locations are what glVertexAttribPointer binds.
+// offset 0 and uv at offset 8. The chapters bind these locations with glVertexArrayAttribFormat.
 layout(location = 0) in vec2 position;
 layout(location = 1) in vec2 uv;
 
