@@ -4,6 +4,7 @@
 //! which); later chapters call it by name. Doc comments here say *what*; the book says *why*.
 
 pub mod accel;
+pub mod ao;
 pub mod cli;
 pub mod commands;
 pub mod exportable;

@@ -20,7 +20,7 @@ use std::num::NonZeroU32;
 use std::time::Duration;
 use winit::application::ApplicationHandler;
 use winit::dpi::PhysicalSize;
-use winit::event::{ElementState, WindowEvent};
+use winit::event::{ElementState, MouseButton, MouseScrollDelta, WindowEvent};
 use winit::event_loop::{ActiveEventLoop, EventLoop};
 use winit::platform::pump_events::{EventLoopExtPumpEvents as _, PumpStatus};
 use winit::raw_window_handle::HasWindowHandle as _;
@@ -59,6 +59,12 @@ struct App {
     keys: Vec<Key>,
     resized: Option<PhysicalSize<u32>>,
     close_requested: bool,
+    /// Mouse movement with the left button held, in pixels, since it was last taken.
+    drag: (f32, f32),
+    dragging: bool,
+    cursor: Option<winit::dpi::PhysicalPosition<f64>>,
+    /// Wheel movement in lines since it was last taken.
+    scroll: f32,
 }
 
 struct Opened {
@@ -112,6 +118,11 @@ impl Window {
             }
         }
         self.app.keys.drain(..)
+    }
+
+    /// Mouse movement with the left button held since the last call (pixels), and wheel lines.
+    pub fn take_mouse(&mut self) -> ((f32, f32), f32) {
+        (std::mem::take(&mut self.app.drag), std::mem::take(&mut self.app.scroll))
     }
 
     /// Did the user close the window (or the window system end the loop)?
@@ -183,6 +194,22 @@ impl ApplicationHandler for App {
             WindowEvent::Resized(size) => self.resized = Some(size),
             WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
                 self.keys.push(event.logical_key)
+            }
+            WindowEvent::MouseInput { state, button: MouseButton::Left, .. } => {
+                self.dragging = state == ElementState::Pressed;
+            }
+            WindowEvent::CursorMoved { position, .. } => {
+                if let (true, Some(last)) = (self.dragging, self.cursor) {
+                    self.drag.0 += (position.x - last.x) as f32;
+                    self.drag.1 += (position.y - last.y) as f32;
+                }
+                self.cursor = Some(position);
+            }
+            WindowEvent::MouseWheel { delta, .. } => {
+                self.scroll += match delta {
+                    MouseScrollDelta::LineDelta(_, y) => y,
+                    MouseScrollDelta::PixelDelta(p) => p.y as f32 / 40.0,
+                };
             }
             _ => {}
         }

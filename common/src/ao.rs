@@ -1,0 +1,199 @@
+//! Ray-traced ambient occlusion from GL's G-buffers, accumulated over frames (taught in chapter
+//! 07; chapter 08 composites with it).
+
+use crate::commands::{COLOR_RANGE, Commands, Timestamps};
+use crate::gbuffer::GBuffers;
+use crate::gl::layout;
+use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
+use crate::raytrace::{AoRays, RayPipeline, push_bytes};
+use crate::sync::Sync;
+use crate::{GlContext, VulkanContext};
+use anyhow::Result;
+use ash::vk;
+use gpu_allocator::vulkan::Allocator;
+
+const RAYGEN: &[u8] = include_bytes!("../../shaders/ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+
+/// The AO pipeline, the shared R32F image it accumulates into, and how far it has got.
+pub struct AoTracer {
+    pub pipeline: RayPipeline,
+    /// The running mean of visibility: Vulkan writes it, GL samples it.
+    pub image: SharedImage,
+    /// Rays per pixel already in the running mean; 0 starts it again.
+    pub accumulated: u32,
+    /// Has GL had the image yet? A new one starts undefined, never handed over.
+    gl_has_image: bool,
+}
+
+impl AoTracer {
+    pub fn new(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        allocator: &mut Allocator,
+        tlas: vk::AccelerationStructureKHR,
+        gbuffers: &GBuffers,
+    ) -> Result<Self> {
+        // ANCHOR: pipeline
+        let binding = |binding, ty| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(binding)
+                .descriptor_type(ty)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR)
+        };
+        let bindings = [
+            binding(0, vk::DescriptorType::ACCELERATION_STRUCTURE_KHR),
+            binding(1, vk::DescriptorType::STORAGE_IMAGE), // positions
+            binding(2, vk::DescriptorType::STORAGE_IMAGE), // normals
+            binding(3, vk::DescriptorType::STORAGE_IMAGE), // AO
+        ];
+        let pipeline = RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<AoRays>() as u32)?;
+        pipeline.write_tlas(vk, 0, tlas);
+        // ANCHOR_END: pipeline
+        let image = match Self::image(vk, gl, &pipeline, gbuffers) {
+            Ok(image) => image,
+            Err(error) => {
+                pipeline.destroy(vk, allocator);
+                return Err(error);
+            }
+        };
+        Ok(AoTracer { pipeline, image, accumulated: 0, gl_has_image: false })
+    }
+
+    // ANCHOR: image
+    /// The AO image, as large as the G-buffers, and the descriptors that point at all three.
+    fn image(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        pipeline: &RayPipeline,
+        gbuffers: &GBuffers,
+    ) -> Result<SharedImage> {
+        // One float per pixel. Vulkan writes it (STORAGE), GL samples it (SAMPLED).
+        let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
+        let image = SharedImage::new(vk, gl, vk::Format::R32_SFLOAT, glow::R32F, usage, gbuffers.extent)?;
+        pipeline.write_storage_image(vk, 1, gbuffers.images[0].view);
+        pipeline.write_storage_image(vk, 2, gbuffers.images[1].view);
+        pipeline.write_storage_image(vk, 3, image.view);
+        Ok(image)
+    }
+    // ANCHOR_END: image
+
+    /// After the G-buffers were made anew (a resize): a new AO image of their size, the
+    /// descriptors pointed at the new images, and accumulation from scratch. The GPU must be
+    /// done with the old images.
+    pub fn resize(&mut self, vk: &VulkanContext, gl: &GlContext, gbuffers: &GBuffers) -> Result<()> {
+        let image = Self::image(vk, gl, &self.pipeline, gbuffers)?;
+        std::mem::replace(&mut self.image, image).destroy(vk, gl);
+        self.gl_has_image = false;
+        self.accumulated = 0;
+        Ok(())
+    }
+
+    // ANCHOR: frame
+    /// One frame: GL hands over the G-buffers it just drew (and the AO image), Vulkan adds
+    /// `rays.samples` rays per pixel to the running mean and hands everything back, and GL is
+    /// told to wait for that before it samples the AO. `rays.accumulated` is filled in here.
+    pub fn trace(
+        &mut self,
+        vk: &VulkanContext,
+        gl: &GlContext,
+        sync: &Sync,
+        commands: &Commands,
+        gbuffers: &GBuffers,
+        mut rays: AoRays,
+        timestamps: Option<&Timestamps>,
+    ) -> Result<()> {
+        let gbuffer_textures = gbuffers.textures();
+        // GL hands over positions and normals in GENERAL, the layout storage images need, and the
+        // AO image (once it has had it) as it sampled it.
+        let mut textures = gbuffer_textures[..2].to_vec();
+        let mut layouts = vec![layout::GENERAL; 2];
+        if self.gl_has_image {
+            textures.push(self.image.texture.texture);
+            layouts.push(layout::SHADER_READ_ONLY);
+        }
+        sync.gl_release(gl, &textures, &layouts);
+        let cb = commands.begin(vk)?;
+        rays.accumulated = self.accumulated;
+        unsafe { self.record(vk, cb, gbuffers, &rays, timestamps) };
+        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+        commands.submit(vk, sync.vulkan_waits_on().map(|s| (s, stage)), sync.vulkan_signals())?;
+        let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
+        let layouts = [layout::COLOR_ATTACHMENT, layout::COLOR_ATTACHMENT, layout::SHADER_READ_ONLY];
+        sync.gl_acquire(vk, gl, commands.fence, &textures, &layouts)?;
+        self.gl_has_image = true;
+        self.accumulated += rays.samples;
+        Ok(())
+    }
+    // ANCHOR_END: frame
+
+    // ANCHOR: record
+    /// Take the G-buffers and the AO image from GL, trace, give them back.
+    unsafe fn record(
+        &self,
+        vk: &VulkanContext,
+        cb: vk::CommandBuffer,
+        gbuffers: &GBuffers,
+        rays: &AoRays,
+        timestamps: Option<&Timestamps>,
+    ) {
+        let general = vk::ImageLayout::GENERAL;
+        let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
+        let mut acquire: Vec<_> =
+            gbuffers.images[..2].iter().map(|i| acquire_from_gl(vk, i, general, general, read)).collect();
+        acquire.push(if self.gl_has_image {
+            // Its contents are the running mean so far, which the shader reads and updates.
+            acquire_from_gl(vk, &self.image, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, general, read | write)
+        } else {
+            // Never GL's yet: undefined contents, which the first frame overwrites (weight 1).
+            vk::ImageMemoryBarrier::default()
+                .image(self.image.image)
+                .subresource_range(COLOR_RANGE)
+                .old_layout(vk::ImageLayout::UNDEFINED)
+                .new_layout(general)
+                .dst_access_mask(read | write)
+                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+        });
+        // Back to GL: the G-buffers as attachments for the next frame's draw (nothing written
+        // here), the AO image to sample, its writes made available.
+        let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
+        let mut release: Vec<_> = gbuffers.images[..2]
+            .iter()
+            .map(|i| release_to_gl(vk, i, general, attachment, vk::AccessFlags::NONE))
+            .collect();
+        release.push(release_to_gl(
+            vk,
+            &self.image,
+            general,
+            vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+            write,
+        ));
+        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+        let none = vk::DependencyFlags::empty();
+        unsafe {
+            if let Some(t) = timestamps {
+                t.reset(vk, cb);
+            }
+            // From the stage the submission waits for GL at: the acquire must follow GL's signal.
+            vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
+            if let Some(t) = timestamps {
+                t.start(vk, cb, stage);
+            }
+            self.pipeline.trace(vk, cb, push_bytes(rays), gbuffers.extent);
+            if let Some(t) = timestamps {
+                t.end(vk, cb);
+            }
+            let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+            vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
+        }
+    }
+    // ANCHOR_END: record
+
+    /// GL's side of the image first, then Vulkan's; then the pipeline.
+    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext, allocator: &mut Allocator) {
+        self.image.destroy(vk, gl);
+        self.pipeline.destroy(vk, allocator);
+    }
+}
