@@ -214,6 +214,51 @@ fn ch07_a_lone_plane_is_unoccluded_at_any_scale_and_distance() {
 }
 
 #[test]
+fn ch08_composite_default_scene() {
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "4", "--all-views"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+    let report = run.succeeded();
+    // Both overlay checks exist for this scene: the gizmo's axes pass both behind and in front.
+    assert_eq!(report["checks"]["overlay_hidden_behind_a_surface"], true);
+    assert_eq!(report["checks"]["overlay_shown_where_nothing_is_in_front"], true);
+    assert_eq!(report["images"].as_array().unwrap().len(), 6, "final and five debug views");
+    assert_report_snapshot("08-composite", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch08_composite_bunny() {
+    let bunny = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/bunny.obj");
+    let args = ["--size", "96x72", "--frames", "2", "--samples", "8", "--scene", bunny];
+    let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["checks"]["overlay_hidden_behind_a_surface"], true);
+    assert_eq!(report["checks"]["overlay_shown_where_nothing_is_in_front"], true);
+    assert_report_snapshot("08-composite-bunny", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch08_composite_without_blur() {
+    let args = ["--size", "64x48", "--frames", "1", "--samples", "4", "--blur", "0"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+    assert_eq!(run.succeeded()["checks"]["composite_matches_cpu_reference"], true);
+}
+
+#[test]
+fn ch08_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch08_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "2"];
+    let run =
+        harness::run_chapter_with(env!("CARGO_BIN_EXE_08-composite"), &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["frames"], 3);
+    assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+}
+
+#[test]
 fn bad_flags_are_rejected_with_a_reason() {
     let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
     assert_eq!(run.output.status.code(), Some(2));

@@ -79,6 +79,12 @@ impl AoTracer {
     }
     // ANCHOR_END: image
 
+    /// Starts the running mean again: the camera moved or a parameter changed, so the old mean no
+    /// longer describes the picture. The next frame's samples get weight 1.
+    pub fn reset(&mut self) {
+        self.accumulated = 0;
+    }
+
     /// After the G-buffers were made anew (a resize): a new AO image of their size, the
     /// descriptors pointed at the new images, and accumulation from scratch. The GPU must be
     /// done with the old images.

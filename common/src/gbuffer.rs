@@ -73,7 +73,8 @@ pub struct GBuffers {
     pub images: Vec<SharedImage>,
     pub extent: vk::Extent2D,
     framebuffer: glow::Framebuffer,
-    depth: glow::Renderbuffer,
+    /// GL's depth of the scene, from the G-buffer pass: chapter 08 draws overlays against it.
+    pub depth: glow::Renderbuffer,
     program: glow::Program,
     vertex_arrays: Vec<glow::VertexArray>,
 }

@@ -319,6 +319,27 @@ impl Camera {
         }
     }
 
+    /// Turns the camera around its target (yaw about the world's up, pitch about the camera's
+    /// right, in radians) and moves it closer (`zoom` > 1) or away, keeping `bounds` between
+    /// the near and far planes.
+    pub fn orbit(&mut self, yaw: f32, pitch: f32, zoom: f32, bounds: (Vec3, Vec3)) {
+        let offset = self.eye - self.target;
+        let distance = (offset.length() / zoom).max(1e-6);
+        let direction = offset.normalize();
+        let current_pitch = direction.y.clamp(-1.0, 1.0).asin();
+        // Stop short of the poles, where "up" and the view direction would coincide.
+        let limit = 85f32.to_radians();
+        let pitch = (current_pitch + pitch).clamp(-limit, limit) - current_pitch;
+        let right = direction.cross(Vec3::Y).normalize_or(Vec3::X);
+        let turned =
+            glam::Quat::from_axis_angle(Vec3::Y, yaw) * glam::Quat::from_axis_angle(right, pitch) * direction;
+        self.eye = self.target + turned * distance;
+        let radius = ((bounds.1 - bounds.0).length() / 2.0).max(1e-6);
+        let to_centre = ((bounds.0 + bounds.1) / 2.0 - self.eye).length();
+        self.near = (to_centre - radius).max(to_centre * 1e-2);
+        self.far = to_centre + radius;
+    }
+
     pub fn view(&self) -> Mat4 {
         Mat4::look_at_rh(self.eye, self.target, Vec3::Y)
     }

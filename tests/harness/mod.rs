@@ -11,8 +11,9 @@
 #![allow(dead_code)] // each test crate uses part of the harness
 
 use serde_json::Value;
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output, Stdio};
 
 pub struct Run {
     pub output: Output,
@@ -43,10 +44,19 @@ impl Run {
 /// Runs `bin` (from `env!("CARGO_BIN_EXE_<name>")`) with `--headless --json --out <temp dir>`
 /// plus `args`, with extra environment variables `env`.
 pub fn run_chapter(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
+    let mut all = vec!["--headless"];
+    all.extend_from_slice(args);
+    run_chapter_with(bin, &all, env)
+}
+
+/// Like [`run_chapter`], without `--headless`: the chapter opens a window if `env` gives it a
+/// display (see [`Xvfb`]), and says why it runs headless otherwise.
+pub fn run_chapter_with(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
     let out_dir = tempfile::tempdir().expect("temporary directory");
     let mut command = Command::new(bin);
-    command.args(["--headless", "--json", "--out"]).arg(out_dir.path()).args(args);
+    command.args(["--json", "--out"]).arg(out_dir.path()).args(args);
     pin_software_stack(&mut command);
+    command.env_remove("DISPLAY").env_remove("WAYLAND_DISPLAY");
     command.envs(env.iter().copied());
     let output = command.output().unwrap_or_else(|e| panic!("could not start {bin}: {e}"));
     let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
@@ -207,4 +217,44 @@ pub fn compare_image(actual: &Path, reference: &Path, tolerance: Tolerance) -> R
 
 fn stem(path: &Path) -> String {
     path.file_stem().and_then(|s| s.to_str()).unwrap_or("image").to_owned()
+}
+
+/// An X server without a screen, for tests that open real windows. Killed when dropped, so a
+/// failing test leaves no X server behind.
+pub struct Xvfb {
+    child: Child,
+    /// The `DISPLAY` to give the chapter, such as ":1".
+    pub display: String,
+}
+
+impl Xvfb {
+    /// Starts one on a free display. `None` (after saying so) only when Xvfb is not installed
+    /// and this is not CI, which installs it (`.ci/deps`) and must run these tests.
+    pub fn start(test: &str) -> Option<Xvfb> {
+        // -displayfd: Xvfb picks a free display number and writes it once it accepts clients.
+        let started = Command::new("Xvfb")
+            .args(["-displayfd", "1", "-screen", "0", "1024x768x24", "-nolisten", "tcp"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn();
+        let mut child = match started {
+            Ok(child) => child,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && std::env::var_os("CI").is_none() => {
+                eprintln!("skipping {test}: no Xvfb binary (apt-get install xvfb; CI has it)");
+                return None;
+            }
+            Err(e) => panic!("could not start Xvfb: {e}"),
+        };
+        let mut number = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut number).expect("Xvfb's display number");
+        assert!(!number.trim().is_empty(), "Xvfb wrote no display number");
+        Some(Xvfb { child, display: format!(":{}", number.trim()) })
+    }
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
 }

@@ -1,0 +1,412 @@
+//! Chapter 08: composite.
+//!
+//! The end of the road: GL shades the scene with its own albedo and Vulkan's ray-traced
+//! occlusion, blurred without bleeding across edges, then draws lines (an axis gizmo and a
+//! selected object's box) that the scene's surfaces hide correctly, because they are tested
+//! against the depth GL rasterised the G-buffers with. In a window the camera orbits with the
+//! mouse, and every change starts the occlusion's accumulation again.
+//!
+//! Run: `cargo run --release --bin 08-composite` (keys: 1-6 views, +/- rays, [/] radius,
+//! B blur, P power, O overlays, Esc quits; drag to orbit, wheel to zoom).
+
+use anyhow::{Result, ensure};
+use ash::vk;
+use common::accel;
+use common::ao::AoTracer;
+use common::commands::Commands;
+use common::gbuffer::{GBuffers, SceneBuffers};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device};
+use common::raytrace::AoRays;
+use common::scene::{self, Camera, Normals, Scene};
+use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::window::{Key, NamedKey, Window};
+use common::{
+    CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
+};
+use glam::Mat4;
+use glow::HasContext;
+use std::ffi::CStr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+mod overlay;
+use overlay::{Composite, Overlays, View};
+
+const CHAPTER: &str = "08-composite";
+const REQUIRED: [&CStr; 4] = [
+    ash::khr::external_memory_fd::NAME,
+    RAY_TRACING_EXTENSIONS[0],
+    RAY_TRACING_EXTENSIONS[1],
+    RAY_TRACING_EXTENSIONS[2],
+];
+const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
+
+/// Chapter 08: albedo x ray-traced AO, composited by GL, with depth-correct overlays.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// An OBJ file to use instead of the default scene.
+    #[arg(long)]
+    scene: Option<PathBuf>,
+    /// Normals for an OBJ file that has none.
+    #[arg(long, value_enum, default_value = "smooth")]
+    normals: Normals,
+    /// Tetrahedra in the default scene.
+    #[arg(long, default_value_t = 10_000)]
+    instances: u32,
+    /// AO rays per pixel per frame (1-256).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=256))]
+    samples: u32,
+    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
+    #[arg(long)]
+    radius: Option<f32>,
+    /// Contrast of the occlusion (1-3).
+    #[arg(long, default_value_t = 2.0)]
+    power: f32,
+    /// Stop accumulating once a pixel has this many rays.
+    #[arg(long, default_value_t = 4096)]
+    max_samples: u32,
+    /// Blur radius in pixels (0 skips the blur).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    blur: u32,
+    /// Which picture to show.
+    #[arg(long, value_enum, default_value = "final")]
+    view: View,
+    /// Headless: also write every debug view.
+    #[arg(long)]
+    all_views: bool,
+    /// The instance whose box is drawn [default: the first tetrahedron, or the first object].
+    #[arg(long)]
+    select: Option<usize>,
+}
+
+impl AsRef<CommonArgs> for Args {
+    fn as_ref(&self) -> &CommonArgs {
+        &self.common
+    }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter::<Args>(CHAPTER, run)
+}
+
+/// What the keys change. Any change but the view and the overlays restarts accumulation.
+#[derive(Clone, Copy, PartialEq)]
+struct Settings {
+    samples: u32,
+    radius: f32,
+    power: f32,
+    blur: u32,
+    view: View,
+    overlays: bool,
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    ensure!((1.0..=3.0).contains(&args.power), "--power {}: choose between 1 and 3", args.power);
+    let mut size = args.common.size;
+
+    // 1. Load the scene, and aim the camera at it
+    let scene = match &args.scene {
+        Some(path) => scene::load_obj(path, args.normals)?,
+        None => scene::default_scene(args.instances, 1),
+    };
+    let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    let radius = args.radius.unwrap_or(0.05 * scene.size());
+    ensure!(radius > 0.0 && radius.is_finite(), "--radius {radius}: must be a positive distance");
+    let select = args.select.unwrap_or(if scene.instances.len() > 1 { 1 } else { 0 });
+    ensure!(
+        select < scene.instances.len(),
+        "--select {select}: the scene has {} instances",
+        scene.instances.len()
+    );
+    let mut settings = Settings {
+        samples: args.samples,
+        radius,
+        power: args.power,
+        blur: args.blur,
+        view: args.view,
+        overlays: true,
+    };
+
+    // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
+    let requirements =
+        Requirements { extensions: &REQUIRED, optional_extensions: OPTIONAL, ray_tracing: true };
+    let vk = VulkanContext::new(&requirements)?;
+    let headless = args.common.headless || !common::window::display_available();
+    if !args.common.headless && headless {
+        eprintln!("window: no display (DISPLAY / WAYLAND_DISPLAY unset): running headless");
+    }
+    let (mut window, gl_context) = if headless {
+        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
+    } else {
+        let (window, gl) = Window::open("08 · composite", size, &MEMORY_EXTENSIONS)?;
+        (Some(window), gl)
+    };
+    let gl = &gl_context.gl;
+    report.vulkan = Some(vk.report());
+    report.gl = Some(gl_context.report());
+    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
+    ensure_same_device(&vk.info, &gl_context)?;
+    report.set("window", window.is_some());
+    let sync = Sync::new(&vk, &gl_context)?;
+    report.sync = Some(sync.name());
+    let open_fds_before = open_fd_count()?;
+
+    // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
+    let mut allocator = accel::allocator(&vk)?;
+    let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
+        | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
+    let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
+    let commands = Commands::new(&vk)?;
+    let structures = accel::build(&vk, &mut allocator, &commands, &scene, &buffers)?;
+    let extent = |size: common::cli::Size| vk::Extent2D { width: size.width, height: size.height };
+    let storage = vk::ImageUsageFlags::STORAGE;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent(size), storage)?;
+    let mut tracer = AoTracer::new(&vk, &gl_context, &mut allocator, structures.tlas.handle, &gbuffers)?;
+
+    // 4. The composite pass and the overlays: GL only
+    // ANCHOR: setup
+    let mut composite = Composite::new(gl, &gbuffers)?;
+    let overlays = Overlays::new(gl, &scene, select)?;
+    // ANCHOR_END: setup
+
+    // 5. Every frame: input, G-buffers, rays, composite, overlays
+    let frame_limit =
+        window.as_ref().map_or(args.common.frames.max(1), |_| common::window::frame_limit(&args.common));
+    let mut frame = 0;
+    let mut last = None;
+    loop {
+        // ANCHOR: input
+        if let Some(window) = window.as_mut() {
+            let keys: Vec<Key> = window.poll(&gl_context).collect();
+            let before = (settings, camera.eye);
+            for key in keys {
+                apply_key(&key, &mut settings);
+            }
+            let ((dx, dy), wheel) = window.take_mouse();
+            if dx != 0.0 || dy != 0.0 || wheel != 0.0 {
+                camera.orbit(-dx * 0.01, dy * 0.01, 1.1f32.powf(wheel), scene.bounds);
+            }
+            let restart =
+                Settings { view: before.0.view, overlays: before.0.overlays, ..settings } != before.0;
+            if restart || camera.eye != before.1 {
+                tracer.reset(); // the old mean no longer describes what is on screen
+            }
+            let (width, height) = window.size();
+            if window.close_requested() || (frame_limit > 0 && frame >= frame_limit) {
+                break;
+            }
+            if (width, height) != (size.width, size.height) && width > 0 && height > 0 {
+                // A new size: every shared image is made anew, once the GPU is done with the old.
+                unsafe { gl.finish() };
+                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+                size = common::cli::Size { width, height };
+                let old = std::mem::replace(
+                    &mut gbuffers,
+                    GBuffers::new(&vk, &gl_context, &buffers, extent(size), storage)?,
+                );
+                tracer.resize(&vk, &gl_context, &gbuffers)?;
+                composite.resize(gl, &gbuffers)?;
+                old.destroy(&vk, &gl_context);
+                camera.orbit(0.0, 0.0, 1.0, scene.bounds);
+            }
+        } else if frame >= frame_limit {
+            break;
+        }
+        // ANCHOR_END: input
+        // ANCHOR: frame
+        let aspect = size.width as f32 / size.height as f32;
+        gbuffers.draw(gl, &scene, &camera);
+        if tracer.accumulated < args.max_samples {
+            let samples = settings.samples.min(args.max_samples - tracer.accumulated);
+            let rays = AoRays { samples, accumulated: 0, radius: settings.radius };
+            tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, None)?;
+        }
+        composite.draw(gl, &gbuffers, &tracer, &settings_uniforms(&settings, &scene, &camera));
+        if settings.overlays {
+            overlays.draw(gl, &composite, camera.view_projection(aspect));
+        }
+        // ANCHOR_END: frame
+        if let Some(window) = &window {
+            composite.show(gl, window.size());
+            window.swap_buffers(&gl_context)?;
+        }
+        frame += 1;
+        last = Some(aspect);
+    }
+    gl_context.check_error("the frame loop")?;
+
+    // 6. Check the last frame: the composite against a CPU reference, the overlays' depth test
+    if let Some(aspect) = last {
+        let checks = check_last_frame(
+            gl, &gbuffers, &tracer, &composite, &overlays, &settings, &scene, &camera, aspect,
+        );
+        for (name, ok) in checks? {
+            report.check(name, ok);
+        }
+        report.set("samples_per_pixel", tracer.accumulated);
+        report.set("radius", settings.radius);
+        report.set("blur", settings.blur);
+        report.set("frames", frame);
+        if window.is_none() {
+            write_pictures(
+                report,
+                args,
+                gl,
+                &mut composite,
+                &gbuffers,
+                &tracer,
+                &overlays,
+                &settings,
+                &scene,
+                &camera,
+            )?;
+        }
+    }
+
+    // 7. Clean up, newest first
+    // ANCHOR: cleanup
+    unsafe { gl.finish() };
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    overlays.destroy(gl);
+    composite.destroy(gl);
+    tracer.destroy(&vk, &gl_context, &mut allocator);
+    gbuffers.destroy(&vk, &gl_context);
+    structures.destroy(&vk, &mut allocator);
+    commands.destroy(&vk);
+    drop(allocator);
+    buffers.destroy(&vk, &gl_context);
+    sync.destroy(&vk, &gl_context);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    drop(window);
+    Ok(())
+}
+
+// ANCHOR: keys
+fn apply_key(key: &Key, s: &mut Settings) {
+    match key.as_ref() {
+        Key::Character(c) => match c {
+            "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
+            "+" | "=" => s.samples = (s.samples * 2).min(256),
+            "-" => s.samples = (s.samples / 2).max(1),
+            "]" => s.radius *= 1.25,
+            "[" => s.radius /= 1.25,
+            "b" | "B" => s.blur = (s.blur + 1) % 5,
+            "p" | "P" => s.power = s.power % 3.0 + 1.0,
+            "o" | "O" => s.overlays = !s.overlays,
+            _ => {}
+        },
+        Key::Named(NamedKey::Escape) => {} // handled as a close request by common::window
+        _ => {}
+    }
+}
+// ANCHOR_END: keys
+
+fn settings_uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> overlay::Uniforms {
+    overlay::Uniforms {
+        blur_radius: s.blur as i32,
+        depth_tolerance: 0.02,
+        normal_tolerance: 0.9,
+        power: s.power,
+        view: s.view,
+        bounds: scene.bounds,
+        far_depth: camera.far,
+    }
+}
+
+/// The checks, on the last frame's pixels as GL holds them (rows bottom-up, as in memory).
+#[allow(clippy::too_many_arguments)]
+fn check_last_frame(
+    gl: &glow::Context,
+    gbuffers: &GBuffers,
+    tracer: &AoTracer,
+    composite: &Composite,
+    overlays: &Overlays,
+    settings: &Settings,
+    scene: &Scene,
+    camera: &Camera,
+    aspect: f32,
+) -> Result<Vec<(&'static str, bool)>> {
+    let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
+    let textures = gbuffers.textures();
+    let positions = output::read_texture_f32(gl, textures[0], w, h, 4);
+    let normals = output::read_texture_f32(gl, textures[1], w, h, 4);
+    let albedo = output::read_texture_f32(gl, textures[2], w, h, 4);
+    let visibility = output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
+    let gbuffer =
+        overlay::Pixels { width: w as usize, height: h as usize, positions, normals, albedo, visibility };
+
+    // The final view without overlays, against the same formula computed on the CPU.
+    let uniforms = overlay::Uniforms { view: View::Final, ..settings_uniforms(settings, scene, camera) };
+    composite.draw(gl, gbuffers, tracer, &uniforms);
+    let plain = composite.read(gl);
+    let mut checks =
+        vec![("composite_matches_cpu_reference", overlay::matches_reference(&gbuffer, &plain, &uniforms))];
+    // Then with the overlays: hidden where the G-buffers say a surface is in front, shown elsewhere.
+    overlays.draw(gl, composite, camera.view_projection(aspect));
+    let with_lines = composite.read(gl);
+    let forward = (camera.target - camera.eye).normalize();
+    let probes = overlays.probe(&gbuffer, camera.view_projection(aspect), camera.eye, forward);
+    if let Some(hidden) = probes.hidden {
+        checks.push((
+            "overlay_hidden_behind_a_surface",
+            !overlay::shows_colour(&with_lines, w as usize, hidden),
+        ));
+    }
+    if let Some(visible) = probes.visible {
+        checks.push((
+            "overlay_shown_where_nothing_is_in_front",
+            overlay::shows_colour(&with_lines, w as usize, visible),
+        ));
+    }
+    Ok(checks)
+}
+
+/// Headless: the final picture, and with `--all-views` every debug view.
+#[allow(clippy::too_many_arguments)]
+fn write_pictures(
+    report: &mut Report,
+    args: &Args,
+    gl: &glow::Context,
+    composite: &mut Composite,
+    gbuffers: &GBuffers,
+    tracer: &AoTracer,
+    overlays: &Overlays,
+    settings: &Settings,
+    scene: &Scene,
+    camera: &Camera,
+) -> Result<()> {
+    let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
+    let prefix = match args.scene.as_ref().and_then(|p| p.file_stem()) {
+        Some(stem) => format!("{CHAPTER}-{}", stem.to_string_lossy()),
+        None => CHAPTER.to_owned(),
+    };
+    let views: Vec<View> = if args.all_views { View::ALL.to_vec() } else { vec![settings.view] };
+    let view_projection: Mat4 = camera.view_projection(w as f32 / h as f32);
+    let ao_mean = {
+        let uniforms = overlay::Uniforms { view: View::Ao, ..settings_uniforms(settings, scene, camera) };
+        composite.draw(gl, gbuffers, tracer, &uniforms);
+        let ao = composite.read(gl);
+        let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
+        let covered: Vec<usize> = (0..(w * h) as usize).filter(|&i| positions[i * 4 + 3] > 0.0).collect();
+        covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64
+    };
+    report.set("ao_mean", (ao_mean * 1e3).round() / 1e3);
+    for view in views {
+        let uniforms = overlay::Uniforms { view, ..settings_uniforms(settings, scene, camera) };
+        composite.draw(gl, gbuffers, tracer, &uniforms);
+        if view == View::Final && settings.overlays {
+            overlays.draw(gl, composite, view_projection);
+        }
+        let name = match view {
+            View::Final => prefix.clone(),
+            other => format!("{prefix}-{}", other.name()),
+        };
+        let upright = output::flip_rows(&composite.read(gl), w, h);
+        output::save_rgba8(report, &args.common.out_dir(CHAPTER), &name, w, h, &upright)?;
+    }
+    Ok(())
+}
