@@ -142,7 +142,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     // ANCHOR_END: handover
     report.time_ms("raster_and_handover_cpu", ms_since(started));
-    let raster_ns = unsafe { gl.get_query_parameter_u32(query, glow::QUERY_RESULT) };
+    // 64 bits: nanoseconds overflow 32 bits after 4.3 s, and llvmpipe has reported 2^32 - 1 here.
+    let raster_ns = unsafe { gl.get_query_parameter_u64(query, glow::QUERY_RESULT) };
     report.time_ms("raster_gpu", raster_ns as f64 / 1e6);
 
     // 7. Check what Vulkan sees, and write it out

@@ -13,7 +13,7 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::accel;
 use common::ao::AoTracer;
-use common::commands::Commands;
+use common::commands::{Commands, Timestamps};
 use common::gbuffer::{GBuffers, SceneBuffers};
 use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device};
 use common::raytrace::AoRays;
@@ -176,6 +176,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         window.as_ref().map_or(args.common.frames.max(1), |_| common::window::frame_limit(&args.common));
     let mut frame = 0;
     let mut last = None;
+    // Headless runs measure the trace, waiting for each frame's rays before the next frame: a
+    // measurement, not a way to run. In a window nothing waits.
+    let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
+    let (mut trace_ms, mut traced) = (Vec::new(), 0u64);
     loop {
         // ANCHOR: input
         if let Some(window) = window.as_mut() {
@@ -221,7 +225,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if tracer.accumulated < args.max_samples {
             let samples = settings.samples.min(args.max_samples - tracer.accumulated);
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius };
-            tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, None)?;
+            tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, timestamps.as_ref())?;
+            traced += samples as u64 * (size.width * size.height) as u64;
+            if let Some(t) = &timestamps {
+                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+                trace_ms.push(t.read_ms(&vk)?);
+            }
         }
         composite.draw(gl, &gbuffers, &tracer, &settings_uniforms(&settings, &scene, &camera));
         if settings.overlays {
@@ -234,6 +243,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         frame += 1;
         last = Some(aspect);
+    }
+    if !trace_ms.is_empty() {
+        let (median, p95) = common::commands::median_p95(&trace_ms);
+        report.time_ms("trace_gpu_median", median);
+        report.time_ms("trace_gpu_p95", p95);
+        let total: f64 = trace_ms.iter().sum();
+        // Every pixel launches its rays (background pixels return at once): launched rays.
+        report.set("mrays_per_s_launched", (traced as f64 / (total / 1e3) / 1e6 * 10.0).round() / 10.0);
     }
     gl_context.check_error("the frame loop")?;
 
@@ -269,6 +286,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: cleanup
     unsafe { gl.finish() };
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    if let Some(t) = timestamps {
+        t.destroy(&vk);
+    }
     overlays.destroy(gl);
     composite.destroy(gl);
     tracer.destroy(&vk, &gl_context, &mut allocator);
