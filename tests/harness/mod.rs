@@ -110,6 +110,9 @@ pub fn assert_report_snapshot(name: &str, report: &Value) {
             ".gl.driver_uuid" => "[uuid]",
             ".validation.layer" => "[checked in Run::succeeded]",
             ".images[].path" => "[out]",
+            // Rates come from GPU timestamps, like timings_ms.
+            ".mrays_per_s" => "[rate]",
+            ".mrays_per_s_launched" => "[rate]",
             ".timings_ms" => insta::dynamic_redaction(redact_values("[ms]")),
             ".fds" => insta::dynamic_redaction(redact_values("[fd]")),
         });
