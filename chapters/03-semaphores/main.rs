@@ -58,7 +58,7 @@ fn main() -> ExitCode {
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
-    let frames = args.common.frames.max(1);
+    let frames = args.common.frame_count(false);
 
     // 1. Create both contexts and a shared image
     let vk = VulkanContext::new(&Requirements {

@@ -129,7 +129,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         eprintln!("no display (DISPLAY and WAYLAND_DISPLAY are unset): running headless");
     }
     // 0 frames: until the window is closed.
-    let frames = if windowed { window::frame_limit(&args.common) } else { args.common.frames.max(1) };
+    let frames = args.common.frame_count(windowed);
     if let Some(k) = args.resize_every
         && frames != 0
         && frames <= 3 * k

@@ -120,7 +120,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (mut trace_ms, mut rays) = (0.0, 0u64);
     let mut first_noise = None;
     let (mut visibility, mut positions) = (Vec::new(), Vec::new());
-    for frame in 0..args.common.frames.max(1) {
+    for frame in 0..args.common.frame_count(false) {
         // ANCHOR: loop
         gbuffers.draw(gl, &scene, &camera);
         if tracer.accumulated >= args.max_samples {

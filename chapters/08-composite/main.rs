@@ -172,8 +172,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: setup
 
     // 5. Every frame: input, G-buffers, rays, composite, overlays
-    let frame_limit =
-        window.as_ref().map_or(args.common.frames.max(1), |_| common::window::frame_limit(&args.common));
+    let frame_limit = args.common.frame_count(window.is_some());
     let mut frame = 0;
     let mut last = None;
     // Headless runs measure the trace, waiting for each frame's rays before the next frame: a

@@ -14,9 +14,9 @@ pub struct CommonArgs {
     #[arg(long, default_value = "800x600", value_parser = parse_size)]
     pub size: Size,
 
-    /// How many frames to run before exiting (headless), or 0 to run until the window closes.
-    #[arg(long, default_value_t = 1)]
-    pub frames: u32,
+    /// How many frames to run [default: 1 headless; a window runs until it is closed].
+    #[arg(long)]
+    pub frames: Option<u32>,
 
     /// Where images go [default: out/<chapter>/].
     #[arg(long)]
@@ -34,6 +34,17 @@ impl AsRef<CommonArgs> for CommonArgs {
 }
 
 impl CommonArgs {
+    /// Frames to run: `--frames N`, else 1 headless and 0 ("until closed") in a window. Headless,
+    /// at least 1: there is nothing to close.
+    pub fn frame_count(&self, windowed: bool) -> u32 {
+        match (self.frames, windowed) {
+            (Some(n), true) => n,
+            (Some(n), false) => n.max(1),
+            (None, true) => 0,
+            (None, false) => 1,
+        }
+    }
+
     /// The folder images go to: `--out`, or `out/<chapter>/`.
     pub fn out_dir(&self, chapter: &str) -> PathBuf {
         self.out.clone().unwrap_or_else(|| PathBuf::from("out").join(chapter))

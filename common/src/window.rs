@@ -8,7 +8,7 @@
 //! resizes and the close request. Rendering stays in the chapter's loop.
 
 use crate::GlContext;
-use crate::cli::{CommonArgs, Size};
+use crate::cli::Size;
 use anyhow::{Context as _, Result, anyhow, bail};
 use glutin::config::{Config, ConfigTemplateBuilder, GlConfig as _};
 use glutin::context::{ContextApi, ContextAttributesBuilder, GlProfile, PossiblyCurrentContext, Version};
@@ -31,14 +31,6 @@ pub use winit::keyboard::{Key, NamedKey};
 /// Is there a display to open a window on? (X11's `DISPLAY` or Wayland's `WAYLAND_DISPLAY`.)
 pub fn display_available() -> bool {
     ["DISPLAY", "WAYLAND_DISPLAY"].iter().any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()))
-}
-
-/// How many frames a window shows before closing itself: `--frames N` when given, else 0 (until
-/// the window is closed). `CommonArgs::frames` defaults to 1, which suits headless runs only.
-pub fn frame_limit(args: &CommonArgs) -> u32 {
-    let given = std::env::args_os()
-        .any(|a| a.to_str().is_some_and(|a| a == "--frames" || a.starts_with("--frames=")));
-    if given { args.frames } else { 0 }
 }
 
 /// An open window whose GL surface is current with the chapter's [`GlContext`].
