@@ -11,7 +11,7 @@
 use anyhow::Result;
 use ash::vk;
 use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, layout};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
 use common::interop::SharedImage;
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
@@ -68,10 +68,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     })?;
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
-    report.vulkan = Some(vk.report());
-    report.gl = Some(gl_context.report());
-    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
-    ensure_same_device(&vk.info, &gl_context)?;
+    common::connect(report, &vk, &gl_context)?;
     let open_fds_before = common::open_fd_count()?;
     // ANCHOR: shared_image
     let usage = vk::ImageUsageFlags::COLOR_ATTACHMENT // GL draws into it

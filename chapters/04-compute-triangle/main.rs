@@ -12,9 +12,9 @@ mod check;
 
 use anyhow::{Context as _, Result, bail};
 use ash::vk;
-use common::commands::{COLOR_RANGE, Commands, Timestamps, median_p95};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device, layout};
-use common::interop::{self, SharedImage};
+use common::commands::{Commands, Timestamps, first_use, median_p95};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
+use common::interop::{self, SharedImage, acquire_from_gl, release_to_gl};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::window::{self, Key, NamedKey, Window};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
@@ -150,10 +150,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let gl = &gl_context.gl;
     // ANCHOR_END: contexts
-    report.vulkan = Some(vk.report());
-    report.gl = Some(gl_context.report());
-    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
-    ensure_same_device(&vk.info, &gl_context)?;
+    common::connect(report, &vk, &gl_context)?;
     report.set("window", windowed);
     let open_fds_before = open_fd_count()?;
     let sync = Sync::new(&vk, &gl_context)?;
@@ -440,39 +437,19 @@ fn record_compute(
     time: f32,
     timestamps: Option<&Timestamps>,
 ) {
-    let barrier = |old, new, src_access, dst_access, src_family, dst_family| {
-        vk::ImageMemoryBarrier::default()
-            .image(image.image)
-            .subresource_range(COLOR_RANGE)
-            .old_layout(old)
-            .new_layout(new)
-            .src_access_mask(src_access)
-            .dst_access_mask(dst_access)
-            .src_queue_family_index(src_family)
-            .dst_queue_family_index(dst_family)
-    };
-    let (external, ours) = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
     let (compute, none) = (vk::PipelineStageFlags::COMPUTE_SHADER, vk::DependencyFlags::empty());
     let (read_only, general) = (vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, vk::ImageLayout::GENERAL);
     let device = &vk.device;
     let acquire = if image_is_new {
         // Nothing to take over: UNDEFINED says the old contents may go, and the shader writes
-        // every pixel anyway. No ownership transfer (IGNORED): Vulkan's first use claims it.
-        let ignored = vk::QUEUE_FAMILY_IGNORED;
-        barrier(
-            vk::ImageLayout::UNDEFINED,
-            general,
-            vk::AccessFlags::NONE,
-            vk::AccessFlags::SHADER_WRITE,
-            ignored,
-            ignored,
-        )
+        // every pixel anyway. No ownership transfer: Vulkan's first use claims it.
+        first_use(image.image, general, vk::AccessFlags::SHADER_WRITE)
     } else {
         // Acquire from GL: ownership moves from outside Vulkan (QUEUE_FAMILY_EXTERNAL) to our
         // queue family, and the image from the layout GL released it in to GENERAL, the layout
         // imageStore needs. No source access: GL only sampled it, and its semaphore (or glFinish)
         // already ordered that before us. Destination: the shader's writes.
-        barrier(read_only, general, vk::AccessFlags::NONE, vk::AccessFlags::SHADER_WRITE, external, ours)
+        acquire_from_gl(vk, image, read_only, general, vk::AccessFlags::SHADER_WRITE)
     };
     let extent = image.extent;
     let push = Push { time };
@@ -498,8 +475,7 @@ fn record_compute(
         // move to SHADER_READ_ONLY_OPTIMAL, the layout GL's acquire will name, and hand ownership
         // back outside Vulkan. Destination: nothing more in this submission (BOTTOM_OF_PIPE, no
         // access); the semaphore signal (or fence) that ends it carries the rest to GL.
-        let release =
-            barrier(general, read_only, vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::NONE, ours, external);
+        let release = release_to_gl(vk, image, general, read_only, vk::AccessFlags::SHADER_WRITE);
         device.cmd_pipeline_barrier(
             cb,
             compute,

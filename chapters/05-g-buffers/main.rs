@@ -10,14 +10,13 @@ use anyhow::Result;
 use ash::vk;
 use common::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, layout};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
 use common::interop::{acquire_from_gl, release_to_gl};
-use common::scene::{self, Camera, Normals, Scene};
+use common::scene::{Camera, Scene, SceneArgs};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
 use glow::HasContext;
 use std::ffi::CStr;
-use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -30,15 +29,8 @@ const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// An OBJ file to draw instead of the default scene.
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    /// Normals for an OBJ file that has none.
-    #[arg(long, value_enum, default_value = "smooth")]
-    normals: Normals,
-    /// Tetrahedra in the default scene.
-    #[arg(long, default_value_t = 10_000)]
-    instances: u32,
+    #[command(flatten)]
+    scene: SceneArgs,
 }
 
 impl AsRef<CommonArgs> for Args {
@@ -56,10 +48,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 1. Load the scene
     // ANCHOR: load
-    let scene = match &args.scene {
-        Some(path) => scene::load_obj(path, args.normals)?,
-        None => scene::default_scene(args.instances, 1),
-    };
+    let scene = args.scene.load()?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     // ANCHOR_END: load
     let (meshes, instances, triangles) = (scene.meshes.len(), scene.instances.len(), scene.triangles());
@@ -71,10 +60,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let vk = VulkanContext::new(&requirements)?;
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
-    report.vulkan = Some(vk.report());
-    report.gl = Some(gl_context.report());
-    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
-    ensure_same_device(&vk.info, &gl_context)?;
+    common::connect(report, &vk, &gl_context)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
@@ -151,9 +137,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     check_gbuffers(report, &seen, &camera, &scene);
     let out = args.common.out_dir(CHAPTER);
     // Pictures of a loaded model carry its name: 05-g-buffers-bunny-albedo.png.
-    let stem =
-        args.scene.as_ref().and_then(|p| p.file_stem()).map(|s| format!("{CHAPTER}-{}", s.to_string_lossy()));
-    let prefix = stem.as_deref().unwrap_or(CHAPTER);
+    let prefix = args.scene.picture_name(CHAPTER);
     // The albedo's background has alpha 0: make it opaque black, as in the other two pictures.
     let albedo: Vec<u8> =
         readbacks[2].bytes().chunks_exact(4).flat_map(|p| [p[0], p[1], p[2], 255]).collect();

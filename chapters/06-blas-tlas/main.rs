@@ -10,18 +10,19 @@
 use anyhow::Result;
 use ash::vk;
 use common::accel;
-use common::commands::{Commands, HostBuffer, Timestamps, copy_image_to_buffer, transfers_to_host};
+use common::commands::{
+    Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
+};
 use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, layout};
+use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
-use common::scene::{self, Camera, Normals};
+use common::scene::{Camera, SceneArgs};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::{
     CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
 };
 use std::ffi::CStr;
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 const CHAPTER: &str = "06-blas-tlas";
@@ -40,15 +41,8 @@ const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// An OBJ file to use instead of the default scene.
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    /// Normals for an OBJ file that has none.
-    #[arg(long, value_enum, default_value = "smooth")]
-    normals: Normals,
-    /// Tetrahedra in the default scene.
-    #[arg(long, default_value_t = 10_000)]
-    instances: u32,
+    #[command(flatten)]
+    scene: SceneArgs,
 }
 
 impl AsRef<CommonArgs> for Args {
@@ -66,10 +60,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let aspect = extent.width as f32 / extent.height as f32;
 
     // 1. Load the scene (chapter 05)
-    let scene = match &args.scene {
-        Some(path) => scene::load_obj(path, args.normals)?,
-        None => scene::default_scene(args.instances, 1),
-    };
+    let scene = args.scene.load()?;
     let camera = Camera::framing(scene.bounds, aspect);
 
     // 2. Create both contexts, with ray tracing
@@ -80,10 +71,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: context
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
-    report.vulkan = Some(vk.report());
-    report.gl = Some(gl_context.report());
-    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
-    ensure_same_device(&vk.info, &gl_context)?;
+    common::connect(report, &vk, &gl_context)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
@@ -212,10 +200,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             (false, true) => [0, 80, 255, 255],
         })
         .collect();
-    let prefix = match args.scene.as_ref().and_then(|p| p.file_stem()) {
-        Some(stem) => format!("{CHAPTER}-{}", stem.to_string_lossy()),
-        None => CHAPTER.to_owned(),
-    };
+    let prefix = args.scene.picture_name(CHAPTER);
     let upright = output::flip_rows(&picture, extent.width, extent.height);
     output::save_rgba8(
         report,
@@ -269,18 +254,6 @@ unsafe fn record_trace(
         vk::PipelineStageFlags::TRANSFER,
         vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR,
     );
-    // The mask starts undefined (its old contents do not matter) and becomes a storage image.
-    let mask_barrier = |old, new, src, dst| {
-        vk::ImageMemoryBarrier::default()
-            .image(mask.image)
-            .subresource_range(common::commands::COLOR_RANGE)
-            .old_layout(old)
-            .new_layout(new)
-            .src_access_mask(src)
-            .dst_access_mask(dst)
-            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-    };
     let acquire: Vec<_> = gbuffers
         .images
         .iter()
@@ -323,12 +296,8 @@ unsafe fn record_trace(
             &release,
         );
 
-        let to_storage = mask_barrier(
-            vk::ImageLayout::UNDEFINED,
-            general,
-            vk::AccessFlags::NONE,
-            vk::AccessFlags::SHADER_WRITE,
-        );
+        // The mask starts undefined (its old contents do not matter) and becomes a storage image.
+        let to_storage = first_use(mask.image, general, vk::AccessFlags::SHADER_WRITE);
         device.cmd_pipeline_barrier(cb, top, rays, none, &[], &[], &[to_storage]);
         if let Some(t) = timestamps {
             t.start(vk, cb, rays);
@@ -338,12 +307,10 @@ unsafe fn record_trace(
             t.end(vk, cb);
         }
         // The shader's writes finish before the copy reads them.
-        let to_copy = mask_barrier(
-            general,
-            transfer_src,
-            vk::AccessFlags::SHADER_WRITE,
-            vk::AccessFlags::TRANSFER_READ,
-        );
+        let (layouts, accesses) =
+            ((general, transfer_src), (vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::TRANSFER_READ));
+        let ignored = (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED);
+        let to_copy = image_barrier(mask.image, layouts, accesses, ignored);
         device.cmd_pipeline_barrier(cb, rays, transfer, none, &[], &[], &[to_copy]);
         copy_image_to_buffer(vk, cb, mask.image, transfer_src, mask.extent, hits.buffer);
         transfers_to_host(vk, cb);

@@ -7,21 +7,20 @@
 //!
 //! Run: `cargo run --release --bin 07-ao-ray-pipeline -- --frames 16`.
 
-use anyhow::{Result, ensure};
+use anyhow::Result;
 use ash::vk;
 use common::accel;
-use common::ao::AoTracer;
+use common::ao::{AoArgs, AoTracer};
 use common::commands::{Commands, Timestamps};
 use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
-use common::scene::{self, Camera, Normals};
+use common::scene::{Camera, SceneArgs};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::{
     CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
 };
 use std::ffi::CStr;
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
@@ -38,27 +37,10 @@ const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// An OBJ file to use instead of the default scene.
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    /// Normals for an OBJ file that has none.
-    #[arg(long, value_enum, default_value = "smooth")]
-    normals: Normals,
-    /// Tetrahedra in the default scene.
-    #[arg(long, default_value_t = 10_000)]
-    instances: u32,
-    /// AO rays per pixel per frame.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=256))]
-    samples: u32,
-    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long)]
-    radius: Option<f32>,
-    /// Contrast: the picture shows visibility to this power.
-    #[arg(long, default_value_t = 2.0)]
-    power: f32,
-    /// Stop accumulating once a pixel has this many rays.
-    #[arg(long, default_value_t = 4096)]
-    max_samples: u32,
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    ao: AoArgs,
 }
 
 impl AsRef<CommonArgs> for Args {
@@ -74,19 +56,11 @@ fn main() -> ExitCode {
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     let aspect = extent.width as f32 / extent.height as f32;
-    ensure!((1.0..=3.0).contains(&args.power), "--power {}: choose between 1 and 3", args.power);
 
     // 1. Load the scene, and choose a radius that suits its size
-    let scene = match &args.scene {
-        Some(path) => scene::load_obj(path, args.normals)?,
-        None => scene::default_scene(args.instances, 1),
-    };
+    let scene = args.scene.load()?;
     let camera = Camera::framing(scene.bounds, aspect);
-    // ANCHOR: radius
-    // A fixed radius suits one scene only: the bunny is 0.15 units tall, the default scene 20 wide.
-    let radius = args.radius.unwrap_or(0.05 * scene.size());
-    ensure!(radius > 0.0 && radius.is_finite(), "--radius {radius}: must be a positive distance");
-    // ANCHOR_END: radius
+    let radius = args.ao.radius(&scene)?;
 
     // 2. Create both contexts, share the scene, build its acceleration structures (05, 06)
     let requirements =
@@ -94,10 +68,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let vk = VulkanContext::new(&requirements)?;
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
-    report.vulkan = Some(vk.report());
-    report.gl = Some(gl_context.report());
-    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
-    ensure_same_device(&vk.info, &gl_context)?;
+    common::connect(report, &vk, &gl_context)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
@@ -123,10 +94,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     for frame in 0..args.common.frame_count(false) {
         // ANCHOR: loop
         gbuffers.draw(gl, &scene, &camera);
-        if tracer.accumulated >= args.max_samples {
+        if tracer.accumulated >= args.ao.max_samples {
             continue; // converged: nothing left to trace (a viewer would just show it)
         }
-        let samples = args.samples.min(args.max_samples - tracer.accumulated);
+        let samples = args.ao.samples.min(args.ao.max_samples - tracer.accumulated);
         let params = AoRays { samples, accumulated: 0, radius };
         tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, params, timestamps.as_ref())?;
         // ANCHOR_END: loop
@@ -147,14 +118,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Check the occlusion, and show it
     let covered: Vec<usize> = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] > 0.0).collect();
-    let shown: Vec<f32> = visibility.iter().map(|v| v.powf(args.power)).collect();
+    let shown: Vec<f32> = visibility.iter().map(|v| v.powf(args.ao.power)).collect();
     let mean = covered.iter().map(|&i| shown[i] as f64).sum::<f64>() / covered.len().max(1) as f64;
     let min = covered.iter().map(|&i| visibility[i]).fold(1.0f32, f32::min);
     report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
     let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
     report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
     let last_noise = noise(&visibility, &positions, extent.width as usize);
-    if let Some(first) = first_noise.filter(|_| tracer.accumulated > args.samples) {
+    if let Some(first) = first_noise.filter(|_| tracer.accumulated > args.ao.samples) {
         eprintln!(
             "noise between neighbours: {first:.4} after one frame, {last_noise:.4} after {} rays",
             tracer.accumulated
@@ -171,10 +142,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.time_ms("trace_gpu_total", trace_ms);
         report.set("mrays_per_s", ((rays as f64 / (trace_ms / 1e3)) / 1e6 * 10.0).round() / 10.0);
     }
-    let prefix = match args.scene.as_ref().and_then(|p| p.file_stem()) {
-        Some(stem) => format!("{CHAPTER}-{}", stem.to_string_lossy()),
-        None => CHAPTER.to_owned(),
-    };
+    let prefix = args.scene.picture_name(CHAPTER);
     let upright = output::flip_rows(&output::grey(&shown), extent.width, extent.height);
     output::save_rgba8(
         report,

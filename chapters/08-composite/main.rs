@@ -12,12 +12,12 @@
 use anyhow::{Result, ensure};
 use ash::vk;
 use common::accel;
-use common::ao::AoTracer;
+use common::ao::{AoArgs, AoTracer};
 use common::commands::{Commands, Timestamps};
 use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
-use common::scene::{self, Camera, Normals, Scene};
+use common::scene::{Camera, Scene, SceneArgs};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::window::{Key, NamedKey, Window};
 use common::{
@@ -26,7 +26,6 @@ use common::{
 use glam::Mat4;
 use glow::HasContext;
 use std::ffi::CStr;
-use std::path::PathBuf;
 use std::process::ExitCode;
 
 mod overlay;
@@ -46,27 +45,10 @@ const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// An OBJ file to use instead of the default scene.
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    /// Normals for an OBJ file that has none.
-    #[arg(long, value_enum, default_value = "smooth")]
-    normals: Normals,
-    /// Tetrahedra in the default scene.
-    #[arg(long, default_value_t = 10_000)]
-    instances: u32,
-    /// AO rays per pixel per frame (1-256).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=256))]
-    samples: u32,
-    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long)]
-    radius: Option<f32>,
-    /// Contrast of the occlusion (1-3).
-    #[arg(long, default_value_t = 2.0)]
-    power: f32,
-    /// Stop accumulating once a pixel has this many rays.
-    #[arg(long, default_value_t = 4096)]
-    max_samples: u32,
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    ao: AoArgs,
     /// Blur radius in pixels (0 skips the blur).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
     blur: u32,
@@ -103,17 +85,12 @@ struct Settings {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    ensure!((1.0..=3.0).contains(&args.power), "--power {}: choose between 1 and 3", args.power);
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
-    let scene = match &args.scene {
-        Some(path) => scene::load_obj(path, args.normals)?,
-        None => scene::default_scene(args.instances, 1),
-    };
+    let scene = args.scene.load()?;
     let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
-    let radius = args.radius.unwrap_or(0.05 * scene.size());
-    ensure!(radius > 0.0 && radius.is_finite(), "--radius {radius}: must be a positive distance");
+    let radius = args.ao.radius(&scene)?;
     let select = args.select.unwrap_or(if scene.instances.len() > 1 { 1 } else { 0 });
     ensure!(
         select < scene.instances.len(),
@@ -121,9 +98,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         scene.instances.len()
     );
     let mut settings = Settings {
-        samples: args.samples,
+        samples: args.ao.samples,
         radius,
-        power: args.power,
+        power: args.ao.power,
         blur: args.blur,
         view: args.view,
         overlays: true,
@@ -144,10 +121,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         (Some(window), gl)
     };
     let gl = &gl_context.gl;
-    report.vulkan = Some(vk.report());
-    report.gl = Some(gl_context.report());
-    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
-    ensure_same_device(&vk.info, &gl_context)?;
+    common::connect(report, &vk, &gl_context)?;
     report.set("window", window.is_some());
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
@@ -221,8 +195,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
         gbuffers.draw(gl, &scene, &camera);
-        if tracer.accumulated < args.max_samples {
-            let samples = settings.samples.min(args.max_samples - tracer.accumulated);
+        if tracer.accumulated < args.ao.max_samples {
+            let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius };
             tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
@@ -399,10 +373,7 @@ fn write_pictures(
     camera: &Camera,
 ) -> Result<()> {
     let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
-    let prefix = match args.scene.as_ref().and_then(|p| p.file_stem()) {
-        Some(stem) => format!("{CHAPTER}-{}", stem.to_string_lossy()),
-        None => CHAPTER.to_owned(),
-    };
+    let prefix = args.scene.picture_name(CHAPTER);
     let views: Vec<View> = if args.all_views { View::ALL.to_vec() } else { vec![settings.view] };
     let view_projection: Mat4 = camera.view_projection(w as f32 / h as f32);
     let ao_mean = {

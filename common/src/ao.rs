@@ -1,7 +1,7 @@
 //! Ray-traced ambient occlusion from GL's G-buffers, accumulated over frames (taught in chapter
 //! 07; chapter 08 composites with it).
 
-use crate::commands::{COLOR_RANGE, Commands, Timestamps};
+use crate::commands::{Commands, Timestamps, first_use};
 use crate::gbuffer::GBuffers;
 use crate::gl::layout;
 use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
@@ -14,6 +14,36 @@ use gpu_allocator::vulkan::Allocator;
 
 const RAYGEN: &[u8] = include_bytes!("../../shaders/ao.rgen.spv");
 const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+
+/// The ambient-occlusion flags (chapters 07 and 08).
+#[derive(clap::Args, Debug, Clone)]
+pub struct AoArgs {
+    /// AO rays per pixel per frame.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub samples: u32,
+    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
+    #[arg(long)]
+    pub radius: Option<f32>,
+    /// Contrast: the picture shows visibility to this power (1-3).
+    #[arg(long, default_value_t = 2.0)]
+    pub power: f32,
+    /// Stop accumulating once a pixel has this many rays.
+    #[arg(long, default_value_t = 4096)]
+    pub max_samples: u32,
+}
+
+impl AoArgs {
+    // ANCHOR: radius
+    /// The occlusion radius: `--radius`, or 5% of the scene's diagonal. A fixed default suits
+    /// one scene only: the bunny is 0.15 units tall, the default scene 20 wide.
+    pub fn radius(&self, scene: &crate::scene::Scene) -> Result<f32> {
+        let radius = self.radius.unwrap_or(0.05 * scene.size());
+        anyhow::ensure!(radius > 0.0 && radius.is_finite(), "--radius {radius}: must be a positive distance");
+        anyhow::ensure!((1.0..=3.0).contains(&self.power), "--power {}: choose between 1 and 3", self.power);
+        Ok(radius)
+    }
+    // ANCHOR_END: radius
+}
 
 /// The AO pipeline, the shared R32F image it accumulates into, and how far it has got.
 pub struct AoTracer {
@@ -153,14 +183,7 @@ impl AoTracer {
             acquire_from_gl(vk, &self.image, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, general, read | write)
         } else {
             // Never GL's yet: undefined contents, which the first frame overwrites (weight 1).
-            vk::ImageMemoryBarrier::default()
-                .image(self.image.image)
-                .subresource_range(COLOR_RANGE)
-                .old_layout(vk::ImageLayout::UNDEFINED)
-                .new_layout(general)
-                .dst_access_mask(read | write)
-                .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            first_use(self.image.image, general, read | write)
         });
         // Back to GL: the G-buffers as attachments for the next frame's draw (nothing written
         // here), the AO image to sample, its writes made available.

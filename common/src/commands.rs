@@ -86,6 +86,42 @@ impl Commands {
     }
 }
 
+/// A barrier over a whole colour image: the layout change `(old, new)`, the accesses to make
+/// available and visible `(src, dst)`, and the queue families ownership moves between
+/// (`QUEUE_FAMILY_IGNORED` twice for none).
+pub fn image_barrier<'a>(
+    image: vk::Image,
+    (old, new): (vk::ImageLayout, vk::ImageLayout),
+    (src, dst): (vk::AccessFlags, vk::AccessFlags),
+    (from, to): (u32, u32),
+) -> vk::ImageMemoryBarrier<'a> {
+    vk::ImageMemoryBarrier::default()
+        .image(image)
+        .subresource_range(COLOR_RANGE)
+        .old_layout(old)
+        .new_layout(new)
+        .src_access_mask(src)
+        .dst_access_mask(dst)
+        .src_queue_family_index(from)
+        .dst_queue_family_index(to)
+}
+
+/// The barrier before the first use of an image nobody has used yet: UNDEFINED (its contents
+/// may go), no ownership to take over.
+pub fn first_use<'a>(
+    image: vk::Image,
+    layout: vk::ImageLayout,
+    access: vk::AccessFlags,
+) -> vk::ImageMemoryBarrier<'a> {
+    let ignored = vk::QUEUE_FAMILY_IGNORED;
+    image_barrier(
+        image,
+        (vk::ImageLayout::UNDEFINED, layout),
+        (vk::AccessFlags::NONE, access),
+        (ignored, ignored),
+    )
+}
+
 /// The whole colour image, one mip level, one layer.
 pub const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
     aspect_mask: vk::ImageAspectFlags::COLOR,

@@ -1,6 +1,7 @@
 //! Vulkan memory seen by GL: importing an exported fd as a GL memory object, and a buffer (taught
 //! in chapter 02) or a 2D texture (chapter 03) stored in it.
 
+use crate::commands::image_barrier;
 use crate::exportable::{self, Dedicated, ExportableMemory};
 use crate::gl::{
     DEDICATED_MEMORY_OBJECT_EXT, HANDLE_TYPE_OPAQUE_FD_EXT, OPTIMAL_TILING_EXT, TEXTURE_TILING_EXT,
@@ -243,15 +244,8 @@ pub fn acquire_from_gl<'a>(
     layout: vk::ImageLayout,
     access: vk::AccessFlags,
 ) -> vk::ImageMemoryBarrier<'a> {
-    vk::ImageMemoryBarrier::default()
-        .image(image.image)
-        .subresource_range(crate::commands::COLOR_RANGE)
-        .old_layout(from_gl)
-        .new_layout(layout)
-        .src_access_mask(vk::AccessFlags::NONE)
-        .dst_access_mask(access)
-        .src_queue_family_index(vk::QUEUE_FAMILY_EXTERNAL)
-        .dst_queue_family_index(vk.queue_family_index)
+    let families = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
+    image_barrier(image.image, (from_gl, layout), (vk::AccessFlags::NONE, access), families)
 }
 
 /// The barrier that hands `image` back to GL in `for_gl`, the layout GL's acquire will name,
@@ -263,14 +257,7 @@ pub fn release_to_gl<'a>(
     for_gl: vk::ImageLayout,
     access: vk::AccessFlags,
 ) -> vk::ImageMemoryBarrier<'a> {
-    vk::ImageMemoryBarrier::default()
-        .image(image.image)
-        .subresource_range(crate::commands::COLOR_RANGE)
-        .old_layout(layout)
-        .new_layout(for_gl)
-        .src_access_mask(access)
-        .dst_access_mask(vk::AccessFlags::NONE)
-        .src_queue_family_index(vk.queue_family_index)
-        .dst_queue_family_index(vk::QUEUE_FAMILY_EXTERNAL)
+    let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
+    image_barrier(image.image, (layout, for_gl), (access, vk::AccessFlags::NONE), families)
 }
 // ANCHOR_END: ownership

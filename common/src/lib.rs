@@ -45,6 +45,17 @@ where
     report.finish(common.json)
 }
 
+// ANCHOR: connect
+/// What every chapter from 03 on does once both contexts exist (chapter 02 spells it out): fill
+/// the report's `vulkan`, `gl` and `uuids_match`, and fail unless both run on the same device.
+pub fn connect(report: &mut Report, vk: &VulkanContext, gl: &GlContext) -> anyhow::Result<()> {
+    report.vulkan = Some(vk.report());
+    report.gl = Some(gl.report());
+    report.uuids_match = Some(gl::uuids_match(&vk.info, gl));
+    gl::ensure_same_device(&vk.info, gl)
+}
+// ANCHOR_END: connect
+
 // ANCHOR: open_fd_count
 /// How many file descriptors this process has open: the chapters' leak check compares this
 /// before and after their work.

@@ -186,6 +186,38 @@ fn hue_to_rgb(hue: f32) -> [u8; 3] {
     [channel(0.0), channel(2.0 / 3.0), channel(1.0 / 3.0)]
 }
 
+/// The flags of every chapter that draws a scene (05 on).
+#[derive(clap::Args, Debug, Clone)]
+pub struct SceneArgs {
+    /// An OBJ file to use instead of the default scene.
+    #[arg(long)]
+    pub scene: Option<std::path::PathBuf>,
+    /// Normals for an OBJ file that has none.
+    #[arg(long, value_enum, default_value = "smooth")]
+    pub normals: Normals,
+    /// Tetrahedra in the default scene.
+    #[arg(long, default_value_t = 10_000)]
+    pub instances: u32,
+}
+
+impl SceneArgs {
+    /// The OBJ file's scene, or the default one (seeded: the same on every run).
+    pub fn load(&self) -> Result<Scene> {
+        match &self.scene {
+            Some(path) => load_obj(path, self.normals),
+            None => Ok(default_scene(self.instances, 1)),
+        }
+    }
+
+    /// Picture names: `<chapter>` for the default scene, `<chapter>-<file stem>` for a model.
+    pub fn picture_name(&self, chapter: &str) -> String {
+        match self.scene.as_ref().and_then(|p| p.file_stem()) {
+            Some(stem) => format!("{chapter}-{}", stem.to_string_lossy()),
+            None => chapter.to_owned(),
+        }
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // OBJ files
 
