@@ -78,14 +78,8 @@ struct Args {
     resize_every: Option<u32>,
 }
 
-impl AsRef<CommonArgs> for Args {
-    fn as_ref(&self) -> &CommonArgs {
-        &self.common
-    }
-}
-
 fn main() -> ExitCode {
-    common::run_chapter::<Args>(CHAPTER, run)
+    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
 }
 
 // ANCHOR: share_image

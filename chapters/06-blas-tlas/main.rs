@@ -45,14 +45,8 @@ struct Args {
     scene: SceneArgs,
 }
 
-impl AsRef<CommonArgs> for Args {
-    fn as_ref(&self) -> &CommonArgs {
-        &self.common
-    }
-}
-
 fn main() -> ExitCode {
-    common::run_chapter::<Args>(CHAPTER, run)
+    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {

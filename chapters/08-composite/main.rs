@@ -63,14 +63,8 @@ struct Args {
     select: Option<usize>,
 }
 
-impl AsRef<CommonArgs> for Args {
-    fn as_ref(&self) -> &CommonArgs {
-        &self.common
-    }
-}
-
 fn main() -> ExitCode {
-    common::run_chapter::<Args>(CHAPTER, run)
+    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
 }
 
 /// What the keys change. Any change but the view and the overlays restarts accumulation.

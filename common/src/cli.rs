@@ -27,12 +27,6 @@ pub struct CommonArgs {
     pub json: bool,
 }
 
-impl AsRef<CommonArgs> for CommonArgs {
-    fn as_ref(&self) -> &CommonArgs {
-        self
-    }
-}
-
 impl CommonArgs {
     /// Frames to run: `--frames N`, else 1 headless and 0 ("until closed") in a window. Headless,
     /// at least 1: there is nothing to close.

@@ -92,24 +92,31 @@ pub fn create_image(
     extent: vk::Extent2D,
 ) -> Result<vk::Image> {
     let mut external = vk::ExternalMemoryImageCreateInfo::default().handle_types(HANDLE_TYPE);
-    let info = vk::ImageCreateInfo::default()
+    let info = image_info(format, usage, extent)
         // Some drivers corrupt shared images unless views of other formats are allowed.
         .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
+        .push_next(&mut external);
+    unsafe { ctx.device.create_image(&info, None) }.with_context(|| format!("vkCreateImage ({format:?})"))
+}
+// ANCHOR_END: create_image
+
+// ANCHOR: image_info
+/// A 2D colour image: one mip level, one layer, one sample, in the driver's OPTIMAL layout. GL
+/// can use an OPTIMAL image only because it is the same driver (chapter 02 checks the UUIDs) and
+/// because it is told so (GL_OPTIMAL_TILING_EXT, chapter 03).
+pub fn image_info<'a>(format: vk::Format, usage: vk::ImageUsageFlags, extent: vk::Extent2D) -> vk::ImageCreateInfo<'a> {
+    vk::ImageCreateInfo::default()
         .image_type(vk::ImageType::TYPE_2D)
         .format(format)
         .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
         .mip_levels(1)
         .array_layers(1)
         .samples(vk::SampleCountFlags::TYPE_1)
-        // OPTIMAL: the driver's own layout. GL can use it only because it is the same driver
-        // (chapter 02 checks the UUIDs) and because it is told so (GL_OPTIMAL_TILING_EXT).
         .tiling(vk::ImageTiling::OPTIMAL)
         .usage(usage)
         .initial_layout(vk::ImageLayout::UNDEFINED)
-        .push_next(&mut external);
-    unsafe { ctx.device.create_image(&info, None) }.with_context(|| format!("vkCreateImage ({format:?})"))
 }
-// ANCHOR_END: create_image
+// ANCHOR_END: image_info
 
 // ANCHOR: export_fd
 /// Exports `memory` as a new file descriptor. Each call makes a new fd, owned by the caller until

@@ -31,18 +31,19 @@ use std::process::ExitCode;
 ///
 /// Exit codes: 0 all checks passed; 1 a check failed or the validation layer reported an error;
 /// 2 the chapter could not run (missing extension, bad input ...), with the reason on stderr.
-pub fn run_chapter<A>(chapter: &str, run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>) -> ExitCode
-where
-    A: clap::Parser + AsRef<CommonArgs>,
-{
+/// `common` finds the shared flags inside the chapter's own (`|args: &Args| &args.common`).
+pub fn run_chapter<A: clap::Parser>(
+    chapter: &str,
+    common: fn(&A) -> &CommonArgs,
+    run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>,
+) -> ExitCode {
     let args = A::parse();
-    let common: &CommonArgs = args.as_ref();
     let mut report = Report::new(chapter);
     if let Err(error) = run(&args, &mut report) {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
-    report.finish(common.json)
+    report.finish(common(&args).json)
 }
 
 // ANCHOR: connect

@@ -233,15 +233,7 @@ impl StorageImage {
         usage: vk::ImageUsageFlags,
         extent: vk::Extent2D,
     ) -> Result<Self> {
-        let info = vk::ImageCreateInfo::default()
-            .image_type(vk::ImageType::TYPE_2D)
-            .format(format)
-            .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
-            .mip_levels(1)
-            .array_layers(1)
-            .samples(vk::SampleCountFlags::TYPE_1)
-            .tiling(vk::ImageTiling::OPTIMAL)
-            .usage(usage | vk::ImageUsageFlags::STORAGE);
+        let info = crate::exportable::image_info(format, usage | vk::ImageUsageFlags::STORAGE, extent);
         let image = unsafe { vk.device.create_image(&info, None) }.context("vkCreateImage")?;
         let requirements = unsafe { vk.device.get_image_memory_requirements(image) };
         let description = AllocationCreateDesc {
