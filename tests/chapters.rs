@@ -104,6 +104,12 @@ fn ch05_g_buffers_bunny() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+#[test]
+fn ch05_resizing_leaks_nothing() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_05-g-buffers"), &["--size", "96x72", "--resizes", "12"], &[]);
+    assert_eq!(run.succeeded()["checks"]["no_fd_growth_across_resizes"], true);
+}
+
 /// Bad OBJ input is an error naming the file and the problem (exit 2), never a panic.
 #[test]
 fn ch05_bad_obj_files_are_rejected() {
@@ -243,6 +249,17 @@ fn ch08_composite_without_blur() {
     let args = ["--size", "64x48", "--frames", "1", "--samples", "4", "--blur", "0"];
     let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
     assert_eq!(run.succeeded()["checks"]["composite_matches_cpu_reference"], true);
+}
+
+#[test]
+fn ch08_resizing_leaks_nothing() {
+    let args = ["--size", "96x72", "--frames", "12", "--samples", "2", "--resize-every", "2"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["resizes"], 5);
+    assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
+    // The last frame, at the last size, still passes the composite and overlay checks.
+    assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
 
 #[test]

@@ -31,6 +31,10 @@ struct Args {
     common: CommonArgs,
     #[command(flatten)]
     scene: SceneArgs,
+    /// Then make the G-buffers anew this many times, at other sizes, as a window's resize
+    /// would, and check that nothing is left behind.
+    #[arg(long, default_value_t = 0)]
+    resizes: u32,
 }
 
 fn main() -> ExitCode {
@@ -69,7 +73,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: gbuffers
     // TRANSFER_SRC: this chapter copies them out. STORAGE: chapter 07's ray tracer reads them.
     let usage = vk::ImageUsageFlags::TRANSFER_SRC | vk::ImageUsageFlags::STORAGE;
-    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, usage)?;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, usage)?;
     // ANCHOR_END: gbuffers
 
     // 5. Rasterise: one instanced draw per mesh
@@ -147,7 +151,28 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("triangles", triangles);
     report.set("bytes_shared", buffers.bytes() + gbuffers.images.iter().map(|i| i.memory.size).sum::<u64>());
 
-    // 8. Clean up, newest first
+    // 8. Resize: every shared image made anew, its GL twin too
+    // ANCHOR: resize
+    let mut fds_after_first = None;
+    for i in 0..args.resizes {
+        let quarters = [2, 3, 4][i as usize % 3];
+        let size = vk::Extent2D {
+            width: (extent.width * quarters / 4).max(8),
+            height: (extent.height * quarters / 4).max(8),
+        };
+        // Nothing may still use the old images: GL finishes, and Vulkan's last copy has (fence above).
+        unsafe { gl.finish() };
+        let old = std::mem::replace(&mut gbuffers, GBuffers::new(&vk, &gl_context, &buffers, size, usage)?);
+        old.destroy(&vk, &gl_context);
+        gbuffers.draw(gl, &scene, &camera);
+        fds_after_first = fds_after_first.or(Some(open_fd_count()?));
+    }
+    if let Some(before) = fds_after_first {
+        report.check("no_fd_growth_across_resizes", open_fd_count()? == before);
+    }
+    // ANCHOR_END: resize
+
+    // 9. Clean up, newest first
     // ANCHOR: cleanup
     readbacks.into_iter().for_each(|b| b.destroy(&vk));
     commands.destroy(&vk);

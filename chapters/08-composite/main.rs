@@ -58,6 +58,10 @@ struct Args {
     /// Headless: also write every debug view.
     #[arg(long)]
     all_views: bool,
+    /// Headless: make every shared image anew at another size every K frames, as a window's
+    /// resize does (the leak test uses it).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    resize_every: Option<u32>,
     /// The instance whose box is drawn [default: the first tetrahedron, or the first object].
     #[arg(long)]
     select: Option<usize>,
@@ -143,6 +147,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let frame_limit = args.common.frame_count(window.is_some());
     let mut frame = 0;
     let mut last = None;
+    let (mut new_size, mut resizes, mut fds_after_first_resize) = (None, 0, None);
     // Headless runs measure the trace, waiting for each frame's rays before the next frame: a
     // measurement, not a way to run. In a window nothing waits.
     let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
@@ -164,27 +169,43 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if restart || camera.eye != before.1 {
                 tracer.reset(); // the old mean no longer describes what is on screen
             }
-            let (width, height) = window.size();
             if window.close_requested() || (frame_limit > 0 && frame >= frame_limit) {
                 break;
             }
+            let (width, height) = window.size();
             if (width, height) != (size.width, size.height) && width > 0 && height > 0 {
-                // A new size: every shared image is made anew, once the GPU is done with the old.
-                unsafe { gl.finish() };
-                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-                size = common::cli::Size { width, height };
-                let old = std::mem::replace(
-                    &mut gbuffers,
-                    GBuffers::new(&vk, &gl_context, &buffers, extent(size), storage)?,
-                );
-                tracer.resize(&vk, &gl_context, &gbuffers)?;
-                composite.resize(gl, &gbuffers)?;
-                old.destroy(&vk, &gl_context);
-                camera.orbit(0.0, 0.0, 1.0, scene.bounds);
+                new_size = Some(common::cli::Size { width, height });
             }
         } else if frame >= frame_limit {
             break;
+        } else if let Some(every) = args.resize_every.filter(|&k| frame > 0 && frame % k == 0) {
+            // Headless, the same path a window's resize takes: half, three quarters, whole.
+            let quarters = [2, 3, 4][(frame / every) as usize % 3];
+            let scale = |side: u32| (side * quarters / 4).max(8);
+            new_size = Some(common::cli::Size {
+                width: scale(args.common.size.width),
+                height: scale(args.common.size.height),
+            });
         }
+        // ANCHOR_END: input
+        // ANCHOR: resize
+        if let Some(new) = new_size.take() {
+            // Every shared image is made anew at the new size, once the GPU is done with the old
+            // ones (the reference sample leaked them and kept descriptors pointing at them).
+            unsafe { gl.finish() };
+            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+            size = new;
+            let fresh = GBuffers::new(&vk, &gl_context, &buffers, extent(size), storage)?;
+            let old = std::mem::replace(&mut gbuffers, fresh);
+            tracer.resize(&vk, &gl_context, &gbuffers)?;
+            composite.resize(gl, &gbuffers)?;
+            old.destroy(&vk, &gl_context);
+            resizes += 1;
+            if resizes == 1 {
+                fds_after_first_resize = Some(open_fd_count()?);
+            }
+        }
+        // ANCHOR_END: resize
         // ANCHOR_END: input
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
@@ -210,6 +231,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         frame += 1;
         last = Some(aspect);
+    }
+    if let Some(before) = fds_after_first_resize {
+        report.set("resizes", resizes);
+        report.check("no_fd_growth_across_resizes", open_fd_count()? == before);
     }
     if !trace_ms.is_empty() {
         let (median, p95) = common::commands::median_p95(&trace_ms);
