@@ -104,7 +104,11 @@ pub fn create_image(
 /// A 2D colour image: one mip level, one layer, one sample, in the driver's OPTIMAL layout. GL
 /// can use an OPTIMAL image only because it is the same driver (chapter 02 checks the UUIDs) and
 /// because it is told so (GL_OPTIMAL_TILING_EXT, chapter 03).
-pub fn image_info<'a>(format: vk::Format, usage: vk::ImageUsageFlags, extent: vk::Extent2D) -> vk::ImageCreateInfo<'a> {
+pub fn image_info<'a>(
+    format: vk::Format,
+    usage: vk::ImageUsageFlags,
+    extent: vk::Extent2D,
+) -> vk::ImageCreateInfo<'a> {
     vk::ImageCreateInfo::default()
         .image_type(vk::ImageType::TYPE_2D)
         .format(format)
