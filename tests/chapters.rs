@@ -58,6 +58,29 @@ fn ch02_gl_buffer_import() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+/// A chapter that computes headless shows its pictures in a window when there is a display.
+#[test]
+fn ch02_shows_its_pictures_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch02_shows_its_pictures_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "160x120", "--frames", "3"];
+    let run = harness::run_chapter_with(
+        env!("CARGO_BIN_EXE_02-gl-buffer-import"),
+        &args,
+        &[("DISPLAY", &xvfb.display)],
+    );
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["checks"]["window_shows_the_pictures"], true);
+}
+
+#[test]
+fn ch02_without_a_display_says_where_the_pictures_are() {
+    let run = harness::run_chapter_with(env!("CARGO_BIN_EXE_02-gl-buffer-import"), &["--size", "64x48"], &[]);
+    assert_eq!(run.succeeded()["window"], false);
+    assert!(run.stderr.contains("no display"), "{}", run.stderr);
+}
+
 #[test]
 fn ch02_missing_gl_extension_is_named() {
     let run = run_chapter(

@@ -156,6 +156,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: input
         if let Some(window) = window.as_mut() {
             let keys: Vec<Key> = window.poll(&gl_context).collect();
+            if keys.iter().any(|k| *k == Key::Named(NamedKey::Escape)) {
+                break;
+            }
             let before = (settings, camera.eye);
             for key in keys {
                 apply_key(&key, &mut settings);
@@ -311,8 +314,7 @@ fn apply_key(key: &Key, s: &mut Settings) {
             "o" | "O" => s.overlays = !s.overlays,
             _ => {}
         },
-        Key::Named(NamedKey::Escape) => {} // handled as a close request by common::window
-        _ => {}
+        _ => {} // Esc ends the loop before keys get here
     }
 }
 // ANCHOR_END: keys

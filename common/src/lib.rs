@@ -38,12 +38,47 @@ pub fn run_chapter<A: clap::Parser>(
     run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>,
 ) -> ExitCode {
     let args = A::parse();
+    let common = common(&args);
     let mut report = Report::new(chapter);
     if let Err(error) = run(&args, &mut report) {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
-    report.finish(common(&args).json)
+    show_pictures(chapter, common, &mut report);
+    report.finish(common.json)
+}
+
+/// A chapter that computed its pictures headless shows them in a window when there is a
+/// display (and no `--headless`), and says so when there is none. Chapters with windows of their
+/// own (04, 08) report `window` themselves.
+fn show_pictures(chapter: &str, common: &CommonArgs, report: &mut Report) {
+    if report.images.is_empty() || report.details.contains_key("window") {
+        return;
+    }
+    let out = common.out_dir(chapter);
+    let shown = if common.headless {
+        false
+    } else if !window::display_available() {
+        eprintln!(
+            "window: no display (DISPLAY / WAYLAND_DISPLAY unset); the pictures are in {}",
+            out.display()
+        );
+        false
+    } else {
+        let pictures: Vec<_> =
+            report.images.iter().map(|i| (i.name.clone(), std::path::PathBuf::from(&i.path))).collect();
+        match window::show_pictures(chapter, &pictures, common.frame_count(true)) {
+            Ok(seen) => {
+                report.check("window_shows_the_pictures", seen);
+                true
+            }
+            Err(error) => {
+                eprintln!("window: cannot show the pictures ({error:#}); they are in {}", out.display());
+                false
+            }
+        }
+    };
+    report.set("window", shown);
 }
 
 // ANCHOR: connect

@@ -207,3 +207,115 @@ impl ApplicationHandler for App {
         }
     }
 }
+
+// ANCHOR: show_pictures
+/// Shows the pictures a chapter wrote (PNG files) in a window, for chapters that compute
+/// headless: Space or → shows the next, ← the previous, Esc or closing the window ends it, and
+/// so does `frames` > 0 frames. The window has its own GL context; the chapter's is gone by now.
+/// Returns whether the first frame's centre pixel, read back before the swap, is the picture's.
+pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], frames: u32) -> Result<bool> {
+    use glow::HasContext;
+    let images = pictures
+        .iter()
+        .map(|(name, path)| {
+            let image = image::open(path).with_context(|| format!("reading {}", path.display()))?.to_rgba8();
+            Ok((name.clone(), image))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let Some((_, first)) = images.first() else { return Ok(false) };
+    let centre = *first.get_pixel(first.width() / 2, first.height() / 2);
+    let size = Size { width: first.width().max(64), height: first.height().max(64) };
+    let (mut window, gl_context) = Window::open(title, size, &[])?;
+    let gl = &gl_context.gl;
+    // One texture and read framebuffer per picture; blitting does the scaling.
+    let mut shown = Vec::new();
+    for (name, image) in &images {
+        let (w, h) = image.dimensions();
+        // PNG rows start at the top, GL's at the bottom.
+        let rows = crate::output::flip_rows(image.as_raw(), w, h);
+        unsafe {
+            let texture = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
+            gl.texture_storage_2d(texture, 1, glow::RGBA8, w as i32, h as i32);
+            let pixels = glow::PixelUnpackData::Slice(Some(&rows));
+            gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
+            gl.texture_sub_image_2d(
+                texture,
+                0,
+                0,
+                0,
+                w as i32,
+                h as i32,
+                glow::RGBA,
+                glow::UNSIGNED_BYTE,
+                pixels,
+            );
+            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+            gl.named_framebuffer_texture(Some(framebuffer), glow::COLOR_ATTACHMENT0, Some(texture), 0);
+            shown.push((name.as_str(), texture, framebuffer, w as i32, h as i32));
+        }
+    }
+    eprintln!("window: {} picture(s); Space/→ next, ← previous, Esc quits", shown.len());
+    let (mut current, mut frame, mut seen) = (0, 0, false);
+    while !window.close_requested() && (frames == 0 || frame < frames) {
+        for key in window.poll(&gl_context).collect::<Vec<_>>() {
+            match key.as_ref() {
+                Key::Named(NamedKey::Escape) => return finish(gl, &shown).map(|_| seen),
+                Key::Named(NamedKey::Space | NamedKey::ArrowRight) => current = (current + 1) % shown.len(),
+                Key::Named(NamedKey::ArrowLeft) => current = (current + shown.len() - 1) % shown.len(),
+                _ => {}
+            }
+        }
+        let (name, _, framebuffer, w, h) = shown[current];
+        let (ww, wh) = window.size();
+        // As large as fits, aspect kept, centred.
+        let scale = (ww as f32 / w as f32).min(wh as f32 / h as f32);
+        let (dw, dh) = ((w as f32 * scale) as i32, (h as f32 * scale) as i32);
+        let (x, y) = ((ww as i32 - dw) / 2, (wh as i32 - dh) / 2);
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+            gl.viewport(0, 0, ww as i32, wh as i32);
+            gl.clear_color(0.1, 0.1, 0.12, 1.0);
+            gl.clear(glow::COLOR_BUFFER_BIT);
+            let filter = if scale >= 1.0 { glow::NEAREST } else { glow::LINEAR };
+            gl.blit_named_framebuffer(
+                Some(framebuffer),
+                None,
+                0,
+                0,
+                w,
+                h,
+                x,
+                y,
+                x + dw,
+                y + dh,
+                glow::COLOR_BUFFER_BIT,
+                filter,
+            );
+        }
+        if frame == 0 {
+            eprintln!("window: showing {name}");
+            let mut pixel = [0u8; 4];
+            unsafe {
+                let data = glow::PixelPackData::Slice(Some(&mut pixel));
+                gl.read_pixels(ww as i32 / 2, wh as i32 / 2, 1, 1, glow::RGBA, glow::UNSIGNED_BYTE, data);
+            }
+            // Scaling may blend neighbours: close, not equal.
+            seen = pixel[..3].iter().zip(&centre.0[..3]).all(|(a, b)| a.abs_diff(*b) <= 24);
+        }
+        window.swap_buffers(&gl_context)?;
+        frame += 1;
+    }
+    finish(gl, &shown).map(|_| seen)
+}
+
+fn finish(gl: &glow::Context, shown: &[(&str, glow::Texture, glow::Framebuffer, i32, i32)]) -> Result<()> {
+    use glow::HasContext;
+    for &(_, texture, framebuffer, _, _) in shown.iter().rev() {
+        unsafe {
+            gl.delete_framebuffer(framebuffer);
+            gl.delete_texture(texture);
+        }
+    }
+    Ok(())
+}
+// ANCHOR_END: show_pictures
