@@ -71,7 +71,8 @@ fn main() -> ExitCode {
     common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
 }
 
-/// What the keys change. Any change but the view and the overlays restarts accumulation.
+/// What the keys change. Only the radius changes what the occlusion measures; the rest change how
+/// many rays a frame adds or how the mean is shown.
 #[derive(Clone, Copy, PartialEq)]
 struct Settings {
     samples: u32,
@@ -149,7 +150,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut last = None;
     let (mut new_size, mut resizes, mut fds_after_first_resize) = (None, 0, None);
     // Headless runs measure the trace, waiting for each frame's rays before the next frame: a
-    // measurement, not a way to run. In a window nothing waits.
+    // measurement, not a way to run. A window adds no such wait.
     let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
     let (mut trace_ms, mut traced) = (Vec::new(), 0u64);
     loop {
@@ -167,10 +168,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if dx != 0.0 || dy != 0.0 || wheel != 0.0 {
                 camera.orbit(-dx * 0.01, dy * 0.01, 1.1f32.powf(wheel), scene.bounds);
             }
-            let restart =
-                Settings { view: before.0.view, overlays: before.0.overlays, ..settings } != before.0;
-            if restart || camera.eye != before.1 {
-                tracer.reset(); // the old mean no longer describes what is on screen
+            // The running mean describes what each pixel showed, with this radius: a moved camera or
+            // a new radius makes it describe something else. Rays per frame, blur and power do not.
+            if settings.radius != before.0.radius || camera.eye != before.1 {
+                tracer.reset();
             }
             if window.close_requested() || (frame_limit > 0 && frame >= frame_limit) {
                 break;
@@ -182,7 +183,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         } else if frame >= frame_limit {
             break;
         } else if let Some(every) = args.resize_every.filter(|&k| frame > 0 && frame % k == 0) {
-            // Headless, the same path a window's resize takes: half, three quarters, whole.
+            // Headless, the same path a window's resize takes: three quarters, whole, half.
             let quarters = [2, 3, 4][(frame / every) as usize % 3];
             let scale = |side: u32| (side * quarters / 4).max(8);
             new_size = Some(common::cli::Size {
@@ -209,7 +210,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             }
         }
         // ANCHOR_END: resize
-        // ANCHOR_END: input
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
         gbuffers.draw(gl, &scene, &camera);
@@ -310,7 +310,7 @@ fn apply_key(key: &Key, s: &mut Settings) {
             "]" => s.radius *= 1.25,
             "[" => s.radius /= 1.25,
             "b" | "B" => s.blur = (s.blur + 1) % 5,
-            "p" | "P" => s.power = s.power % 3.0 + 1.0,
+            "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0, // 1, 2, 3, 1 ...
             "o" | "O" => s.overlays = !s.overlays,
             _ => {}
         },

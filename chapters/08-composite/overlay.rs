@@ -191,10 +191,11 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
             Some(gbuffers.depth),
         );
         let status = gl.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
-        anyhow::ensure!(
-            status == glow::FRAMEBUFFER_COMPLETE,
-            "composite framebuffer incomplete: {status:#x}"
-        );
+        if status != glow::FRAMEBUFFER_COMPLETE {
+            gl.delete_framebuffer(fb);
+            gl.delete_renderbuffer(colour);
+            anyhow::bail!("composite framebuffer incomplete: {status:#x}");
+        }
         Ok((fb, colour))
     }
 }

@@ -235,6 +235,7 @@ unsafe fn framebuffer(
 
 /// The bytes of plain `#[repr(C)]` data, to upload.
 pub fn as_bytes<T: Copy>(items: &[T]) -> &[u8] {
-    // SAFETY: every caller passes Vertex, Instance or u32: plain data without padding.
+    // SAFETY: callers pass plain #[repr(C)] data without padding (vertices, instances, indices,
+    // line vertices): every byte is initialised.
     unsafe { std::slice::from_raw_parts(items.as_ptr().cast(), std::mem::size_of_val(items)) }
 }
