@@ -121,36 +121,32 @@ pub fn default_scene(count: u32, seed: u64) -> Scene {
         Instance::new(transform, hue_to_rgb(random.uniform()))
     });
     let instances: Vec<Instance> = std::iter::once(ground).chain(tetrahedra).collect();
-    Scene::with_bounds(vec![ground_plane(10.0), tetrahedron()], instances, vec![0..1, 1..count + 1])
+    Scene::with_bounds(vec![ground_plane(), tetrahedron()], instances, vec![0..1, 1..count + 1])
 }
+
+/// The default scene's meshes, kept as OBJ files in `assets/` and built into the binaries.
+const TETRAHEDRON_OBJ: &str = include_str!("../../assets/tetrahedron.obj");
+const GROUND_OBJ: &str = include_str!("../../assets/ground.obj");
 
 /// A regular tetrahedron of circumradius 1 with one normal per face (12 vertices).
 pub fn tetrahedron() -> Mesh {
-    let corners = [
-        Vec3::new(1.0, 1.0, 1.0),
-        Vec3::new(1.0, -1.0, -1.0),
-        Vec3::new(-1.0, 1.0, -1.0),
-        Vec3::new(-1.0, -1.0, 1.0),
-    ]
-    .map(|c| c / 3f32.sqrt());
-    let faces = [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]];
-    let mut vertices = Vec::new();
-    for [a, b, c] in faces {
-        let normal = (corners[b] - corners[a]).cross(corners[c] - corners[a]).normalize();
-        for i in [a, b, c] {
-            vertices.push(Vertex { position: corners[i].into(), normal: normal.into() });
-        }
-    }
-    Mesh { name: "tetrahedron".into(), vertices, indices: (0..12).collect() }
+    embedded(TETRAHEDRON_OBJ, "assets/tetrahedron.obj", Normals::Flat)
 }
 
-/// A square in the y = 0 plane, `half` units from the centre to each side, facing up.
-pub fn ground_plane(half: f32) -> Mesh {
-    let vertices = [(-half, -half), (half, -half), (half, half), (-half, half)]
-        .map(|(x, z)| Vertex { position: [x, 0.0, z], normal: [0.0, 1.0, 0.0] })
-        .to_vec();
-    // Counter-clockwise seen from above (+y).
-    Mesh { name: "ground".into(), vertices, indices: vec![0, 3, 2, 0, 2, 1] }
+/// A 20 x 20 square in the y = 0 plane, facing up.
+pub fn ground_plane() -> Mesh {
+    embedded(GROUND_OBJ, "assets/ground.obj", Normals::Flat)
+}
+
+fn embedded(text: &str, name: &str, normals: Normals) -> Mesh {
+    let mut reader = std::io::BufReader::new(text.as_bytes());
+    let options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    let loaded = tobj::load_obj_buf(&mut reader, &options, |_| Err(tobj::LoadError::OpenFileFailed))
+        .map_err(|e| anyhow::anyhow!("{name}: not a valid OBJ file ({e})"))
+        .and_then(|(models, _)| meshes_from_obj(models, &[], name, normals));
+    // Our own files, built in: a failure here is a bug, and the unit tests below would catch it.
+    let mut meshes = loaded.expect("the built-in OBJ files parse");
+    meshes.remove(0).0
 }
 
 /// A small, seeded generator (SplitMix64): the scene must be the same on every machine.
@@ -244,6 +240,24 @@ pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
         eprintln!("scene: {shown}: materials not loaded ({e}); using grey");
         Vec::new()
     });
+    let meshes = meshes_from_obj(models, &materials, &shown.to_string(), normals)?;
+    if meshes.is_empty() {
+        bail!("{shown}: the file has no faces");
+    }
+    let instances = meshes.iter().map(|(_, albedo)| Instance::new(Mat4::IDENTITY, *albedo)).collect();
+    let mesh_instances = (0..meshes.len() as u32).map(|i| i..i + 1).collect();
+    let meshes = meshes.into_iter().map(|(m, _)| m).collect();
+    Ok(Scene::with_bounds(meshes, instances, mesh_instances))
+}
+
+/// Each object of a parsed OBJ file with faces, as a mesh and its albedo; `shown` names the file
+/// in errors.
+fn meshes_from_obj(
+    models: Vec<tobj::Model>,
+    materials: &[tobj::Material],
+    shown: &str,
+    normals: Normals,
+) -> Result<Vec<(Mesh, [u8; 3])>> {
     let mut meshes = Vec::new();
     for model in models {
         let m = &model.mesh;
@@ -284,13 +298,7 @@ pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
         }
         meshes.push((mesh, albedo));
     }
-    if meshes.is_empty() {
-        bail!("{shown}: the file has no faces");
-    }
-    let instances = meshes.iter().map(|(_, albedo)| Instance::new(Mat4::IDENTITY, *albedo)).collect();
-    let mesh_instances = (0..meshes.len() as u32).map(|i| i..i + 1).collect();
-    let meshes = meshes.into_iter().map(|(m, _)| m).collect();
-    Ok(Scene::with_bounds(meshes, instances, mesh_instances))
+    Ok(meshes)
 }
 
 /// Fills in normals for a mesh that has none.
@@ -427,7 +435,7 @@ mod tests {
         let mut m = tetrahedron();
         compute_normals(&mut m, Normals::Flat);
         assert_eq!(m.vertices.len(), 12);
-        let mut shared = ground_plane(1.0);
+        let mut shared = ground_plane();
         compute_normals(&mut shared, Normals::Smooth);
         assert!(shared.vertices.iter().all(|v| (Vec3::from(v.normal) - Vec3::Y).length() < 1e-6));
     }
