@@ -9,28 +9,18 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::accel;
+use common::accel::RayTracedScene;
 use common::ao::{AoArgs, AoTracer};
-use common::commands::{Commands, Timestamps};
-use common::gbuffer::{GBuffers, SceneBuffers};
+use common::commands::Timestamps;
+use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::{Camera, SceneArgs};
-use common::sync::{SEMAPHORE_EXTENSION, Sync};
-use common::{
-    CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
-};
-use std::ffi::CStr;
+use common::sync::Sync;
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
-const REQUIRED: [&CStr; 4] = [
-    ash::khr::external_memory_fd::NAME,
-    RAY_TRACING_EXTENSIONS[0],
-    RAY_TRACING_EXTENSIONS[1],
-    RAY_TRACING_EXTENSIONS[2],
-];
-const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 
 /// Chapter 07: ray-traced ambient occlusion from GL's G-buffers.
 #[derive(clap::Parser)]
@@ -57,27 +47,22 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let radius = args.ao.radius(&scene)?;
 
     // 2. Create both contexts, share the scene, build its acceleration structures (05, 06)
-    let requirements =
-        Requirements { extensions: &REQUIRED, optional_extensions: OPTIONAL, ray_tracing: true };
-    let vk = VulkanContext::new(&requirements)?;
+    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
-    let mut allocator = accel::allocator(&vk)?;
-    let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
-        | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
-    let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
-    let commands = Commands::new(&vk)?;
-    let structures = accel::build(&vk, &mut allocator, &commands, &scene, &buffers)?;
+    let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
+    let commands = &shared.commands;
 
     // 3. Share the G-buffers, and make the AO tracer with its shared image
     // ANCHOR: tracer
     // The ray tracer reads the G-buffers as storage images.
-    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
-    let mut tracer = AoTracer::new(&vk, &gl_context, &mut allocator, structures.tlas.handle, &gbuffers)?;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let mut tracer =
+        AoTracer::new(&vk, &gl_context, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
     // ANCHOR_END: tracer
 
     // 4. Every frame: GL draws, Vulkan traces and accumulates, GL reads
@@ -93,7 +78,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         let samples = args.ao.samples.min(args.ao.max_samples - tracer.accumulated);
         let params = AoRays { samples, accumulated: 0, radius };
-        tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, params, timestamps.as_ref())?;
+        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
         // ANCHOR_END: loop
         // GL reads back what Vulkan accumulated (the CPU waits here: this is for the checks).
         visibility =
@@ -152,12 +137,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
-    tracer.destroy(&vk, &gl_context, &mut allocator);
+    tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
-    structures.destroy(&vk, &mut allocator);
-    commands.destroy(&vk);
-    drop(allocator);
-    buffers.destroy(&vk, &gl_context);
+    shared.destroy(&vk, &gl_context);
     sync.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;

@@ -11,34 +11,24 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel;
+use common::accel::RayTracedScene;
 use common::ao::{AoArgs, AoTracer};
-use common::commands::{Commands, Timestamps};
-use common::gbuffer::{GBuffers, SceneBuffers};
+use common::commands::Timestamps;
+use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene, SceneArgs};
-use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::sync::Sync;
 use common::window::{Key, NamedKey, Window};
-use common::{
-    CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
-};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use glam::Mat4;
 use glow::HasContext;
-use std::ffi::CStr;
 use std::process::ExitCode;
 
 mod overlay;
 use overlay::{Composite, Overlays, View};
 
 const CHAPTER: &str = "08-composite";
-const REQUIRED: [&CStr; 4] = [
-    ash::khr::external_memory_fd::NAME,
-    RAY_TRACING_EXTENSIONS[0],
-    RAY_TRACING_EXTENSIONS[1],
-    RAY_TRACING_EXTENSIONS[2],
-];
-const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 
 /// Chapter 08: albedo x ray-traced AO, composited by GL, with depth-correct overlays.
 #[derive(clap::Parser)]
@@ -106,9 +96,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
-    let requirements =
-        Requirements { extensions: &REQUIRED, optional_extensions: OPTIONAL, ray_tracing: true };
-    let vk = VulkanContext::new(&requirements)?;
+    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
     let headless = args.common.headless || !common::window::display_available();
     if !args.common.headless && headless {
         eprintln!("window: no display (DISPLAY / WAYLAND_DISPLAY unset): running headless");
@@ -127,16 +115,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
-    let mut allocator = accel::allocator(&vk)?;
-    let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
-        | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
-    let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
-    let commands = Commands::new(&vk)?;
-    let structures = accel::build(&vk, &mut allocator, &commands, &scene, &buffers)?;
+    let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
+    let commands = &shared.commands;
     let extent = |size: common::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
-    let mut gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent(size), storage)?;
-    let mut tracer = AoTracer::new(&vk, &gl_context, &mut allocator, structures.tlas.handle, &gbuffers)?;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
+    let mut tracer =
+        AoTracer::new(&vk, &gl_context, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
 
     // 4. The composite pass and the overlays: GL only
     // ANCHOR: setup
@@ -199,7 +184,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             unsafe { gl.finish() };
             unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
             size = new;
-            let fresh = GBuffers::new(&vk, &gl_context, &buffers, extent(size), storage)?;
+            let fresh = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
             let old = std::mem::replace(&mut gbuffers, fresh);
             tracer.resize(&vk, &gl_context, &gbuffers)?;
             composite.resize(gl, &gbuffers)?;
@@ -216,7 +201,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if tracer.accumulated < args.ao.max_samples {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius };
-            tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, timestamps.as_ref())?;
+            tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
             if let Some(t) = &timestamps {
                 unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
@@ -286,12 +271,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     overlays.destroy(gl);
     composite.destroy(gl);
-    tracer.destroy(&vk, &gl_context, &mut allocator);
+    tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
-    structures.destroy(&vk, &mut allocator);
-    commands.destroy(&vk);
-    drop(allocator);
-    buffers.destroy(&vk, &gl_context);
+    shared.destroy(&vk, &gl_context);
     sync.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;

@@ -436,3 +436,34 @@ impl Scratch {
         self.buffer.destroy(vk, allocator);
     }
 }
+
+/// Chapters 05 and 06 in one call, for the chapters after them: the scene's buffers shared with
+/// GL and readable by acceleration-structure builds, the structures built from them, and the
+/// allocator and command buffer that took.
+pub struct RayTracedScene {
+    pub allocator: Allocator,
+    pub buffers: SceneBuffers,
+    pub commands: Commands,
+    pub structures: SceneAccel,
+}
+
+impl RayTracedScene {
+    pub fn new(vk: &VulkanContext, gl: &crate::GlContext, scene: &Scene) -> Result<Self> {
+        let mut allocator = allocator(vk)?;
+        let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
+            | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
+        let buffers = SceneBuffers::share(vk, gl, scene, usage)?;
+        let commands = Commands::new(vk)?;
+        let structures = build(vk, &mut allocator, &commands, scene, &buffers)?;
+        Ok(RayTracedScene { allocator, buffers, commands, structures })
+    }
+
+    /// Newest first: the structures, the command buffer (after its last submission), the
+    /// allocator's memory, then the shared buffers, GL's side first.
+    pub fn destroy(mut self, vk: &VulkanContext, gl: &crate::GlContext) {
+        self.structures.destroy(vk, &mut self.allocator);
+        self.commands.destroy(vk);
+        drop(self.allocator);
+        self.buffers.destroy(vk, gl);
+    }
+}

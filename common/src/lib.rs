@@ -22,7 +22,7 @@ pub mod window;
 pub use cli::CommonArgs;
 pub use gl::GlContext;
 pub use report::Report;
-pub use vulkan::{RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};
+pub use vulkan::{RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};
 
 use std::process::ExitCode;
 

@@ -26,6 +26,19 @@ pub struct Requirements<'a> {
     pub ray_tracing: bool,
 }
 
+/// What chapters 07 and 08 need (taught in 03 and 06): memory shared as fds, semaphores where
+/// the driver has them, and ray tracing.
+pub const RAY_TRACED_INTEROP: Requirements<'static> = Requirements {
+    extensions: &[
+        ash::khr::external_memory_fd::NAME,
+        RAY_TRACING_EXTENSIONS[0],
+        RAY_TRACING_EXTENSIONS[1],
+        RAY_TRACING_EXTENSIONS[2],
+    ],
+    optional_extensions: &[ash::khr::external_semaphore_fd::NAME],
+    ray_tracing: true,
+};
+
 /// The device extensions for building acceleration structures and tracing rays through them.
 pub const RAY_TRACING_EXTENSIONS: [&CStr; 3] = [
     ash::khr::acceleration_structure::NAME,
