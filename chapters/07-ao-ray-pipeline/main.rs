@@ -69,7 +69,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let timestamps = Timestamps::new(&vk)?;
     let (mut trace_ms, mut rays) = (0.0, 0u64);
     let mut first_noise = None;
-    let (mut visibility, mut positions) = (Vec::new(), Vec::new());
+    let mut positions = Vec::new();
     for frame in 0..args.common.frame_count(false) {
         // ANCHOR: loop
         gbuffers.draw(gl, &scene, &camera);
@@ -80,20 +80,24 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let params = AoRays { samples, accumulated: 0, radius };
         tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
         // ANCHOR_END: loop
-        // GL reads back what Vulkan accumulated (the CPU waits here: this is for the checks).
-        visibility =
-            output::read_texture_f32(gl, tracer.image.texture.texture, extent.width, extent.height, 1);
         if frame == 0 {
+            // For the checks, once: GL reads the first frame's AO and the positions back (the
+            // CPU waits for them). The last frame's AO is read after the loop.
+            let ao =
+                output::read_texture_f32(gl, tracer.image.texture.texture, extent.width, extent.height, 1);
             positions = output::read_texture_f32(gl, gbuffers.textures()[0], extent.width, extent.height, 4);
-            first_noise = Some(noise(&visibility, &positions, extent.width as usize));
+            first_noise = Some(noise(&ao, &positions, extent.width as usize));
         }
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         if let Some(t) = &timestamps {
+            // A measurement: wait for this frame's rays to read their GPU time.
+            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
             trace_ms += t.read_ms(&vk)?;
         }
         rays += positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64 * samples as u64;
     }
     gl_context.check_error("the frame loop")?;
+    let visibility =
+        output::read_texture_f32(gl, tracer.image.texture.texture, extent.width, extent.height, 1);
 
     // 5. Check the occlusion, and show it
     let covered: Vec<usize> = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] > 0.0).collect();

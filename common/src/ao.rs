@@ -143,13 +143,10 @@ impl AoTracer {
         let gbuffer_textures = gbuffers.textures();
         // GL hands over positions and normals in GENERAL, the layout storage images need, and the
         // AO image (once it has had it) as it sampled it.
-        let mut textures = gbuffer_textures[..2].to_vec();
-        let mut layouts = vec![layout::GENERAL; 2];
-        if self.gl_has_image {
-            textures.push(self.image.texture.texture);
-            layouts.push(layout::SHADER_READ_ONLY);
-        }
-        sync.gl_release(gl, &textures, &layouts);
+        let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
+        let layouts = [layout::GENERAL, layout::GENERAL, layout::SHADER_READ_ONLY];
+        let handed = if self.gl_has_image { 3 } else { 2 };
+        sync.gl_release(gl, &textures[..handed], &layouts[..handed]);
         let cb = commands.begin(vk)?;
         rays.accumulated = self.accumulated;
         unsafe { self.record(vk, cb, gbuffers, &rays, timestamps) };
@@ -176,29 +173,27 @@ impl AoTracer {
     ) {
         let general = vk::ImageLayout::GENERAL;
         let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
-        let mut acquire: Vec<_> =
-            gbuffers.images[..2].iter().map(|i| acquire_from_gl(vk, i, general, general, read)).collect();
-        acquire.push(if self.gl_has_image {
+        let [positions, normals] = [&gbuffers.images[0], &gbuffers.images[1]];
+        let ao = if self.gl_has_image {
             // Its contents are the running mean so far, which the shader reads and updates.
             acquire_from_gl(vk, &self.image, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, general, read | write)
         } else {
             // Never GL's yet: undefined contents, which the first frame overwrites (weight 1).
             first_use(self.image.image, general, read | write)
-        });
+        };
+        let acquire = [
+            acquire_from_gl(vk, positions, general, general, read),
+            acquire_from_gl(vk, normals, general, general, read),
+            ao,
+        ];
         // Back to GL: the G-buffers as attachments for the next frame's draw (nothing written
         // here), the AO image to sample, its writes made available.
         let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
-        let mut release: Vec<_> = gbuffers.images[..2]
-            .iter()
-            .map(|i| release_to_gl(vk, i, general, attachment, vk::AccessFlags::NONE))
-            .collect();
-        release.push(release_to_gl(
-            vk,
-            &self.image,
-            general,
-            vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
-            write,
-        ));
+        let release = [
+            release_to_gl(vk, positions, general, attachment, vk::AccessFlags::NONE),
+            release_to_gl(vk, normals, general, attachment, vk::AccessFlags::NONE),
+            release_to_gl(vk, &self.image, general, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, write),
+        ];
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         let none = vk::DependencyFlags::empty();
         unsafe {
