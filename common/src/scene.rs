@@ -63,8 +63,12 @@ pub struct Scene {
     /// Grouped by mesh: `instances[mesh_instances[m]]` are mesh `m`'s, one instanced draw each.
     pub instances: Vec<Instance>,
     pub mesh_instances: Vec<Range<u32>>,
-    /// World-space bounds of every instance.
+    /// World-space bounds of every instance, around `origin`.
     pub bounds: (Vec3, Vec3),
+    /// Where the scene's own origin lies in the world the file or generator described, in f64.
+    /// Everything the GPU sees is relative to it (a floating origin), so a model 10,000 times its
+    /// own size away from the world's origin keeps the float precision of one at the origin.
+    pub origin: [f64; 3],
 }
 
 impl Scene {
@@ -81,19 +85,45 @@ impl Scene {
         (self.bounds.1 - self.bounds.0).length()
     }
 
-    fn with_bounds(meshes: Vec<Mesh>, instances: Vec<Instance>, mesh_instances: Vec<Range<u32>>) -> Self {
+    // ANCHOR: scene_new
+    /// A scene from meshes and their instances (grouped by mesh, `instances[mesh_instances[m]]`
+    /// being mesh `m`'s), re-centred: the instances move so that the bounds' centre is at the
+    /// origin, and `origin` records where that was. Errors when there is nothing to trace or
+    /// nothing has a size.
+    pub fn new(meshes: Vec<Mesh>, mut instances: Vec<Instance>, mesh_instances: Vec<Range<u32>>) -> Result<Self> {
+        let (low, high) = Self::world_bounds(&meshes, &instances, &mesh_instances);
+        if !(low.cmple(high).all()) {
+            bail!("the scene has no triangles");
+        }
+        if (high - low).max_element() <= 0.0 {
+            bail!("all of the scene's vertices coincide at {low}: it has no size to frame or trace");
+        }
+        let centre = (low + high) / 2.0;
+        for instance in &mut instances {
+            for (row, c) in instance.transform.iter_mut().zip(centre.to_array()) {
+                row[3] -= c;
+            }
+        }
+        let origin = centre.to_array().map(f64::from);
+        Ok(Scene { meshes, instances, mesh_instances, bounds: (low - centre, high - centre), origin })
+    }
+    // ANCHOR_END: scene_new
+
+    fn world_bounds(meshes: &[Mesh], instances: &[Instance], mesh_instances: &[Range<u32>]) -> (Vec3, Vec3) {
         let (mut low, mut high) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-        for (mesh, range) in meshes.iter().zip(&mesh_instances) {
+        for (mesh, range) in meshes.iter().zip(mesh_instances) {
             for instance in &instances[range.start as usize..range.end as usize] {
                 let m = instance.object_to_world();
-                for v in &mesh.vertices {
-                    let p = m.transform_point3(Vec3::from(v.position));
-                    low = low.min(p);
-                    high = high.max(p);
+                for t in mesh.indices.chunks_exact(3) {
+                    for &i in t {
+                        let p = m.transform_point3(Vec3::from(mesh.vertices[i as usize].position));
+                        low = low.min(p);
+                        high = high.max(p);
+                    }
                 }
             }
         }
-        Scene { meshes, instances, mesh_instances, bounds: (low, high) }
+        (low, high)
     }
 }
 
@@ -121,7 +151,8 @@ pub fn default_scene(count: u32, seed: u64) -> Scene {
         Instance::new(transform, hue_to_rgb(random.uniform()))
     });
     let instances: Vec<Instance> = std::iter::once(ground).chain(tetrahedra).collect();
-    Scene::with_bounds(vec![ground_plane(), tetrahedron()], instances, vec![0..1, 1..count + 1])
+    Scene::new(vec![ground_plane(), tetrahedron()], instances, vec![0..1, 1..count + 1])
+        .expect("the ground plane alone has a size")
 }
 
 /// The default scene's meshes, kept as OBJ files in `assets/` and built into the binaries.
@@ -143,7 +174,7 @@ fn embedded(text: &str, name: &str, normals: Normals) -> Mesh {
     let options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     let loaded = tobj::load_obj_buf(&mut reader, &options, |_| Err(tobj::LoadError::OpenFileFailed))
         .map_err(|e| anyhow::anyhow!("{name}: not a valid OBJ file ({e})"))
-        .and_then(|(models, _)| meshes_from_obj(models, &[], name, normals));
+        .and_then(|(models, _)| meshes_from_obj(models, &[], name, normals, [0.0; 3]));
     // Our own files, built in: a failure here is a bug, and the unit tests below would catch it.
     let mut meshes = loaded.expect("the built-in OBJ files parse");
     meshes.remove(0).0
@@ -240,14 +271,38 @@ pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
         eprintln!("scene: {shown}: materials not loaded ({e}); using grey");
         Vec::new()
     });
-    let meshes = meshes_from_obj(models, &materials, &shown.to_string(), normals)?;
+    // The floating origin, already while reading: the file's numbers are subtracted from their
+    // centre in f64 (tobj's `use_f64`), so a model far from the origin arrives in f32 as
+    // precise as one at the origin. An instance transform could not do this: the vertices would
+    // still be far away, in f32, where the BLAS and its rays meet them.
+    let centre = file_centre(&models);
+    let meshes = meshes_from_obj(models, &materials, &shown.to_string(), normals, centre)?;
     if meshes.is_empty() {
         bail!("{shown}: the file has no faces");
     }
     let instances = meshes.iter().map(|(_, albedo)| Instance::new(Mat4::IDENTITY, *albedo)).collect();
     let mesh_instances = (0..meshes.len() as u32).map(|i| i..i + 1).collect();
     let meshes = meshes.into_iter().map(|(m, _)| m).collect();
-    Ok(Scene::with_bounds(meshes, instances, mesh_instances))
+    let mut scene = Scene::new(meshes, instances, mesh_instances).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    scene.origin = [0, 1, 2].map(|i| centre[i] + scene.origin[i]);
+    Ok(scene)
+}
+
+/// The centre of the bounds of every finite vertex used by a face, in f64.
+fn file_centre(models: &[tobj::Model]) -> [f64; 3] {
+    let (mut low, mut high) = ([f64::MAX; 3], [f64::MIN; 3]);
+    for m in models {
+        for &i in &m.mesh.indices {
+            for axis in 0..3 {
+                let c = m.mesh.positions.get(3 * i as usize + axis).copied().unwrap_or(f64::NAN);
+                if c.is_finite() {
+                    low[axis] = low[axis].min(c);
+                    high[axis] = high[axis].max(c);
+                }
+            }
+        }
+    }
+    [0, 1, 2].map(|a| if low[a] <= high[a] { (low[a] + high[a]) / 2.0 } else { 0.0 })
 }
 
 /// Each object of a parsed OBJ file with faces, as a mesh and its albedo; `shown` names the file
@@ -257,6 +312,7 @@ fn meshes_from_obj(
     materials: &[tobj::Material],
     shown: &str,
     normals: Normals,
+    centre: [f64; 3],
 ) -> Result<Vec<(Mesh, [u8; 3])>> {
     let mut meshes = Vec::new();
     for model in models {
@@ -285,15 +341,24 @@ fn meshes_from_obj(
             vertices: m
                 .positions
                 .chunks_exact(3)
-                .map(|p| Vertex { position: [p[0], p[1], p[2]], normal: [0.0; 3] })
+                .map(|p| Vertex { position: [0, 1, 2].map(|a| (p[a] - centre[a]) as f32), normal: [0.0; 3] })
                 .collect(),
             indices: m.indices.clone(),
         };
-        if m.normals.len() == m.positions.len() && m.normals.iter().all(|c| c.is_finite()) {
+        // The file's normals, if every vertex has a usable one: `vn 0 0 0` or NaN would put NaN
+        // normals into the G-buffer (and NaN rays into traceRayEXT, which is undefined).
+        let usable = |n: &[f64]| {
+            let n = glam::DVec3::new(n[0], n[1], n[2]);
+            n.is_finite() && n.length() > 1e-12
+        };
+        if m.normals.len() == m.positions.len() && m.normals.chunks_exact(3).all(usable) {
             for (v, n) in mesh.vertices.iter_mut().zip(m.normals.chunks_exact(3)) {
-                v.normal = Vec3::new(n[0], n[1], n[2]).normalize_or_zero().into();
+                v.normal = glam::DVec3::new(n[0], n[1], n[2]).normalize().as_vec3().into();
             }
         } else {
+            if !m.normals.is_empty() {
+                eprintln!("scene: {shown}: object {:?} has zero or invalid normals; computing them", model.name);
+            }
             compute_normals(&mut mesh, normals);
         }
         meshes.push((mesh, albedo));
@@ -419,7 +484,10 @@ mod tests {
         assert_eq!(a.instances, b.instances);
         assert_eq!(a.instances.len(), 101);
         assert_eq!(a.triangles(), 2 + 100 * 4);
-        assert!(a.bounds.0.y > -1e-3 && a.bounds.1.x <= 10.0 + 1e-3);
+        // Re-centred: the bounds sit around the origin, `origin` says where they were.
+        let centre = (a.bounds.0 + a.bounds.1) / 2.0;
+        assert!(centre.length() < 1e-5, "{centre}");
+        assert!((a.origin[1] as f32 + a.bounds.0.y).abs() < 1e-3, "the ground was at y = 0");
     }
 
     #[test]
