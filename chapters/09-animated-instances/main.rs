@@ -169,6 +169,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     gl_context.check_error("the frame loop")?;
     report.set("frames", frames);
+    report.set("samples_per_pixel", tracer.accumulated);
     report.set("tlas_updates", tlas_updates);
     report.set("tlas_rebuilds", tlas_rebuilds);
     report.set(
