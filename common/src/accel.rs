@@ -84,7 +84,9 @@ pub struct AccelerationStructure {
 }
 
 impl AccelerationStructure {
-    fn new(
+    /// An acceleration structure of `bytes` bytes (from `vkGetAccelerationStructureBuildSizesKHR`)
+    /// in a buffer of its own, not yet built.
+    pub fn new(
         vk: &VulkanContext,
         loader: &ash::khr::acceleration_structure::Device,
         allocator: &mut Allocator,
@@ -426,7 +428,7 @@ fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::Q
 }
 
 /// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.
-fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::DeviceAddress) {
+pub fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::DeviceAddress) {
     let offset = index * size_of::<Instance>() + std::mem::offset_of!(Instance, blas_address);
     assert!(offset + 8 <= instances.bytes as usize, "instance {index} is outside the buffer");
     // SAFETY: in bounds (checked above) of the coherent mapping; no GPU work is using it now.
@@ -549,8 +551,8 @@ pub struct InPlace {
 }
 
 impl InPlace {
-    /// For `handle`, built with `flags` (which must include ALLOW_UPDATE) from `geometry` with
-    /// `primitives` triangles or instances.
+    /// For `handle`, built with `flags` from `geometry` with `primitives` triangles or
+    /// instances. Without ALLOW_UPDATE in `flags` it can only be rebuilt.
     pub fn new(
         vk: &VulkanContext,
         allocator: &mut Allocator,
@@ -561,10 +563,6 @@ impl InPlace {
         geometry: vk::AccelerationStructureGeometryKHR<'static>,
         primitives: u32,
     ) -> Result<Self> {
-        anyhow::ensure!(
-            flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE),
-            "an acceleration structure built without ALLOW_UPDATE cannot be updated"
-        );
         let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
             .ty(ty)
             .flags(flags)
@@ -594,6 +592,8 @@ impl InPlace {
         cb: vk::CommandBuffer,
         refresh: Refresh,
     ) {
+        let updatable = self.flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE);
+        assert!(refresh == Refresh::Rebuild || updatable, "updating a structure built without ALLOW_UPDATE");
         let (mode, source) = match refresh {
             Refresh::Rebuild => {
                 (vk::BuildAccelerationStructureModeKHR::BUILD, vk::AccelerationStructureKHR::null())
@@ -619,3 +619,40 @@ impl InPlace {
     }
 }
 // ANCHOR_END: in_place
+
+/// One mesh's triangles as a BLAS geometry, read in place from the buffers GL draws (as chapter
+/// 06's `build` does).
+pub fn triangles_geometry(
+    vk: &VulkanContext,
+    mesh: &crate::scene::Mesh,
+    vertices: &ExportedBuffer,
+    indices: &ExportedBuffer,
+) -> vk::AccelerationStructureGeometryKHR<'static> {
+    let triangles = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
+        .vertex_format(vk::Format::R32G32B32_SFLOAT)
+        .vertex_data(vk::DeviceOrHostAddressConstKHR { device_address: vertices.device_address(vk) })
+        .vertex_stride(size_of::<crate::scene::Vertex>() as u64)
+        .max_vertex(mesh.vertices.len() as u32 - 1)
+        .index_type(vk::IndexType::UINT32)
+        .index_data(vk::DeviceOrHostAddressConstKHR { device_address: indices.device_address(vk) });
+    vk::AccelerationStructureGeometryKHR::default()
+        .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
+        .geometry(vk::AccelerationStructureGeometryDataKHR { triangles })
+        .flags(vk::GeometryFlagsKHR::OPAQUE)
+}
+
+/// The size an acceleration structure of `ty`, built with `flags` from `geometry` with
+/// `primitives` triangles or instances, needs.
+pub fn structure_size(
+    loader: &ash::khr::acceleration_structure::Device,
+    ty: vk::AccelerationStructureTypeKHR,
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+    geometry: &vk::AccelerationStructureGeometryKHR,
+    primitives: u32,
+) -> u64 {
+    let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(ty)
+        .flags(flags)
+        .geometries(std::slice::from_ref(geometry));
+    build_sizes(loader, &info, primitives).acceleration_structure_size
+}
