@@ -347,6 +347,30 @@ fn ch09_missing_model_is_named() {
 }
 
 #[test]
+fn ch10_vertex_animation() {
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "4", "--rings", "48", "--time", "0.5"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_10-vertex-animation"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY, "10 needs no more than 06");
+    // Built once, then refitted in place; the TLAS updated after every refit.
+    assert_eq!(report["blas_refits"], 2);
+    assert_eq!(report["blas_rebuilds"], 0);
+    assert_eq!(report["tlas_updates"], 2);
+    assert_eq!(report["checks"]["vertices_match_cpu_reference"], true);
+    assert_report_snapshot("10-vertex-animation", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch10_rebuilds_only_when_asked() {
+    let args =
+        ["--size", "64x48", "--frames", "5", "--samples", "2", "--rings", "16", "--rebuild-every", "2"];
+    let report = run_chapter(env!("CARGO_BIN_EXE_10-vertex-animation"), &args, &[]).succeeded().clone();
+    assert_eq!(report["blas_rebuilds"], 2, "frames 2 and 4");
+    assert_eq!(report["blas_refits"], 2, "frames 1 and 3");
+}
+
+#[test]
 fn bad_flags_are_rejected_with_a_reason() {
     let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
     assert_eq!(run.output.status.code(), Some(2));

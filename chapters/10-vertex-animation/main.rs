@@ -28,7 +28,7 @@ use std::process::ExitCode;
 mod overlay;
 mod sphere;
 use overlay::{Composite, Uniforms, View};
-use sphere::{Wave, WavePipeline};
+use sphere::{Animation, Wave, WavePipeline, record_animation};
 
 const CHAPTER: &str = "10-vertex-animation";
 
@@ -365,75 +365,3 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
     Ok(())
 }
-
-/// What one frame's Vulkan animation work uses.
-struct Animation<'a> {
-    pipeline: &'a WavePipeline,
-    wave: &'a Wave,
-    blases: &'a [(AccelerationStructure, InPlace)],
-    tlas: &'a InPlace,
-}
-
-// ANCHOR: record
-/// Compute moves the vertices -> barrier -> the sphere's BLAS refit (or rebuild) -> barrier ->
-/// the TLAS update -> barrier -> the frame's rays. `first` also builds the ground's BLAS and the
-/// TLAS for the first time.
-fn record_animation(
-    vk: &VulkanContext,
-    loader: &ash::khr::acceleration_structure::Device,
-    cb: vk::CommandBuffer,
-    parts: &Animation,
-    refresh: Refresh,
-    first: bool,
-    timer: Option<&Timestamps>,
-) {
-    let compute = vk::PipelineStageFlags::COMPUTE_SHADER;
-    let build = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
-    let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-    let none = vk::DependencyFlags::empty();
-    let barrier = |src, dst| vk::MemoryBarrier::default().src_access_mask(src).dst_access_mask(dst);
-    use vk::AccessFlags as A;
-    let (as_read, as_write) = (A::ACCELERATION_STRUCTURE_READ_KHR, A::ACCELERATION_STRUCTURE_WRITE_KHR);
-    unsafe {
-        if let Some(t) = timer {
-            t.reset(vk, cb);
-        }
-        // Before the compute shader overwrites the vertices, everything that read them last frame
-        // must be done: the previous refit (build stage) and GL's vertex fetch. GL's draw came
-        // before its release, which the previous trace waited for at the ray tracing stage: so
-        // waiting for that stage waits for GL too. Reads only: no access flags.
-        vk.device.cmd_pipeline_barrier(cb, build | rays, compute, none, &[], &[], &[]);
-        if let Some(t) = timer {
-            t.write(vk, cb, compute, 0);
-        }
-        parts.pipeline.record(vk, cb, parts.wave);
-        if let Some(t) = timer {
-            t.write(vk, cb, compute, 1);
-        }
-        // The refit reads the vertices the shader wrote: build inputs are read at the build
-        // stage as SHADER_READ. It also reads and writes the BLAS (src = dst) and the scratch,
-        // which the previous frame's refit wrote.
-        let moved = barrier(A::SHADER_WRITE | as_write, A::SHADER_READ | as_read | as_write);
-        vk.device.cmd_pipeline_barrier(cb, compute | build, build, none, &[moved], &[], &[]);
-        let (sphere, ground) = (&parts.blases[1].1, &parts.blases[0].1);
-        if first {
-            ground.record(loader, cb, Refresh::Rebuild);
-        }
-        sphere.record(loader, cb, refresh);
-        if let Some(t) = timer {
-            t.write(vk, cb, build, 2);
-        }
-        // The TLAS update reads the BLASes' new bounds: a refitted BLAS under a TLAS that was not
-        // updated leaves the TLAS's boxes around where the sphere was (rays miss what bulged out).
-        let refitted = barrier(as_write, as_read | as_write);
-        vk.device.cmd_pipeline_barrier(cb, build, build, none, &[refitted], &[], &[]);
-        parts.tlas.record(loader, cb, if first { Refresh::Rebuild } else { Refresh::Update });
-        if let Some(t) = timer {
-            t.write(vk, cb, build, 3);
-        }
-        // The rays read the TLAS and, through it, the BLASes, in the next submission.
-        let ready = barrier(as_write, as_read);
-        vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[ready], &[], &[]);
-    }
-}
-// ANCHOR_END: record
