@@ -138,6 +138,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // measurement, not a way to run. A window adds no such wait.
     let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
     let (mut trace_ms, mut traced) = (Vec::new(), 0u64);
+    let mut skipped = None;
     loop {
         // ANCHOR: input
         if let Some(window) = window.as_mut() {
@@ -198,9 +199,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
         gbuffers.draw(gl, &scene, &camera);
-        if tracer.accumulated < args.ao.max_samples {
+        if let Some(reason) = common::ao::nothing_to_trace(settings.samples, settings.radius) {
+            if skipped.replace(reason).is_none() {
+                eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
+            }
+            tracer.fill_unoccluded(&gl_context)?; // once per AO image
+        } else if tracer.accumulated < args.ao.max_samples {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
-            let rays = AoRays { samples, accumulated: 0, radius: settings.radius };
+            let scene_scale = scene.size() / 2.0;
+            let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
             tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
             if let Some(t) = &timestamps {
@@ -243,6 +250,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             report.check(name, ok);
         }
         report.set("samples_per_pixel", tracer.accumulated);
+        if let Some(reason) = skipped {
+            report.set("ao_skipped", reason);
+        }
         report.set("radius", settings.radius);
         report.set("blur", settings.blur);
         report.set("frames", frame);
@@ -287,7 +297,7 @@ fn apply_key(key: &Key, s: &mut Settings) {
     match key.as_ref() {
         Key::Character(c) => match c {
             "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
-            "+" | "=" => s.samples = (s.samples * 2).min(256),
+            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
             "-" => s.samples = (s.samples / 2).max(1),
             "]" => s.radius *= 1.25,
             "[" => s.radius /= 1.25,

@@ -20,6 +20,7 @@ pub const GBUFFERS: [(&str, vk::Format, u32, u32); 3] = [
 // ANCHOR_END: gbuffers
 
 const VERTEX_SHADER: &str = include_str!("../../shaders/gl/gbuffer.vert");
+const GEOMETRY_SHADER: &str = include_str!("../../shaders/gl/gbuffer.geom");
 const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/gbuffer.frag");
 
 /// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocated and GL
@@ -98,7 +99,7 @@ impl GBuffers {
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
-        let program = crate::gl::program(gl_, VERTEX_SHADER, FRAGMENT_SHADER)?;
+        let program = crate::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, FRAGMENT_SHADER)?;
         let instances = &buffers.instances.1;
         let vertex_arrays = buffers
             .meshes

@@ -314,16 +314,19 @@ mod tests {
 }
 
 // ANCHOR: ao_rays
-/// The push constants of `shaders/ao.rgen` (std430: three 4-byte members, 12 bytes).
+/// The push constants of `shaders/ao.rgen` (std430: four 4-byte members, 16 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct AoRays {
     /// Rays per pixel this frame.
     pub samples: u32,
-    /// Rays per pixel already in the running mean.
+    /// Rays per pixel already in the running mean (filled in by `AoTracer::trace`).
     pub accumulated: u32,
     /// How far an occluder counts, in world units.
     pub radius: f32,
+    /// The largest coordinate of the re-centred scene, half its diagonal: the ray offset scales
+    /// with it (`Scene::size() / 2`).
+    pub scene_scale: f32,
 }
 // ANCHOR_END: ao_rays
 
@@ -336,6 +339,7 @@ mod ao_tests {
         assert_eq!(std::mem::offset_of!(AoRays, samples), 0);
         assert_eq!(std::mem::offset_of!(AoRays, accumulated), 4);
         assert_eq!(std::mem::offset_of!(AoRays, radius), 8);
-        assert_eq!(size_of::<AoRays>(), 12);
+        assert_eq!(std::mem::offset_of!(AoRays, scene_scale), 12);
+        assert_eq!(size_of::<AoRays>(), 16);
     }
 }
