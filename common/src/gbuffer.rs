@@ -14,6 +14,7 @@ use glow::HasContext;
 pub const GBUFFERS: [(&str, vk::Format, u32, u32); 3] = [
     // World position; w = view depth (0 where nothing was drawn), for chapter 08's filter.
     ("position", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
+    // xyz: the shading normal; w: the triangle's own normal, packed (gbuffer.frag, chapter 07).
     ("normal", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
     ("albedo", vk::Format::R8G8B8A8_UNORM, glow::RGBA8, 4),
 ];

@@ -7,6 +7,7 @@
 // origin pushed along them can sink into the surface. Occlusion is about the surface itself: this
 // pass-through stage sees all three corners at once and computes the plane's normal from them.
 
+// ANCHOR: geometric_normal
 layout(triangles) in;
 layout(triangle_strip, max_vertices = 3) out;
 
@@ -45,3 +46,4 @@ void main() {
         EmitVertex();
     }
 }
+// ANCHOR_END: geometric_normal
