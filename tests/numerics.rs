@@ -184,3 +184,53 @@ fn flags_at_and_beyond_their_limits() {
         assert!(report["samples_per_pixel"].as_u64().unwrap() <= 256, "{report}");
     }
 }
+
+/// Occlusion between a floor and a wall, at one pixel, after a million rays: the running mean
+/// neither drifts nor does the sample sequence collapse (in f32, `alpha * float(i)` would put
+/// the R2 points on a 1/16 grid by then). The exact answer for a floor point at distance x from
+/// an infinite wall, cosine-weighted rays of length R: occluded S(x/R)/pi, with
+/// S(a) = acos a - a sqrt(1 - a^2).
+#[test]
+fn a_million_samples_converge_to_the_exact_answer() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("wall.obj");
+    // Floor: x in [0, 2], z in [-2, 2], facing up. Wall: x = 0, y in [0, 2], facing +x.
+    let obj = "v 0 0 -2\nv 2 0 -2\nv 2 0 2\nv 0 0 2\nv 0 2 -2\nv 0 2 2\nf 1 4 3\nf 1 3 2\nf 1 5 6\nf 1 6 4\n";
+    std::fs::write(&path, obj).unwrap();
+    // The one pixel looks along the camera's axis through the bounds' centre (1, 1, 0), from the
+    // direction `Camera::framing` uses, (0.55, 0.6, 1): it meets the floor at y = 0, where
+    // x = 1 - 0.55 / 0.6, far enough from every edge for the planes to count as infinite.
+    let x = 1.0 - 0.55 / 0.6;
+    let radius = 0.05 * (2f64 * 2.0 + 2.0 * 2.0 + 4.0 * 4.0).sqrt();
+    let a: f64 = x / radius;
+    let exact = 1.0 - (a.acos() - a * (1.0 - a * a).sqrt()) / std::f64::consts::PI;
+    let args = ["--size", "1x1", "--samples", "256", "--frames", "3907", "--max-samples", "1000000"];
+    let mut all = args.to_vec();
+    all.extend(["--scene", path.to_str().unwrap()]);
+    let report = run_chapter(AO, &all, &[]).succeeded().clone();
+    assert_eq!(report["samples_per_pixel"], 1_000_000);
+    assert!((report["radius"].as_f64().unwrap() - radius).abs() < 1e-5, "{}", report["radius"]);
+    let estimate = report["ao_min"].as_f64().unwrap(); // one pixel: its visibility, unpowered
+    assert!((estimate - exact).abs() < 1e-3, "after a million rays {estimate}, exactly {exact:.5}");
+}
+
+/// Convex geometry cannot occlude itself, however thin, and two coplanar copies of a surface
+/// occlude nothing: a thin slab (1e-4 of its width) and a doubled plane stay exactly unoccluded.
+#[test]
+fn thin_and_coplanar_geometry_casts_no_false_occlusion() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = 1e-4;
+    let slab = format!(
+        "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nv -1 {t} -1\nv 1 {t} -1\nv 1 {t} 1\nv -1 {t} 1\n\
+         f 1 2 3\nf 1 3 4\nf 5 8 7\nf 5 7 6\nf 1 5 6\nf 1 6 2\nf 2 6 7\nf 2 7 3\nf 3 7 8\nf 3 8 4\nf 4 8 5\nf 4 5 1\n"
+    );
+    let doubled =
+        "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nf 1 4 3\nf 1 3 2\no copy\nf 1 4 3\nf 1 3 2\nf 2 4 1\n";
+    let one_triangle = "v 0 0 0\nv 1 0 0\nv 0 0 1\nf 1 3 2\n";
+    for (name, obj) in [("slab", slab.as_str()), ("doubled", doubled), ("one_triangle", one_triangle)] {
+        let path = dir.path().join(format!("{name}.obj"));
+        std::fs::write(&path, obj).unwrap();
+        let report = ao_report(path.to_str().unwrap(), &[]);
+        assert_eq!(report["ao_min"], 1.0, "{name}: false occlusion");
+    }
+}
