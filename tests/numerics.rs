@@ -234,3 +234,24 @@ fn thin_and_coplanar_geometry_casts_no_false_occlusion() {
         assert_eq!(report["ao_min"], 1.0, "{name}: false occlusion");
     }
 }
+
+/// Each report lists what the chapter created on the GPU; a static scene needs nothing
+/// updatable, and a scene without textures needs no texture or sampler of GL's own.
+#[test]
+fn reports_list_resources_and_static_scenes_need_nothing_updatable() {
+    for (bin, args) in [
+        (AO, vec!["--size", "32x32", "--instances", "50"]),
+        (env!("CARGO_BIN_EXE_08-composite"), vec!["--size", "32x32", "--instances", "50", "--blur", "0"]),
+    ] {
+        let run = run_chapter(bin, &args, &[]);
+        let report = run.succeeded();
+        let kinds: Vec<&str> =
+            report["resources"].as_array().unwrap().iter().map(|r| r["kind"].as_str().unwrap()).collect();
+        assert!(kinds.iter().any(|k| k.starts_with("vk_acceleration_structure: TOP_LEVEL")), "{kinds:?}");
+        assert!(kinds.iter().all(|k| !k.contains("ALLOW_UPDATE") && !k.contains("update")), "{kinds:?}");
+        assert!(kinds.iter().all(|k| !k.starts_with("gl_texture:") && !k.contains("sampler")), "{kinds:?}");
+        let exportable =
+            report["resources"].as_array().unwrap().iter().find(|r| r["kind"] == "vk_memory_exportable");
+        assert!(exportable.unwrap()["bytes"].as_u64().unwrap() > 0, "{kinds:?}");
+    }
+}

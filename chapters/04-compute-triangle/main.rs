@@ -188,6 +188,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None) }
             .map_err(|(_, e)| e)
             .context("vkCreateComputePipelines")?[0];
+    common::resources::created("vk_pipeline: compute", 0); // for the report's list of resources
     unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
     let pool_sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];
     let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes);

@@ -62,6 +62,7 @@ impl DeviceBuffer {
                 return Err(error).with_context(|| format!("allocating {size} bytes for {name}"));
             }
         };
+        crate::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
         let address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
@@ -89,6 +90,7 @@ impl AccelerationStructure {
         loader: &ash::khr::acceleration_structure::Device,
         allocator: &mut Allocator,
         ty: vk::AccelerationStructureTypeKHR,
+        flags: vk::BuildAccelerationStructureFlagsKHR,
         bytes: u64,
     ) -> Result<Self> {
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR;
@@ -108,6 +110,8 @@ impl AccelerationStructure {
                 return Err(error).context("vkCreateAccelerationStructureKHR");
             }
         };
+        // Its bytes are counted with its buffer; the kind says what was built, and how.
+        crate::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
@@ -204,8 +208,14 @@ pub fn build(
             .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
             .geometries(std::slice::from_ref(geometry));
         let sizes = build_sizes(&loader, &info, triangles);
-        let blas =
-            AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+        let blas = AccelerationStructure::new(
+            vk,
+            &loader,
+            allocator,
+            info.ty,
+            info.flags,
+            sizes.acceleration_structure_size,
+        )?;
         stats.blas_bytes += blas.bytes;
         scratch_sizes.push(sizes.build_scratch_size);
         builds.push((info.dst_acceleration_structure(blas.handle), triangles));
@@ -260,6 +270,7 @@ pub fn build(
             &loader,
             allocator,
             vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+            blas_flags,
             size,
         )?);
         stats.compacted_bytes += size;
@@ -311,8 +322,14 @@ pub fn build(
         .geometries(std::slice::from_ref(&geometry));
     let count = scene.instances.len() as u32;
     let sizes = build_sizes(&loader, &info, count);
-    let tlas =
-        AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+    let tlas = AccelerationStructure::new(
+        vk,
+        &loader,
+        allocator,
+        info.ty,
+        info.flags,
+        sizes.acceleration_structure_size,
+    )?;
     let scratch = Scratch::new(vk, allocator, &[sizes.build_scratch_size])?;
     let info = info
         .dst_acceleration_structure(tlas.handle)
@@ -385,7 +402,9 @@ fn build_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
 
 fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
-    unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")
+    let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
+    crate::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
+    Ok(pool)
 }
 
 /// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.

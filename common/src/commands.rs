@@ -164,6 +164,7 @@ impl HostBuffer {
                     return Err(error).context("vkAllocateMemory");
                 }
             };
+            crate::resources::created("vk_memory_host", requirements.size);
             vk.device.bind_buffer_memory(buffer, memory, 0)?;
             let mapped = vk.device.map_memory(memory, 0, size, vk::MemoryMapFlags::empty())?.cast();
             Ok(HostBuffer { buffer, memory, mapped, size })
@@ -252,6 +253,7 @@ impl Timestamps {
         let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
         let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
+        crate::resources::created("vk_query_pool: timestamps", 0);
         Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64 }))
     }
 

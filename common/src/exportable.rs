@@ -77,6 +77,7 @@ pub fn allocate(
     }
     let memory = unsafe { ctx.device.allocate_memory(&info, None) }
         .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
+    crate::resources::created("vk_memory_exportable", size);
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     Ok(ExportableMemory { memory, size, memory_type_index, property_flags })
 }
@@ -96,7 +97,10 @@ pub fn create_image(
         // Some drivers corrupt shared images unless views of other formats are allowed.
         .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
         .push_next(&mut external);
-    unsafe { ctx.device.create_image(&info, None) }.with_context(|| format!("vkCreateImage ({format:?})"))
+    let image = unsafe { ctx.device.create_image(&info, None) }
+        .with_context(|| format!("vkCreateImage ({format:?})"))?;
+    crate::resources::created("vk_image_exportable", 0);
+    Ok(image)
 }
 // ANCHOR_END: create_image
 
@@ -150,6 +154,7 @@ impl ExportedBuffer {
         let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
         let info = vk::BufferCreateInfo::default().size(bytes).usage(usage).push_next(&mut external);
         let buffer = unsafe { ctx.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
+        crate::resources::created("vk_buffer_exportable", 0);
         let requirements = unsafe { ctx.device.get_buffer_memory_requirements(buffer) };
         let host = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
         let memory = allocate(ctx, &requirements, host, Dedicated::No).inspect_err(|_| unsafe {

@@ -213,6 +213,7 @@ unsafe fn framebuffer(
         gl.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
         let (width, height) = (extent.width as i32, extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, width, height);
+        crate::resources::created("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * width as u64 * height as u64);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         let mut draw_buffers = Vec::new();

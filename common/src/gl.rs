@@ -358,6 +358,7 @@ pub fn program_with_geometry(
 fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow::Program> {
     unsafe {
         let program = gl.create_program().map_err(anyhow::Error::msg)?;
+        crate::resources::created("gl_program", 0);
         let mut shaders = Vec::new();
         for &(kind, source, name) in stages {
             let shader = gl.create_shader(kind).map_err(anyhow::Error::msg)?;
@@ -402,6 +403,7 @@ impl RenderTarget {
             gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
             gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, width as i32, height as i32);
             gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+            crate::resources::created("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
             let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
             gl.named_framebuffer_renderbuffer(
                 Some(framebuffer),

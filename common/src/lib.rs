@@ -14,6 +14,7 @@ pub mod interop;
 pub mod output;
 pub mod raytrace;
 pub mod report;
+pub mod resources;
 pub mod scene;
 pub mod sync;
 pub mod vulkan;

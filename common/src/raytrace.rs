@@ -91,6 +91,7 @@ impl RayPipeline {
         };
         unsafe { modules.iter().for_each(|m| device.destroy_shader_module(*m, None)) };
         let pipeline = pipeline.map_err(|(_, e)| e).context("vkCreateRayTracingPipelinesKHR")?[0];
+        crate::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
 
         let (sbt, regions) = shader_binding_table(vk, &loader, allocator, pipeline, groups.len() as u32)?;
@@ -246,6 +247,7 @@ impl StorageImage {
         let allocation = allocator
             .allocate(&description)
             .inspect_err(|_| unsafe { vk.device.destroy_image(image, None) })?;
+        crate::resources::created("vk_image: storage", allocation.size());
         unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)

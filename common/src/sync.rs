@@ -175,6 +175,7 @@ impl SharedSemaphore {
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
+        crate::resources::created("vk_semaphore_exportable", 0);
         let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
         let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
         let fd = match unsafe { loader.get_semaphore_fd(&get) } {
