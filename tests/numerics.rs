@@ -255,3 +255,25 @@ fn reports_list_resources_and_static_scenes_need_nothing_updatable() {
         assert!(exportable.unwrap()["bytes"].as_u64().unwrap() > 0, "{kinds:?}");
     }
 }
+
+/// The depth-aware blur at near/far ratios of 10^5 and more: the camera zoomed into the pile.
+/// The blur's test is relative (a neighbour within 2% of this pixel's view depth), so it means
+/// the same near and far, and the composite still matches the CPU's version of the same rule
+/// pixel for pixel. (An absolute threshold on clip-space depth, as in the reference sample,
+/// would see every distant surface as one depth, and blur across their edges.)
+#[test]
+fn the_blur_holds_at_near_far_ratios_of_1e5() {
+    for zoom in ["3000", "100000"] {
+        let args =
+            ["--size", "64x48", "--frames", "1", "--samples", "2", "--instances", "2000", "--zoom", zoom];
+        let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+        let report = run.succeeded();
+        assert!(report["near_far_ratio"].as_f64().unwrap() >= 1e5, "{}", report["near_far_ratio"]);
+        assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+    }
+    for zoom in ["0", "NaN", "1e7"] {
+        let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &["--size", "32x32", "--zoom", zoom], &[]);
+        assert_eq!(run.output.status.code(), Some(2), "--zoom {zoom}: {}", run.stderr);
+        assert!(run.stderr.contains("choose between 0.001 and 1000000"), "{}", run.stderr);
+    }
+}
