@@ -31,7 +31,8 @@ fn transformed(obj: &str, scale: f64, offset: [f64; 3], dir: &Path, name: &str) 
 }
 
 fn ao_report(scene: &str, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec!["--size", "64x64", "--frames", "2", "--samples", "8", "--scene", scene];
+    let mut args = if extra.contains(&"--size") { vec![] } else { vec!["--size", "64x64"] };
+    args.extend(["--frames", "2", "--samples", "8", "--scene", scene]);
     args.extend_from_slice(extra);
     run_chapter(AO, &args, &[]).succeeded().clone()
 }
@@ -88,6 +89,34 @@ fn a_lone_plane_is_unoccluded_at_any_scale_and_distance() {
         let scene = transformed(plane.to_str().unwrap(), scale, offset, dir.path(), &format!("p{i}.obj"));
         let report = ao_report(&scene, &[]);
         assert_eq!(report["ao_min"], 1.0, "scale {scale}, {distance} away: a ray hit the plane it left");
+    }
+    // Seen at a grazing angle: a plane tilted 2 and 0.5 degrees out of the camera's line of sight
+    // (`Camera::framing` looks along (0.55, 0.6, 1)), where a pixel spans a long stretch of it.
+    let view = [0.55f64, 0.6, 1.0].map(|c| c / (0.55f64 * 0.55 + 0.36 + 1.0).sqrt());
+    let side = [view[2], 0.0, -view[0]].map(|c| c / (view[0] * view[0] + view[2] * view[2]).sqrt());
+    let up = [
+        side[1] * view[2] - side[2] * view[1],
+        side[2] * view[0] - side[0] * view[2],
+        side[0] * view[1] - side[1] * view[0],
+    ];
+    for degrees in [2.0f64, 0.5] {
+        let (s, c) = degrees.to_radians().sin_cos();
+        let along: Vec<f64> = (0..3).map(|a| view[a] * c + up[a] * s).collect();
+        let corner =
+            |u: f64, v: f64| (0..3).map(|a| format!("{:e}", u * side[a] + v * along[a])).collect::<Vec<_>>();
+        let obj: String = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+            .iter()
+            .map(|&(u, v)| format!("v {}\n", corner(u, v).join(" ")))
+            .collect::<String>()
+            + "f 1 2 3\nf 1 3 4\n";
+        let path = dir.path().join(format!("grazing{degrees}.obj"));
+        std::fs::write(&path, obj).unwrap();
+        let report = ao_report(path.to_str().unwrap(), &["--size", "256x256"]);
+        assert!(
+            report["rays_traced"].as_u64().unwrap() > 0,
+            "{degrees} degrees: the plane covers some pixels"
+        );
+        assert_eq!(report["ao_min"], 1.0, "{degrees} degrees: a ray hit the plane it left");
     }
 }
 
@@ -175,7 +204,16 @@ fn flags_at_and_beyond_their_limits() {
         assert!(run.stderr.contains(expected), "{args:?} should say {expected:?}:\n{}", run.stderr);
         assert!(!run.stderr.contains("panicked"), "{args:?}: {}", run.stderr);
     }
-    // At the limits: one pixel, one ray, the smallest cap, no tetrahedra.
+    // A size the device cannot hold: refused before anything exists, naming the bytes.
+    for chapter in [AO, env!("CARGO_BIN_EXE_08-composite")] {
+        let run = run_chapter(chapter, &["--size", "16384x16384"], &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+        assert!(run.stderr.contains("4294967296 bytes"), "names the bytes:\n{}", run.stderr);
+        assert!(!run.stderr.contains("validation error"), "nothing was made, nothing leaks:\n{}", run.stderr);
+    }
+    // At the limits: one pixel, one ray, the smallest cap, no tetrahedra, the widest image.
+    let report = run_chapter(AO, &["--size", "16384x8", "--samples", "1"], &[]).succeeded().clone();
+    assert_eq!(report["images"][0]["width"], 16384);
     for args in [
         vec!["--size", "1x1", "--samples", "1", "--max-samples", "1", "--frames", "3"],
         vec!["--size", "32x32", "--instances", "0", "--samples", "256", "--frames", "1"],

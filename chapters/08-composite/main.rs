@@ -119,6 +119,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    // A size the device cannot hold is refused here, before anything is allocated.
+    common::gbuffer::check_size(&vk, &gl_context, vk::Extent2D { width: size.width, height: size.height })?;
     report.set("window", window.is_some());
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
