@@ -344,7 +344,8 @@ pub fn build(
         build_barrier(vk, cb);
         let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(count);
         loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]);
-        build_barrier(vk, cb);
+        // The TLAS is read by every later trace, in later submissions: to the ray-tracing stage.
+        traced_barrier(vk, cb);
         if let Some(t) = &timestamps {
             t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
         }
@@ -384,6 +385,22 @@ fn build_sizes(
         )
     };
     sizes
+}
+
+/// The TLAS build's writes, made visible to the ray-tracing shaders that traverse it in every
+/// later submission (a barrier's second scope is everything after it in submission order on
+/// the queue; the fence `run_once` waits on only tells the CPU).
+pub fn traced_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
+    let barrier = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR) // from the build
+        .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR); // to traceRayEXT
+    let (src, dst) = (
+        vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
+        vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR,
+    );
+    unsafe {
+        vk.device.cmd_pipeline_barrier(cb, src, dst, vk::DependencyFlags::empty(), &[barrier], &[], &[])
+    };
 }
 
 /// Acceleration-structure writes finish before later builds, copies or queries read them.
