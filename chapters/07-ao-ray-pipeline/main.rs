@@ -151,6 +151,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 6. Clean up, newest first
     // ANCHOR: cleanup
+    // Once the GPU is done with the last frame: its pipeline and images must outlive the
+    // commands that use them (GL's read-back only waited for GL).
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
