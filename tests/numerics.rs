@@ -160,6 +160,28 @@ fn a_scene_without_size_is_an_error_that_says_so() {
     assert!(!run.stderr.contains("panicked") && !run.stderr.contains("radius"), "{}", run.stderr);
 }
 
+/// Scenes beyond what 32-bit floats can trace (lengths are squared on the GPU): refused with the
+/// size and the range, never an "infinite radius" or a blank picture.
+#[test]
+fn scenes_too_large_or_too_small_for_floats_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, far, expected) in [
+        ("huge", "1e30", "units across; 32-bit floats on the GPU handle scenes from 1e-15 to 1e15"),
+        ("tiny", "1e-20", "units across; 32-bit floats on the GPU handle scenes from 1e-15 to 1e15"),
+        ("beyond", "1e39", "beyond 32-bit float range"),
+    ] {
+        let path = dir.path().join(format!("{name}.obj"));
+        std::fs::write(&path, format!("v 0 0 0\nv {far} 0 0\nv 0 {far} 0\nf 1 2 3\n")).unwrap();
+        let run = run_chapter(AO, &["--size", "32x32", "--scene", path.to_str().unwrap()], &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{name}: {}", run.stderr);
+        assert!(
+            run.stderr.contains(expected) && run.stderr.contains(path.to_str().unwrap()),
+            "{}",
+            run.stderr
+        );
+    }
+}
+
 /// `--samples 0` and `--radius 0` trace nothing, say so, and give visibility 1 everywhere.
 #[test]
 fn no_rays_or_no_radius_skips_tracing() {
