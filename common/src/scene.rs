@@ -90,7 +90,11 @@ impl Scene {
     /// being mesh `m`'s), re-centred: the instances move so that the bounds' centre is at the
     /// origin, and `origin` records where that was. Errors when there is nothing to trace or
     /// nothing has a size.
-    pub fn new(meshes: Vec<Mesh>, mut instances: Vec<Instance>, mesh_instances: Vec<Range<u32>>) -> Result<Self> {
+    pub fn new(
+        meshes: Vec<Mesh>,
+        mut instances: Vec<Instance>,
+        mesh_instances: Vec<Range<u32>>,
+    ) -> Result<Self> {
         let (low, high) = Self::world_bounds(&meshes, &instances, &mesh_instances);
         if !(low.cmple(high).all()) {
             bail!("the scene has no triangles");
@@ -283,7 +287,8 @@ pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
     let instances = meshes.iter().map(|(_, albedo)| Instance::new(Mat4::IDENTITY, *albedo)).collect();
     let mesh_instances = (0..meshes.len() as u32).map(|i| i..i + 1).collect();
     let meshes = meshes.into_iter().map(|(m, _)| m).collect();
-    let mut scene = Scene::new(meshes, instances, mesh_instances).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    let mut scene =
+        Scene::new(meshes, instances, mesh_instances).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     scene.origin = [0, 1, 2].map(|i| centre[i] + scene.origin[i]);
     Ok(scene)
 }
@@ -357,7 +362,10 @@ fn meshes_from_obj(
             }
         } else {
             if !m.normals.is_empty() {
-                eprintln!("scene: {shown}: object {:?} has zero or invalid normals; computing them", model.name);
+                eprintln!(
+                    "scene: {shown}: object {:?} has zero or invalid normals; computing them",
+                    model.name
+                );
             }
             compute_normals(&mut mesh, normals);
         }
