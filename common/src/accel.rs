@@ -344,8 +344,9 @@ pub fn build(
         build_barrier(vk, cb);
         let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(count);
         loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]);
-        // The TLAS is read by every later trace, in later submissions: to the ray-tracing stage.
-        traced_barrier(vk, cb);
+        // The traces of later submissions read the TLAS: its writes must reach the ray-tracing
+        // stage too (a fence wait makes nothing visible to the device).
+        tlas_built_barrier(vk, cb);
         if let Some(t) = &timestamps {
             t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
         }
@@ -387,22 +388,6 @@ fn build_sizes(
     sizes
 }
 
-/// The TLAS build's writes, made visible to the ray-tracing shaders that traverse it in every
-/// later submission (a barrier's second scope is everything after it in submission order on
-/// the queue; the fence `run_once` waits on only tells the CPU).
-pub fn traced_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
-    let barrier = vk::MemoryBarrier::default()
-        .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR) // from the build
-        .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR); // to traceRayEXT
-    let (src, dst) = (
-        vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
-        vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR,
-    );
-    unsafe {
-        vk.device.cmd_pipeline_barrier(cb, src, dst, vk::DependencyFlags::empty(), &[barrier], &[], &[])
-    };
-}
-
 /// Acceleration-structure writes finish before later builds, copies or queries read them.
 fn build_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
     let barrier = vk::MemoryBarrier::default()
@@ -414,6 +399,20 @@ fn build_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
     let stage = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
     unsafe {
         vk.device.cmd_pipeline_barrier(cb, stage, stage, vk::DependencyFlags::empty(), &[barrier], &[], &[])
+    };
+}
+
+/// The TLAS build's writes, made visible to the ray-tracing shaders that trace against it (in this
+/// or any later submission) and to later builds (an update, chapter 09).
+fn tlas_built_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
+    let barrier = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+        .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
+    let src = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
+    let dst = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR
+        | vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    unsafe {
+        vk.device.cmd_pipeline_barrier(cb, src, dst, vk::DependencyFlags::empty(), &[barrier], &[], &[])
     };
 }
 

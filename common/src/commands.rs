@@ -86,6 +86,7 @@ impl Commands {
     }
 }
 
+// ANCHOR: image_barrier
 /// A barrier over a whole colour image: the layout change `(old, new)`, the accesses to make
 /// available and visible `(src, dst)`, and the queue families ownership moves between
 /// (`QUEUE_FAMILY_IGNORED` twice for none).
@@ -121,6 +122,7 @@ pub fn first_use<'a>(
         (ignored, ignored),
     )
 }
+// ANCHOR_END: image_barrier
 
 /// The whole colour image, one mip level, one layer.
 pub const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {

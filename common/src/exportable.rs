@@ -70,18 +70,22 @@ pub fn allocate(
     if let Some(dedicated_info) = dedicated_info.as_mut() {
         info = info.push_next(dedicated_info);
     }
+    // ANCHOR_END: allocate
+    // ANCHOR: device_address
     // With ray tracing on, buffers may need GPU addresses (acceleration-structure inputs).
     let mut flags = vk::MemoryAllocateFlagsInfo::default().flags(vk::MemoryAllocateFlags::DEVICE_ADDRESS);
     if ctx.device_addresses && !matches!(dedicated, Dedicated::Image(_)) {
         info = info.push_next(&mut flags);
     }
+    // ANCHOR_END: device_address
+    // ANCHOR: allocate_memory
     let memory = unsafe { ctx.device.allocate_memory(&info, None) }
         .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
     crate::resources::created("vk_memory_exportable", size);
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     Ok(ExportableMemory { memory, size, memory_type_index, property_flags })
 }
-// ANCHOR_END: allocate
+// ANCHOR_END: allocate_memory
 
 // ANCHOR: create_image
 /// A 2D image, one mip level, whose memory may be exported. Every image this tutorial shares

@@ -106,6 +106,7 @@ pub struct GlContext {
 }
 
 impl GlContext {
+    // ANCHOR: headless
     /// A headless GL 4.5 core context on the EGL device whose device UUID is Vulkan's, or on the
     /// first EGL device when none matches (the chapter's UUID check then says why that is fatal).
     /// Fails, naming each one, when an extension in `required` is missing.
@@ -167,6 +168,7 @@ impl GlContext {
         let loader = |name: &CStr| display.get_proc_address(name);
         Self::new(PossiblyCurrentContext::Egl(context), &loader, required)
     }
+    // ANCHOR_END: headless
 
     /// Wraps a context that is already current (headless here, or a window's in chapter 04).
     pub fn new(

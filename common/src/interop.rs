@@ -94,6 +94,7 @@ pub fn share_buffer(
     }
 }
 
+// ANCHOR: import_texture_2d
 /// A GL 2D texture (one mip level) stored in an image's dedicated, exported `memory`.
 /// `internal_format` must be the GL twin of the Vulkan format (GL_RGBA8 for R8G8B8A8_UNORM).
 pub fn import_texture_2d(
@@ -130,6 +131,7 @@ pub fn import_texture_2d(
     }
     Ok(shared)
 }
+// ANCHOR_END: import_texture_2d
 
 impl SharedBuffer {
     /// Deletes the buffer, then the memory object (which releases GL's hold on the memory).

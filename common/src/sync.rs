@@ -32,6 +32,7 @@ pub enum Sync {
 }
 
 impl Sync {
+    // ANCHOR: sync_new
     /// Semaphores when both sides support them (and `VKGL_HIDE_EXTENSIONS` hides neither), else
     /// the host fallback; says which on stderr.
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Sync> {
@@ -56,6 +57,7 @@ impl Sync {
         eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
         Ok(Sync::Semaphores { gl_done, vulkan_done })
     }
+    // ANCHOR_END: sync_new
 
     /// "semaphores" or "host", for the report.
     pub fn name(&self) -> &'static str {

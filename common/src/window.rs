@@ -98,6 +98,7 @@ impl Window {
         Ok((Window { event_loop, app }, gl))
     }
 
+    // ANCHOR: poll
     /// Handles what happened since the last call, without blocking: resizes the GL surface to the
     /// window, and returns the keys pressed since.
     pub fn poll(&mut self, gl: &GlContext) -> std::vec::Drain<'_, Key> {
@@ -111,6 +112,7 @@ impl Window {
         }
         self.app.keys.drain(..)
     }
+    // ANCHOR_END: poll
 
     /// Mouse movement with the left button held since the last call (pixels), and wheel lines.
     pub fn take_mouse(&mut self) -> ((f32, f32), f32) {
