@@ -1,3 +1,4 @@
+// ANCHOR: all
 #version 450 core
 // Chapter 05: the G-buffers, one colour attachment each (the FBO's draw buffers 0, 1, 2).
 
@@ -48,3 +49,4 @@ void main() {
     out_position = vec4(world_position, view_depth);
     out_albedo = vec4(albedo, 1.0);
 }
+// ANCHOR_END: all
