@@ -431,6 +431,33 @@ fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::Devic
     unsafe { instances.mapped.add(offset).cast::<u64>().write_unaligned(address) };
 }
 
+/// Refuses, before anything is allocated, a scene whose structures the device cannot build:
+/// more instances than a TLAS holds (`maxInstanceCount`), or a mesh with more triangles than a
+/// BLAS geometry holds (`maxPrimitiveCount`).
+pub fn check_limits(vk: &VulkanContext, scene: &Scene) -> Result<()> {
+    let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
+    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    let device = &vk.info.name;
+    let instances = scene.instances.len() as u64;
+    anyhow::ensure!(
+        instances <= properties.max_instance_count,
+        "the scene has {instances} instances; {device} builds a TLAS of at most {} (maxInstanceCount)",
+        properties.max_instance_count
+    );
+    for mesh in &scene.meshes {
+        let triangles = mesh.indices.len() as u64 / 3;
+        anyhow::ensure!(
+            triangles <= properties.max_primitive_count,
+            "mesh {:?} has {triangles} triangles; {device} builds a BLAS geometry of at most {} \
+             (maxPrimitiveCount)",
+            mesh.name,
+            properties.max_primitive_count
+        );
+    }
+    Ok(())
+}
+
 /// Scratch memory for several builds: one buffer, each region aligned as the device requires.
 struct Scratch {
     buffer: DeviceBuffer,
@@ -484,6 +511,7 @@ pub struct RayTracedScene {
 
 impl RayTracedScene {
     pub fn new(vk: &VulkanContext, gl: &crate::GlContext, scene: &Scene) -> Result<Self> {
+        check_limits(vk, scene)?;
         let mut allocator = allocator(vk)?;
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
