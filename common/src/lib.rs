@@ -45,6 +45,9 @@ pub fn run_chapter<A: clap::Parser>(
         return ExitCode::from(2);
     }
     show_pictures(chapter, common, &mut report);
+    // The report knows nothing of either API (no module cycle): the counts are gathered here.
+    report.validation = vulkan::validation_counts();
+    report.validation.gl_errors = gl::gl_error_count();
     report.finish(common.json)
 }
 
