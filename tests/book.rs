@@ -293,3 +293,32 @@ fn the_link_checker_catches_what_a_reader_would_hit() {
     assert_eq!(links[0].1, "images/a.png");
     assert_eq!(results, [false, true, false, true, false, true, false, true]);
 }
+
+/// The workshop's worked solutions are patches against the chapters: each must still apply, or
+/// the workshop page sends participants to a patch that fails.
+#[test]
+fn every_workshop_solution_applies() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = root.join("book/src/workshop");
+    let mut patches: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "diff"))
+        .collect();
+    patches.sort();
+    assert!(!patches.is_empty(), "no solutions in {}", dir.display());
+    let mut failed = Vec::new();
+    for patch in &patches {
+        let checked = std::process::Command::new("git")
+            .current_dir(root)
+            .args(["apply", "--check"])
+            .arg(patch)
+            .output()
+            .unwrap_or_else(|e| panic!("cannot run git ({e}): it checks the workshop's patches"));
+        if !checked.status.success() {
+            failed.push(format!("{}: {}", patch.display(), String::from_utf8_lossy(&checked.stderr).trim()));
+        }
+    }
+    assert!(failed.is_empty(), "workshop solutions that no longer apply:\n{}", failed.join("\n"));
+}

@@ -88,7 +88,7 @@ fn main() -> ExitCode {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
-    report.finish(args.json)
+    common::finish(report, args.json)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
