@@ -83,10 +83,15 @@ fn camera(
     }
 }
 
-/// One mesh, placed by one instance.
-fn one_mesh_scene(mesh: Mesh, place: Placement, size: f64) -> anyhow::Result<Scene> {
+/// One mesh, placed by one instance, and a second instance of it scaled to nothing between the
+/// planes: an instance with zero scale must draw nothing and occlude nothing (its triangles
+/// have no area), so the exact answer still holds.
+fn one_mesh_scene(mesh: Mesh, place: Placement, size: f64, inside: DVec3) -> anyhow::Result<Scene> {
     let transform = Mat4::from_translation(place.translation(size).as_vec3());
-    Scene::new(vec![mesh], vec![Instance::new(transform, [200, 200, 200])], vec![0..1])
+    let vanished =
+        Mat4::from_translation(place.to_world(inside, size).as_vec3()) * Mat4::from_scale(glam::Vec3::ZERO);
+    let instances = vec![Instance::new(transform, [200, 200, 200]), Instance::new(vanished, [255, 0, 0])];
+    Scene::new(vec![mesh], instances, vec![0..2])
 }
 
 // ANCHOR: cases
@@ -100,7 +105,7 @@ pub fn parallel_planes(place: Placement) -> anyhow::Result<Case> {
     let floor = [DVec3::new(a, 0.0, a), DVec3::new(a, 0.0, b), DVec3::new(b, 0.0, b), DVec3::new(b, 0.0, a)];
     let ceiling = floor.map(|c| c + DVec3::Y * H);
     let ceiling = [ceiling[0], ceiling[3], ceiling[2], ceiling[1]]; // facing down
-    let scene = one_mesh_scene(quads(&[floor, ceiling], place), place, L)?;
+    let scene = one_mesh_scene(quads(&[floor, ceiling], place), place, L, DVec3::new(0.5, H / 2.0, 0.0))?;
     let origin = DVec3::from(scene.origin);
     let camera =
         camera(&scene, place, L, DVec3::new(0.0, H / 2.0, 2.5), DVec3::new(0.0, H / 2.0, -2.0), 0.05, 20.0);
@@ -128,7 +133,7 @@ pub fn floor_and_wall(place: Placement) -> anyhow::Result<Case> {
         [DVec3::new(0.0, 0.0, a), DVec3::new(0.0, 0.0, b), DVec3::new(L, 0.0, b), DVec3::new(L, 0.0, a)];
     let wall =
         [DVec3::new(0.0, 0.0, a), DVec3::new(0.0, L, a), DVec3::new(0.0, L, b), DVec3::new(0.0, 0.0, b)];
-    let scene = one_mesh_scene(quads(&[floor, wall], place), place, L)?;
+    let scene = one_mesh_scene(quads(&[floor, wall], place), place, L, DVec3::new(0.5, 0.5, 0.0))?;
     let origin = DVec3::from(scene.origin);
     let camera = camera(&scene, place, L, DVec3::new(3.2, 2.4, 1.6), DVec3::new(0.3, 0.3, -0.6), 0.05, 20.0);
     let exact = move |p: DVec3| {
