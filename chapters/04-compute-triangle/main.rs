@@ -162,9 +162,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut image = share_image(&vk, &gl_context, compute.set, extent)?;
     // A new image has never been GL's: there is nothing to hand over yet (step 8).
     let mut image_is_new = true;
+    // '+' stops at the largest image both sides can make.
+    let gl_largest = unsafe { gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as u32;
     let largest = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }
         .limits
-        .max_image_dimension2_d;
+        .max_image_dimension2_d
+        .min(gl_largest);
 
     // 5. Prepare GL's draw
     let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
@@ -227,10 +230,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 gl.finish();
                 vk.device.wait_for_fences(&[commands.fence], true, u64::MAX)?;
             }
-            image.destroy(&vk, &gl_context);
-            image = share_image(&vk, &gl_context, compute.set, wanted)?;
-            (extent, image_is_new, resizes) = (wanted, true, resizes + 1);
-            eprintln!("compute image: {}x{}", extent.width, extent.height);
+            // The new image first: if the device cannot make it, a window keeps the old one
+            // (share_image points the descriptor at an image only once it exists).
+            match share_image(&vk, &gl_context, compute.set, wanted) {
+                Ok(new) => std::mem::replace(&mut image, new).destroy(&vk, &gl_context),
+                Err(error) if window.is_some() => {
+                    eprintln!(
+                        "compute image: cannot make {}x{} ({error:#}); keeping",
+                        wanted.width, wanted.height
+                    );
+                    wanted = extent;
+                }
+                Err(error) => return Err(error),
+            }
+            if wanted != extent {
+                (extent, image_is_new, resizes) = (wanted, true, resizes + 1);
+                eprintln!("compute image: {}x{}", extent.width, extent.height);
+            }
             if resizes == 3 && args.resize_every.is_some() {
                 checks.fds_after_cycle = Some(open_fd_count()?); // back at full size
             }
