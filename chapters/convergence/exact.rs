@@ -27,15 +27,11 @@ pub fn beside_wall(x: f64, radius: f64) -> f64 {
 mod tests {
     use super::*;
 
-    /// A small seeded generator (SplitMix64): the same numbers on every machine.
-    struct Random(u64);
+    /// Common's seeded generator (SplitMix64): the same numbers on every machine.
+    struct Random(common::scene::Random);
     impl Random {
         fn uniform(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+            (self.0.next() >> 11) as f64 / (1u64 << 53) as f64
         }
         /// A cosine-weighted direction around +z: uniform on the disc, lifted.
         fn cosine_direction(&mut self) -> [f64; 3] {
@@ -49,7 +45,7 @@ mod tests {
     /// The fraction of `n` cosine-weighted rays of length `radius` from the origin (normal +z)
     /// that `hits` says hit, and the standard error of that fraction.
     fn monte_carlo(n: u32, mut hits: impl FnMut([f64; 3]) -> bool) -> (f64, f64) {
-        let mut random = Random(7);
+        let mut random = Random(common::scene::Random(7));
         let count = (0..n).filter(|_| hits(random.cosine_direction())).count() as f64;
         let p = count / n as f64;
         (p, (p * (1.0 - p) / n as f64).sqrt().max(1e-4))

@@ -197,10 +197,10 @@ fn embedded(text: &str, name: &str, normals: Normals) -> Mesh {
 }
 
 /// A small, seeded generator (SplitMix64): the scene must be the same on every machine.
-struct Random(u64);
+pub struct Random(pub u64);
 
 impl Random {
-    fn next(&mut self) -> u64 {
+    pub fn next(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
