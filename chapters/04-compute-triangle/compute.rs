@@ -60,6 +60,7 @@ impl ComputePipeline {
             unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None) }
                 .map_err(|(_, e)| e)
                 .context("vkCreateComputePipelines")?[0];
+        common::resources::created("vk_pipeline: compute", 0); // for the report's list of resources
         unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
         let pool_sizes =
             [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];

@@ -61,7 +61,8 @@ fn triangle_at(time: f32) -> Triangle {
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real time].
+    /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real
+    /// time in a window; 0 headless, where frames may come far faster than 60 a second].
     #[arg(long, value_name = "T")]
     time: Option<f32>,
     /// Every K frames, make the compute image anew at full, half, then quarter size (a leak test).
@@ -188,7 +189,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut frame = 0;
     while frames == 0 || frame < frames {
         let frame_started = Instant::now();
-        let time = args.time.map_or(started.elapsed().as_secs_f32(), |t| t + frame as f32 / 60.0);
+        // Headless, frame k shows k/60 s: a fast GPU draws frames microseconds apart, and real
+        // time would barely move between them.
+        let first = args.time.or((!windowed).then_some(0.0));
+        let time = first.map_or(started.elapsed().as_secs_f32(), |t| t + frame as f32 / 60.0);
 
         // 6. Resize the image: on a key, or every K frames
         let mut wanted = extent;

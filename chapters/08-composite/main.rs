@@ -55,6 +55,10 @@ struct Args {
     /// The instance whose box is drawn [default: the first tetrahedron, or the first object].
     #[arg(long)]
     select: Option<usize>,
+    /// Start this many times closer to the scene's centre than the framing puts the camera (as
+    /// the mouse wheel does; from about 3000 on, the far plane is over 10^5 times the near one).
+    #[arg(long, default_value_t = 1.0)]
+    zoom: f32,
 }
 
 fn main() -> ExitCode {
@@ -79,6 +83,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Load the scene, and aim the camera at it
     let scene = args.scene.load()?;
     let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    ensure!(
+        args.zoom.is_finite() && (1e-3..=1e6).contains(&args.zoom),
+        "--zoom {}: choose between 0.001 and 1000000",
+        args.zoom
+    );
+    camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
     let radius = args.ao.radius(&scene)?;
     let select = args.select.unwrap_or(if scene.instances.len() > 1 { 1 } else { 0 });
     ensure!(
@@ -109,6 +119,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    // A size the device cannot hold is refused here, before anything is allocated.
+    common::gbuffer::check_size(&vk, &gl_context, vk::Extent2D { width: size.width, height: size.height })?;
     report.set("window", window.is_some());
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
@@ -138,6 +150,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // measurement, not a way to run. A window adds no such wait.
     let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
     let (mut trace_ms, mut traced) = (Vec::new(), 0u64);
+    let mut skipped = None;
     loop {
         // ANCHOR: input
         if let Some(window) = window.as_mut() {
@@ -198,9 +211,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
         gbuffers.draw(gl, &scene, &camera);
-        if tracer.accumulated < args.ao.max_samples {
+        if let Some(reason) = common::ao::nothing_to_trace(settings.samples, settings.radius) {
+            if skipped.replace(reason).is_none() {
+                eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
+            }
+            tracer.fill_unoccluded(&gl_context)?; // once per AO image
+        } else if tracer.accumulated < args.ao.max_samples {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
-            let rays = AoRays { samples, accumulated: 0, radius: settings.radius };
+            let scene_scale = scene.size() / 2.0;
+            let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
             tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
             if let Some(t) = &timestamps {
@@ -243,7 +262,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             report.check(name, ok);
         }
         report.set("samples_per_pixel", tracer.accumulated);
+        if let Some(reason) = skipped {
+            report.set("ao_skipped", reason);
+        }
         report.set("radius", settings.radius);
+        report.set("near_far_ratio", (camera.far / camera.near).round());
         report.set("blur", settings.blur);
         report.set("frames", frame);
         if window.is_none() {
@@ -287,7 +310,7 @@ fn apply_key(key: &Key, s: &mut Settings) {
     match key.as_ref() {
         Key::Character(c) => match c {
             "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
-            "+" | "=" => s.samples = (s.samples * 2).min(256),
+            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
             "-" => s.samples = (s.samples / 2).max(1),
             "]" => s.radius *= 1.25,
             "[" => s.radius /= 1.25,

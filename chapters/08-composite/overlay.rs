@@ -177,6 +177,7 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
         let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+        common::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         gl.named_framebuffer_renderbuffer(
             Some(fb),
@@ -272,6 +273,7 @@ impl Overlays {
         let (vertex_array, buffer) = unsafe {
             let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
             gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
+            common::resources::created("gl_buffer", bytes.len() as u64);
             let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
             gl.vertex_array_vertex_buffer(vao, 0, Some(buffer), 0, size_of::<LineVertex>() as i32);
             for (location, offset) in [(0, 0), (1, 12)] {

@@ -62,6 +62,7 @@ impl DeviceBuffer {
                 return Err(error).with_context(|| format!("allocating {size} bytes for {name}"));
             }
         };
+        crate::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
         let address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
@@ -89,6 +90,7 @@ impl AccelerationStructure {
         loader: &ash::khr::acceleration_structure::Device,
         allocator: &mut Allocator,
         ty: vk::AccelerationStructureTypeKHR,
+        flags: vk::BuildAccelerationStructureFlagsKHR,
         bytes: u64,
     ) -> Result<Self> {
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR;
@@ -108,6 +110,8 @@ impl AccelerationStructure {
                 return Err(error).context("vkCreateAccelerationStructureKHR");
             }
         };
+        // Its bytes are counted with its buffer; the kind says what was built, and how.
+        crate::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
@@ -204,8 +208,14 @@ pub fn build(
             .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
             .geometries(std::slice::from_ref(geometry));
         let sizes = build_sizes(&loader, &info, triangles);
-        let blas =
-            AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+        let blas = AccelerationStructure::new(
+            vk,
+            &loader,
+            allocator,
+            info.ty,
+            info.flags,
+            sizes.acceleration_structure_size,
+        )?;
         stats.blas_bytes += blas.bytes;
         scratch_sizes.push(sizes.build_scratch_size);
         builds.push((info.dst_acceleration_structure(blas.handle), triangles));
@@ -260,6 +270,7 @@ pub fn build(
             &loader,
             allocator,
             vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+            blas_flags,
             size,
         )?);
         stats.compacted_bytes += size;
@@ -311,8 +322,14 @@ pub fn build(
         .geometries(std::slice::from_ref(&geometry));
     let count = scene.instances.len() as u32;
     let sizes = build_sizes(&loader, &info, count);
-    let tlas =
-        AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+    let tlas = AccelerationStructure::new(
+        vk,
+        &loader,
+        allocator,
+        info.ty,
+        info.flags,
+        sizes.acceleration_structure_size,
+    )?;
     let scratch = Scratch::new(vk, allocator, &[sizes.build_scratch_size])?;
     let info = info
         .dst_acceleration_structure(tlas.handle)
@@ -401,7 +418,9 @@ fn tlas_built_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
 
 fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
-    unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")
+    let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
+    crate::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
+    Ok(pool)
 }
 
 /// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.
@@ -410,6 +429,33 @@ fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::Devic
     assert!(offset + 8 <= instances.bytes as usize, "instance {index} is outside the buffer");
     // SAFETY: in bounds (checked above) of the coherent mapping; no GPU work is using it now.
     unsafe { instances.mapped.add(offset).cast::<u64>().write_unaligned(address) };
+}
+
+/// Refuses, before anything is allocated, a scene whose structures the device cannot build:
+/// more instances than a TLAS holds (`maxInstanceCount`), or a mesh with more triangles than a
+/// BLAS geometry holds (`maxPrimitiveCount`).
+pub fn check_limits(vk: &VulkanContext, scene: &Scene) -> Result<()> {
+    let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
+    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    let device = &vk.info.name;
+    let instances = scene.instances.len() as u64;
+    anyhow::ensure!(
+        instances <= properties.max_instance_count,
+        "the scene has {instances} instances; {device} builds a TLAS of at most {} (maxInstanceCount)",
+        properties.max_instance_count
+    );
+    for mesh in &scene.meshes {
+        let triangles = mesh.indices.len() as u64 / 3;
+        anyhow::ensure!(
+            triangles <= properties.max_primitive_count,
+            "mesh {:?} has {triangles} triangles; {device} builds a BLAS geometry of at most {} \
+             (maxPrimitiveCount)",
+            mesh.name,
+            properties.max_primitive_count
+        );
+    }
+    Ok(())
 }
 
 /// Scratch memory for several builds: one buffer, each region aligned as the device requires.
@@ -465,6 +511,7 @@ pub struct RayTracedScene {
 
 impl RayTracedScene {
     pub fn new(vk: &VulkanContext, gl: &crate::GlContext, scene: &Scene) -> Result<Self> {
+        check_limits(vk, scene)?;
         let mut allocator = allocator(vk)?;
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;

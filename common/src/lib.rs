@@ -14,6 +14,7 @@ pub mod interop;
 pub mod output;
 pub mod raytrace;
 pub mod report;
+pub mod resources;
 pub mod scene;
 pub mod sync;
 pub mod vulkan;
@@ -47,6 +48,7 @@ pub fn run_chapter<A: clap::Parser>(
     show_pictures(chapter, common, &mut report);
     // The report knows nothing of either API (no module cycle): the counts are gathered here.
     report.validation = vulkan::validation_counts();
+    report.resources = resources::list();
     report.validation.gl_errors = gl::gl_error_count();
     report.finish(common.json)
 }

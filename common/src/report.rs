@@ -10,6 +10,8 @@ pub struct Report {
     pub chapter: String,
     pub vulkan: Option<VulkanReport>,
     pub gl: Option<GlReport>,
+    /// What the chapter created on the GPU, by kind (`common::resources`), beside the extensions.
+    pub resources: Vec<crate::resources::Created>,
     /// Do GL and Vulkan run on the same device and driver? `None` when the chapter uses no GL.
     pub uuids_match: Option<bool>,
     /// How the two APIs take turns: "semaphores", "host", or `None` when they never share work.
@@ -70,6 +72,7 @@ impl Report {
             chapter: chapter.to_owned(),
             vulkan: None,
             gl: None,
+            resources: Vec::new(),
             uuids_match: None,
             sync: None,
             images: Vec::new(),

@@ -71,6 +71,8 @@ impl Sync {
     /// GL has finished with `textures`; Vulkan may start. `layouts` are the Vulkan layouts
     /// (`common::gl::layout`) Vulkan's first barrier will find the textures in.
     pub fn gl_release(&self, gl: &GlContext, textures: &[glow::Texture], layouts: &[u32]) {
+        // GL reads one layout per texture from the pointer: a shorter slice would be read past.
+        assert_eq!(textures.len(), layouts.len(), "one layout per texture");
         match self {
             Sync::Semaphores { gl_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -123,6 +125,7 @@ impl Sync {
         textures: &[glow::Texture],
         layouts: &[u32],
     ) -> Result<()> {
+        assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
         match self {
             Sync::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -177,6 +180,7 @@ impl SharedSemaphore {
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
+        crate::resources::created("vk_semaphore_exportable", 0);
         let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
         let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
         let fd = match unsafe { loader.get_semaphore_fd(&get) } {
