@@ -64,6 +64,10 @@ pub struct Row {
     /// standard errors from 0.
     pub mean_error: f64,
     pub standard_error: f64,
+    /// What independent random directions would give on average, sqrt(mean(v (1 − v)) / N) for
+    /// N rays and exact visibility v (cases with an exact answer): what the R2 sequence buys.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub independent_rmse: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -84,7 +88,7 @@ fn main() -> ExitCode {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
-    report.finish(args.json)
+    common::finish(report, args.json)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
@@ -220,7 +224,12 @@ fn measure(
     for &spp in spps {
         for &frames in frame_counts {
             let (gpu_ms, ao) = run(spp, frames)?;
-            rows.push(errors(spp, frames, gpu_ms, &ao, &reference));
+            let mut row = errors(spp, frames, gpu_ms, &ao, &reference);
+            if case.exact.is_some() {
+                let variance = reference.iter().flatten().map(|v| v * (1.0 - v)).sum::<f64>() / pixels as f64;
+                row.independent_rmse = Some((variance / (spp * frames) as f64).sqrt());
+            }
+            rows.push(row);
         }
     }
     if !quick {
@@ -250,6 +259,7 @@ fn errors(spp: u32, frames: u32, gpu_ms: f64, ao: &[f32], reference: &[Option<f6
         max_abs: differences.iter().fold(0.0, |m, d| m.max(d.abs())),
         mean_error: mean,
         standard_error: (variance / n).sqrt(),
+        independent_rmse: None,
     }
 }
 

@@ -13,8 +13,8 @@ pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
         "scene,reference,spp,frames,rays_per_pixel,gpu_ms,rmse,max_abs,mean_error,standard_error\n",
     );
     let mut table = format!("Measured on {device}.\n\n");
-    table.push_str("| scene | reference | rays/px/frame | frames | rays/px | GPU ms | RMSE | max abs |\n");
-    table.push_str("|---|---|---:|---:|---:|---:|---:|---:|\n");
+    table.push_str("| scene | reference | rays/px/frame | frames | rays/px | GPU ms | RMSE | max abs | RMSE, independent rays |\n");
+    table.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for case in cases {
         for r in &case.rows {
             let rays = r.spp * r.frames;
@@ -33,8 +33,15 @@ pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
             )?;
             writeln!(
                 table,
-                "| {} | {} | {} | {} | {rays} | {:.3} | {:.4} | {:.3} |",
-                case.scene, case.reference, r.spp, r.frames, r.gpu_ms, r.rmse, r.max_abs
+                "| {} | {} | {} | {} | {rays} | {:.3} | {:.4} | {:.3} | {} |",
+                case.scene,
+                case.reference,
+                r.spp,
+                r.frames,
+                r.gpu_ms,
+                r.rmse,
+                r.max_abs,
+                r.independent_rmse.map_or("".into(), |e| format!("{e:.4}"))
             )?;
         }
     }
@@ -64,7 +71,13 @@ fn plot(path: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.5..e1 * 1.5).log_scale())?;
-    chart.configure_mesh().x_desc("GPU time, ms").y_desc("RMSE of visibility").draw()?;
+    chart
+        .configure_mesh()
+        .x_desc("GPU time, ms (thicker: more rays per frame)")
+        .y_desc("RMSE of visibility")
+        .x_label_formatter(&|v| format!("{v}"))
+        .y_label_formatter(&|v| format!("{v:.3}"))
+        .draw()?;
     let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
     for (i, case) in cases.iter().enumerate() {
         let colour = colours[i % colours.len()];

@@ -46,11 +46,18 @@ pub fn run_chapter<A: clap::Parser>(
         return ExitCode::from(2);
     }
     show_pictures(chapter, common, &mut report);
-    // The report knows nothing of either API (no module cycle): the counts are gathered here.
+    finish(report, common.json)
+}
+
+/// Fills in what the run left behind (the validation layer's and GL's error counts, the
+/// resources created), prints the report and decides the exit code. The report knows nothing
+/// of either API (no module cycle): the counts are gathered here.
+pub fn finish(mut report: Report, json: bool) -> ExitCode {
     report.validation = vulkan::validation_counts();
     report.resources = resources::list();
     report.validation.gl_errors = gl::gl_error_count();
-    report.finish(common.json)
+    report.resources = resources::list();
+    report.finish(json)
 }
 
 /// A chapter that computed its pictures headless shows them in a window when there is a
