@@ -56,7 +56,6 @@ pub fn finish(mut report: Report, json: bool) -> ExitCode {
     report.validation = vulkan::validation_counts();
     report.resources = resources::list();
     report.validation.gl_errors = gl::gl_error_count();
-    report.resources = resources::list();
     report.finish(json)
 }
 
