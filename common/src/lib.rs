@@ -54,8 +54,8 @@ pub fn run_chapter<A: clap::Parser>(
 /// of either API (no module cycle): the counts are gathered here.
 pub fn finish(mut report: Report, json: bool) -> ExitCode {
     report.validation = vulkan::validation_counts();
-    report.validation.gl_errors = gl::gl_error_count();
     report.resources = resources::list();
+    report.validation.gl_errors = gl::gl_error_count();
     report.finish(json)
 }
 
