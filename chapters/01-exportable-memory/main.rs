@@ -134,6 +134,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .usage(buffer_usage)
         .push_next(&mut buffer_external);
     let buffer = unsafe { ctx.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
+    common::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
 
     // The image is made the same way, with ExternalMemoryImageCreateInfo (see exportable.rs).
     let extent = vk::Extent2D { width: size.width, height: size.height };

@@ -72,6 +72,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
         .push_next(&mut external);
     let buffer = unsafe { vk.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
+    common::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
     let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
     let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;

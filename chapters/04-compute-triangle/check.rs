@@ -1,8 +1,69 @@
 //! Chapter 04's checks: what the frame should show, computed on the CPU.
 
 use crate::{CLEAR, Triangle};
+use anyhow::Result;
 use ash::vk;
+use common::commands::median_p95;
+use common::{Report, open_fd_count};
 use std::f32::consts::TAU;
+
+/// What the frames showed and how long they took, gathered frame by frame for the report.
+#[derive(Default)]
+pub struct Checks {
+    centre_lit: Option<bool>,
+    shows_image: Option<bool>,
+    first_seen: Option<Vec<u8>>,
+    last_seen: Option<Vec<u8>>,
+    /// GPU time of each frame's dispatch, and CPU time of each whole frame, in ms.
+    pub gpu_ms: Vec<f64>,
+    pub frame_ms: Vec<f64>,
+    /// Open fds once a whole cycle of `--resize-every` sizes has run (back at full size).
+    pub fds_after_cycle: Option<usize>,
+}
+
+impl Checks {
+    /// Checks one read-back frame: the triangle covers the centre and shows the computed image.
+    pub fn frame(
+        &mut self,
+        pixels: Vec<u8>,
+        (width, height): (u32, u32),
+        triangle: &Triangle,
+        image: vk::Extent2D,
+        time: f32,
+    ) {
+        let lit = is_lit(pixel(&pixels, width, height, [0.0, 0.0]));
+        let shows = shows_compute_image(&pixels, width, height, triangle, image, time);
+        self.centre_lit = Some(self.centre_lit.unwrap_or(true) && lit);
+        self.shows_image = Some(self.shows_image.unwrap_or(true) && shows);
+        match self.first_seen {
+            None => self.first_seen = Some(pixels),
+            Some(_) => self.last_seen = Some(pixels),
+        }
+    }
+
+    /// The checks, the fd counts across resizes, and the timings, into the report.
+    pub fn report(self, report: &mut Report, resized_every: bool) -> Result<()> {
+        report.check("centre_pixel_inside_triangle", self.centre_lit.unwrap_or(true));
+        report.check("triangle_shows_computed_image", self.shows_image.unwrap_or(true));
+        if let (Some(first), Some(last)) = (&self.first_seen, &self.last_seen) {
+            report.check("frames_differ_over_time", differ(first, last));
+        }
+        if resized_every {
+            let at_end = open_fd_count()?;
+            report.check("no_fd_growth_across_resizes", self.fds_after_cycle == Some(at_end));
+            report.set(
+                "fds",
+                serde_json::json!({ "after_first_cycle": self.fds_after_cycle, "at_end": at_end }),
+            );
+        }
+        for (name, samples) in [("compute_gpu", &self.gpu_ms), ("frame_cpu", &self.frame_ms)] {
+            let (median, p95) = median_p95(samples);
+            report.time_ms(&format!("{name}_median"), median);
+            report.time_ms(&format!("{name}_p95"), p95);
+        }
+        Ok(())
+    }
+}
 
 // ANCHOR: shader_on_cpu
 /// compute_triangle.comp's colour for texel (x, y) of a `size` image at `time`, line by line.
@@ -34,7 +95,7 @@ fn sampled_colour(uv: [f32; 2], size: vk::Extent2D, time: f32) -> [f32; 3] {
 
 /// Does the frame show the computed image on the triangle? At the triangle's centre and halfway
 /// to each corner, the pixel must be what the shader computed at that pixel's texture coordinate.
-pub fn shows_compute_image(
+fn shows_compute_image(
     pixels: &[u8],
     width: u32,
     height: u32,
@@ -78,18 +139,18 @@ fn pixel_at(width: u32, height: u32, p: [f32; 2]) -> (u32, u32) {
     (column.min(width - 1), row.min(height - 1))
 }
 
-pub fn pixel(pixels: &[u8], width: u32, height: u32, p: [f32; 2]) -> [u8; 4] {
+fn pixel(pixels: &[u8], width: u32, height: u32, p: [f32; 2]) -> [u8; 4] {
     let (column, row) = pixel_at(width, height, p);
     let at = (row * width + column) as usize * 4;
     pixels[at..at + 4].try_into().unwrap()
 }
 
-pub fn is_lit(p: [u8; 4]) -> bool {
+fn is_lit(p: [u8; 4]) -> bool {
     CLEAR.iter().zip(p).any(|(c, p)| ((c * 255.0).round() as u8).abs_diff(p) > 12)
 }
 
 /// Two frames differ when at least 1% of their pixels changed visibly.
-pub fn differ(a: &[u8], b: &[u8]) -> bool {
+fn differ(a: &[u8], b: &[u8]) -> bool {
     a.len() != b.len()
         || a.chunks_exact(4)
             .zip(b.chunks_exact(4))

@@ -9,15 +9,18 @@
 //! Run: `cargo run --bin 04-compute-triangle` (a window; `--headless` writes out/04-compute-triangle/*.png).
 
 mod check;
+mod compute;
 
-use anyhow::{Context as _, Result, bail};
+use anyhow::{Result, bail};
 use ash::vk;
-use common::commands::{Commands, Timestamps, first_use, median_p95};
+use check::Checks;
+use common::commands::{Commands, Timestamps};
 use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
-use common::interop::{self, SharedImage, acquire_from_gl, release_to_gl};
+use common::interop::{self, SharedImage};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
 use common::window::{self, Key, NamedKey, Window};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
+use compute::ComputePipeline;
 use glow::HasContext;
 use std::f32::consts::{FRAC_PI_2, TAU};
 use std::ffi::CStr;
@@ -28,21 +31,9 @@ const CHAPTER: &str = "04-compute-triangle";
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 /// Without it the chapter still runs, synchronising on the host.
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
-const COMPUTE_SPIRV: &[u8] = include_bytes!("../../shaders/compute_triangle.comp.spv");
 const VERTEX_SHADER: &str = include_str!("../../shaders/gl/textured_triangle.vert");
 const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/textured_triangle.frag");
 const CLEAR: [f32; 4] = [0.1, 0.1, 0.12, 1.0];
-
-// ANCHOR: interface
-/// The compute shader's push constants (`Push` in compute_triangle.comp).
-#[repr(C)]
-struct Push {
-    time: f32,
-}
-const _: () = assert!(size_of::<Push>() == 4);
-/// `local_size_x` and `local_size_y` in compute_triangle.comp.
-const WORKGROUP: u32 = 16;
-// ANCHOR_END: interface
 
 // ANCHOR: vertices
 /// (x, y, u, v) per vertex, as in chapter 02: a 16-byte stride.
@@ -70,7 +61,8 @@ fn triangle_at(time: f32) -> Triangle {
 struct Args {
     #[command(flatten)]
     common: CommonArgs,
-    /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real time].
+    /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real
+    /// time in a window; 0 headless, where frames may come far faster than 60 a second].
     #[arg(long, value_name = "T")]
     time: Option<f32>,
     /// Every K frames, make the compute image anew at full, half, then quarter size (a leak test).
@@ -163,48 +155,19 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: vertex_buffer
 
     // 3. Build the compute pipeline
-    // ANCHOR: pipeline
-    let device = &vk.device;
-    let compute = vk::ShaderStageFlags::COMPUTE;
-    let bindings = [vk::DescriptorSetLayoutBinding::default()
-        .binding(0) // `binding = 0` in the shader: the image it writes
-        .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
-        .descriptor_count(1)
-        .stage_flags(compute)];
-    let set_layout_info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-    let set_layout = unsafe { device.create_descriptor_set_layout(&set_layout_info, None) }?;
-    let push_range = [vk::PushConstantRange::default().stage_flags(compute).size(size_of::<Push>() as u32)];
-    let set_layouts = [set_layout];
-    let layout_info =
-        vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&push_range);
-    let pipeline_layout = unsafe { device.create_pipeline_layout(&layout_info, None) }?;
-    // read_spv copies the bytes into u32 words: include_bytes! promises no 4-byte alignment.
-    let code = ash::util::read_spv(&mut std::io::Cursor::new(COMPUTE_SPIRV)).context("reading the SPIR-V")?;
-    let module =
-        unsafe { device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None) }?;
-    let stage = vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module).name(c"main");
-    let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(pipeline_layout);
-    let pipeline =
-        unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None) }
-            .map_err(|(_, e)| e)
-            .context("vkCreateComputePipelines")?[0];
-    unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
-    let pool_sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];
-    let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes);
-    let descriptor_pool = unsafe { device.create_descriptor_pool(&pool_info, None) }?;
-    let allocate =
-        vk::DescriptorSetAllocateInfo::default().descriptor_pool(descriptor_pool).set_layouts(&set_layouts);
-    let set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
-    // ANCHOR_END: pipeline
+    let compute = ComputePipeline::new(&vk)?;
 
     // 4. Share the image it writes
     let mut extent = vk::Extent2D { width: size.width, height: size.height };
-    let mut image = share_image(&vk, &gl_context, set, extent)?;
+    let mut image = share_image(&vk, &gl_context, compute.set, extent)?;
     // A new image has never been GL's: there is nothing to hand over yet (step 8).
     let mut image_is_new = true;
+    // '+' stops at the largest image both sides can make.
+    let gl_largest = unsafe { gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as u32;
     let largest = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }
         .limits
-        .max_image_dimension2_d;
+        .max_image_dimension2_d
+        .min(gl_largest);
 
     // 5. Prepare GL's draw
     let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
@@ -224,14 +187,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     let out_dir = args.common.out_dir(CHAPTER);
     let started = Instant::now();
-    let (mut gpu_ms, mut frame_ms) = (Vec::new(), Vec::new());
-    let (mut centre_lit, mut shows_image) = (true, true);
-    let (mut first_seen, mut last_seen) = (None, None);
-    let (mut resizes, mut fds_after_cycle) = (0, None);
+    let mut checks = Checks::default();
+    let mut resizes = 0;
     let mut frame = 0;
     while frames == 0 || frame < frames {
         let frame_started = Instant::now();
-        let time = args.time.map_or(started.elapsed().as_secs_f32(), |t| t + frame as f32 / 60.0);
+        // Headless, frame k shows k/60 s: a fast GPU draws frames microseconds apart, and real
+        // time would barely move between them.
+        let first = args.time.or((!windowed).then_some(0.0));
+        let time = first.map_or(started.elapsed().as_secs_f32(), |t| t + frame as f32 / 60.0);
 
         // 6. Resize the image: on a key, or every K frames
         let mut wanted = extent;
@@ -264,14 +228,27 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // side first, and make the new one. The reference skipped the wait and leaked.
             unsafe {
                 gl.finish();
-                device.wait_for_fences(&[commands.fence], true, u64::MAX)?;
+                vk.device.wait_for_fences(&[commands.fence], true, u64::MAX)?;
             }
-            image.destroy(&vk, &gl_context);
-            image = share_image(&vk, &gl_context, set, wanted)?;
-            (extent, image_is_new, resizes) = (wanted, true, resizes + 1);
-            eprintln!("compute image: {}x{}", extent.width, extent.height);
+            // The new image first: if the device cannot make it, a window keeps the old one
+            // (share_image points the descriptor at an image only once it exists).
+            match share_image(&vk, &gl_context, compute.set, wanted) {
+                Ok(new) => std::mem::replace(&mut image, new).destroy(&vk, &gl_context),
+                Err(error) if window.is_some() => {
+                    eprintln!(
+                        "compute image: cannot make {}x{} ({error:#}); keeping",
+                        wanted.width, wanted.height
+                    );
+                    wanted = extent;
+                }
+                Err(error) => return Err(error),
+            }
+            if wanted != extent {
+                (extent, image_is_new, resizes) = (wanted, true, resizes + 1);
+                eprintln!("compute image: {}x{}", extent.width, extent.height);
+            }
             if resizes == 3 && args.resize_every.is_some() {
-                fds_after_cycle = Some(open_fd_count()?); // back at full size
+                checks.fds_after_cycle = Some(open_fd_count()?); // back at full size
             }
         }
         // ANCHOR_END: resize
@@ -284,7 +261,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if frame > 0
             && let Some(t) = &timestamps
         {
-            gpu_ms.push(t.read_ms(&vk)?);
+            checks.gpu_ms.push(t.read_ms(&vk)?);
         }
         let slot = frame as u64 % SLOTS;
         let triangle = triangle_at(time);
@@ -301,17 +278,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if let Some(t) = &timestamps {
             t.reset(&vk, cb);
         }
-        record_compute(
-            &vk,
-            cb,
-            pipeline,
-            pipeline_layout,
-            set,
-            &image,
-            image_is_new,
-            time,
-            timestamps.as_ref(),
-        );
+        compute.record(&vk, cb, &image, image_is_new, time, timestamps.as_ref());
         // Wait for GL at the compute stage: nothing before the dispatch touches the image.
         let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::COMPUTE_SHADER));
         commands.submit(&vk, wait, sync.vulkan_signals())?;
@@ -345,41 +312,21 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let pixels = output::read_gl_rgba8(gl, width, height);
             let name = if frames == 1 { CHAPTER.to_owned() } else { format!("{CHAPTER}-frame{frame}") };
             output::save_rgba8(report, &out_dir, &name, width, height, &pixels)?;
-            centre_lit &= check::is_lit(check::pixel(&pixels, width, height, [0.0, 0.0]));
-            shows_image &= check::shows_compute_image(&pixels, width, height, &triangle, extent, time);
-            match first_seen {
-                None => first_seen = Some(pixels),
-                Some(_) => last_seen = Some(pixels),
-            }
+            checks.frame(pixels, (width, height), &triangle, extent, time);
         }
         if let Some(window) = &window {
             window.swap_buffers(&gl_context)?;
         }
-        frame_ms.push(ms_since(frame_started));
+        checks.frame_ms.push(ms_since(frame_started));
         frame += 1;
     }
-    unsafe { device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     if frame > 0
         && let Some(t) = &timestamps
     {
-        gpu_ms.push(t.read_ms(&vk)?); // the last frame's
+        checks.gpu_ms.push(t.read_ms(&vk)?); // the last frame's
     }
-
-    report.check("centre_pixel_inside_triangle", centre_lit);
-    report.check("triangle_shows_computed_image", shows_image);
-    if let (Some(first), Some(last)) = (&first_seen, &last_seen) {
-        report.check("frames_differ_over_time", check::differ(first, last));
-    }
-    if args.resize_every.is_some() {
-        let at_end = open_fd_count()?;
-        report.check("no_fd_growth_across_resizes", fds_after_cycle == Some(at_end));
-        report.set("fds", serde_json::json!({ "after_first_cycle": fds_after_cycle, "at_end": at_end }));
-    }
-    for (name, samples) in [("compute_gpu", &gpu_ms), ("frame_cpu", &frame_ms)] {
-        let (median, p95) = median_p95(samples);
-        report.time_ms(&format!("{name}_median"), median);
-        report.time_ms(&format!("{name}_p95"), p95);
-    }
+    checks.report(report, args.resize_every.is_some())?;
     report.set("frames", frame);
     report.set("resizes", resizes);
     report.set("compute_image", [extent.width, extent.height]);
@@ -388,7 +335,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: cleanup
     unsafe {
         gl.finish();
-        device.device_wait_idle()?;
+        vk.device.device_wait_idle()?;
     }
     if let Some(target) = target {
         target.delete(gl);
@@ -398,12 +345,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gl.delete_program(program);
     }
     image.destroy(&vk, &gl_context); // GL's texture and memory object, then view, memory, image
-    unsafe {
-        device.destroy_descriptor_pool(descriptor_pool, None); // and the set allocated from it
-        device.destroy_pipeline(pipeline, None);
-        device.destroy_pipeline_layout(pipeline_layout, None);
-        device.destroy_descriptor_set_layout(set_layout, None);
-    }
+    compute.destroy(&vk); // the descriptor pool (and its set), the pipeline, its layouts
     vertices_gl.delete(&gl_context); // GL's buffer and memory object, then Vulkan's
     vertices_vk.destroy(&vk);
     if let Some(t) = timestamps {
@@ -416,75 +358,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
     Ok(())
 }
-
-// ANCHOR: record_compute
-/// Takes the image from GL, runs the compute shader over it, and gives it back.
-#[allow(clippy::too_many_arguments)]
-fn record_compute(
-    vk: &VulkanContext,
-    cb: vk::CommandBuffer,
-    pipeline: vk::Pipeline,
-    pipeline_layout: vk::PipelineLayout,
-    set: vk::DescriptorSet,
-    image: &SharedImage,
-    image_is_new: bool,
-    time: f32,
-    timestamps: Option<&Timestamps>,
-) {
-    let (compute, none) = (vk::PipelineStageFlags::COMPUTE_SHADER, vk::DependencyFlags::empty());
-    let (read_only, general) = (vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, vk::ImageLayout::GENERAL);
-    let device = &vk.device;
-    let acquire = if image_is_new {
-        // Nothing to take over: UNDEFINED says the old contents may go, and the shader writes
-        // every pixel anyway. No ownership transfer: Vulkan's first use claims it.
-        first_use(image.image, general, vk::AccessFlags::SHADER_WRITE)
-    } else {
-        // Acquire from GL: ownership moves from outside Vulkan (QUEUE_FAMILY_EXTERNAL) to our
-        // queue family, and the image from the layout GL released it in to GENERAL, the layout
-        // imageStore needs. No source access: GL only sampled it, and its semaphore (or glFinish)
-        // already ordered that before us. Destination: the shader's writes.
-        acquire_from_gl(vk, image, read_only, general, vk::AccessFlags::SHADER_WRITE)
-    };
-    let extent = image.extent;
-    let push = Push { time };
-    unsafe {
-        // Source stage COMPUTE_SHADER: the stage the submission waits for GL at, so this barrier
-        // (and its layout change) happens after GL's release. Destination: the dispatch below.
-        device.cmd_pipeline_barrier(cb, compute, compute, none, &[], &[], &[acquire]);
-        if let Some(t) = timestamps {
-            t.start(vk, cb, compute); // after the wait for GL: time the dispatch, not the wait
-        }
-        device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, pipeline);
-        device.cmd_bind_descriptor_sets(cb, vk::PipelineBindPoint::COMPUTE, pipeline_layout, 0, &[set], &[]);
-        device.cmd_push_constants(
-            cb,
-            pipeline_layout,
-            vk::ShaderStageFlags::COMPUTE,
-            0,
-            &push.time.to_ne_bytes(),
-        );
-        // One invocation per pixel, in whole 16x16 workgroups; the shader skips the overhang.
-        device.cmd_dispatch(cb, extent.width.div_ceil(WORKGROUP), extent.height.div_ceil(WORKGROUP), 1);
-        // Release to GL: make the shader's writes available (source COMPUTE_SHADER, SHADER_WRITE),
-        // move to SHADER_READ_ONLY_OPTIMAL, the layout GL's acquire will name, and hand ownership
-        // back outside Vulkan. Destination: nothing more in this submission (BOTTOM_OF_PIPE, no
-        // access); the semaphore signal (or fence) that ends it carries the rest to GL.
-        let release = release_to_gl(vk, image, general, read_only, vk::AccessFlags::SHADER_WRITE);
-        device.cmd_pipeline_barrier(
-            cb,
-            compute,
-            vk::PipelineStageFlags::BOTTOM_OF_PIPE,
-            none,
-            &[],
-            &[],
-            &[release],
-        );
-        if let Some(t) = timestamps {
-            t.end(vk, cb);
-        }
-    }
-}
-// ANCHOR_END: record_compute
 
 fn scale(extent: vk::Extent2D, side: impl Fn(u32) -> u32) -> vk::Extent2D {
     vk::Extent2D { width: side(extent.width), height: side(extent.height) }

@@ -59,6 +59,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    // A size the device cannot hold is refused here, before anything is allocated.
+    common::gbuffer::check_size(&vk, &gl_context, extent)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;

@@ -66,6 +66,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    // A size the device cannot hold is refused here, before anything is allocated.
+    common::gbuffer::check_size(&vk, &gl_context, extent)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
@@ -143,7 +145,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     sync.gl_release(&gl_context, &textures, &[layout::TRANSFER_SRC; 3]);
     let cb = commands.begin(&vk)?;
     unsafe {
-        record_trace(&vk, cb, &gbuffers, &pipeline, &mask, &push, (&hits, &coverage), timestamps.as_ref())
+        let trace = Trace {
+            gbuffers: &gbuffers,
+            pipeline: &pipeline,
+            mask: &mask,
+            push: &push,
+            hits: &hits,
+            coverage: &coverage,
+        };
+        trace.record(&vk, cb, timestamps.as_ref())
     };
     let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
     commands.submit(&vk, wait, sync.vulkan_signals())?;
@@ -227,87 +237,92 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 }
 
 // ANCHOR: record_trace
-/// Take the position G-buffer from GL and copy it out (GL's coverage); trace the rays into the
-/// mask and copy that out; give the G-buffers back.
-#[allow(clippy::too_many_arguments)]
-unsafe fn record_trace(
-    vk: &VulkanContext,
-    cb: vk::CommandBuffer,
-    gbuffers: &GBuffers,
-    pipeline: &RayPipeline,
-    mask: &StorageImage,
-    push: &PrimaryRays,
-    (hits, coverage): (&HostBuffer, &HostBuffer),
-    timestamps: Option<&Timestamps>,
-) {
-    let device = &vk.device;
-    let none = vk::DependencyFlags::empty();
-    let (transfer_src, general) = (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::GENERAL);
-    let (top, transfer, rays) = (
-        vk::PipelineStageFlags::TOP_OF_PIPE,
-        vk::PipelineStageFlags::TRANSFER,
-        vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR,
-    );
-    let acquire: Vec<_> = gbuffers
-        .images
-        .iter()
-        .map(|i| acquire_from_gl(vk, i, transfer_src, transfer_src, vk::AccessFlags::TRANSFER_READ))
-        .collect();
-    let release: Vec<_> = gbuffers
-        .images
-        .iter()
-        .map(|i| {
-            release_to_gl(
-                vk,
-                i,
-                transfer_src,
-                vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
-                vk::AccessFlags::NONE,
-            )
-        })
-        .collect();
-    unsafe {
-        if let Some(t) = timestamps {
-            t.reset(vk, cb);
-        }
-        // From TRANSFER, the stage the submission waits for GL at: the acquire comes after GL's signal.
-        device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &acquire);
-        copy_image_to_buffer(
-            vk,
-            cb,
-            gbuffers.images[0].image,
-            transfer_src,
-            gbuffers.extent,
-            coverage.buffer,
-        );
-        device.cmd_pipeline_barrier(
-            cb,
-            transfer,
-            vk::PipelineStageFlags::BOTTOM_OF_PIPE,
-            none,
-            &[],
-            &[],
-            &release,
-        );
+/// What one frame's trace reads and writes.
+struct Trace<'a> {
+    gbuffers: &'a GBuffers,
+    pipeline: &'a RayPipeline,
+    /// Where the rays write what they hit, and the host buffer it is copied into.
+    mask: &'a StorageImage,
+    hits: &'a HostBuffer,
+    push: &'a PrimaryRays,
+    /// Where GL's position G-buffer is copied: which pixels GL covered.
+    coverage: &'a HostBuffer,
+}
 
-        // The mask starts undefined (its old contents do not matter) and becomes a storage image.
-        let to_storage = first_use(mask.image, general, vk::AccessFlags::SHADER_WRITE);
-        device.cmd_pipeline_barrier(cb, top, rays, none, &[], &[], &[to_storage]);
-        if let Some(t) = timestamps {
-            t.start(vk, cb, rays);
+impl Trace<'_> {
+    /// Take the position G-buffer from GL and copy it out (GL's coverage); trace the rays into the
+    /// mask and copy that out; give the G-buffers back.
+    unsafe fn record(&self, vk: &VulkanContext, cb: vk::CommandBuffer, timestamps: Option<&Timestamps>) {
+        let Trace { gbuffers, pipeline, mask, hits, push, coverage } = *self;
+        let device = &vk.device;
+        let none = vk::DependencyFlags::empty();
+        let (transfer_src, general) = (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::GENERAL);
+        let (top, transfer, rays) = (
+            vk::PipelineStageFlags::TOP_OF_PIPE,
+            vk::PipelineStageFlags::TRANSFER,
+            vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR,
+        );
+        let acquire: Vec<_> = gbuffers
+            .images
+            .iter()
+            .map(|i| acquire_from_gl(vk, i, transfer_src, transfer_src, vk::AccessFlags::TRANSFER_READ))
+            .collect();
+        let release: Vec<_> = gbuffers
+            .images
+            .iter()
+            .map(|i| {
+                release_to_gl(
+                    vk,
+                    i,
+                    transfer_src,
+                    vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+                    vk::AccessFlags::NONE,
+                )
+            })
+            .collect();
+        unsafe {
+            if let Some(t) = timestamps {
+                t.reset(vk, cb);
+            }
+            // From TRANSFER, the stage the submission waits for GL at: the acquire comes after GL's signal.
+            device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &acquire);
+            copy_image_to_buffer(
+                vk,
+                cb,
+                gbuffers.images[0].image,
+                transfer_src,
+                gbuffers.extent,
+                coverage.buffer,
+            );
+            device.cmd_pipeline_barrier(
+                cb,
+                transfer,
+                vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+                none,
+                &[],
+                &[],
+                &release,
+            );
+
+            // The mask starts undefined (its old contents do not matter) and becomes a storage image.
+            let to_storage = first_use(mask.image, general, vk::AccessFlags::SHADER_WRITE);
+            device.cmd_pipeline_barrier(cb, top, rays, none, &[], &[], &[to_storage]);
+            if let Some(t) = timestamps {
+                t.start(vk, cb, rays);
+            }
+            pipeline.trace(vk, cb, push_bytes(push), mask.extent);
+            if let Some(t) = timestamps {
+                t.end(vk, cb);
+            }
+            // The shader's writes finish before the copy reads them.
+            let (layouts, accesses) =
+                ((general, transfer_src), (vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::TRANSFER_READ));
+            let ignored = (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED);
+            let to_copy = image_barrier(mask.image, layouts, accesses, ignored);
+            device.cmd_pipeline_barrier(cb, rays, transfer, none, &[], &[], &[to_copy]);
+            copy_image_to_buffer(vk, cb, mask.image, transfer_src, mask.extent, hits.buffer);
+            transfers_to_host(vk, cb);
         }
-        pipeline.trace(vk, cb, push_bytes(push), mask.extent);
-        if let Some(t) = timestamps {
-            t.end(vk, cb);
-        }
-        // The shader's writes finish before the copy reads them.
-        let (layouts, accesses) =
-            ((general, transfer_src), (vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::TRANSFER_READ));
-        let ignored = (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED);
-        let to_copy = image_barrier(mask.image, layouts, accesses, ignored);
-        device.cmd_pipeline_barrier(cb, rays, transfer, none, &[], &[], &[to_copy]);
-        copy_image_to_buffer(vk, cb, mask.image, transfer_src, mask.extent, hits.buffer);
-        transfers_to_host(vk, cb);
     }
 }
 // ANCHOR_END: record_trace

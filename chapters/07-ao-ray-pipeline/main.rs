@@ -51,6 +51,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    // A size the device cannot hold is refused here, before anything is allocated.
+    common::gbuffer::check_size(&vk, &gl_context, extent)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
@@ -70,16 +72,27 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (mut trace_ms, mut rays) = (0.0, 0u64);
     let mut first_noise = None;
     let mut positions = Vec::new();
+    let nothing_to_trace = common::ao::nothing_to_trace(args.ao.samples, radius);
+    if let Some(reason) = nothing_to_trace {
+        eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
+        report.set("ao_skipped", reason);
+        tracer.fill_unoccluded(&gl_context)?;
+    }
     for frame in 0..args.common.frame_count(false) {
         // ANCHOR: loop
         gbuffers.draw(gl, &scene, &camera);
-        if tracer.accumulated >= args.ao.max_samples {
-            continue; // converged: nothing left to trace (a viewer would just show it)
+        let samples = args.ao.samples.min(args.ao.max_samples.saturating_sub(tracer.accumulated));
+        // Nothing left to add once converged (a viewer would just show it), or nothing to trace.
+        if samples > 0 && nothing_to_trace.is_none() {
+            let params = AoRays { samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+            tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
+            // ANCHOR_END: loop
+            if let Some(t) = &timestamps {
+                // A measurement: wait for this frame's rays to read their GPU time.
+                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+                trace_ms += t.read_ms(&vk)?;
+            }
         }
-        let samples = args.ao.samples.min(args.ao.max_samples - tracer.accumulated);
-        let params = AoRays { samples, accumulated: 0, radius };
-        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
-        // ANCHOR_END: loop
         if frame == 0 {
             // For the checks, once: GL reads the first frame's AO and the positions back (the
             // CPU waits for them). The last frame's AO is read after the loop.
@@ -88,12 +101,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             positions = output::read_texture_f32(gl, gbuffers.textures()[0], extent.width, extent.height, 4);
             first_noise = Some(noise(&ao, &positions, extent.width as usize));
         }
-        if let Some(t) = &timestamps {
-            // A measurement: wait for this frame's rays to read their GPU time.
-            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-            trace_ms += t.read_ms(&vk)?;
+        if nothing_to_trace.is_none() {
+            rays += positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64 * samples as u64;
         }
-        rays += positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64 * samples as u64;
     }
     gl_context.check_error("the frame loop")?;
     let visibility =
@@ -107,6 +117,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
     let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
     report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
+    if nothing_to_trace.is_some() {
+        report.check("untraced_means_visibility_1", visibility.iter().all(|&v| v == 1.0));
+    }
     let last_noise = noise(&visibility, &positions, extent.width as usize);
     if let Some(first) = first_noise.filter(|_| tracer.accumulated > args.ao.samples) {
         eprintln!(
@@ -121,7 +134,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("samples_per_pixel", tracer.accumulated);
     report.set("radius", radius);
     report.set("rays_traced", rays);
-    if timestamps.is_some() {
+    if timestamps.is_some() && rays > 0 {
         report.time_ms("trace_gpu_total", trace_ms);
         report.set("mrays_per_s", ((rays as f64 / (trace_ms / 1e3)) / 1e6 * 10.0).round() / 10.0);
     }
@@ -138,6 +151,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 6. Clean up, newest first
     // ANCHOR: cleanup
+    // Once the GPU is done with the last frame: its pipeline and images must outlive the
+    // commands that use them (GL's read-back only waited for GL).
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }

@@ -20,12 +20,13 @@ use common::raytrace::AoRays;
 use common::scene::{Camera, Scene, SceneArgs};
 use common::sync::Sync;
 use common::window::{Key, NamedKey, Window};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
-use glam::Mat4;
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
+mod check;
 mod overlay;
+use check::LastFrame;
 use overlay::{Composite, Overlays, View};
 
 const CHAPTER: &str = "08-composite";
@@ -55,6 +56,10 @@ struct Args {
     /// The instance whose box is drawn [default: the first tetrahedron, or the first object].
     #[arg(long)]
     select: Option<usize>,
+    /// Start this many times closer to the scene's centre than the framing puts the camera (as
+    /// the mouse wheel does; from about 3000 on, the far plane is over 10^5 times the near one).
+    #[arg(long, default_value_t = 1.0)]
+    zoom: f32,
 }
 
 fn main() -> ExitCode {
@@ -79,6 +84,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Load the scene, and aim the camera at it
     let scene = args.scene.load()?;
     let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    ensure!(
+        args.zoom.is_finite() && (1e-3..=1e6).contains(&args.zoom),
+        "--zoom {}: choose between 0.001 and 1000000",
+        args.zoom
+    );
+    camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
     let radius = args.ao.radius(&scene)?;
     let select = args.select.unwrap_or(if scene.instances.len() > 1 { 1 } else { 0 });
     ensure!(
@@ -109,6 +120,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    // A size the device cannot hold is refused here, before anything is allocated.
+    common::gbuffer::check_size(&vk, &gl_context, vk::Extent2D { width: size.width, height: size.height })?;
     report.set("window", window.is_some());
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
@@ -132,12 +145,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 5. Every frame: input, G-buffers, rays, composite, overlays
     let frame_limit = args.common.frame_count(window.is_some());
     let mut frame = 0;
-    let mut last = None;
+    let mut drew_a_frame = false;
     let (mut new_size, mut resizes, mut fds_after_first_resize) = (None, 0, None);
     // Headless runs measure the trace, waiting for each frame's rays before the next frame: a
     // measurement, not a way to run. A window adds no such wait.
     let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
     let (mut trace_ms, mut traced) = (Vec::new(), 0u64);
+    let mut skipped = None;
     loop {
         // ANCHOR: input
         if let Some(window) = window.as_mut() {
@@ -198,9 +212,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
         gbuffers.draw(gl, &scene, &camera);
-        if tracer.accumulated < args.ao.max_samples {
+        if let Some(reason) = common::ao::nothing_to_trace(settings.samples, settings.radius) {
+            if skipped.replace(reason).is_none() {
+                eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
+            }
+            tracer.fill_unoccluded(&gl_context)?; // once per AO image
+        } else if tracer.accumulated < args.ao.max_samples {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
-            let rays = AoRays { samples, accumulated: 0, radius: settings.radius };
+            let scene_scale = scene.size() / 2.0;
+            let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
             tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
             if let Some(t) = &timestamps {
@@ -218,47 +238,40 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             window.swap_buffers(&gl_context)?;
         }
         frame += 1;
-        last = Some(aspect);
+        drew_a_frame = true;
     }
     if let Some(before) = fds_after_first_resize {
         report.set("resizes", resizes);
         report.check("no_fd_growth_across_resizes", open_fd_count()? == before);
     }
-    if !trace_ms.is_empty() {
-        let (median, p95) = common::commands::median_p95(&trace_ms);
-        report.time_ms("trace_gpu_median", median);
-        report.time_ms("trace_gpu_p95", p95);
-        let total: f64 = trace_ms.iter().sum();
-        // Every pixel launches its rays (background pixels return at once): launched rays.
-        report.set("mrays_per_s_launched", (traced as f64 / (total / 1e3) / 1e6 * 10.0).round() / 10.0);
-    }
+    check::report_trace_times(report, &trace_ms, traced);
     gl_context.check_error("the frame loop")?;
 
     // 6. Check the last frame: the composite against a CPU reference, the overlays' depth test
-    if let Some(aspect) = last {
-        let checks = check_last_frame(
-            gl, &gbuffers, &tracer, &composite, &overlays, &settings, &scene, &camera, aspect,
-        );
-        for (name, ok) in checks? {
+    if drew_a_frame {
+        let last_frame = LastFrame {
+            gl,
+            gbuffers: &gbuffers,
+            tracer: &tracer,
+            composite: &composite,
+            overlays: settings.overlays.then_some(&overlays),
+            camera: &camera,
+            uniforms: settings_uniforms(&settings, &scene, &camera),
+        };
+        for (name, ok) in last_frame.check(&overlays)? {
             report.check(name, ok);
         }
         report.set("samples_per_pixel", tracer.accumulated);
+        if let Some(reason) = skipped {
+            report.set("ao_skipped", reason);
+        }
         report.set("radius", settings.radius);
+        report.set("near_far_ratio", (camera.far / camera.near).round());
         report.set("blur", settings.blur);
         report.set("frames", frame);
         if window.is_none() {
-            write_pictures(
-                report,
-                args,
-                gl,
-                &mut composite,
-                &gbuffers,
-                &tracer,
-                &overlays,
-                &settings,
-                &scene,
-                &camera,
-            )?;
+            let out_dir = args.common.out_dir(CHAPTER);
+            last_frame.write_pictures(report, &out_dir, &args.scene.picture_name(CHAPTER), args.all_views)?;
         }
     }
 
@@ -287,7 +300,7 @@ fn apply_key(key: &Key, s: &mut Settings) {
     match key.as_ref() {
         Key::Character(c) => match c {
             "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
-            "+" | "=" => s.samples = (s.samples * 2).min(256),
+            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
             "-" => s.samples = (s.samples / 2).max(1),
             "]" => s.radius *= 1.25,
             "[" => s.radius /= 1.25,
@@ -311,95 +324,4 @@ fn settings_uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> overlay::U
         bounds: scene.bounds,
         far_depth: camera.far,
     }
-}
-
-/// The checks, on the last frame's pixels as GL holds them (rows bottom-up, as in memory).
-#[allow(clippy::too_many_arguments)]
-fn check_last_frame(
-    gl: &glow::Context,
-    gbuffers: &GBuffers,
-    tracer: &AoTracer,
-    composite: &Composite,
-    overlays: &Overlays,
-    settings: &Settings,
-    scene: &Scene,
-    camera: &Camera,
-    aspect: f32,
-) -> Result<Vec<(&'static str, bool)>> {
-    let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
-    let textures = gbuffers.textures();
-    let positions = output::read_texture_f32(gl, textures[0], w, h, 4);
-    let normals = output::read_texture_f32(gl, textures[1], w, h, 4);
-    let albedo = output::read_texture_f32(gl, textures[2], w, h, 4);
-    let visibility = output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
-    let gbuffer =
-        overlay::Pixels { width: w as usize, height: h as usize, positions, normals, albedo, visibility };
-
-    // The final view without overlays, against the same formula computed on the CPU.
-    let uniforms = overlay::Uniforms { view: View::Final, ..settings_uniforms(settings, scene, camera) };
-    composite.draw(gl, gbuffers, tracer, &uniforms);
-    let plain = composite.read(gl);
-    let mut checks =
-        vec![("composite_matches_cpu_reference", overlay::matches_reference(&gbuffer, &plain, &uniforms))];
-    // Then with the overlays: hidden where the G-buffers say a surface is in front, shown elsewhere.
-    overlays.draw(gl, composite, camera.view_projection(aspect));
-    let with_lines = composite.read(gl);
-    let forward = (camera.target - camera.eye).normalize();
-    let probes = overlays.probe(&gbuffer, camera.view_projection(aspect), camera.eye, forward);
-    if let Some(hidden) = probes.hidden {
-        checks.push((
-            "overlay_hidden_behind_a_surface",
-            !overlay::shows_colour(&with_lines, w as usize, hidden),
-        ));
-    }
-    if let Some(visible) = probes.visible {
-        checks.push((
-            "overlay_shown_where_nothing_is_in_front",
-            overlay::shows_colour(&with_lines, w as usize, visible),
-        ));
-    }
-    Ok(checks)
-}
-
-/// Headless: the final picture, and with `--all-views` every debug view.
-#[allow(clippy::too_many_arguments)]
-fn write_pictures(
-    report: &mut Report,
-    args: &Args,
-    gl: &glow::Context,
-    composite: &mut Composite,
-    gbuffers: &GBuffers,
-    tracer: &AoTracer,
-    overlays: &Overlays,
-    settings: &Settings,
-    scene: &Scene,
-    camera: &Camera,
-) -> Result<()> {
-    let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
-    let prefix = args.scene.picture_name(CHAPTER);
-    let views: Vec<View> = if args.all_views { View::ALL.to_vec() } else { vec![settings.view] };
-    let view_projection: Mat4 = camera.view_projection(w as f32 / h as f32);
-    let ao_mean = {
-        let uniforms = overlay::Uniforms { view: View::Ao, ..settings_uniforms(settings, scene, camera) };
-        composite.draw(gl, gbuffers, tracer, &uniforms);
-        let ao = composite.read(gl);
-        let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
-        let covered: Vec<usize> = (0..(w * h) as usize).filter(|&i| positions[i * 4 + 3] > 0.0).collect();
-        covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64
-    };
-    report.set("ao_mean", (ao_mean * 1e3).round() / 1e3);
-    for view in views {
-        let uniforms = overlay::Uniforms { view, ..settings_uniforms(settings, scene, camera) };
-        composite.draw(gl, gbuffers, tracer, &uniforms);
-        if view == View::Final && settings.overlays {
-            overlays.draw(gl, composite, view_projection);
-        }
-        let name = match view {
-            View::Final => prefix.clone(),
-            other => format!("{prefix}-{}", other.name()),
-        };
-        let upright = output::flip_rows(&composite.read(gl), w, h);
-        output::save_rgba8(report, &args.common.out_dir(CHAPTER), &name, w, h, &upright)?;
-    }
-    Ok(())
 }

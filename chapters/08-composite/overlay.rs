@@ -1,6 +1,7 @@
 //! Chapter 08's GL side: the composite pass, the overlay lines, and the CPU references its
 //! checks compare them with.
 
+use crate::check::Pixels;
 use anyhow::Result;
 use common::ao::AoTracer;
 use common::gbuffer::GBuffers;
@@ -177,6 +178,7 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
         let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+        common::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         gl.named_framebuffer_renderbuffer(
             Some(fb),
@@ -272,6 +274,7 @@ impl Overlays {
         let (vertex_array, buffer) = unsafe {
             let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
             gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
+            common::resources::created("gl_buffer", bytes.len() as u64);
             let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
             gl.vertex_array_vertex_buffer(vao, 0, Some(buffer), 0, size_of::<LineVertex>() as i32);
             for (location, offset) in [(0, 0), (1, 12)] {
@@ -347,65 +350,3 @@ impl Overlays {
         }
     }
 }
-
-/// Does the line's colour appear within a pixel of (x, y)? (A 1-pixel line may be rasterised on
-/// a neighbour of the point's own pixel.)
-pub fn shows_colour(pixels: &[u8], width: usize, (x, y, colour): (usize, usize, [u8; 3])) -> bool {
-    (y - 1..=y + 1).any(|v| {
-        (x - 1..=x + 1).any(|u| {
-            let p = &pixels[(v * width + u) * 4..][..3];
-            p.iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 3)
-        })
-    })
-}
-
-/// The G-buffers and the AO as GL read them back (memory order).
-pub struct Pixels {
-    pub width: usize,
-    pub height: usize,
-    pub positions: Vec<f32>,
-    pub normals: Vec<f32>,
-    pub albedo: Vec<f32>,
-    pub visibility: Vec<f32>,
-}
-
-// ANCHOR: reference
-/// The composite shader's formula on the CPU, at a spread of covered pixels, against what GL
-/// drew (within 2/255 per channel).
-pub fn matches_reference(g: &Pixels, drawn: &[u8], u: &Uniforms) -> bool {
-    let (w, h) = (g.width as i32, g.height as i32);
-    let at = |x: i32, y: i32| (y.clamp(0, h - 1) * w + x.clamp(0, w - 1)) as usize;
-    let covered: Vec<usize> = (0..g.width * g.height).filter(|&i| g.positions[i * 4 + 3] > 0.0).collect();
-    let step = (covered.len() / 64).max(1);
-    let mut compared = 0;
-    for &i in covered.iter().step_by(step) {
-        let (x, y) = ((i % g.width) as i32, (i / g.width) as i32);
-        let (depth, normal) = (g.positions[i * 4 + 3], Vec3::from_slice(&g.normals[i * 4..i * 4 + 3]));
-        let (mut sum, mut count) = (0.0, 0.0);
-        for dy in -u.blur_radius..=u.blur_radius {
-            for dx in -u.blur_radius..=u.blur_radius {
-                let j = at(x + dx, y + dy);
-                let other = g.positions[j * 4 + 3];
-                let same_depth = other > 0.0 && (other - depth).abs() <= u.depth_tolerance * depth;
-                let same_facing =
-                    Vec3::from_slice(&g.normals[j * 4..j * 4 + 3]).dot(normal) >= u.normal_tolerance;
-                if same_depth && same_facing {
-                    sum += g.visibility[j];
-                    count += 1.0;
-                }
-            }
-        }
-        let occlusion = (sum / count).powf(u.power);
-        for c in 0..3 {
-            let expected = (g.albedo[i * 4 + c] * occlusion * 255.0).round();
-            // Pixels right at a tolerance's edge may go either way between GPU and CPU floats.
-            if (drawn[i * 4 + c] as f32 - expected).abs() > 2.0 {
-                eprintln!("composite differs at ({x}, {y}): drew {}, expected {expected}", drawn[i * 4 + c]);
-                return false;
-            }
-        }
-        compared += 1;
-    }
-    compared > 0
-}
-// ANCHOR_END: reference

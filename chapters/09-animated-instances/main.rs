@@ -21,8 +21,12 @@ use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_coun
 use glow::HasContext;
 use std::process::ExitCode;
 
+// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
+#[path = "../08-composite/check.rs"]
+#[allow(dead_code)]
+mod check;
 #[path = "../08-composite/overlay.rs"]
-#[allow(dead_code)] // chapter 08's composite pass; its overlay lines are not used here
+#[allow(dead_code)]
 mod overlay;
 mod ring;
 use overlay::{Composite, Uniforms, View};
@@ -72,6 +76,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (scene, ring) = ring::scene(&args.model, args.count, args.lap, args.time)?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
+    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+        anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
+    }
     report.set("runners", ring.count);
     report.set("ring_radius", (ring.radius as f64 * 1e3).round() / 1e3);
 
@@ -80,6 +87,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::gbuffer::check_size(&vk, &gl_context, extent)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
@@ -125,6 +133,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
     let frames = args.common.frame_count(false);
+    let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
     let (mut update_ms, mut rebuild_ms, mut trace_ms) = (Vec::new(), Vec::new(), Vec::new());
     let (mut tlas_updates, mut tlas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
@@ -147,7 +156,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if args.step > 0.0 {
             tracer.reset();
         }
-        let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius };
         tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
         composite.draw(gl, &gbuffers, &tracer, &uniforms);
         // ANCHOR_END: frame
@@ -208,15 +216,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // restarted, both traces cast exactly the same rays, and must find the same occluders.
     let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
         tracer.reset();
-        tracer.trace(
-            &vk,
-            &gl_context,
-            &sync,
-            commands,
-            &gbuffers,
-            rays_for(args, radius),
-            trace_timer.as_ref(),
-        )?;
+        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
@@ -272,10 +272,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
     Ok(())
-}
-
-fn rays_for(args: &Args, radius: f32) -> AoRays {
-    AoRays { samples: args.ao.samples, accumulated: 0, radius }
 }
 
 // ANCHOR: refresh

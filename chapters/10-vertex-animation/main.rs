@@ -23,8 +23,12 @@ use glow::HasContext;
 use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
+// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
+#[path = "../08-composite/check.rs"]
+#[allow(dead_code)]
+mod check;
 #[path = "../08-composite/overlay.rs"]
-#[allow(dead_code)] // chapter 08's composite pass; its overlay lines are not used here
+#[allow(dead_code)]
 mod overlay;
 mod sphere;
 use overlay::{Composite, Uniforms, View};
@@ -83,6 +87,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let scene = Scene::new(vec![ground_plane(), mesh], instances, vec![0..1, 1..2])?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
+    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+        anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
+    }
     report.set("vertices", count);
     report.set("triangles", scene.triangles());
 
@@ -91,6 +98,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::gbuffer::check_size(&vk, &gl_context, extent)?;
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(sync.name());
     let open_fds_before = open_fd_count()?;
@@ -108,6 +116,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: share
 
     // 3. The structures: the ground's BLAS, the sphere's refittable one, an updatable TLAS
+    accel::check_limits(&vk, &scene)?;
     let mut allocator = accel::allocator(&vk)?;
     let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
     // ANCHOR: structures
@@ -121,7 +130,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let geometry = accel::triangles_geometry(&vk, mesh, &vertices.0, &indices.0);
         let triangles = mesh.indices.len() as u32 / 3;
         let bytes = accel::structure_size(&loader, bottom, flags, &geometry, triangles);
-        let blas = AccelerationStructure::new(&vk, &loader, &mut allocator, bottom, bytes)?;
+        let blas = AccelerationStructure::new(&vk, &loader, &mut allocator, bottom, flags, bytes)?;
         let in_place =
             InPlace::new(&vk, &mut allocator, &loader, blas.handle, bottom, flags, geometry, triangles)?;
         accel::set_blas_address(&buffers.instances.0, blases.len(), blas.address);
@@ -131,7 +140,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let tlas_flags = accel::TlasFlags::UPDATABLE.0;
     let geometry = accel::instances_geometry(&vk, &buffers.instances.0);
     let bytes = accel::structure_size(&loader, top, tlas_flags, &geometry, 2);
-    let tlas = AccelerationStructure::new(&vk, &loader, &mut allocator, top, bytes)?;
+    let tlas = AccelerationStructure::new(&vk, &loader, &mut allocator, top, tlas_flags, bytes)?;
     let tlas_in_place =
         InPlace::new(&vk, &mut allocator, &loader, tlas.handle, top, tlas_flags, geometry, 2)?;
     // ANCHOR_END: structures
@@ -215,7 +224,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if args.step > 0.0 {
             tracer.reset(); // the surface moved: the running mean is of a picture that is gone
         }
-        let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius };
+        let rays =
+            AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
         tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
         composite.draw(gl, &gbuffers, &tracer, &uniforms);
         // ANCHOR_END: frame
@@ -283,7 +293,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: measure
     let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
         tracer.reset();
-        let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius };
+        let rays =
+            AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
         tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;

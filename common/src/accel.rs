@@ -62,6 +62,7 @@ impl DeviceBuffer {
                 return Err(error).with_context(|| format!("allocating {size} bytes for {name}"));
             }
         };
+        crate::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
         let address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
@@ -91,6 +92,7 @@ impl AccelerationStructure {
         loader: &ash::khr::acceleration_structure::Device,
         allocator: &mut Allocator,
         ty: vk::AccelerationStructureTypeKHR,
+        flags: vk::BuildAccelerationStructureFlagsKHR,
         bytes: u64,
     ) -> Result<Self> {
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR;
@@ -110,6 +112,8 @@ impl AccelerationStructure {
                 return Err(error).context("vkCreateAccelerationStructureKHR");
             }
         };
+        // Its bytes are counted with its buffer; the kind says what was built, and how.
+        crate::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
@@ -233,8 +237,14 @@ pub fn build_with(
             .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
             .geometries(std::slice::from_ref(geometry));
         let sizes = build_sizes(&loader, &info, triangles);
-        let blas =
-            AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+        let blas = AccelerationStructure::new(
+            vk,
+            &loader,
+            allocator,
+            info.ty,
+            info.flags,
+            sizes.acceleration_structure_size,
+        )?;
         stats.blas_bytes += blas.bytes;
         scratch_sizes.push(sizes.build_scratch_size);
         builds.push((info.dst_acceleration_structure(blas.handle), triangles));
@@ -289,6 +299,7 @@ pub fn build_with(
             &loader,
             allocator,
             vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+            blas_flags,
             size,
         )?);
         stats.compacted_bytes += size;
@@ -335,8 +346,14 @@ pub fn build_with(
         .geometries(std::slice::from_ref(&geometry));
     let count = scene.instances.len() as u32;
     let sizes = build_sizes(&loader, &info, count);
-    let tlas =
-        AccelerationStructure::new(vk, &loader, allocator, info.ty, sizes.acceleration_structure_size)?;
+    let tlas = AccelerationStructure::new(
+        vk,
+        &loader,
+        allocator,
+        info.ty,
+        info.flags,
+        sizes.acceleration_structure_size,
+    )?;
     let scratch = Scratch::new(vk, allocator, &[sizes.build_scratch_size])?;
     let info = info
         .dst_acceleration_structure(tlas.handle)
@@ -351,7 +368,9 @@ pub fn build_with(
         build_barrier(vk, cb);
         let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(count);
         loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]);
-        build_barrier(vk, cb);
+        // The traces of later submissions read the TLAS: its writes must reach the ray-tracing
+        // stage too (a fence wait makes nothing visible to the device).
+        tlas_built_barrier(vk, cb);
         if let Some(t) = &timestamps {
             t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
         }
@@ -422,9 +441,25 @@ fn build_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
     };
 }
 
+/// The TLAS build's writes, made visible to the ray-tracing shaders that trace against it (in this
+/// or any later submission) and to later builds (an update, chapter 09).
+fn tlas_built_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
+    let barrier = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+        .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
+    let src = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
+    let dst = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR
+        | vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    unsafe {
+        vk.device.cmd_pipeline_barrier(cb, src, dst, vk::DependencyFlags::empty(), &[barrier], &[], &[])
+    };
+}
+
 fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
-    unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")
+    let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
+    crate::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
+    Ok(pool)
 }
 
 /// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.
@@ -433,6 +468,33 @@ pub fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::D
     assert!(offset + 8 <= instances.bytes as usize, "instance {index} is outside the buffer");
     // SAFETY: in bounds (checked above) of the coherent mapping; no GPU work is using it now.
     unsafe { instances.mapped.add(offset).cast::<u64>().write_unaligned(address) };
+}
+
+/// Refuses, before anything is allocated, a scene whose structures the device cannot build:
+/// more instances than a TLAS holds (`maxInstanceCount`), or a mesh with more triangles than a
+/// BLAS geometry holds (`maxPrimitiveCount`).
+pub fn check_limits(vk: &VulkanContext, scene: &Scene) -> Result<()> {
+    let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
+    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    let device = &vk.info.name;
+    let instances = scene.instances.len() as u64;
+    anyhow::ensure!(
+        instances <= properties.max_instance_count,
+        "the scene has {instances} instances; {device} builds a TLAS of at most {} (maxInstanceCount)",
+        properties.max_instance_count
+    );
+    for mesh in &scene.meshes {
+        let triangles = mesh.indices.len() as u64 / 3;
+        anyhow::ensure!(
+            triangles <= properties.max_primitive_count,
+            "mesh {:?} has {triangles} triangles; {device} builds a BLAS geometry of at most {} \
+             (maxPrimitiveCount)",
+            mesh.name,
+            properties.max_primitive_count
+        );
+    }
+    Ok(())
 }
 
 /// Scratch memory for several builds: one buffer, each region aligned as the device requires.
@@ -498,6 +560,7 @@ impl RayTracedScene {
         scene: &Scene,
         tlas_flags: TlasFlags,
     ) -> Result<Self> {
+        check_limits(vk, scene)?;
         let mut allocator = allocator(vk)?;
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;

@@ -10,6 +10,7 @@ use crate::sync::Sync;
 use crate::{GlContext, VulkanContext};
 use anyhow::Result;
 use ash::vk;
+use glow::HasContext;
 use gpu_allocator::vulkan::Allocator;
 
 const RAYGEN: &[u8] = include_bytes!("../../shaders/ao.rgen.spv");
@@ -18,17 +19,18 @@ const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 /// The ambient-occlusion flags (chapters 07 and 08).
 #[derive(clap::Args, Debug, Clone)]
 pub struct AoArgs {
-    /// AO rays per pixel per frame.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=256))]
+    /// AO rays per pixel per frame, 0-256 (0: no rays, visibility 1 everywhere).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(0..=256))]
     pub samples: u32,
-    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long)]
+    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal] (0:
+    /// nothing can occlude, no rays).
+    #[arg(long, allow_negative_numbers = true)]
     pub radius: Option<f32>,
     /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
     pub power: f32,
-    /// Stop accumulating once a pixel has this many rays.
-    #[arg(long, default_value_t = 4096)]
+    /// Stop accumulating once a pixel has this many rays (1 to 2^30).
+    #[arg(long, default_value_t = 4096, value_parser = clap::value_parser!(u32).range(1..=1 << 30))]
     pub max_samples: u32,
 }
 
@@ -38,11 +40,25 @@ impl AoArgs {
     /// one scene only: the bunny is 0.15 units tall, the default scene 20 wide.
     pub fn radius(&self, scene: &crate::scene::Scene) -> Result<f32> {
         let radius = self.radius.unwrap_or(0.05 * scene.size());
-        anyhow::ensure!(radius > 0.0 && radius.is_finite(), "--radius {radius}: must be a positive distance");
+        anyhow::ensure!(
+            radius >= 0.0 && radius.is_finite(),
+            "--radius {radius}: must be a distance of 0 or more, in world units (the scene is {} across)",
+            scene.size()
+        );
         anyhow::ensure!((1.0..=3.0).contains(&self.power), "--power {}: choose between 1 and 3", self.power);
         Ok(radius)
     }
     // ANCHOR_END: radius
+}
+
+/// Why no ray needs tracing, if none does: 0 samples asks for none, and within a radius of 0
+/// nothing can occlude. Visibility is then exactly 1 everywhere, without a ray.
+pub fn nothing_to_trace(samples: u32, radius: f32) -> Option<&'static str> {
+    match (samples, radius) {
+        (0, _) => Some("--samples 0"),
+        (_, 0.0) => Some("--radius 0"),
+        _ => None,
+    }
 }
 
 /// The AO pipeline, the shared R32F image it accumulates into, and how far it has got.
@@ -54,6 +70,8 @@ pub struct AoTracer {
     pub accumulated: u32,
     /// Has GL had the image yet? A new one starts undefined, never handed over.
     gl_has_image: bool,
+    /// Filled with 1 by GL instead of traced (`fill_unoccluded`).
+    unoccluded: bool,
 }
 
 impl AoTracer {
@@ -88,7 +106,7 @@ impl AoTracer {
                 return Err(error);
             }
         };
-        Ok(AoTracer { pipeline, image, accumulated: 0, gl_has_image: false })
+        Ok(AoTracer { pipeline, image, accumulated: 0, gl_has_image: false, unoccluded: false })
     }
 
     // ANCHOR: image
@@ -109,6 +127,33 @@ impl AoTracer {
     }
     // ANCHOR_END: image
 
+    /// Visibility 1 everywhere without tracing (see `AoArgs::nothing_to_trace`): GL clears the AO
+    /// image to 1 through a framebuffer of its own, once per image. The image is still GL's
+    /// (never handed to Vulkan) and stays GL's.
+    pub fn fill_unoccluded(&mut self, gl: &GlContext) -> Result<()> {
+        if self.unoccluded {
+            return Ok(());
+        }
+        anyhow::ensure!(!self.gl_has_image, "fill_unoccluded: the AO image was already traced into");
+        unsafe {
+            let gl = &gl.gl;
+            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+            gl.named_framebuffer_texture(
+                Some(framebuffer),
+                glow::COLOR_ATTACHMENT0,
+                Some(self.image.texture.texture),
+                0,
+            );
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.clear_buffer_f32_slice(glow::COLOR, 0, &[1.0, 0.0, 0.0, 0.0]);
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+            gl.delete_framebuffer(framebuffer);
+        }
+        self.gl_has_image = true;
+        self.unoccluded = true;
+        Ok(())
+    }
+
     /// Starts the running mean again: the camera moved or a parameter changed, so the old mean no
     /// longer describes the picture. The next frame's samples get weight 1.
     pub fn reset(&mut self) {
@@ -122,6 +167,7 @@ impl AoTracer {
         let image = Self::image(vk, gl, &self.pipeline, gbuffers)?;
         std::mem::replace(&mut self.image, image).destroy(vk, gl);
         self.gl_has_image = false;
+        self.unoccluded = false;
         self.accumulated = 0;
         Ok(())
     }

@@ -86,6 +86,7 @@ impl Commands {
     }
 }
 
+// ANCHOR: image_barrier
 /// A barrier over a whole colour image: the layout change `(old, new)`, the accesses to make
 /// available and visible `(src, dst)`, and the queue families ownership moves between
 /// (`QUEUE_FAMILY_IGNORED` twice for none).
@@ -121,6 +122,7 @@ pub fn first_use<'a>(
         (ignored, ignored),
     )
 }
+// ANCHOR_END: image_barrier
 
 /// The whole colour image, one mip level, one layer.
 pub const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
@@ -164,6 +166,7 @@ impl HostBuffer {
                     return Err(error).context("vkAllocateMemory");
                 }
             };
+            crate::resources::created("vk_memory_host", requirements.size);
             vk.device.bind_buffer_memory(buffer, memory, 0)?;
             let mapped = vk.device.map_memory(memory, 0, size, vk::MemoryMapFlags::empty())?.cast();
             Ok(HostBuffer { buffer, memory, mapped, size })
@@ -234,6 +237,9 @@ pub struct Timestamps {
     count: u32,
     /// Nanoseconds per timestamp tick (`VkPhysicalDeviceLimits::timestampPeriod`).
     period_ns: f64,
+    /// The bits of a timestamp that count (`timestampValidBits`); the rest are undefined, and a
+    /// counter this narrow wraps.
+    valid_mask: u64,
 }
 
 impl Timestamps {
@@ -246,13 +252,16 @@ impl Timestamps {
     /// write timestamps (`timestampValidBits` is 0).
     pub fn with_count(vk: &VulkanContext, count: u32) -> Result<Option<Self>> {
         let families = unsafe { vk.instance.get_physical_device_queue_family_properties(vk.physical_device) };
-        if families[vk.queue_family_index as usize].timestamp_valid_bits == 0 {
+        let valid_bits = families[vk.queue_family_index as usize].timestamp_valid_bits;
+        if valid_bits == 0 {
             return Ok(None);
         }
+        let valid_mask = if valid_bits >= 64 { u64::MAX } else { (1u64 << valid_bits) - 1 };
         let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
         let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
-        Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64 }))
+        crate::resources::created("vk_query_pool: timestamps", 0);
+        Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask }))
     }
 
     /// Resets the queries; record before anything else in the command buffer.
@@ -276,7 +285,7 @@ impl Timestamps {
         let mut ticks = [0u64; 2];
         unsafe { vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64) }
             .context("vkGetQueryPoolResults")?;
-        Ok(ticks[1].wrapping_sub(ticks[0]) as f64 * self.period_ns / 1e6)
+        Ok(self.ms(ticks[0], ticks[1]))
     }
 
     /// Records timestamp `index`, written once earlier commands reach `stage`.
@@ -299,7 +308,14 @@ impl Timestamps {
                 .map(|_| ticks[0])
         };
         let (start, end) = (read(from)?, read(to)?);
-        Ok(end.wrapping_sub(start) as f64 * self.period_ns / 1e6)
+        Ok(self.ms(start, end))
+    }
+
+    /// Milliseconds from tick `start` to tick `end`, counting only the valid bits (so a counter
+    /// that wrapped between them still gives the right difference).
+    fn ms(&self, start: u64, end: u64) -> f64 {
+        let ticks = (end & self.valid_mask).wrapping_sub(start & self.valid_mask) & self.valid_mask;
+        ticks as f64 * self.period_ns / 1e6
     }
 
     pub fn destroy(self, vk: &VulkanContext) {
@@ -316,4 +332,21 @@ pub fn median_p95(samples: &[f64]) -> (f64, f64) {
     sorted.sort_by(f64::total_cmp);
     let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
     (at(0.5), at(0.95))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Only `timestampValidBits` count: the bits above are undefined, and a narrow counter wraps.
+    #[test]
+    fn timestamps_count_only_their_valid_bits() {
+        let t =
+            Timestamps { pool: vk::QueryPool::null(), count: 2, period_ns: 1.0, valid_mask: (1 << 36) - 1 };
+        assert_eq!(t.ms(1_000_000, 3_000_000), 2.0);
+        // Garbage above bit 36 is ignored.
+        assert_eq!(t.ms(0xABC0_0000_0000_0000 | 1_000_000, 0x1230_0000_0000_0000 | 3_000_000), 2.0);
+        // The counter wrapped from near 2^36 past 0.
+        assert_eq!(t.ms((1 << 36) - 1_000_000, 1_000_000), 2.0);
+    }
 }

@@ -70,17 +70,22 @@ pub fn allocate(
     if let Some(dedicated_info) = dedicated_info.as_mut() {
         info = info.push_next(dedicated_info);
     }
+    // ANCHOR_END: allocate
+    // ANCHOR: device_address
     // With ray tracing on, buffers may need GPU addresses (acceleration-structure inputs).
     let mut flags = vk::MemoryAllocateFlagsInfo::default().flags(vk::MemoryAllocateFlags::DEVICE_ADDRESS);
     if ctx.device_addresses && !matches!(dedicated, Dedicated::Image(_)) {
         info = info.push_next(&mut flags);
     }
+    // ANCHOR_END: device_address
+    // ANCHOR: allocate_memory
     let memory = unsafe { ctx.device.allocate_memory(&info, None) }
         .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
+    crate::resources::created("vk_memory_exportable", size);
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     Ok(ExportableMemory { memory, size, memory_type_index, property_flags })
 }
-// ANCHOR_END: allocate
+// ANCHOR_END: allocate_memory
 
 // ANCHOR: create_image
 /// A 2D image, one mip level, whose memory may be exported. Every image this tutorial shares
@@ -91,12 +96,50 @@ pub fn create_image(
     usage: vk::ImageUsageFlags,
     extent: vk::Extent2D,
 ) -> Result<vk::Image> {
+    // Ask first (VUID-VkImageCreateInfo-pNext-00990): can the driver export an image like this one,
+    // this large? Chapter 01 asks the same, step by step.
+    let mut external_query = vk::PhysicalDeviceExternalImageFormatInfo::default().handle_type(HANDLE_TYPE);
+    let query = vk::PhysicalDeviceImageFormatInfo2::default()
+        .format(format)
+        .ty(vk::ImageType::TYPE_2D)
+        .tiling(vk::ImageTiling::OPTIMAL)
+        .usage(usage)
+        .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
+        .push_next(&mut external_query);
+    let mut external = vk::ExternalImageFormatProperties::default();
+    let mut properties = vk::ImageFormatProperties2::default().push_next(&mut external);
+    let device = &ctx.info.name;
+    unsafe {
+        ctx.instance.get_physical_device_image_format_properties2(
+            ctx.physical_device,
+            &query,
+            &mut properties,
+        )
+    }
+    .with_context(|| format!("{device} cannot make a {format:?} image with usage {usage:?} to share"))?;
+    let max = properties.image_format_properties.max_extent;
+    let features = external.external_memory_properties.external_memory_features;
+    anyhow::ensure!(
+        features.contains(vk::ExternalMemoryFeatureFlags::EXPORTABLE),
+        "{device} cannot export a {format:?} image with usage {usage:?} as an fd"
+    );
+    anyhow::ensure!(
+        extent.width <= max.width && extent.height <= max.height,
+        "{}x{}: {device} exports {format:?} images of at most {}x{}",
+        extent.width,
+        extent.height,
+        max.width,
+        max.height
+    );
     let mut external = vk::ExternalMemoryImageCreateInfo::default().handle_types(HANDLE_TYPE);
     let info = image_info(format, usage, extent)
         // Some drivers corrupt shared images unless views of other formats are allowed.
         .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
         .push_next(&mut external);
-    unsafe { ctx.device.create_image(&info, None) }.with_context(|| format!("vkCreateImage ({format:?})"))
+    let image = unsafe { ctx.device.create_image(&info, None) }
+        .with_context(|| format!("vkCreateImage ({format:?})"))?;
+    crate::resources::created("vk_image_exportable", 0);
+    Ok(image)
 }
 // ANCHOR_END: create_image
 
@@ -149,10 +192,32 @@ impl ExportedBuffer {
         let bytes = data.len() as u64;
         let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
         let info = vk::BufferCreateInfo::default().size(bytes).usage(usage).push_next(&mut external);
+        // Can the driver export such a buffer, and must it have memory of its own (chapter 01)?
+        let query = vk::PhysicalDeviceExternalBufferInfo::default().usage(usage).handle_type(HANDLE_TYPE);
+        let mut support = vk::ExternalBufferProperties::default();
+        unsafe {
+            ctx.instance.get_physical_device_external_buffer_properties(
+                ctx.physical_device,
+                &query,
+                &mut support,
+            )
+        };
+        let features = support.external_memory_properties.external_memory_features;
+        anyhow::ensure!(
+            features.contains(vk::ExternalMemoryFeatureFlags::EXPORTABLE),
+            "{} cannot export a buffer with usage {usage:?} as an fd",
+            ctx.info.name
+        );
         let buffer = unsafe { ctx.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
+        crate::resources::created("vk_buffer_exportable", 0);
         let requirements = unsafe { ctx.device.get_buffer_memory_requirements(buffer) };
         let host = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-        let memory = allocate(ctx, &requirements, host, Dedicated::No).inspect_err(|_| unsafe {
+        let dedicated = if features.contains(vk::ExternalMemoryFeatureFlags::DEDICATED_ONLY) {
+            Dedicated::Buffer(buffer)
+        } else {
+            Dedicated::No
+        };
+        let memory = allocate(ctx, &requirements, host, dedicated).inspect_err(|_| unsafe {
             ctx.device.destroy_buffer(buffer, None);
         })?;
         let mapped = unsafe {

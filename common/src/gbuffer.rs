@@ -14,12 +14,14 @@ use glow::HasContext;
 pub const GBUFFERS: [(&str, vk::Format, u32, u32); 3] = [
     // World position; w = view depth (0 where nothing was drawn), for chapter 08's filter.
     ("position", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
+    // xyz: the shading normal; w: the triangle's own normal, packed (gbuffer.frag, chapter 07).
     ("normal", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
     ("albedo", vk::Format::R8G8B8A8_UNORM, glow::RGBA8, 4),
 ];
 // ANCHOR_END: gbuffers
 
 const VERTEX_SHADER: &str = include_str!("../../shaders/gl/gbuffer.vert");
+const GEOMETRY_SHADER: &str = include_str!("../../shaders/gl/gbuffer.geom");
 const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/gbuffer.frag");
 
 /// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocated and GL
@@ -89,6 +91,7 @@ impl GBuffers {
         extent: vk::Extent2D,
         usage: vk::ImageUsageFlags,
     ) -> Result<Self> {
+        check_size(vk, gl, extent)?;
         // ANCHOR: images
         let usage = usage | vk::ImageUsageFlags::COLOR_ATTACHMENT; // GL draws into them
         let mut images = Vec::new();
@@ -98,7 +101,7 @@ impl GBuffers {
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
-        let program = crate::gl::program(gl_, VERTEX_SHADER, FRAGMENT_SHADER)?;
+        let program = crate::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, FRAGMENT_SHADER)?;
         let instances = &buffers.instances.1;
         let vertex_arrays = buffers
             .meshes
@@ -165,6 +168,52 @@ impl GBuffers {
     }
 }
 
+/// Refuses a size the device cannot hold, naming the bytes, before anything is allocated: each
+/// side's largest image, the largest device-local memory heap (the G-buffers, GL's depth and the
+/// AO image together), and GL's read-back of one image (`glGetTexImage` writes at most
+/// `i32::MAX` bytes: a GLsizei), which the chapters' checks use.
+pub fn check_size(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> Result<()> {
+    let (width, height) = (extent.width as u64, extent.height as u64);
+    let name = format!("--size {width}x{height}");
+    let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
+    let gl_largest = unsafe { gl.gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as u64;
+    let largest = (limits.max_image_dimension2_d as u64).min(gl_largest);
+    ensure!(
+        width <= largest && height <= largest,
+        "{name}: {} allows images of at most {largest}x{largest} (Vulkan {}, GL {gl_largest})",
+        vk.info.name,
+        limits.max_image_dimension2_d
+    );
+    let per_pixel: u64 = GBUFFERS.iter().map(|g| g.3 as u64).sum::<u64>() + 4 + 4; // + depth, AO
+    let needed = width * height * per_pixel;
+    let heaps = &vk.memory_properties.memory_heaps[..vk.memory_properties.memory_heap_count as usize];
+    let heap = heaps
+        .iter()
+        .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+        .map(|h| h.size)
+        .max()
+        .unwrap_or(0);
+    ensure!(
+        needed <= heap,
+        "{name}: the G-buffers, depth and AO image need {needed} bytes ({:.1} GiB), but the largest \
+         device-local memory heap of {} holds {heap} bytes ({:.1} GiB)",
+        needed as f64 / (1u64 << 30) as f64,
+        vk.info.name,
+        heap as f64 / (1u64 << 30) as f64
+    );
+    let read_back = width * height * 16; // the position G-buffer, RGBA32F
+    ensure!(
+        read_back <= i32::MAX as u64,
+        "{name}: reading the position G-buffer back for the checks takes {read_back} bytes, more than \
+         GL's {} bytes in one call; choose at most {} pixels (e.g. {}x{})",
+        i32::MAX,
+        i32::MAX as u64 / 16,
+        (i32::MAX as f64 / 16.0).sqrt() as u64,
+        (i32::MAX as f64 / 16.0).sqrt() as u64
+    );
+    Ok(())
+}
+
 // ANCHOR: vertex_array
 /// How GL reads a mesh: per-vertex attributes from its vertex buffer (binding 0) and
 /// per-instance ones from the shared instance buffer (binding 1, advancing once per instance).
@@ -211,6 +260,7 @@ unsafe fn framebuffer(
         gl.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
         let (width, height) = (extent.width as i32, extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, width, height);
+        crate::resources::created("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * width as u64 * height as u64);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         let mut draw_buffers = Vec::new();

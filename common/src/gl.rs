@@ -106,6 +106,7 @@ pub struct GlContext {
 }
 
 impl GlContext {
+    // ANCHOR: headless
     /// A headless GL 4.5 core context on the EGL device whose device UUID is Vulkan's, or on the
     /// first EGL device when none matches (the chapter's UUID check then says why that is fatal).
     /// Fails, naming each one, when an extension in `required` is missing.
@@ -167,6 +168,7 @@ impl GlContext {
         let loader = |name: &CStr| display.get_proc_address(name);
         Self::new(PossiblyCurrentContext::Egl(context), &loader, required)
     }
+    // ANCHOR_END: headless
 
     /// Wraps a context that is already current (headless here, or a window's in chapter 04).
     pub fn new(
@@ -334,12 +336,33 @@ fn enable_debug_output(gl: &mut glow::Context) {
 
 /// Compiles and links a program from GLSL sources; a failure carries GL's info log.
 pub fn program(gl: &glow::Context, vertex: &str, fragment: &str) -> Result<glow::Program> {
+    program_from(
+        gl,
+        &[(glow::VERTEX_SHADER, vertex, "vertex"), (glow::FRAGMENT_SHADER, fragment, "fragment")],
+    )
+}
+
+/// As [`program`], with a geometry shader between the two.
+pub fn program_with_geometry(
+    gl: &glow::Context,
+    vertex: &str,
+    geometry: &str,
+    fragment: &str,
+) -> Result<glow::Program> {
+    let stages = [
+        (glow::VERTEX_SHADER, vertex, "vertex"),
+        (glow::GEOMETRY_SHADER, geometry, "geometry"),
+        (glow::FRAGMENT_SHADER, fragment, "fragment"),
+    ];
+    program_from(gl, &stages)
+}
+
+fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow::Program> {
     unsafe {
         let program = gl.create_program().map_err(anyhow::Error::msg)?;
+        crate::resources::created("gl_program", 0);
         let mut shaders = Vec::new();
-        for (kind, source, name) in
-            [(glow::VERTEX_SHADER, vertex, "vertex"), (glow::FRAGMENT_SHADER, fragment, "fragment")]
-        {
+        for &(kind, source, name) in stages {
             let shader = gl.create_shader(kind).map_err(anyhow::Error::msg)?;
             gl.shader_source(shader, source);
             gl.compile_shader(shader);
@@ -382,6 +405,7 @@ impl RenderTarget {
             gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
             gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, width as i32, height as i32);
             gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+            crate::resources::created("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
             let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
             gl.named_framebuffer_renderbuffer(
                 Some(framebuffer),

@@ -31,6 +31,7 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
     let ext = gl.memory_fns()?;
     let mut memory_object = 0;
     unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut memory_object) };
+    crate::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
     if dedicated {
         // Must match how Vulkan allocated it, and must be said before the import.
         let yes = glow::TRUE as i32;
@@ -59,6 +60,7 @@ pub fn import_buffer(
     let memory_object = import_memory(gl, fd, memory.size, false)?;
     let buffer =
         unsafe { gl.gl.create_named_buffer() }.map_err(anyhow::Error::msg).context("glCreateBuffers")?;
+    crate::resources::created("gl_buffer_imported", 0);
     // Like glNamedBufferStorage, but the storage already exists: it is the memory object.
     let ext = gl.memory_fns()?;
     unsafe { (ext.NamedBufferStorageMemEXT)(buffer.0.get(), bytes as isize, memory_object, 0) };
@@ -92,6 +94,7 @@ pub fn share_buffer(
     }
 }
 
+// ANCHOR: import_texture_2d
 /// A GL 2D texture (one mip level) stored in an image's dedicated, exported `memory`.
 /// `internal_format` must be the GL twin of the Vulkan format (GL_RGBA8 for R8G8B8A8_UNORM).
 pub fn import_texture_2d(
@@ -106,6 +109,7 @@ pub fn import_texture_2d(
     let texture = unsafe { gl.gl.create_named_texture(glow::TEXTURE_2D) }
         .map_err(anyhow::Error::msg)
         .context("glCreateTextures")?;
+    crate::resources::created("gl_texture_imported", 0);
     let ext = gl.memory_fns()?;
     unsafe {
         // The Vulkan image was created with VK_IMAGE_TILING_OPTIMAL: the driver's private layout.
@@ -127,6 +131,7 @@ pub fn import_texture_2d(
     }
     Ok(shared)
 }
+// ANCHOR_END: import_texture_2d
 
 impl SharedBuffer {
     /// Deletes the buffer, then the memory object (which releases GL's hold on the memory).

@@ -14,6 +14,7 @@ pub mod interop;
 pub mod output;
 pub mod raytrace;
 pub mod report;
+pub mod resources;
 pub mod scene;
 pub mod sync;
 pub mod vulkan;
@@ -45,7 +46,17 @@ pub fn run_chapter<A: clap::Parser>(
         return ExitCode::from(2);
     }
     show_pictures(chapter, common, &mut report);
-    report.finish(common.json)
+    finish(report, common.json)
+}
+
+/// Fills in what the run left behind (the validation layer's and GL's error counts, the
+/// resources created), prints the report and decides the exit code. The report knows nothing
+/// of either API (no module cycle): the counts are gathered here.
+pub fn finish(mut report: Report, json: bool) -> ExitCode {
+    report.validation = vulkan::validation_counts();
+    report.resources = resources::list();
+    report.validation.gl_errors = gl::gl_error_count();
+    report.finish(json)
 }
 
 /// A chapter that computed its pictures headless shows them in a window when there is a

@@ -8,7 +8,7 @@ use std::path::Path;
 /// Reverses the order of the rows of RGBA8 pixels. GL numbers rows from the bottom and Vulkan
 /// from the top, so an image GL drew, read back by Vulkan, has its bottom row first.
 pub fn flip_rows(pixels: &[u8], width: u32, height: u32) -> Vec<u8> {
-    let row = (width * 4) as usize;
+    let row = width as usize * 4;
     let mut flipped = Vec::with_capacity(pixels.len());
     for y in (0..height as usize).rev() {
         flipped.extend_from_slice(&pixels[y * row..(y + 1) * row]);
@@ -18,7 +18,8 @@ pub fn flip_rows(pixels: &[u8], width: u32, height: u32) -> Vec<u8> {
 
 /// Reads the bound read framebuffer's RGBA8 pixels, top row first (GL's rows start at the bottom).
 pub fn read_gl_rgba8(gl: &glow::Context, width: u32, height: u32) -> Vec<u8> {
-    let mut pixels = vec![0u8; (width * height * 4) as usize];
+    // In usize: a u32 product of a large size would wrap (16384 x 16384 x 4 x 4 is 2^32).
+    let mut pixels = vec![0u8; width as usize * height as usize * 4];
     unsafe {
         gl.pixel_store_i32(glow::PACK_ALIGNMENT, 1);
         gl.read_pixels(
@@ -62,7 +63,9 @@ pub fn read_texture_f32(
     components: u32,
 ) -> Vec<f32> {
     let format = if components == 1 { glow::RED } else { glow::RGBA };
-    let mut bytes = vec![0u8; (width * height * components * 4) as usize];
+    // In usize: a u32 product of a large size would wrap (16384 x 16384 x 4 x 4 is 2^32), and
+    // GL would write gigabytes into an empty buffer. `gbuffer::check_size` bounds what comes here.
+    let mut bytes = vec![0u8; width as usize * height as usize * components as usize * 4];
     unsafe {
         gl.pixel_store_i32(glow::PACK_ALIGNMENT, 4);
         gl.bind_texture(glow::TEXTURE_2D, Some(texture));

@@ -91,6 +91,7 @@ impl RayPipeline {
         };
         unsafe { modules.iter().for_each(|m| device.destroy_shader_module(*m, None)) };
         let pipeline = pipeline.map_err(|(_, e)| e).context("vkCreateRayTracingPipelinesKHR")?[0];
+        crate::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
 
         let (sbt, regions) = shader_binding_table(vk, &loader, allocator, pipeline, groups.len() as u32)?;
@@ -246,6 +247,7 @@ impl StorageImage {
         let allocation = allocator
             .allocate(&description)
             .inspect_err(|_| unsafe { vk.device.destroy_image(image, None) })?;
+        crate::resources::created("vk_image: storage", allocation.size());
         unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)
@@ -314,16 +316,19 @@ mod tests {
 }
 
 // ANCHOR: ao_rays
-/// The push constants of `shaders/ao.rgen` (std430: three 4-byte members, 12 bytes).
+/// The push constants of `shaders/ao.rgen` (std430: four 4-byte members, 16 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct AoRays {
     /// Rays per pixel this frame.
     pub samples: u32,
-    /// Rays per pixel already in the running mean.
+    /// Rays per pixel already in the running mean (filled in by `AoTracer::trace`).
     pub accumulated: u32,
     /// How far an occluder counts, in world units.
     pub radius: f32,
+    /// The largest coordinate of the re-centred scene, half its diagonal: the ray offset scales
+    /// with it (`Scene::size() / 2`).
+    pub scene_scale: f32,
 }
 // ANCHOR_END: ao_rays
 
@@ -336,6 +341,7 @@ mod ao_tests {
         assert_eq!(std::mem::offset_of!(AoRays, samples), 0);
         assert_eq!(std::mem::offset_of!(AoRays, accumulated), 4);
         assert_eq!(std::mem::offset_of!(AoRays, radius), 8);
-        assert_eq!(size_of::<AoRays>(), 12);
+        assert_eq!(std::mem::offset_of!(AoRays, scene_scale), 12);
+        assert_eq!(size_of::<AoRays>(), 16);
     }
 }

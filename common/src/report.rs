@@ -10,6 +10,8 @@ pub struct Report {
     pub chapter: String,
     pub vulkan: Option<VulkanReport>,
     pub gl: Option<GlReport>,
+    /// What the chapter created on the GPU, by kind (`common::resources`), beside the extensions.
+    pub resources: Vec<crate::resources::Created>,
     /// Do GL and Vulkan run on the same device and driver? `None` when the chapter uses no GL.
     pub uuids_match: Option<bool>,
     /// How the two APIs take turns: "semaphores", "host", or `None` when they never share work.
@@ -70,6 +72,7 @@ impl Report {
             chapter: chapter.to_owned(),
             vulkan: None,
             gl: None,
+            resources: Vec::new(),
             uuids_match: None,
             sync: None,
             images: Vec::new(),
@@ -109,10 +112,9 @@ impl Report {
         });
     }
 
-    /// Prints the report and decides the exit code (see [`crate::run_chapter`]).
-    pub fn finish(mut self, json: bool) -> ExitCode {
-        self.validation = crate::vulkan::validation_counts();
-        self.validation.gl_errors = crate::gl::gl_error_count();
+    /// Prints the report and decides the exit code (see [`crate::run_chapter`]), from the checks
+    /// and from `validation`, the layer's and GL's error counts that the caller filled in.
+    pub fn finish(self, json: bool) -> ExitCode {
         let failed: Vec<&str> = self.checks.iter().filter(|(_, ok)| !**ok).map(|(n, _)| n.as_str()).collect();
         let mut ok = true;
         if self.checks.is_empty() {

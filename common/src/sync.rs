@@ -32,6 +32,7 @@ pub enum Sync {
 }
 
 impl Sync {
+    // ANCHOR: sync_new
     /// Semaphores when both sides support them (and `VKGL_HIDE_EXTENSIONS` hides neither), else
     /// the host fallback; says which on stderr.
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Sync> {
@@ -56,6 +57,7 @@ impl Sync {
         eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
         Ok(Sync::Semaphores { gl_done, vulkan_done })
     }
+    // ANCHOR_END: sync_new
 
     /// "semaphores" or "host", for the report.
     pub fn name(&self) -> &'static str {
@@ -69,6 +71,8 @@ impl Sync {
     /// GL has finished with `textures`; Vulkan may start. `layouts` are the Vulkan layouts
     /// (`common::gl::layout`) Vulkan's first barrier will find the textures in.
     pub fn gl_release(&self, gl: &GlContext, textures: &[glow::Texture], layouts: &[u32]) {
+        // GL reads one layout per texture from the pointer: a shorter slice would be read past.
+        assert_eq!(textures.len(), layouts.len(), "one layout per texture");
         match self {
             Sync::Semaphores { gl_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -121,6 +125,7 @@ impl Sync {
         textures: &[glow::Texture],
         layouts: &[u32],
     ) -> Result<()> {
+        assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
         match self {
             Sync::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -175,6 +180,7 @@ impl SharedSemaphore {
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
+        crate::resources::created("vk_semaphore_exportable", 0);
         let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
         let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
         let fd = match unsafe { loader.get_semaphore_fd(&get) } {

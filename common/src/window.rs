@@ -98,6 +98,7 @@ impl Window {
         Ok((Window { event_loop, app }, gl))
     }
 
+    // ANCHOR: poll
     /// Handles what happened since the last call, without blocking: resizes the GL surface to the
     /// window, and returns the keys pressed since.
     pub fn poll(&mut self, gl: &GlContext) -> std::vec::Drain<'_, Key> {
@@ -111,6 +112,7 @@ impl Window {
         }
         self.app.keys.drain(..)
     }
+    // ANCHOR_END: poll
 
     /// Mouse movement with the left button held since the last call (pixels), and wheel lines.
     pub fn take_mouse(&mut self) -> ((f32, f32), f32) {
@@ -236,6 +238,7 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
         unsafe {
             let texture = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
             gl.texture_storage_2d(texture, 1, glow::RGBA8, w as i32, h as i32);
+            crate::resources::created("gl_texture: RGBA8", 4 * w as u64 * h as u64);
             let pixels = glow::PixelUnpackData::Slice(Some(&rows));
             gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
             gl.texture_sub_image_2d(

@@ -16,21 +16,22 @@ layout(location = 5) in uint custom_index_and_mask;
 uniform mat4 view;
 uniform mat4 projection;
 
-out vec3 world_position;
-out vec3 world_normal;
-out float view_depth;
-flat out vec3 albedo;
+// To the geometry stage (gbuffer.geom), which adds each triangle's own normal.
+out vec3 world_position_;
+out vec3 world_normal_;
+out float view_depth_;
+flat out vec3 albedo_;
 
 void main() {
     // GLSL matrices are built from columns: the rows become columns, then transpose.
     mat4 object_to_world = transpose(mat4(row0, row1, row2, vec4(0.0, 0.0, 0.0, 1.0)));
     vec4 world = object_to_world * vec4(position, 1.0);
     // Normals take the inverse transpose, which stays right under non-uniform scale.
-    world_normal = transpose(inverse(mat3(object_to_world))) * normal;
-    world_position = world.xyz;
+    world_normal_ = transpose(inverse(mat3(object_to_world))) * normal;
+    world_position_ = world.xyz;
     vec4 in_view = view * world;
-    view_depth = -in_view.z; // the camera looks down -z in view space
+    view_depth_ = -in_view.z; // the camera looks down -z in view space
     uint c = custom_index_and_mask;
-    albedo = vec3(c & 0xFFu, (c >> 8) & 0xFFu, (c >> 16) & 0xFFu) / 255.0;
+    albedo_ = vec3(c & 0xFFu, (c >> 8) & 0xFFu, (c >> 16) & 0xFFu) / 255.0;
     gl_Position = projection * in_view;
 }

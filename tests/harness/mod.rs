@@ -56,6 +56,11 @@ pub fn run_chapter_with(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
     let mut command = Command::new(bin);
     command.args(["--json", "--out"]).arg(out_dir.path()).args(args);
     pin_software_stack(&mut command);
+    // The validation layer's synchronisation checks too (hazards between commands, barriers
+    // that miss a stage), which are off by default; Debian 12's layer (1.3.239) reads this.
+    if std::env::var_os("VK_LAYER_ENABLES").is_none() {
+        command.env("VK_LAYER_ENABLES", "VK_VALIDATION_FEATURE_ENABLE_SYNCHRONIZATION_VALIDATION_EXT");
+    }
     command.env_remove("DISPLAY").env_remove("WAYLAND_DISPLAY");
     command.envs(env.iter().copied());
     let output = command.output().unwrap_or_else(|e| panic!("could not start {bin}: {e}"));

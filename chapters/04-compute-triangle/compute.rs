@@ -1,0 +1,153 @@
+//! Chapter 04's compute pass: the pipeline that writes the shared image, and one frame's
+//! recording, with the two ownership barriers around the dispatch.
+
+use anyhow::{Context as _, Result};
+use ash::vk;
+use common::VulkanContext;
+use common::commands::{Timestamps, first_use};
+use common::interop::{SharedImage, acquire_from_gl, release_to_gl};
+
+const COMPUTE_SPIRV: &[u8] = include_bytes!("../../shaders/compute_triangle.comp.spv");
+
+// ANCHOR: interface
+/// The compute shader's push constants (`Push` in compute_triangle.comp).
+#[repr(C)]
+struct Push {
+    time: f32,
+}
+const _: () = assert!(size_of::<Push>() == 4);
+/// `local_size_x` and `local_size_y` in compute_triangle.comp.
+const WORKGROUP: u32 = 16;
+// ANCHOR_END: interface
+
+/// The compute pipeline, its layout, and the one descriptor set that points at the shared image.
+pub struct ComputePipeline {
+    set_layout: vk::DescriptorSetLayout,
+    layout: vk::PipelineLayout,
+    pipeline: vk::Pipeline,
+    descriptor_pool: vk::DescriptorPool,
+    /// Written by `share_image` whenever the image is made (anew).
+    pub set: vk::DescriptorSet,
+}
+
+impl ComputePipeline {
+    pub fn new(vk: &VulkanContext) -> Result<Self> {
+        // ANCHOR: pipeline
+        let device = &vk.device;
+        let compute = vk::ShaderStageFlags::COMPUTE;
+        let bindings = [vk::DescriptorSetLayoutBinding::default()
+            .binding(0) // `binding = 0` in the shader: the image it writes
+            .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
+            .descriptor_count(1)
+            .stage_flags(compute)];
+        let set_layout_info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+        let set_layout = unsafe { device.create_descriptor_set_layout(&set_layout_info, None) }?;
+        let push_range =
+            [vk::PushConstantRange::default().stage_flags(compute).size(size_of::<Push>() as u32)];
+        let set_layouts = [set_layout];
+        let layout_info = vk::PipelineLayoutCreateInfo::default()
+            .set_layouts(&set_layouts)
+            .push_constant_ranges(&push_range);
+        let layout = unsafe { device.create_pipeline_layout(&layout_info, None) }?;
+        // read_spv copies the bytes into u32 words: include_bytes! promises no 4-byte alignment.
+        let code =
+            ash::util::read_spv(&mut std::io::Cursor::new(COMPUTE_SPIRV)).context("reading the SPIR-V")?;
+        let module =
+            unsafe { device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None) }?;
+        let stage = vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module).name(c"main");
+        let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
+        let pipeline =
+            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None) }
+                .map_err(|(_, e)| e)
+                .context("vkCreateComputePipelines")?[0];
+        common::resources::created("vk_pipeline: compute", 0); // for the report's list of resources
+        unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
+        let pool_sizes =
+            [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];
+        let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes);
+        let descriptor_pool = unsafe { device.create_descriptor_pool(&pool_info, None) }?;
+        let allocate = vk::DescriptorSetAllocateInfo::default()
+            .descriptor_pool(descriptor_pool)
+            .set_layouts(&set_layouts);
+        let set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
+        // ANCHOR_END: pipeline
+        Ok(ComputePipeline { set_layout, layout, pipeline, descriptor_pool, set })
+    }
+
+    // ANCHOR: record_compute
+    /// Takes the image from GL (or, when it is new, claims it), runs the compute shader over it at
+    /// `time`, and gives it back to GL.
+    pub fn record(
+        &self,
+        vk: &VulkanContext,
+        cb: vk::CommandBuffer,
+        image: &SharedImage,
+        image_is_new: bool,
+        time: f32,
+        timestamps: Option<&Timestamps>,
+    ) {
+        let (compute, none) = (vk::PipelineStageFlags::COMPUTE_SHADER, vk::DependencyFlags::empty());
+        let (read_only, general) = (vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, vk::ImageLayout::GENERAL);
+        let device = &vk.device;
+        let acquire = if image_is_new {
+            // Nothing to take over: UNDEFINED says the old contents may go, and the shader writes
+            // every pixel anyway. No ownership transfer: Vulkan's first use claims it.
+            first_use(image.image, general, vk::AccessFlags::SHADER_WRITE)
+        } else {
+            // Acquire from GL: ownership moves from outside Vulkan (QUEUE_FAMILY_EXTERNAL) to our
+            // queue family, and the image from the layout GL released it in to GENERAL, the layout
+            // imageStore needs. No source access: GL only sampled it, and its semaphore (or glFinish)
+            // already ordered that before us. Destination: the shader's writes.
+            acquire_from_gl(vk, image, read_only, general, vk::AccessFlags::SHADER_WRITE)
+        };
+        let extent = image.extent;
+        let push = Push { time };
+        unsafe {
+            // Source stage COMPUTE_SHADER: the stage the submission waits for GL at, so this barrier
+            // (and its layout change) happens after GL's release. Destination: the dispatch below.
+            device.cmd_pipeline_barrier(cb, compute, compute, none, &[], &[], &[acquire]);
+            if let Some(t) = timestamps {
+                t.start(vk, cb, compute); // after the wait for GL: time the dispatch, not the wait
+            }
+            device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            device.cmd_bind_descriptor_sets(
+                cb,
+                vk::PipelineBindPoint::COMPUTE,
+                self.layout,
+                0,
+                &[self.set],
+                &[],
+            );
+            device.cmd_push_constants(
+                cb,
+                self.layout,
+                vk::ShaderStageFlags::COMPUTE,
+                0,
+                &push.time.to_ne_bytes(),
+            );
+            // One invocation per pixel, in whole 16x16 workgroups; the shader skips the overhang.
+            device.cmd_dispatch(cb, extent.width.div_ceil(WORKGROUP), extent.height.div_ceil(WORKGROUP), 1);
+            // Release to GL: make the shader's writes available (source COMPUTE_SHADER, SHADER_WRITE),
+            // move to SHADER_READ_ONLY_OPTIMAL, the layout GL's acquire will name, and hand ownership
+            // back outside Vulkan. Destination: nothing more in this submission (BOTTOM_OF_PIPE, no
+            // access); the semaphore signal (or fence) that ends it carries the rest to GL.
+            let release = release_to_gl(vk, image, general, read_only, vk::AccessFlags::SHADER_WRITE);
+            let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+            device.cmd_pipeline_barrier(cb, compute, bottom, none, &[], &[], &[release]);
+            if let Some(t) = timestamps {
+                t.end(vk, cb);
+            }
+        }
+    }
+    // ANCHOR_END: record_compute
+
+    /// Newest first; the descriptor set goes with its pool. The GPU must be idle.
+    pub fn destroy(self, vk: &VulkanContext) {
+        unsafe {
+            vk.device.destroy_descriptor_pool(self.descriptor_pool, None);
+            vk.device.destroy_pipeline(self.pipeline, None);
+            vk.device.destroy_pipeline_layout(self.layout, None);
+            vk.device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}

@@ -1,0 +1,107 @@
+//! What `convergence` writes besides its report: a CSV of every row, a markdown table, and a
+//! log-log plot of error against GPU time (SVG, with the `plotters` crate).
+
+use crate::CaseReport;
+use anyhow::{Context as _, Result};
+use plotters::prelude::*;
+use std::fmt::Write as _;
+use std::path::Path;
+
+pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut csv = String::from(
+        "scene,reference,spp,frames,rays_per_pixel,gpu_ms,rmse,max_abs,mean_error,standard_error\n",
+    );
+    let mut table = format!("Measured on {device}.\n\n");
+    table.push_str("| scene | reference | rays/px/frame | frames | rays/px | GPU ms | RMSE | max abs | RMSE, independent rays |\n");
+    table.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    for case in cases {
+        for r in &case.rows {
+            let rays = r.spp * r.frames;
+            writeln!(
+                csv,
+                "{},{},{},{},{rays},{:.4},{:.6},{:.6},{:.6},{:.6}",
+                case.scene,
+                case.reference,
+                r.spp,
+                r.frames,
+                r.gpu_ms,
+                r.rmse,
+                r.max_abs,
+                r.mean_error,
+                r.standard_error
+            )?;
+            writeln!(
+                table,
+                "| {} | {} | {} | {} | {rays} | {:.3} | {:.4} | {:.3} | {} |",
+                case.scene,
+                case.reference,
+                r.spp,
+                r.frames,
+                r.gpu_ms,
+                r.rmse,
+                r.max_abs,
+                r.independent_rmse.map_or("".into(), |e| format!("{e:.4}"))
+            )?;
+        }
+    }
+    let path = dir.join("convergence.csv");
+    std::fs::write(&path, csv).with_context(|| format!("writing {}", path.display()))?;
+    let path = dir.join("convergence.md");
+    std::fs::write(&path, table).with_context(|| format!("writing {}", path.display()))?;
+    let path = dir.join("convergence.svg");
+    plot(&path, cases, device).with_context(|| format!("drawing {}", path.display()))?;
+    eprintln!("wrote {}/convergence.{{csv,md,svg}}", dir.display());
+    Ok(())
+}
+
+// ANCHOR: plot
+/// RMSE against GPU time, both axes logarithmic: one line per case and rays per frame, each
+/// point one number of frames (more frames: further right, lower).
+fn plot(path: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
+    let rows = || cases.iter().flat_map(|c| &c.rows).filter(|r| r.rmse > 0.0 && r.gpu_ms > 0.0);
+    let (t0, t1) = rows().fold((f64::MAX, 0f64), |(a, b), r| (a.min(r.gpu_ms), b.max(r.gpu_ms)));
+    let (e0, e1) = rows().fold((f64::MAX, 0f64), |(a, b), r| (a.min(r.rmse), b.max(r.rmse)));
+    anyhow::ensure!(t1 > 0.0 && e1 > 0.0, "nothing to plot (no GPU timestamps?)");
+    let root = SVGBackend::new(path, (720, 480)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(format!("AO error against GPU time ({device})"), ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.5..e1 * 1.5).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("GPU time, ms (thicker: more rays per frame)")
+        .y_desc("RMSE of visibility")
+        .x_label_formatter(&|v| format!("{v}"))
+        .y_label_formatter(&|v| format!("{v:.3}"))
+        .draw()?;
+    let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
+    for (i, case) in cases.iter().enumerate() {
+        let colour = colours[i % colours.len()];
+        let mut spps: Vec<u32> = case.rows.iter().map(|r| r.spp).collect();
+        spps.dedup();
+        for (j, &spp) in spps.iter().enumerate() {
+            let points: Vec<(f64, f64)> = case
+                .rows
+                .iter()
+                .filter(|r| r.spp == spp && r.rmse > 0.0 && r.gpu_ms > 0.0)
+                .map(|r| (r.gpu_ms, r.rmse))
+                .collect();
+            let series =
+                chart.draw_series(LineSeries::new(points.clone(), colour.stroke_width(1 + j as u32)))?;
+            if j == 0 {
+                series
+                    .label(case.scene)
+                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour));
+            }
+            chart.draw_series(points.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
+        }
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+// ANCHOR_END: plot

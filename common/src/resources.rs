@@ -1,0 +1,34 @@
+//! What a chapter created on the GPU, by kind: counted where each object is made, and listed in
+//! the report next to the extensions the chapter enabled. The snapshots pin the list, so a
+//! resource a scene does not need shows up in review (the numerics issue's "leave out what a
+//! scene does not need").
+
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+
+/// (count, bytes) per kind, since the process started.
+static CREATED: Mutex<BTreeMap<String, (u64, u64)>> = Mutex::new(BTreeMap::new());
+
+/// One kind of resource in the report: how many were created, and the bytes they hold (memory
+/// allocations and GL storage; 0 for objects whose memory is counted under another kind).
+#[derive(Serialize, Debug, Clone, PartialEq)]
+pub struct Created {
+    pub kind: String,
+    pub count: u64,
+    pub bytes: u64,
+}
+
+/// Counts one more resource of `kind`, holding `bytes`.
+pub fn created(kind: &str, bytes: u64) {
+    let mut created = CREATED.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let entry = created.entry(kind.to_owned()).or_default();
+    entry.0 += 1;
+    entry.1 += bytes;
+}
+
+/// Everything counted so far, sorted by kind.
+pub fn list() -> Vec<Created> {
+    let created = CREATED.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    created.iter().map(|(kind, &(count, bytes))| Created { kind: kind.clone(), count, bytes }).collect()
+}
