@@ -8,6 +8,13 @@ use harness::{DEFAULT_TOLERANCE, assert_images_match, assert_report_snapshot, ru
 const RAY_TRACING_EXTENSIONS: [&str; 3] =
     ["VK_KHR_acceleration_structure", "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations"];
 
+const RAY_TRACING_EXTENSIONS_WITH_MEMORY: [&str; 4] = [
+    "VK_KHR_external_memory_fd",
+    "VK_KHR_acceleration_structure",
+    "VK_KHR_ray_tracing_pipeline",
+    "VK_KHR_deferred_host_operations",
+];
+
 fn enabled_extensions(report: &serde_json::Value) -> Vec<&str> {
     report["vulkan"]["extensions"].as_array().unwrap().iter().map(|e| e.as_str().unwrap()).collect()
 }
@@ -322,6 +329,71 @@ fn ch08_in_a_window_under_xvfb() {
     assert_eq!(report["window"], true, "{}", run.stderr);
     assert_eq!(report["frames"], 3);
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+}
+
+#[test]
+fn ch09_animated_instances() {
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "4", "--time", "1.5"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_09-animated-instances"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY, "09 needs no more than 06");
+    // Updated in place every frame, never rebuilt (the measured rebuild comes after the frames).
+    assert_eq!(report["tlas_updates"], 3);
+    assert_eq!(report["tlas_rebuilds"], 0);
+    // Things move: the running mean restarts every frame.
+    assert_eq!(report["samples_per_pixel"], 4);
+    assert_eq!(report["images"].as_array().unwrap().len(), 2, "the first and the last frame");
+    assert_report_snapshot("09-animated-instances", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch09_rebuilds_only_when_asked() {
+    let args = ["--size", "64x48", "--frames", "5", "--samples", "2", "--rebuild-every", "2"];
+    let report = run_chapter(env!("CARGO_BIN_EXE_09-animated-instances"), &args, &[]).succeeded().clone();
+    assert_eq!(report["tlas_rebuilds"], 2, "frames 2 and 4");
+    assert_eq!(report["tlas_updates"], 3);
+}
+
+#[test]
+fn ch09_standing_still_accumulates() {
+    let args = ["--size", "64x48", "--frames", "3", "--samples", "2", "--step", "0"];
+    let report = run_chapter(env!("CARGO_BIN_EXE_09-animated-instances"), &args, &[]).succeeded().clone();
+    assert_eq!(report["samples_per_pixel"], 6, "nothing moved: three frames of two rays");
+    assert!(report["checks"].get("frames_differ_over_time").is_none());
+}
+
+#[test]
+fn ch09_missing_model_is_named() {
+    let args = ["--size", "32x32", "--model", "no/such/model.obj"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_09-animated-instances"), &args, &[]);
+    assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+    assert!(run.stderr.contains("no/such/model.obj: cannot open"), "{}", run.stderr);
+    assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
+}
+
+#[test]
+fn ch10_vertex_animation() {
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "4", "--rings", "48", "--time", "0.5"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_10-vertex-animation"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY, "10 needs no more than 06");
+    // Built once, then refitted in place; the TLAS updated after every refit.
+    assert_eq!(report["blas_refits"], 2);
+    assert_eq!(report["blas_rebuilds"], 0);
+    assert_eq!(report["tlas_updates"], 2);
+    assert_eq!(report["checks"]["vertices_match_cpu_reference"], true);
+    assert_report_snapshot("10-vertex-animation", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch10_rebuilds_only_when_asked() {
+    let args =
+        ["--size", "64x48", "--frames", "5", "--samples", "2", "--rings", "16", "--rebuild-every", "2"];
+    let report = run_chapter(env!("CARGO_BIN_EXE_10-vertex-animation"), &args, &[]).succeeded().clone();
+    assert_eq!(report["blas_rebuilds"], 2, "frames 2 and 4");
+    assert_eq!(report["blas_refits"], 2, "frames 1 and 3");
 }
 
 #[test]

@@ -85,7 +85,9 @@ pub struct AccelerationStructure {
 }
 
 impl AccelerationStructure {
-    fn new(
+    /// An acceleration structure of `bytes` bytes (from `vkGetAccelerationStructureBuildSizesKHR`)
+    /// in a buffer of its own, not yet built.
+    pub fn new(
         vk: &VulkanContext,
         loader: &ash::khr::acceleration_structure::Device,
         allocator: &mut Allocator,
@@ -164,6 +166,33 @@ pub fn build(
     commands: &Commands,
     scene: &Scene,
     buffers: &SceneBuffers,
+) -> Result<SceneAccel> {
+    build_with(vk, allocator, commands, scene, buffers, TlasFlags::STATIC)
+}
+
+/// The TLAS's build flags: [`TlasFlags::STATIC`] for a scene that stands still (chapters
+/// 06-08), [`TlasFlags::UPDATABLE`] for instances that move (chapter 09).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TlasFlags(pub vk::BuildAccelerationStructureFlagsKHR);
+
+impl TlasFlags {
+    pub const STATIC: TlasFlags = TlasFlags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE);
+    /// ALLOW_UPDATE: the TLAS may later be updated in place (`MODE_UPDATE`); it can cost some
+    /// trace speed and memory, so the static chapters do without it.
+    pub const UPDATABLE: TlasFlags = TlasFlags(vk::BuildAccelerationStructureFlagsKHR::from_raw(
+        vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE.as_raw()
+            | vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE.as_raw(),
+    ));
+}
+
+/// [`build`], with the TLAS built with `tlas_flags`.
+pub fn build_with(
+    vk: &VulkanContext,
+    allocator: &mut Allocator,
+    commands: &Commands,
+    scene: &Scene,
+    buffers: &SceneBuffers,
+    tlas_flags: TlasFlags,
 ) -> Result<SceneAccel> {
     let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
     let timestamps = Timestamps::with_count(vk, 2)?;
@@ -309,15 +338,10 @@ pub fn build(
     // ANCHOR_END: instances
 
     // ANCHOR: tlas
-    let data = vk::AccelerationStructureGeometryInstancesDataKHR::default()
-        .array_of_pointers(false) // an array of VkAccelerationStructureInstanceKHR, as Instance is
-        .data(vk::DeviceOrHostAddressConstKHR { device_address: instances.device_address(vk) });
-    let geometry = vk::AccelerationStructureGeometryKHR::default()
-        .geometry_type(vk::GeometryTypeKHR::INSTANCES)
-        .geometry(vk::AccelerationStructureGeometryDataKHR { instances: data });
+    let geometry = instances_geometry(vk, instances);
     let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
         .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
-        .flags(vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE)
+        .flags(tlas_flags.0) // PREFER_FAST_TRACE (and ALLOW_UPDATE for chapter 09)
         .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
         .geometries(std::slice::from_ref(&geometry));
     let count = scene.instances.len() as u32;
@@ -360,6 +384,21 @@ pub fn build(
     }
     Ok(SceneAccel { loader, blases, tlas, stats })
 }
+
+// ANCHOR: instances_geometry
+/// The TLAS's one geometry: every instance, read in place from the shared instance buffer.
+pub fn instances_geometry(
+    vk: &VulkanContext,
+    instances: &ExportedBuffer,
+) -> vk::AccelerationStructureGeometryKHR<'static> {
+    let data = vk::AccelerationStructureGeometryInstancesDataKHR::default()
+        .array_of_pointers(false) // an array of VkAccelerationStructureInstanceKHR, as Instance is
+        .data(vk::DeviceOrHostAddressConstKHR { device_address: instances.device_address(vk) });
+    vk::AccelerationStructureGeometryKHR::default()
+        .geometry_type(vk::GeometryTypeKHR::INSTANCES)
+        .geometry(vk::AccelerationStructureGeometryDataKHR { instances: data })
+}
+// ANCHOR_END: instances_geometry
 
 impl SceneAccel {
     /// The TLAS first (it refers to the BLASes), then the BLASes.
@@ -424,7 +463,7 @@ fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::Q
 }
 
 /// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.
-fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::DeviceAddress) {
+pub fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::DeviceAddress) {
     let offset = index * size_of::<Instance>() + std::mem::offset_of!(Instance, blas_address);
     assert!(offset + 8 <= instances.bytes as usize, "instance {index} is outside the buffer");
     // SAFETY: in bounds (checked above) of the coherent mapping; no GPU work is using it now.
@@ -511,13 +550,23 @@ pub struct RayTracedScene {
 
 impl RayTracedScene {
     pub fn new(vk: &VulkanContext, gl: &crate::GlContext, scene: &Scene) -> Result<Self> {
+        Self::with_tlas(vk, gl, scene, TlasFlags::STATIC)
+    }
+
+    /// [`RayTracedScene::new`], with the TLAS built with `tlas_flags`.
+    pub fn with_tlas(
+        vk: &VulkanContext,
+        gl: &crate::GlContext,
+        scene: &Scene,
+        tlas_flags: TlasFlags,
+    ) -> Result<Self> {
         check_limits(vk, scene)?;
         let mut allocator = allocator(vk)?;
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let buffers = SceneBuffers::share(vk, gl, scene, usage)?;
         let commands = Commands::new(vk)?;
-        let structures = build(vk, &mut allocator, &commands, scene, &buffers)?;
+        let structures = build_with(vk, &mut allocator, &commands, scene, &buffers, tlas_flags)?;
         Ok(RayTracedScene { allocator, buffers, commands, structures })
     }
 
@@ -529,4 +578,144 @@ impl RayTracedScene {
         drop(self.allocator);
         self.buffers.destroy(vk, gl);
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Structures that move (chapters 09 and 10)
+
+/// How [`InPlace::record`] refreshes a structure: a full build, or an update of the one there.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Refresh {
+    /// `MODE_BUILD`: a new tree for the geometry as it is now. Slower; traces as fast as a
+    /// first build.
+    Rebuild,
+    /// `MODE_UPDATE` with src = dst: the same tree, its boxes refitted around the geometry as it
+    /// is now. Fast; the tree keeps the shape it had when built, so it traces slower the further
+    /// things have moved since.
+    Update,
+}
+
+// ANCHOR: in_place
+/// What it takes to rebuild or update one acceleration structure in place, every frame, without
+/// allocating: its geometry and flags (which must stay those of its first build) and one
+/// persistent scratch buffer, large enough for either (`buildScratchSize`,
+/// `updateScratchSize`).
+pub struct InPlace {
+    pub handle: vk::AccelerationStructureKHR,
+    ty: vk::AccelerationStructureTypeKHR,
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+    geometry: vk::AccelerationStructureGeometryKHR<'static>,
+    primitives: u32,
+    scratch: Scratch,
+    /// The driver's scratch sizes for an update and for a build, for the report.
+    pub update_scratch_bytes: u64,
+    pub build_scratch_bytes: u64,
+}
+
+impl InPlace {
+    /// For `handle`, built with `flags` from `geometry` with `primitives` triangles or
+    /// instances. Without ALLOW_UPDATE in `flags` it can only be rebuilt.
+    pub fn new(
+        vk: &VulkanContext,
+        allocator: &mut Allocator,
+        loader: &ash::khr::acceleration_structure::Device,
+        handle: vk::AccelerationStructureKHR,
+        ty: vk::AccelerationStructureTypeKHR,
+        flags: vk::BuildAccelerationStructureFlagsKHR,
+        geometry: vk::AccelerationStructureGeometryKHR<'static>,
+        primitives: u32,
+    ) -> Result<Self> {
+        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(ty)
+            .flags(flags)
+            .geometries(std::slice::from_ref(&geometry));
+        let sizes = build_sizes(loader, &info, primitives);
+        // One region, as large as the larger need: an update and a rebuild never run at once.
+        let bytes = sizes.update_scratch_size.max(sizes.build_scratch_size);
+        let scratch = Scratch::new(vk, allocator, &[bytes])?;
+        Ok(InPlace {
+            handle,
+            ty,
+            flags,
+            geometry,
+            primitives,
+            scratch,
+            update_scratch_bytes: sizes.update_scratch_size,
+            build_scratch_bytes: sizes.build_scratch_size,
+        })
+    }
+
+    /// Records the rebuild or the update. The caller records the barriers around it: before,
+    /// whatever wrote the inputs (and last read or wrote the structure or the scratch); after,
+    /// whatever reads the result.
+    pub fn record(
+        &self,
+        loader: &ash::khr::acceleration_structure::Device,
+        cb: vk::CommandBuffer,
+        refresh: Refresh,
+    ) {
+        let updatable = self.flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE);
+        assert!(refresh == Refresh::Rebuild || updatable, "updating a structure built without ALLOW_UPDATE");
+        let (mode, source) = match refresh {
+            Refresh::Rebuild => {
+                (vk::BuildAccelerationStructureModeKHR::BUILD, vk::AccelerationStructureKHR::null())
+            }
+            // src = dst: updated in place, no second structure needed.
+            Refresh::Update => (vk::BuildAccelerationStructureModeKHR::UPDATE, self.handle),
+        };
+        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(self.ty)
+            .flags(self.flags) // an update must use the flags of the build it updates
+            .mode(mode)
+            .src_acceleration_structure(source)
+            .dst_acceleration_structure(self.handle)
+            .geometries(std::slice::from_ref(&self.geometry))
+            .scratch_data(vk::DeviceOrHostAddressKHR { device_address: self.scratch.address(0) });
+        let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(self.primitives);
+        unsafe { loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]) };
+    }
+
+    /// The scratch buffer (the structure itself belongs to its owner).
+    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        self.scratch.destroy(vk, allocator);
+    }
+}
+// ANCHOR_END: in_place
+
+/// One mesh's triangles as a BLAS geometry, read in place from the buffers GL draws (as chapter
+/// 06's `build` does).
+pub fn triangles_geometry(
+    vk: &VulkanContext,
+    mesh: &crate::scene::Mesh,
+    vertices: &ExportedBuffer,
+    indices: &ExportedBuffer,
+) -> vk::AccelerationStructureGeometryKHR<'static> {
+    let triangles = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
+        .vertex_format(vk::Format::R32G32B32_SFLOAT)
+        .vertex_data(vk::DeviceOrHostAddressConstKHR { device_address: vertices.device_address(vk) })
+        .vertex_stride(size_of::<crate::scene::Vertex>() as u64)
+        .max_vertex(mesh.vertices.len() as u32 - 1)
+        .index_type(vk::IndexType::UINT32)
+        .index_data(vk::DeviceOrHostAddressConstKHR { device_address: indices.device_address(vk) });
+    vk::AccelerationStructureGeometryKHR::default()
+        .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
+        .geometry(vk::AccelerationStructureGeometryDataKHR { triangles })
+        .flags(vk::GeometryFlagsKHR::OPAQUE)
+}
+
+/// The size an acceleration structure of `ty`, built with `flags` from `geometry` with
+/// `primitives` triangles or instances, needs.
+pub fn structure_size(
+    loader: &ash::khr::acceleration_structure::Device,
+    ty: vk::AccelerationStructureTypeKHR,
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+    geometry: &vk::AccelerationStructureGeometryKHR,
+    primitives: u32,
+) -> u64 {
+    let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(ty)
+        .flags(flags)
+        .geometries(std::slice::from_ref(geometry));
+    build_sizes(loader, &info, primitives).acceleration_structure_size
 }

@@ -1,0 +1,329 @@
+//! Chapter 09: animated instances.
+//!
+//! A ring of bunnies runs in a circle. Each frame the CPU writes their transforms into the
+//! instance buffer that GL draws from and the TLAS is built from; Vulkan updates the TLAS in
+//! place (no new tree, no allocation), traces ambient occlusion against it, and GL composites.
+//! The report measures what an update costs against a rebuild, and what it costs the rays.
+//!
+//! Run: `cargo run --release --bin 09-animated-instances -- --frames 120`.
+
+use anyhow::{Result, ensure};
+use ash::vk;
+use common::accel::{InPlace, RayTracedScene, Refresh, TlasFlags, instances_geometry};
+use common::ao::{AoArgs, AoTracer};
+use common::commands::{Commands, Timestamps, median_p95};
+use common::gbuffer::GBuffers;
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::raytrace::AoRays;
+use common::scene::Camera;
+use common::sync::Sync;
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use glow::HasContext;
+use std::process::ExitCode;
+
+// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
+#[path = "../08-composite/check.rs"]
+#[allow(dead_code)]
+mod check;
+#[path = "../08-composite/overlay.rs"]
+#[allow(dead_code)]
+mod overlay;
+mod ring;
+use overlay::{Composite, Uniforms, View};
+
+const CHAPTER: &str = "09-animated-instances";
+
+/// Chapter 09: a TLAS updated in place as instances move.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    #[command(flatten)]
+    ao: AoArgs,
+    /// The model that runs in the ring.
+    #[arg(long, default_value = "assets/bunny.obj")]
+    model: std::path::PathBuf,
+    /// How many run in the ring.
+    #[arg(long, default_value_t = 20)]
+    count: u32,
+    /// Seconds per lap.
+    #[arg(long, default_value_t = 10.0)]
+    lap: f32,
+    /// The time of the first frame, in seconds.
+    #[arg(long, default_value_t = 0.0)]
+    time: f32,
+    /// Seconds between frames (0: nothing moves, and the occlusion accumulates).
+    #[arg(long, default_value_t = 1.0 / 30.0)]
+    step: f32,
+    /// Rebuild the TLAS every K frames instead of updating it (0: never).
+    #[arg(long, default_value_t = 0)]
+    rebuild_every: u32,
+    /// Headless: write every frame, not only the first and the last.
+    #[arg(long)]
+    every_frame: bool,
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    ensure!(args.step.is_finite() && args.step >= 0.0, "--step {}: must be 0 or more seconds", args.step);
+    ensure!(args.time.is_finite(), "--time {}: must be a number of seconds", args.time);
+
+    // 1. Make the ring, as it stands at the first frame
+    let (scene, ring) = ring::scene(&args.model, args.count, args.lap, args.time)?;
+    let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
+    let radius = args.ao.radius(&scene)?;
+    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+        anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
+    }
+    report.set("runners", ring.count);
+    report.set("ring_radius", (ring.radius as f64 * 1e3).round() / 1e3);
+
+    // 2. Both contexts, the shared scene, and a TLAS that may be updated
+    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
+    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let gl = &gl_context.gl;
+    common::connect(report, &vk, &gl_context)?;
+    common::gbuffer::check_size(&vk, &gl_context, extent)?;
+    let sync = Sync::new(&vk, &gl_context)?;
+    report.sync = Some(sync.name());
+    let open_fds_before = open_fd_count()?;
+    // ANCHOR: updatable
+    // As chapter 06 built it, plus ALLOW_UPDATE. Then what updating it in place needs: the
+    // geometry it was built from (the shared instance buffer) and one scratch buffer for good.
+    let mut shared = RayTracedScene::with_tlas(&vk, &gl_context, &scene, TlasFlags::UPDATABLE)?;
+    let instances = &shared.buffers.instances.0;
+    let tlas = InPlace::new(
+        &vk,
+        &mut shared.allocator,
+        &shared.structures.loader,
+        shared.structures.tlas.handle,
+        vk::AccelerationStructureTypeKHR::TOP_LEVEL,
+        TlasFlags::UPDATABLE.0,
+        instances_geometry(&vk, instances),
+        scene.instances.len() as u32,
+    )?;
+    // The updates get a command buffer of their own, submitted before each frame's trace.
+    let updates = Commands::new(&vk)?;
+    // ANCHOR_END: updatable
+    report.set("update_scratch_bytes", tlas.update_scratch_bytes);
+    report.set("build_scratch_bytes", tlas.build_scratch_bytes);
+
+    // 3. G-buffers, the AO tracer and chapter 08's composite
+    let storage = vk::ImageUsageFlags::STORAGE;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, storage)?;
+    let tlas_handle = shared.structures.tlas.handle;
+    let mut tracer = AoTracer::new(&vk, &gl_context, &mut shared.allocator, tlas_handle, &gbuffers)?;
+    let composite = Composite::new(gl, &gbuffers)?;
+    let uniforms = Uniforms {
+        blur_radius: 2,
+        depth_tolerance: 0.02,
+        normal_tolerance: 0.9,
+        power: args.ao.power,
+        view: View::Final,
+        bounds: scene.bounds,
+        far_depth: camera.far,
+    };
+    let commands = &shared.commands;
+    let update_timer = Timestamps::new(&vk)?;
+    let trace_timer = Timestamps::new(&vk)?;
+
+    // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
+    let frames = args.common.frame_count(false);
+    let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+    let (mut update_ms, mut rebuild_ms, mut trace_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut tlas_updates, mut tlas_rebuilds) = (0u32, 0u32);
+    let mut pictures = Vec::new();
+    for frame in 0..frames {
+        // ANCHOR: frame
+        let time = args.time + frame as f32 * args.step;
+        // The previous frame's Vulkan work is done: its trace, the TLAS update submitted before
+        // it, and (the trace having waited for it) GL's draw. Nothing reads the instance
+        // buffer now, so the CPU may write it. (The trace's own `begin` would wait here anyway.)
+        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        ring.write(instances, time);
+        let refresh = match args.rebuild_every {
+            k if k > 0 && frame > 0 && frame % k == 0 => Refresh::Rebuild,
+            _ => Refresh::Update,
+        };
+        refresh_tlas(&vk, &updates, &shared.structures.loader, &tlas, refresh, update_timer.as_ref())?;
+        gbuffers.draw(gl, &scene, &camera);
+        // Anything that moved changes the occlusion around it: the running mean is of a
+        // picture that is gone. Start it again (with --step 0 it accumulates).
+        if args.step > 0.0 {
+            tracer.reset();
+        }
+        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        composite.draw(gl, &gbuffers, &tracer, &uniforms);
+        // ANCHOR_END: frame
+        match refresh {
+            Refresh::Update => tlas_updates += 1,
+            Refresh::Rebuild => tlas_rebuilds += 1,
+        }
+        if let (Some(u), Some(t)) = (&update_timer, &trace_timer) {
+            // A measurement: wait for this frame's GPU work to read its times.
+            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+            let list = if refresh == Refresh::Update { &mut update_ms } else { &mut rebuild_ms };
+            list.push(u.read_ms(&vk)?);
+            trace_ms.push(t.read_ms(&vk)?);
+        }
+        if frame == 0 || frame + 1 == frames || args.every_frame {
+            let upright = output::flip_rows(&composite.read(gl), extent.width, extent.height);
+            pictures.push((frame, upright));
+        }
+    }
+    gl_context.check_error("the frame loop")?;
+    report.set("frames", frames);
+    report.set("samples_per_pixel", tracer.accumulated);
+    report.set("tlas_updates", tlas_updates);
+    report.set("tlas_rebuilds", tlas_rebuilds);
+    report.set(
+        "rebuild_policy",
+        match args.rebuild_every {
+            0 => "never: update every frame".to_owned(),
+            k => format!("rebuild every {k} frames, update in between"),
+        },
+    );
+    report.set(
+        "lengths_travelled",
+        (ring.lengths_travelled(args.step * frames as f32) as f64 * 100.0).round() / 100.0,
+    );
+
+    // 5. Check the last frame's occlusion, the motion, and write the frames
+    let (w, h) = (extent.width, extent.height);
+    let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
+    let visibility = output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
+    report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
+    let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
+    report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
+    if frames > 1 && args.step > 0.0 {
+        let (first, last) = (&pictures[0].1, &pictures[pictures.len() - 1].1);
+        let changed = first.chunks_exact(4).zip(last.chunks_exact(4)).filter(|(a, b)| a != b).count();
+        report.set("pixels_changed_first_to_last", changed);
+        report.check("frames_differ_over_time", changed * 100 > (w * h) as usize);
+    }
+    for (frame, pixels) in &pictures {
+        let name = format!("{CHAPTER}-frame-{frame:03}");
+        output::save_rgba8(report, &args.common.out_dir(CHAPTER), &name, w, h, pixels)?;
+    }
+
+    // 6. Measure: the same rays through the updated TLAS, then through a rebuilt one
+    // ANCHOR: measure
+    // The AO shader's rays depend only on the pixel and the sample index: with the running mean
+    // restarted, both traces cast exactly the same rays, and must find the same occluders.
+    let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
+        tracer.reset();
+        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
+        Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
+    };
+    gbuffers.draw(gl, &scene, &camera);
+    let (after_updates, updated_ms) = trace_once(&mut tracer)?;
+    refresh_tlas(&vk, &updates, &shared.structures.loader, &tlas, Refresh::Rebuild, update_timer.as_ref())?;
+    gbuffers.draw(gl, &scene, &camera);
+    let (after_rebuild, rebuilt_ms) = trace_once(&mut tracer)?;
+    let differing = after_updates.iter().zip(&after_rebuild).filter(|(a, b)| a != b).count();
+    report.set("pixels_differing_updated_vs_rebuilt", differing);
+    // A stale or corrupted update would put occluders where the runners were, not where they are.
+    report.check("updated_tlas_traces_like_a_rebuilt_one", differing * 1000 <= (w * h) as usize);
+    // ANCHOR_END: measure
+    if let Some(u) = &update_timer {
+        rebuild_ms.push(u.read_ms(&vk)?);
+    }
+    if !update_ms.is_empty() {
+        report.time_ms("tlas_update_gpu_median", median_p95(&update_ms).0);
+    }
+    if !rebuild_ms.is_empty() {
+        report.time_ms("tlas_rebuild_gpu_median", median_p95(&rebuild_ms).0);
+    }
+    if !trace_ms.is_empty() {
+        let (median, p95) = median_p95(&trace_ms);
+        report.time_ms("trace_gpu_median", median);
+        report.time_ms("trace_gpu_p95", p95);
+    }
+    if let (Some(updated), Some(rebuilt)) = (updated_ms, rebuilt_ms) {
+        report.time_ms("trace_after_updates", updated);
+        report.time_ms("trace_after_rebuild", rebuilt);
+        eprintln!(
+            "trace through the updated TLAS {updated:.3} ms, through a rebuilt one {rebuilt:.3} ms ({:.2}x)",
+            updated / rebuilt
+        );
+    }
+
+    // 7. Clean up, newest first
+    // ANCHOR: cleanup
+    unsafe { gl.finish() };
+    unsafe { vk.device.wait_for_fences(&[commands.fence, updates.fence], true, u64::MAX) }?;
+    for timer in [trace_timer, update_timer].into_iter().flatten() {
+        timer.destroy(&vk);
+    }
+    composite.destroy(gl);
+    tracer.destroy(&vk, &gl_context, &mut shared.allocator);
+    gbuffers.destroy(&vk, &gl_context);
+    updates.destroy(&vk);
+    tlas.destroy(&vk, &mut shared.allocator);
+    shared.destroy(&vk, &gl_context);
+    sync.destroy(&vk, &gl_context);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    Ok(())
+}
+
+// ANCHOR: refresh
+/// Records and submits the TLAS's update (or rebuild), in its own command buffer, ahead of the
+/// frame's trace on the same queue. Queue order and the barriers below order it against the
+/// traces before and after it.
+fn refresh_tlas(
+    vk: &VulkanContext,
+    updates: &Commands,
+    loader: &ash::khr::acceleration_structure::Device,
+    tlas: &InPlace,
+    refresh: Refresh,
+    timer: Option<&Timestamps>,
+) -> Result<()> {
+    let cb = updates.begin(vk)?;
+    let build = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
+    let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    // Before: everything the update reads or overwrites must be ready.
+    // - HOST / HOST_WRITE: the transforms the CPU just wrote, which the build reads as
+    //   SHADER_READ. vkQueueSubmit already makes earlier host writes visible to the work it
+    //   submits; the barrier states the dependency where the reader can see it.
+    // - ACCELERATION_STRUCTURE_BUILD / _WRITE: the previous update wrote the TLAS and the
+    //   scratch, which this one reads (src = dst) and writes again.
+    // - RAY_TRACING_SHADER: the previous frame's rays read the TLAS this overwrites; a
+    //   write-after-read needs only the execution dependency, no access flags.
+    let before = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::HOST_WRITE | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+        .dst_access_mask(
+            vk::AccessFlags::SHADER_READ
+                | vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR
+                | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
+        );
+    // After: the trace, submitted next, reads the TLAS from the ray tracing shaders. (A barrier
+    // orders everything later in submission order on this queue, the next submission included.)
+    let after = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+        .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
+    let none = vk::DependencyFlags::empty();
+    unsafe {
+        let host = vk::PipelineStageFlags::HOST;
+        vk.device.cmd_pipeline_barrier(cb, host | build | rays, build, none, &[before], &[], &[]);
+        if let Some(t) = timer {
+            t.reset(vk, cb);
+            t.start(vk, cb, build);
+        }
+        tlas.record(loader, cb, refresh);
+        if let Some(t) = timer {
+            t.end(vk, cb);
+        }
+        vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[after], &[], &[]);
+    }
+    // No semaphore: the update reads nothing GL writes. It may run while GL draws.
+    updates.submit(vk, None, None)
+}
+// ANCHOR_END: refresh

@@ -1,0 +1,378 @@
+//! Chapter 10: vertex animation.
+//!
+//! A compute shader moves a finely tessellated sphere's vertices, and recomputes their normals,
+//! in place in the vertex buffer GL draws and the BLAS is built from. Vulkan then refits the BLAS
+//! around the moved triangles and updates the TLAS over it; GL rasterises the same buffer, and
+//! the AO rays see the same surface. The report measures what refitting costs the rays.
+//!
+//! Run: `cargo run --release --bin 10-vertex-animation -- --frames 60`.
+
+use anyhow::{Result, ensure};
+use ash::vk;
+use common::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
+use common::ao::{AoArgs, AoTracer};
+use common::commands::{Commands, Timestamps, median_p95};
+use common::gbuffer::{GBuffers, SceneBuffers};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::raytrace::AoRays;
+use common::scene::{Camera, Instance, Scene, ground_plane};
+use common::sync::{SharedSemaphore, Sync};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use glam::{Mat4, Vec3};
+use glow::HasContext;
+use gpu_allocator::MemoryLocation;
+use std::process::ExitCode;
+
+// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
+#[path = "../08-composite/check.rs"]
+#[allow(dead_code)]
+mod check;
+#[path = "../08-composite/overlay.rs"]
+#[allow(dead_code)]
+mod overlay;
+mod sphere;
+use overlay::{Composite, Uniforms, View};
+use sphere::{Animation, Wave, WavePipeline, record_animation};
+
+const CHAPTER: &str = "10-vertex-animation";
+
+/// Chapter 10: a compute shader moves vertices; the BLAS is refitted, the TLAS updated.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    #[command(flatten)]
+    ao: AoArgs,
+    /// Bands of latitude of the sphere (twice as many of longitude).
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(4..=2048))]
+    rings: u32,
+    /// The wave's height, as a fraction of the sphere's radius.
+    #[arg(long, default_value_t = 0.06)]
+    amplitude: f32,
+    /// The time of the first frame, in seconds.
+    #[arg(long, default_value_t = 0.0)]
+    time: f32,
+    /// Seconds between frames (0: nothing moves, and the occlusion accumulates).
+    #[arg(long, default_value_t = 1.0 / 30.0)]
+    step: f32,
+    /// Rebuild the BLAS every K frames instead of refitting it (0: never).
+    #[arg(long, default_value_t = 0)]
+    rebuild_every: u32,
+    /// Headless: write every frame, not only the first and the last.
+    #[arg(long)]
+    every_frame: bool,
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    ensure!(args.step.is_finite() && args.step >= 0.0, "--step {}: must be 0 or more seconds", args.step);
+    ensure!(args.time.is_finite(), "--time {}: must be a number of seconds", args.time);
+    ensure!(
+        (0.0..=0.3).contains(&args.amplitude),
+        "--amplitude {}: choose between 0 and 0.3",
+        args.amplitude
+    );
+
+    // 1. Make the sphere, hovering over the ground
+    let mesh = sphere::uv_sphere(args.rings, 2 * args.rings);
+    let directions: Vec<Vec3> = mesh.vertices.iter().map(|v| Vec3::from(v.normal)).collect();
+    let count = mesh.vertices.len() as u32;
+    let ground = Instance::new(Mat4::from_scale(Vec3::new(0.2, 1.0, 0.2)), [200, 200, 200]);
+    let lift = Mat4::from_translation(Vec3::new(0.0, 1.0 + args.amplitude + 0.1, 0.0));
+    let instances = vec![ground, Instance::new(lift, [90, 150, 230])];
+    let scene = Scene::new(vec![ground_plane(), mesh], instances, vec![0..1, 1..2])?;
+    let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
+    let radius = args.ao.radius(&scene)?;
+    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+        anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
+    }
+    report.set("vertices", count);
+    report.set("triangles", scene.triangles());
+
+    // 2. Both contexts; the scene shared with GL, and writable by compute
+    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
+    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let gl = &gl_context.gl;
+    common::connect(report, &vk, &gl_context)?;
+    common::gbuffer::check_size(&vk, &gl_context, extent)?;
+    let sync = Sync::new(&vk, &gl_context)?;
+    report.sync = Some(sync.name());
+    let open_fds_before = open_fd_count()?;
+    // ANCHOR: share
+    // STORAGE_BUFFER: the compute shader writes the vertices in place.
+    let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
+        | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS
+        | vk::BufferUsageFlags::STORAGE_BUFFER;
+    let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
+    // Signalled by Vulkan once the vertices have moved; GL waits on it before drawing them.
+    let vertices_moved = match &sync {
+        Sync::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
+        Sync::Host => None,
+    };
+    // ANCHOR_END: share
+
+    // 3. The structures: the ground's BLAS, the sphere's refittable one, an updatable TLAS
+    accel::check_limits(&vk, &scene)?;
+    let mut allocator = accel::allocator(&vk)?;
+    let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
+    // ANCHOR: structures
+    use vk::BuildAccelerationStructureFlagsKHR as Flags;
+    let bottom = vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL;
+    // The ground never changes: built once, for tracing. The sphere changes every frame: built
+    // for a fast build (and refit), with ALLOW_UPDATE.
+    let blas_flags = [Flags::PREFER_FAST_TRACE, Flags::PREFER_FAST_BUILD | Flags::ALLOW_UPDATE];
+    let mut blases = Vec::new();
+    for ((mesh, [vertices, indices]), flags) in scene.meshes.iter().zip(&buffers.meshes).zip(blas_flags) {
+        let geometry = accel::triangles_geometry(&vk, mesh, &vertices.0, &indices.0);
+        let triangles = mesh.indices.len() as u32 / 3;
+        let bytes = accel::structure_size(&loader, bottom, flags, &geometry, triangles);
+        let blas = AccelerationStructure::new(&vk, &loader, &mut allocator, bottom, flags, bytes)?;
+        let in_place =
+            InPlace::new(&vk, &mut allocator, &loader, blas.handle, bottom, flags, geometry, triangles)?;
+        accel::set_blas_address(&buffers.instances.0, blases.len(), blas.address);
+        blases.push((blas, in_place));
+    }
+    let top = vk::AccelerationStructureTypeKHR::TOP_LEVEL;
+    let tlas_flags = accel::TlasFlags::UPDATABLE.0;
+    let geometry = accel::instances_geometry(&vk, &buffers.instances.0);
+    let bytes = accel::structure_size(&loader, top, tlas_flags, &geometry, 2);
+    let tlas = AccelerationStructure::new(&vk, &loader, &mut allocator, top, tlas_flags, bytes)?;
+    let tlas_in_place =
+        InPlace::new(&vk, &mut allocator, &loader, tlas.handle, top, tlas_flags, geometry, 2)?;
+    // ANCHOR_END: structures
+
+    // 4. The compute pipeline, the rest directions, the G-buffers, the tracer, the composite
+    let pipeline = WavePipeline::new(&vk)?;
+    let rest_bytes = (directions.len() * size_of::<Vec3>()) as u64;
+    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let mut rest = DeviceBuffer::new(
+        &vk,
+        &mut allocator,
+        "rest directions",
+        rest_bytes,
+        storage,
+        MemoryLocation::CpuToGpu,
+    )?;
+    let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
+    mapped[..rest_bytes as usize].copy_from_slice(common::gbuffer::as_bytes(&directions));
+    let mut wave = Wave {
+        vertices: buffers.meshes[1][0].0.device_address(&vk),
+        directions: rest.address,
+        axis: Vec3::new(0.3, 1.0, 0.2).normalize().into(),
+        count,
+        time: args.time,
+        amplitude: args.amplitude,
+        frequency: 14.0,
+        speed: 4.0,
+    };
+    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let mut tracer = AoTracer::new(&vk, &gl_context, &mut allocator, tlas.handle, &gbuffers)?;
+    let composite = Composite::new(gl, &gbuffers)?;
+    let uniforms = Uniforms {
+        blur_radius: 2,
+        depth_tolerance: 0.02,
+        normal_tolerance: 0.9,
+        power: args.ao.power,
+        view: View::Final,
+        bounds: scene.bounds,
+        far_depth: camera.far,
+    };
+    let (commands, animation) = (Commands::new(&vk)?, Commands::new(&vk)?);
+    let animation_timer = Timestamps::with_count(&vk, 4)?;
+    let trace_timer = Timestamps::new(&vk)?;
+
+    // 5. Every frame: move the vertices, refit, update, draw, trace, composite
+    let frames = args.common.frame_count(false);
+    let (mut times, mut trace_ms) = (Vec::new(), Vec::new());
+    let (mut blas_refits, mut blas_rebuilds) = (0u32, 0u32);
+    let mut pictures = Vec::new();
+    let vertex_buffer = buffers.meshes[1][0].1.buffer;
+    for frame in 0..frames {
+        // ANCHOR: frame
+        wave.time = args.time + frame as f32 * args.step;
+        // The first frame builds everything; later ones refit (or rebuild, by the policy).
+        let refresh = match (frame, args.rebuild_every) {
+            (0, _) => Refresh::Rebuild,
+            (f, k) if k > 0 && f % k == 0 => Refresh::Rebuild,
+            _ => Refresh::Update,
+        };
+        let cb = animation.begin(&vk)?;
+        let parts = Animation { pipeline: &pipeline, wave: &wave, blases: &blases, tlas: &tlas_in_place };
+        record_animation(&vk, &loader, cb, &parts, refresh, frame == 0, animation_timer.as_ref());
+        animation.submit(&vk, None, vertices_moved.as_ref().map(|s| s.vk))?;
+        // GL must not fetch the vertices before the compute shader has written them.
+        match &vertices_moved {
+            Some(semaphore) => unsafe {
+                let ext = gl_context.semaphores.as_ref().expect("semaphores were shared");
+                let names = [vertex_buffer.0.get()];
+                (ext.WaitSemaphoreEXT)(
+                    semaphore.gl,
+                    1,
+                    names.as_ptr(),
+                    0,
+                    std::ptr::null(),
+                    std::ptr::null(),
+                );
+            },
+            None => unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }?,
+        }
+        gbuffers.draw(gl, &scene, &camera);
+        if args.step > 0.0 {
+            tracer.reset(); // the surface moved: the running mean is of a picture that is gone
+        }
+        let rays =
+            AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+        tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        composite.draw(gl, &gbuffers, &tracer, &uniforms);
+        // ANCHOR_END: frame
+        match refresh {
+            Refresh::Update => blas_refits += 1,
+            Refresh::Rebuild if frame > 0 => blas_rebuilds += 1,
+            Refresh::Rebuild => {} // the first build
+        }
+        if let (Some(a), Some(t)) = (&animation_timer, &trace_timer) {
+            // A measurement: wait for this frame's GPU work to read its times.
+            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+            let ms = |from, to| a.between_ms(&vk, from, to);
+            times.push((refresh, ms(0, 1)?, ms(1, 2)?, ms(2, 3)?));
+            trace_ms.push(t.read_ms(&vk)?);
+        }
+        if frame == 0 || frame + 1 == frames || args.every_frame {
+            pictures.push((frame, output::flip_rows(&composite.read(gl), extent.width, extent.height)));
+        }
+    }
+    gl_context.check_error("the frame loop")?;
+    report.set("frames", frames);
+    report.set("blas_refits", blas_refits);
+    report.set("blas_rebuilds", blas_rebuilds);
+    report.set("tlas_updates", frames - 1);
+    report.set(
+        "rebuild_policy",
+        match args.rebuild_every {
+            0 => "never: refit every frame after the first".to_owned(),
+            k => format!("rebuild every {k} frames, refit in between"),
+        },
+    );
+    report.set("workgroup_size", sphere::WORKGROUP);
+
+    // 6. Check the vertices, the occlusion, the motion; write the frames
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    let moved = &buffers.meshes[1][0].0;
+    // SAFETY: `count` vertices of the coherent mapping; the GPU is done with them (fence above).
+    let gpu =
+        unsafe { std::slice::from_raw_parts(moved.mapped.cast::<common::scene::Vertex>(), count as usize) };
+    let close =
+        |a: [f32; 3], b: [f32; 3], tolerance: f32| (Vec3::from(a) - Vec3::from(b)).length() <= tolerance;
+    let matches = directions.iter().zip(gpu).all(|(&d, v)| {
+        let expected = wave.vertex(d);
+        close(v.position, expected.position, 1e-5) && close(v.normal, expected.normal, 1e-3)
+    });
+    report.check("vertices_match_cpu_reference", matches);
+    let (w, h) = (extent.width, extent.height);
+    let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
+    let visibility = output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
+    report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
+    let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
+    report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
+    if frames > 1 && args.step > 0.0 {
+        let (first, last) = (&pictures[0].1, &pictures[pictures.len() - 1].1);
+        let changed = first.chunks_exact(4).zip(last.chunks_exact(4)).filter(|(a, b)| a != b).count();
+        report.set("pixels_changed_first_to_last", changed);
+        report.check("frames_differ_over_time", changed * 100 > (w * h) as usize);
+    }
+    for (frame, pixels) in &pictures {
+        let name = format!("{CHAPTER}-frame-{frame:03}");
+        output::save_rgba8(report, &args.common.out_dir(CHAPTER), &name, w, h, pixels)?;
+    }
+
+    // 7. Measure: the same rays through the refitted BLAS, then through a rebuilt one
+    // ANCHOR: measure
+    let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
+        tracer.reset();
+        let rays =
+            AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+        tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
+        Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
+    };
+    gbuffers.draw(gl, &scene, &camera);
+    let (after_refits, refitted_ms) = trace_once(&mut tracer)?;
+    // The same time again (the vertices do not move), with the BLAS rebuilt.
+    let cb = animation.begin(&vk)?;
+    let parts = Animation { pipeline: &pipeline, wave: &wave, blases: &blases, tlas: &tlas_in_place };
+    record_animation(&vk, &loader, cb, &parts, Refresh::Rebuild, false, animation_timer.as_ref());
+    animation.submit(&vk, None, None)?;
+    unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }?;
+    gbuffers.draw(gl, &scene, &camera);
+    let (after_rebuild, rebuilt_ms) = trace_once(&mut tracer)?;
+    let differing = after_refits.iter().zip(&after_rebuild).filter(|(a, b)| a != b).count();
+    report.set("pixels_differing_refitted_vs_rebuilt", differing);
+    report.check("refitted_blas_traces_like_a_rebuilt_one", differing * 1000 <= (w * h) as usize);
+    // ANCHOR_END: measure
+    if let Some(a) = &animation_timer {
+        times.push((
+            Refresh::Rebuild,
+            a.between_ms(&vk, 0, 1)?,
+            a.between_ms(&vk, 1, 2)?,
+            a.between_ms(&vk, 2, 3)?,
+        ));
+    }
+    for (refresh, name) in [(Refresh::Update, "blas_refit"), (Refresh::Rebuild, "blas_rebuild")] {
+        let of = |pick: fn(&(Refresh, f64, f64, f64)) -> f64| -> Vec<f64> {
+            times.iter().filter(|t| t.0 == refresh).map(pick).collect()
+        };
+        if !of(|t| t.2).is_empty() {
+            report.time_ms(&format!("{name}_gpu_median"), median_p95(&of(|t| t.2)).0);
+        }
+    }
+    if !times.is_empty() {
+        report.time_ms("compute_gpu_median", median_p95(&times.iter().map(|t| t.1).collect::<Vec<_>>()).0);
+        report
+            .time_ms("tlas_update_gpu_median", median_p95(&times.iter().map(|t| t.3).collect::<Vec<_>>()).0);
+        report.time_ms("trace_gpu_median", median_p95(&trace_ms).0);
+    }
+    if let (Some(refitted), Some(rebuilt)) = (refitted_ms, rebuilt_ms) {
+        report.time_ms("trace_after_refits", refitted);
+        report.time_ms("trace_after_rebuild", rebuilt);
+        eprintln!(
+            "trace after refits {refitted:.3} ms, after a rebuild {rebuilt:.3} ms ({:.2}x)",
+            refitted / rebuilt
+        );
+    }
+
+    // 8. Clean up, newest first
+    // ANCHOR: cleanup
+    unsafe { gl.finish() };
+    unsafe { vk.device.wait_for_fences(&[commands.fence, animation.fence], true, u64::MAX) }?;
+    for timer in [trace_timer, animation_timer].into_iter().flatten() {
+        timer.destroy(&vk);
+    }
+    animation.destroy(&vk);
+    commands.destroy(&vk);
+    composite.destroy(gl);
+    tracer.destroy(&vk, &gl_context, &mut allocator);
+    gbuffers.destroy(&vk, &gl_context);
+    rest.destroy(&vk, &mut allocator);
+    pipeline.destroy(&vk);
+    tlas_in_place.destroy(&vk, &mut allocator);
+    tlas.destroy(&vk, &loader, &mut allocator);
+    for (blas, in_place) in blases.into_iter().rev() {
+        in_place.destroy(&vk, &mut allocator);
+        blas.destroy(&vk, &loader, &mut allocator);
+    }
+    drop(allocator);
+    if let Some(semaphore) = vertices_moved {
+        semaphore.destroy(&vk, &gl_context);
+    }
+    buffers.destroy(&vk, &gl_context);
+    sync.destroy(&vk, &gl_context);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    Ok(())
+}

@@ -1,0 +1,253 @@
+//! Chapter 10's sphere: the mesh, the wave the compute shader moves it with (and the same wave
+//! on the CPU, for the checks), the compute pipeline, and one frame's Vulkan work with its
+//! barriers.
+
+use anyhow::{Context as _, Result};
+use ash::vk;
+use common::VulkanContext;
+use common::accel::{AccelerationStructure, InPlace, Refresh};
+use common::commands::Timestamps;
+use common::scene::{Mesh, Vertex};
+use glam::Vec3;
+use std::f32::consts::PI;
+
+const SHADER: &[u8] = include_bytes!("../../shaders/sphere_wave.comp.spv");
+/// The shader's `local_size_x`.
+pub const WORKGROUP: u32 = 64;
+
+/// A UV sphere of radius 1 with `rings` bands of latitude and `segments` of longitude. Each
+/// vertex's normal is its direction from the centre, which the wave also moves it along.
+pub fn uv_sphere(rings: u32, segments: u32) -> Mesh {
+    let mut vertices = Vec::new();
+    for ring in 0..=rings {
+        let theta = PI * ring as f32 / rings as f32; // from the north pole
+        for segment in 0..=segments {
+            // The seam repeats the first column, so that each quad below has its own corners.
+            let phi = 2.0 * PI * segment as f32 / segments as f32;
+            let d = Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin());
+            vertices.push(Vertex { position: d.into(), normal: d.into() });
+        }
+    }
+    let mut indices = Vec::new();
+    let row = segments + 1;
+    for ring in 0..rings {
+        for segment in 0..segments {
+            let (a, b) = (ring * row + segment, (ring + 1) * row + segment);
+            // Anticlockwise seen from outside; the triangles at the poles are degenerate on one
+            // side and skipped.
+            if ring != 0 {
+                indices.extend([a, a + 1, b]);
+            }
+            if ring + 1 != rings {
+                indices.extend([a + 1, b + 1, b]);
+            }
+        }
+    }
+    Mesh { name: "sphere".into(), vertices, indices }
+}
+
+// ANCHOR: wave
+/// The compute shader's push constants (`Wave` in `shaders/sphere_wave.comp`, scalar layout).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct Wave {
+    /// Device addresses of the shared vertex buffer and of the rest directions.
+    pub vertices: u64,
+    pub directions: u64,
+    pub axis: [f32; 3],
+    pub count: u32,
+    pub time: f32,
+    pub amplitude: f32,
+    pub frequency: f32,
+    pub speed: f32,
+}
+
+impl Wave {
+    /// Vertex `d` (a unit direction) at this wave's time, as the shader computes it.
+    pub fn vertex(&self, d: Vec3) -> Vertex {
+        let axis = Vec3::from(self.axis);
+        let phase = self.frequency * d.dot(axis) + self.speed * self.time;
+        let r = 1.0 + self.amplitude * phase.sin();
+        let grad = self.amplitude * self.frequency * phase.cos() * (axis - d.dot(axis) * d);
+        Vertex { position: (r * d).into(), normal: (d - grad / r).normalize().into() }
+    }
+}
+// ANCHOR_END: wave
+
+/// The compute pipeline: no descriptors, only push constants (the buffers by device address).
+pub struct WavePipeline {
+    pub layout: vk::PipelineLayout,
+    pub pipeline: vk::Pipeline,
+}
+
+impl WavePipeline {
+    pub fn new(vk: &VulkanContext) -> Result<Self> {
+        let code = ash::util::read_spv(&mut std::io::Cursor::new(SHADER)).context("reading the SPIR-V")?;
+        let module = unsafe {
+            vk.device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
+        }
+        .context("vkCreateShaderModule")?;
+        let range = vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .size(size_of::<Wave>() as u32);
+        let layout_info =
+            vk::PipelineLayoutCreateInfo::default().push_constant_ranges(std::slice::from_ref(&range));
+        let layout = match unsafe { vk.device.create_pipeline_layout(&layout_info, None) } {
+            Ok(layout) => layout,
+            Err(error) => {
+                unsafe { vk.device.destroy_shader_module(module, None) };
+                return Err(error).context("vkCreatePipelineLayout");
+            }
+        };
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(module)
+            .name(c"main");
+        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
+        let created = unsafe { vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
+        unsafe { vk.device.destroy_shader_module(module, None) };
+        match created {
+            Ok(pipelines) => Ok(WavePipeline { layout, pipeline: pipelines[0] }),
+            Err((_, error)) => {
+                unsafe { vk.device.destroy_pipeline_layout(layout, None) };
+                Err(error).context("vkCreateComputePipelines")
+            }
+        }
+    }
+
+    /// Records the dispatch: one invocation per vertex, in workgroups of [`WORKGROUP`].
+    pub fn record(&self, vk: &VulkanContext, cb: vk::CommandBuffer, wave: &Wave) {
+        unsafe {
+            vk.device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            let bytes = common::gbuffer::as_bytes(std::slice::from_ref(wave));
+            vk.device.cmd_push_constants(cb, self.layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
+            vk.device.cmd_dispatch(cb, wave.count.div_ceil(WORKGROUP), 1, 1);
+        }
+    }
+
+    pub fn destroy(self, vk: &VulkanContext) {
+        unsafe {
+            vk.device.destroy_pipeline(self.pipeline, None);
+            vk.device.destroy_pipeline_layout(self.layout, None);
+        }
+    }
+}
+
+/// What one frame's Vulkan animation work uses.
+pub struct Animation<'a> {
+    pub pipeline: &'a WavePipeline,
+    pub wave: &'a Wave,
+    pub blases: &'a [(AccelerationStructure, InPlace)],
+    pub tlas: &'a InPlace,
+}
+
+// ANCHOR: record
+/// Compute moves the vertices -> barrier -> the sphere's BLAS refit (or rebuild) -> barrier ->
+/// the TLAS update -> barrier -> the frame's rays. `first` also builds the ground's BLAS and the
+/// TLAS for the first time.
+pub fn record_animation(
+    vk: &VulkanContext,
+    loader: &ash::khr::acceleration_structure::Device,
+    cb: vk::CommandBuffer,
+    parts: &Animation,
+    refresh: Refresh,
+    first: bool,
+    timer: Option<&Timestamps>,
+) {
+    let compute = vk::PipelineStageFlags::COMPUTE_SHADER;
+    let build = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
+    let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    let none = vk::DependencyFlags::empty();
+    let barrier = |src, dst| vk::MemoryBarrier::default().src_access_mask(src).dst_access_mask(dst);
+    use vk::AccessFlags as A;
+    let (as_read, as_write) = (A::ACCELERATION_STRUCTURE_READ_KHR, A::ACCELERATION_STRUCTURE_WRITE_KHR);
+    unsafe {
+        if let Some(t) = timer {
+            t.reset(vk, cb);
+        }
+        // Before the compute shader overwrites the vertices, everything that read them last frame
+        // must be done: the previous refit (build stage) and GL's vertex fetch. GL's draw came
+        // before its release, which the previous trace waited for at the ray tracing stage: so
+        // waiting for that stage waits for GL too. Reads only: no access flags.
+        vk.device.cmd_pipeline_barrier(cb, build | rays, compute, none, &[], &[], &[]);
+        if let Some(t) = timer {
+            t.write(vk, cb, compute, 0);
+        }
+        parts.pipeline.record(vk, cb, parts.wave);
+        if let Some(t) = timer {
+            t.write(vk, cb, compute, 1);
+        }
+        // The refit reads the vertices the shader wrote: build inputs are read at the build
+        // stage as SHADER_READ. It also reads and writes the BLAS (src = dst) and the scratch,
+        // which the previous frame's refit wrote.
+        let moved = barrier(A::SHADER_WRITE | as_write, A::SHADER_READ | as_read | as_write);
+        vk.device.cmd_pipeline_barrier(cb, compute | build, build, none, &[moved], &[], &[]);
+        let (sphere, ground) = (&parts.blases[1].1, &parts.blases[0].1);
+        if first {
+            ground.record(loader, cb, Refresh::Rebuild);
+        }
+        sphere.record(loader, cb, refresh);
+        if let Some(t) = timer {
+            t.write(vk, cb, build, 2);
+        }
+        // The TLAS update reads the BLASes' new bounds: a refitted BLAS under a TLAS that was not
+        // updated leaves the TLAS's boxes around where the sphere was (rays miss what bulged out).
+        let refitted = barrier(as_write, as_read | as_write);
+        vk.device.cmd_pipeline_barrier(cb, build, build, none, &[refitted], &[], &[]);
+        parts.tlas.record(loader, cb, if first { Refresh::Rebuild } else { Refresh::Update });
+        if let Some(t) = timer {
+            t.write(vk, cb, build, 3);
+        }
+        // The rays read the TLAS and, through it, the BLASes, in the next submission.
+        let ready = barrier(as_write, as_read);
+        vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[ready], &[], &[]);
+    }
+}
+// ANCHOR_END: record
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wave_is_laid_out_as_the_shader_reads_it() {
+        assert_eq!(size_of::<Wave>(), 48);
+        assert_eq!(std::mem::offset_of!(Wave, axis), 16);
+        assert_eq!(std::mem::offset_of!(Wave, count), 28);
+        assert_eq!(std::mem::offset_of!(Wave, speed), 44);
+    }
+
+    #[test]
+    fn sphere_is_closed_and_faces_outwards() {
+        let sphere = uv_sphere(8, 16);
+        for t in sphere.indices.chunks_exact(3) {
+            let [a, b, c] = [0, 1, 2].map(|k| Vec3::from(sphere.vertices[t[k] as usize].position));
+            let normal = (b - a).cross(c - a);
+            assert!(normal.length() > 0.0, "no degenerate triangles");
+            assert!(normal.dot(a + b + c) > 0.0, "anticlockwise seen from outside");
+        }
+    }
+
+    #[test]
+    fn wave_normals_are_perpendicular_to_the_surface() {
+        let wave = Wave {
+            vertices: 0,
+            directions: 0,
+            axis: Vec3::new(0.3, 1.0, 0.2).normalize().into(),
+            count: 0,
+            time: 0.7,
+            amplitude: 0.1,
+            frequency: 9.0,
+            speed: 2.0,
+        };
+        let d = Vec3::new(0.4, 0.5, 0.6).normalize();
+        let v = wave.vertex(d);
+        // Move d a little along two tangent directions: the surface's chords are perpendicular
+        // to the normal (to first order).
+        for t in [d.cross(Vec3::X).normalize(), d.cross(Vec3::Z).normalize()] {
+            let moved = wave.vertex((d + 1e-3 * t).normalize());
+            let chord = Vec3::from(moved.position) - Vec3::from(v.position);
+            assert!(chord.normalize().dot(Vec3::from(v.normal)).abs() < 1e-2);
+        }
+    }
+}
