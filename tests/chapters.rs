@@ -288,8 +288,34 @@ fn ch08_resizing_leaks_nothing() {
     let report = run.succeeded();
     assert_eq!(report["resizes"], 5);
     assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
+    assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
     // The last frame, at the last size, still passes the composite and overlay checks.
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+}
+
+/// The soak: `cycles` resizes of chapter 08 at small sizes, open fds and live resources
+/// (exportable memory and images, GL's memory objects, textures, renderbuffers) counted after the
+/// first and after the last: no growth.
+fn soak(cycles: u32) {
+    let frames = (cycles + 1).to_string();
+    let args = ["--size", "32x24", "--frames", &frames, "--samples", "1", "--resize-every", "1"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["resizes"], cycles);
+    assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
+    assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
+}
+
+#[test]
+fn ch08_soak_100_resizes() {
+    soak(100);
+}
+
+/// The full soak, a few minutes on lavapipe: `cargo test --test chapters -- --ignored soak`.
+#[test]
+#[ignore]
+fn ch08_soak_1000_resizes() {
+    soak(1000);
 }
 
 #[test]

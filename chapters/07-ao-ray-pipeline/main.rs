@@ -83,15 +83,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gbuffers.draw(gl, &scene, &camera);
         let samples = args.ao.samples.min(args.ao.max_samples.saturating_sub(tracer.accumulated));
         // Nothing left to add once converged (a viewer would just show it), or nothing to trace.
-        if samples > 0 && nothing_to_trace.is_none() {
+        let traced = samples > 0 && nothing_to_trace.is_none();
+        if traced {
             let params = AoRays { samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
             tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
-            // ANCHOR_END: loop
-            if let Some(t) = &timestamps {
-                // A measurement: wait for this frame's rays to read their GPU time.
-                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-                trace_ms += t.read_ms(&vk)?;
-            }
+        }
+        // ANCHOR_END: loop
+        if let (true, Some(t)) = (traced, &timestamps) {
+            // A measurement: wait for this frame's rays to read their GPU time.
+            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+            trace_ms += t.read_ms(&vk)?;
         }
         if frame == 0 {
             // For the checks, once: GL reads the first frame's AO and the positions back (the
@@ -101,7 +102,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             positions = output::read_texture_f32(gl, gbuffers.textures()[0], extent.width, extent.height, 4);
             first_noise = Some(noise(&ao, &positions, extent.width as usize));
         }
-        if nothing_to_trace.is_none() {
+        if traced {
             rays += positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64 * samples as u64;
         }
     }

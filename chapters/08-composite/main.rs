@@ -205,7 +205,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             old.destroy(&vk, &gl_context);
             resizes += 1;
             if resizes == 1 {
-                fds_after_first_resize = Some(open_fd_count()?);
+                // What exists after one resize must be what exists after every later one.
+                fds_after_first_resize = Some((open_fd_count()?, common::resources::live()));
             }
         }
         // ANCHOR_END: resize
@@ -240,9 +241,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         frame += 1;
         drew_a_frame = true;
     }
-    if let Some(before) = fds_after_first_resize {
+    if let Some((fds, live)) = fds_after_first_resize {
         report.set("resizes", resizes);
-        report.check("no_fd_growth_across_resizes", open_fd_count()? == before);
+        report.check("no_fd_growth_across_resizes", open_fd_count()? == fds);
+        // Exportable memory and images, GL's memory objects, textures and renderbuffers.
+        let now = common::resources::live();
+        report.check("no_resource_growth_across_resizes", now == live);
+        report.set("live_resources_after_resizes", now);
     }
     check::report_trace_times(report, &trace_ms, traced);
     gl_context.check_error("the frame loop")?;

@@ -79,6 +79,7 @@ impl Composite {
         unsafe {
             gl.delete_framebuffer(std::mem::replace(&mut self.framebuffer, framebuffer));
             gl.delete_renderbuffer(std::mem::replace(&mut self.colour, colour));
+            common::resources::destroyed("gl_renderbuffer: RGBA8");
         }
         (self.width, self.height) = (gbuffers.extent.width, gbuffers.extent.height);
         Ok(())
@@ -162,6 +163,7 @@ impl Composite {
         unsafe {
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.colour);
+            common::resources::destroyed("gl_renderbuffer: RGBA8");
             gl.delete_vertex_array(self.empty);
             gl.delete_program(self.program);
         }
@@ -196,6 +198,7 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
         if status != glow::FRAMEBUFFER_COMPLETE {
             gl.delete_framebuffer(fb);
             gl.delete_renderbuffer(colour);
+            common::resources::destroyed("gl_renderbuffer: RGBA8");
             anyhow::bail!("composite framebuffer incomplete: {status:#x}");
         }
         Ok((fb, colour))

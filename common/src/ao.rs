@@ -127,7 +127,7 @@ impl AoTracer {
     }
     // ANCHOR_END: image
 
-    /// Visibility 1 everywhere without tracing (see `AoArgs::nothing_to_trace`): GL clears the AO
+    /// Visibility 1 everywhere without tracing (see [`nothing_to_trace`]): GL clears the AO
     /// image to 1 through a framebuffer of its own, once per image. The image is still GL's
     /// (never handed to Vulkan) and stays GL's.
     pub fn fill_unoccluded(&mut self, gl: &GlContext) -> Result<()> {

@@ -240,6 +240,7 @@ impl ExportedBuffer {
         unsafe {
             ctx.device.unmap_memory(self.memory.memory);
             ctx.device.free_memory(self.memory.memory, None);
+            crate::resources::destroyed("vk_memory_exportable");
             ctx.device.destroy_buffer(self.buffer, None);
         }
     }

@@ -163,6 +163,7 @@ impl GBuffers {
             gl.gl.delete_program(self.program);
             gl.gl.delete_framebuffer(self.framebuffer);
             gl.gl.delete_renderbuffer(self.depth);
+            crate::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
         }
         self.images.into_iter().for_each(|i| i.destroy(vk, gl));
     }
@@ -276,6 +277,7 @@ unsafe fn framebuffer(
         if status != glow::FRAMEBUFFER_COMPLETE {
             gl.delete_framebuffer(fb);
             gl.delete_renderbuffer(depth);
+            crate::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
         }
         ensure!(status == glow::FRAMEBUFFER_COMPLETE, "G-buffer framebuffer incomplete: {status:#x}");
         Ok((fb, depth))

@@ -417,6 +417,7 @@ impl RenderTarget {
             if status != glow::FRAMEBUFFER_COMPLETE {
                 gl.delete_framebuffer(framebuffer);
                 gl.delete_renderbuffer(colour);
+                crate::resources::destroyed("gl_renderbuffer: RGBA8");
                 bail!("offscreen framebuffer incomplete: {status:#x}");
             }
             Ok(RenderTarget { framebuffer, colour, width, height })
@@ -436,6 +437,7 @@ impl RenderTarget {
             gl.bind_framebuffer(glow::FRAMEBUFFER, None);
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.colour);
+            crate::resources::destroyed("gl_renderbuffer: RGBA8");
         }
     }
 }

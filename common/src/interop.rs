@@ -41,6 +41,7 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
     // Some drivers list the extension yet fail the import: always look.
     if let Err(error) = gl.check_error("glImportMemoryFdEXT") {
         unsafe { (ext.DeleteMemoryObjectsEXT)(1, &memory_object) };
+        crate::resources::destroyed("gl_memory_object");
         return Err(error); // `fd` is dropped, and so closed: the failed import did not take it.
     }
     // SAFETY: the import succeeded, so the fd is GL's now; closing it too would be a double close.
@@ -138,8 +139,10 @@ impl SharedBuffer {
     pub fn delete(self, gl: &GlContext) {
         unsafe {
             gl.gl.delete_buffer(self.buffer);
+            crate::resources::destroyed("gl_buffer_imported");
             if let Some(ext) = &gl.memory {
                 (ext.DeleteMemoryObjectsEXT)(1, &self.memory_object);
+                crate::resources::destroyed("gl_memory_object");
             }
         }
     }
@@ -150,8 +153,10 @@ impl SharedTexture {
     pub fn delete(self, gl: &GlContext) {
         unsafe {
             gl.gl.delete_texture(self.texture);
+            crate::resources::destroyed("gl_texture_imported");
             if let Some(ext) = &gl.memory {
                 (ext.DeleteMemoryObjectsEXT)(1, &self.memory_object);
+                crate::resources::destroyed("gl_memory_object");
             }
         }
     }
@@ -188,6 +193,7 @@ impl SharedImage {
             Ok(memory) => memory,
             Err(error) => {
                 unsafe { vk.device.destroy_image(image, None) };
+                crate::resources::destroyed("vk_image_exportable");
                 return Err(error);
             }
         };
@@ -197,6 +203,8 @@ impl SharedImage {
             }
             vk.device.free_memory(memory.memory, None);
             vk.device.destroy_image(image, None);
+            crate::resources::destroyed("vk_memory_exportable");
+            crate::resources::destroyed("vk_image_exportable");
         };
         if let Err(error) = unsafe { vk.device.bind_image_memory(image, memory.memory, 0) } {
             destroy_vulkan(None);
@@ -234,6 +242,8 @@ impl SharedImage {
             vk.device.destroy_image_view(self.view, None);
             vk.device.free_memory(self.memory.memory, None);
             vk.device.destroy_image(self.image, None);
+            crate::resources::destroyed("vk_memory_exportable");
+            crate::resources::destroyed("vk_image_exportable");
         }
     }
 }

@@ -9,6 +9,9 @@ use std::sync::Mutex;
 
 /// (count, bytes) per kind, since the process started.
 static CREATED: Mutex<BTreeMap<String, (u64, u64)>> = Mutex::new(BTreeMap::new());
+/// How many of each kind exist now: created minus `destroyed` (counted for the kinds a resize
+/// makes anew, so the leak tests can see growth).
+static LIVE: Mutex<BTreeMap<String, i64>> = Mutex::new(BTreeMap::new());
 
 /// One kind of resource in the report: how many were created, and the bytes they hold (memory
 /// allocations and GL storage; 0 for objects whose memory is counted under another kind).
@@ -25,7 +28,32 @@ pub fn created(kind: &str, bytes: u64) {
     let entry = created.entry(kind.to_owned()).or_default();
     entry.0 += 1;
     entry.1 += bytes;
+    *LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).entry(kind.to_owned()).or_default() += 1;
 }
+
+/// One resource of `kind` is gone.
+pub fn destroyed(kind: &str) {
+    *LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).entry(kind.to_owned()).or_default() -= 1;
+}
+
+/// How many of each kind exist now, for the kinds whose destruction is counted: exportable
+/// memory and images, GL's memory objects, imported textures and buffers, renderbuffers.
+pub fn live() -> BTreeMap<String, i64> {
+    let live = LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    live.iter()
+        .filter(|(kind, _)| COUNTED_WHEN_DESTROYED.iter().any(|k| kind.starts_with(k)))
+        .map(|(kind, &n)| (kind.clone(), n))
+        .collect()
+}
+
+const COUNTED_WHEN_DESTROYED: [&str; 6] = [
+    "vk_memory_exportable",
+    "vk_image_exportable",
+    "gl_memory_object",
+    "gl_texture_imported",
+    "gl_buffer_imported",
+    "gl_renderbuffer",
+];
 
 /// Everything counted so far, sorted by kind.
 pub fn list() -> Vec<Created> {
