@@ -11,7 +11,7 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
 use common::ao::{AoArgs, AoTracer};
-use common::commands::{Commands, Timestamps, median_p95};
+use common::commands::{Commands, Timestamps};
 use common::gbuffer::{GBuffers, SceneBuffers};
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
@@ -237,8 +237,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if let (Some(a), Some(t)) = (&animation_timer, &trace_timer) {
             // A measurement: wait for this frame's GPU work to read its times.
             unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-            let ms = |from, to| a.between_ms(&vk, from, to);
-            times.push((refresh, ms(0, 1)?, ms(1, 2)?, ms(2, 3)?));
+            if frame > 0 {
+                times.push(sphere::read_times(&vk, a, refresh)?); // frame 0 builds everything
+            }
             trace_ms.push(t.read_ms(&vk)?);
         }
         if frame == 0 || frame + 1 == frames || args.every_frame {
@@ -315,27 +316,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("refitted_blas_traces_like_a_rebuilt_one", differing * 1000 <= (w * h) as usize);
     // ANCHOR_END: measure
     if let Some(a) = &animation_timer {
-        times.push((
-            Refresh::Rebuild,
-            a.between_ms(&vk, 0, 1)?,
-            a.between_ms(&vk, 1, 2)?,
-            a.between_ms(&vk, 2, 3)?,
-        ));
+        times.push(sphere::read_times(&vk, a, Refresh::Rebuild)?);
     }
-    for (refresh, name) in [(Refresh::Update, "blas_refit"), (Refresh::Rebuild, "blas_rebuild")] {
-        let of = |pick: fn(&(Refresh, f64, f64, f64)) -> f64| -> Vec<f64> {
-            times.iter().filter(|t| t.0 == refresh).map(pick).collect()
-        };
-        if !of(|t| t.2).is_empty() {
-            report.time_ms(&format!("{name}_gpu_median"), median_p95(&of(|t| t.2)).0);
-        }
-    }
-    if !times.is_empty() {
-        report.time_ms("compute_gpu_median", median_p95(&times.iter().map(|t| t.1).collect::<Vec<_>>()).0);
-        report
-            .time_ms("tlas_update_gpu_median", median_p95(&times.iter().map(|t| t.3).collect::<Vec<_>>()).0);
-        report.time_ms("trace_gpu_median", median_p95(&trace_ms).0);
-    }
+    sphere::report_times(report, &times, &trace_ms);
     if let (Some(refitted), Some(rebuilt)) = (refitted_ms, rebuilt_ms) {
         report.time_ms("trace_after_refits", refitted);
         report.time_ms("trace_after_rebuild", rebuilt);
