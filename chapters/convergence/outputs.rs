@@ -12,7 +12,12 @@ pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
     let mut csv = String::from(
         "scene,reference,spp,frames,rays_per_pixel,gpu_ms,rmse,max_abs,mean_error,standard_error\n",
     );
-    let mut table = format!("Measured on {device}.\n\n");
+    // Which pixels were judged: finite planes stand in for infinite ones only a radius or more
+    // from their edges; the default scene is judged at every covered pixel.
+    let mut table = format!(
+        "Measured on {device}. Exact cases: pixels at least R from every plane edge; \
+         default scene: every covered pixel, against a long run of the same tracer.\n\n"
+    );
     table.push_str("| scene | reference | rays/px/frame | frames | rays/px | GPU ms | RMSE | max abs | RMSE, independent rays |\n");
     table.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for case in cases {
