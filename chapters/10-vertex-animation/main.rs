@@ -147,7 +147,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. The compute pipeline, the rest directions, the G-buffers, the tracer, the composite
     let pipeline = WavePipeline::new(&vk)?;
-    let rest_bytes = (directions.len() * size_of::<Vec3>()) as u64;
+    // 16 bytes a direction (w unused), not 12: with a 12-byte stride, GPU-assisted validation on
+    // the NVIDIA GPU reported the last direction's read as out of bounds of the buffer.
+    let rest_directions: Vec<[f32; 4]> = directions.iter().map(|d| d.extend(0.0).to_array()).collect();
+    let rest_bytes = (rest_directions.len() * size_of::<[f32; 4]>()) as u64;
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
     let mut rest = DeviceBuffer::new(
         &vk,
@@ -158,7 +161,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         MemoryLocation::CpuToGpu,
     )?;
     let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
-    mapped[..rest_bytes as usize].copy_from_slice(common::gbuffer::as_bytes(&directions));
+    mapped[..rest_bytes as usize].copy_from_slice(common::gbuffer::as_bytes(&rest_directions));
     let mut wave = Wave {
         vertices: buffers.meshes[1][0].0.device_address(&vk),
         directions: rest.address,
