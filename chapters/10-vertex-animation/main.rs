@@ -254,13 +254,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("blas_refits", blas_refits);
     report.set("blas_rebuilds", blas_rebuilds);
     report.set("tlas_updates", frames - 1);
-    report.set(
-        "rebuild_policy",
-        match args.rebuild_every {
-            0 => "never: refit every frame after the first".to_owned(),
-            k => format!("rebuild every {k} frames, refit in between"),
-        },
-    );
+    report.set("rebuild_policy", sphere::policy(args.rebuild_every));
     report.set("workgroup_size", sphere::WORKGROUP);
 
     // 6. Check the vertices, the occlusion, the motion; write the frames
@@ -269,13 +263,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // SAFETY: `count` vertices of the coherent mapping; the GPU is done with them (fence above).
     let gpu =
         unsafe { std::slice::from_raw_parts(moved.mapped.cast::<common::scene::Vertex>(), count as usize) };
-    let close =
-        |a: [f32; 3], b: [f32; 3], tolerance: f32| (Vec3::from(a) - Vec3::from(b)).length() <= tolerance;
-    let matches = directions.iter().zip(gpu).all(|(&d, v)| {
-        let expected = wave.vertex(d);
-        close(v.position, expected.position, 1e-5) && close(v.normal, expected.normal, 1e-3)
-    });
-    report.check("vertices_match_cpu_reference", matches);
+    report.check("vertices_match_cpu_reference", sphere::vertices_match(&wave, &directions, gpu));
     let (w, h) = (extent.width, extent.height);
     let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
     let visibility = output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
