@@ -194,21 +194,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Check the last frame's occlusion, the motion, and write the frames
     let (w, h) = (extent.width, extent.height);
-    let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
-    let visibility = output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
-    report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
-    let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
-    report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
-    if frames > 1 && args.step > 0.0 {
-        let (first, last) = (&pictures[0].1, &pictures[pictures.len() - 1].1);
-        let changed = first.chunks_exact(4).zip(last.chunks_exact(4)).filter(|(a, b)| a != b).count();
-        report.set("pixels_changed_first_to_last", changed);
-        report.check("frames_differ_over_time", changed * 100 > (w * h) as usize);
-    }
-    for (frame, pixels) in &pictures {
-        let name = format!("{CHAPTER}-frame-{frame:03}");
-        output::save_rgba8(report, &args.common.out_dir(CHAPTER), &name, w, h, pixels)?;
-    }
+    common::ao::check_occlusion(report, gl, &gbuffers, &tracer);
+    let moved = frames > 1 && args.step > 0.0;
+    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
     // 6. Measure: the same rays through the updated TLAS, then through a rebuilt one
     // ANCHOR: measure
