@@ -11,6 +11,7 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
 use common::ao::{AoArgs, AoTracer};
+use common::cli::AnimationArgs;
 use common::commands::{Commands, Timestamps};
 use common::gbuffer::{GBuffers, SceneBuffers};
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
@@ -49,18 +50,8 @@ struct Args {
     /// The wave's height, as a fraction of the sphere's radius.
     #[arg(long, default_value_t = 0.06)]
     amplitude: f32,
-    /// The time of the first frame, in seconds.
-    #[arg(long, default_value_t = 0.0)]
-    time: f32,
-    /// Seconds between frames (0: nothing moves, and the occlusion accumulates).
-    #[arg(long, default_value_t = 1.0 / 30.0)]
-    step: f32,
-    /// Rebuild the BLAS every K frames instead of refitting it (0: never).
-    #[arg(long, default_value_t = 0)]
-    rebuild_every: u32,
-    /// Headless: write every frame, not only the first and the last.
-    #[arg(long)]
-    every_frame: bool,
+    #[command(flatten)]
+    animation: AnimationArgs,
 }
 
 fn main() -> ExitCode {
@@ -69,8 +60,7 @@ fn main() -> ExitCode {
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
-    ensure!(args.step.is_finite() && args.step >= 0.0, "--step {}: must be 0 or more seconds", args.step);
-    ensure!(args.time.is_finite(), "--time {}: must be a number of seconds", args.time);
+    args.animation.check()?;
     ensure!(
         (0.0..=0.3).contains(&args.amplitude),
         "--amplitude {}: choose between 0 and 0.3",
@@ -167,7 +157,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         directions: rest.address,
         axis: Vec3::new(0.3, 1.0, 0.2).normalize().into(),
         count,
-        time: args.time,
+        time: args.animation.time,
         amplitude: args.amplitude,
         frequency: 14.0,
         speed: 4.0,
@@ -196,9 +186,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let vertex_buffer = buffers.meshes[1][0].1.buffer;
     for frame in 0..frames {
         // ANCHOR: frame
-        wave.time = args.time + frame as f32 * args.step;
+        wave.time = args.animation.at(frame);
         // The first frame builds everything; later ones refit (or rebuild, by the policy).
-        let refresh = match (frame, args.rebuild_every) {
+        let refresh = match (frame, args.animation.rebuild_every) {
             (0, _) => Refresh::Rebuild,
             (f, k) if k > 0 && f % k == 0 => Refresh::Rebuild,
             _ => Refresh::Update,
@@ -224,7 +214,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             None => unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }?,
         }
         gbuffers.draw(gl, &scene, &camera);
-        if args.step > 0.0 {
+        if args.animation.step > 0.0 {
             tracer.reset(); // the surface moved: the running mean is of a picture that is gone
         }
         let rays =
@@ -245,7 +235,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             }
             trace_ms.push(t.read_ms(&vk)?);
         }
-        if frame == 0 || frame + 1 == frames || args.every_frame {
+        if frame == 0 || frame + 1 == frames || args.animation.every_frame {
             pictures.push((frame, output::flip_rows(&composite.read(gl), extent.width, extent.height)));
         }
     }
@@ -254,7 +244,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("blas_refits", blas_refits);
     report.set("blas_rebuilds", blas_rebuilds);
     report.set("tlas_updates", frames - 1);
-    report.set("rebuild_policy", sphere::policy(args.rebuild_every));
+    report.set("rebuild_policy", sphere::policy(args.animation.rebuild_every));
     report.set("workgroup_size", sphere::WORKGROUP);
 
     // 6. Check the vertices, the occlusion, the motion; write the frames
@@ -266,7 +256,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("vertices_match_cpu_reference", sphere::vertices_match(&wave, &directions, gpu));
     let (w, h) = (extent.width, extent.height);
     common::ao::check_occlusion(report, gl, &gbuffers, &tracer);
-    let moved = frames > 1 && args.step > 0.0;
+    let moved = frames > 1 && args.animation.step > 0.0;
     output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
     // 7. Measure: the same rays through the refitted BLAS, then through a rebuilt one
