@@ -11,7 +11,7 @@ layout(local_size_x = 64) in;
 // common::scene::Vertex, 24 bytes: read as plain floats (scalar layout, no vec3 padding).
 layout(buffer_reference, scalar) buffer Vertices { float v[]; };
 // The unit direction of every vertex from the sphere's centre, as the mesh was made.
-layout(buffer_reference, scalar) readonly buffer Directions { vec3 d[]; };
+layout(buffer_reference, scalar) readonly buffer Directions { vec4 d[]; }; // xyz; w unused
 
 // chapters/10-vertex-animation/sphere.rs: Wave, byte for byte (its unit test checks the offsets).
 layout(push_constant, scalar) uniform Wave {
@@ -30,7 +30,7 @@ void main() {
     if (i >= wave.count) {
         return; // the last workgroup's spare invocations
     }
-    vec3 d = wave.directions.d[i];
+    vec3 d = wave.directions.d[i].xyz;
     // The radius along d: r(d) = 1 + a sin(k (d . w) + s t).
     float phase = wave.frequency * dot(d, wave.axis) + wave.speed * wave.time;
     float r = 1.0 + wave.amplitude * sin(phase);

@@ -162,12 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut image = share_image(&vk, &gl_context, compute.set, extent)?;
     // A new image has never been GL's: there is nothing to hand over yet (step 8).
     let mut image_is_new = true;
-    // '+' stops at the largest image both sides can make.
-    let gl_largest = unsafe { gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as u32;
-    let largest = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }
-        .limits
-        .max_image_dimension2_d
-        .min(gl_largest);
+    let largest = compute::largest_image_side(&vk, gl); // where '+' stops
 
     // 5. Prepare GL's draw
     let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;

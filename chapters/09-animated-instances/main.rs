@@ -7,10 +7,11 @@
 //!
 //! Run: `cargo run --release --bin 09-animated-instances -- --frames 120`.
 
-use anyhow::{Result, ensure};
+use anyhow::Result;
 use ash::vk;
 use common::accel::{InPlace, RayTracedScene, Refresh, TlasFlags, instances_geometry};
 use common::ao::{AoArgs, AoTracer};
+use common::cli::AnimationArgs;
 use common::commands::{Commands, Timestamps, median_p95};
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
@@ -49,18 +50,8 @@ struct Args {
     /// Seconds per lap.
     #[arg(long, default_value_t = 10.0)]
     lap: f32,
-    /// The time of the first frame, in seconds.
-    #[arg(long, default_value_t = 0.0)]
-    time: f32,
-    /// Seconds between frames (0: nothing moves, and the occlusion accumulates).
-    #[arg(long, default_value_t = 1.0 / 30.0)]
-    step: f32,
-    /// Rebuild the TLAS every K frames instead of updating it (0: never).
-    #[arg(long, default_value_t = 0)]
-    rebuild_every: u32,
-    /// Headless: write every frame, not only the first and the last.
-    #[arg(long)]
-    every_frame: bool,
+    #[command(flatten)]
+    animation: AnimationArgs,
 }
 
 fn main() -> ExitCode {
@@ -69,11 +60,10 @@ fn main() -> ExitCode {
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
-    ensure!(args.step.is_finite() && args.step >= 0.0, "--step {}: must be 0 or more seconds", args.step);
-    ensure!(args.time.is_finite(), "--time {}: must be a number of seconds", args.time);
+    args.animation.check()?;
 
     // 1. Make the ring, as it stands at the first frame
-    let (scene, ring) = ring::scene(&args.model, args.count, args.lap, args.time)?;
+    let (scene, ring) = ring::scene(&args.model, args.count, args.lap, args.animation.time)?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
     if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
@@ -139,13 +129,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut pictures = Vec::new();
     for frame in 0..frames {
         // ANCHOR: frame
-        let time = args.time + frame as f32 * args.step;
+        let time = args.animation.at(frame);
         // The previous frame's Vulkan work is done: its trace, the TLAS update submitted before
         // it, and (the trace having waited for it) GL's draw. Nothing reads the instance
         // buffer now, so the CPU may write it. (The trace's own `begin` would wait here anyway.)
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         ring.write(instances, time);
-        let refresh = match args.rebuild_every {
+        let refresh = match args.animation.rebuild_every {
             k if k > 0 && frame > 0 && frame % k == 0 => Refresh::Rebuild,
             _ => Refresh::Update,
         };
@@ -153,7 +143,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gbuffers.draw(gl, &scene, &camera);
         // Anything that moved changes the occlusion around it: the running mean is of a
         // picture that is gone. Start it again (with --step 0 it accumulates).
-        if args.step > 0.0 {
+        if args.animation.step > 0.0 {
             tracer.reset();
         }
         tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
@@ -170,7 +160,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             list.push(u.read_ms(&vk)?);
             trace_ms.push(t.read_ms(&vk)?);
         }
-        if frame == 0 || frame + 1 == frames || args.every_frame {
+        if frame == 0 || frame + 1 == frames || args.animation.every_frame {
             let upright = output::flip_rows(&composite.read(gl), extent.width, extent.height);
             pictures.push((frame, upright));
         }
@@ -182,33 +172,21 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("tlas_rebuilds", tlas_rebuilds);
     report.set(
         "rebuild_policy",
-        match args.rebuild_every {
+        match args.animation.rebuild_every {
             0 => "never: update every frame".to_owned(),
             k => format!("rebuild every {k} frames, update in between"),
         },
     );
     report.set(
         "lengths_travelled",
-        (ring.lengths_travelled(args.step * frames as f32) as f64 * 100.0).round() / 100.0,
+        (ring.lengths_travelled(args.animation.step * frames as f32) as f64 * 100.0).round() / 100.0,
     );
 
     // 5. Check the last frame's occlusion, the motion, and write the frames
     let (w, h) = (extent.width, extent.height);
-    let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
-    let visibility = output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
-    report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
-    let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
-    report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
-    if frames > 1 && args.step > 0.0 {
-        let (first, last) = (&pictures[0].1, &pictures[pictures.len() - 1].1);
-        let changed = first.chunks_exact(4).zip(last.chunks_exact(4)).filter(|(a, b)| a != b).count();
-        report.set("pixels_changed_first_to_last", changed);
-        report.check("frames_differ_over_time", changed * 100 > (w * h) as usize);
-    }
-    for (frame, pixels) in &pictures {
-        let name = format!("{CHAPTER}-frame-{frame:03}");
-        output::save_rgba8(report, &args.common.out_dir(CHAPTER), &name, w, h, pixels)?;
-    }
+    common::ao::check_occlusion(report, gl, &gbuffers, &tracer);
+    let moved = frames > 1 && args.animation.step > 0.0;
+    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
     // 6. Measure: the same rays through the updated TLAS, then through a rebuilt one
     // ANCHOR: measure

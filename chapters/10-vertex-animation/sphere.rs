@@ -215,6 +215,25 @@ pub fn read_times(vk: &VulkanContext, timer: &Timestamps, refresh: Refresh) -> R
 }
 
 /// Medians into the report's timings: compute, refit, rebuild, TLAS update, trace.
+/// The rebuild policy, as the report names it.
+pub fn policy(rebuild_every: u32) -> String {
+    match rebuild_every {
+        0 => "never: refit every frame after the first".to_owned(),
+        k => format!("rebuild every {k} frames, refit in between"),
+    }
+}
+
+/// Every vertex the GPU moved against the CPU's formula for the same wave: positions within
+/// 1e-5, normals within 1e-3.
+pub fn vertices_match(wave: &Wave, directions: &[Vec3], gpu: &[Vertex]) -> bool {
+    let close =
+        |a: [f32; 3], b: [f32; 3], tolerance: f32| (Vec3::from(a) - Vec3::from(b)).length() <= tolerance;
+    directions.iter().zip(gpu).all(|(&d, v)| {
+        let expected = wave.vertex(d);
+        close(v.position, expected.position, 1e-5) && close(v.normal, expected.normal, 1e-3)
+    })
+}
+
 pub fn report_times(report: &mut common::Report, times: &[FrameTimes], trace_ms: &[f64]) {
     let median = |values: Vec<f64>| common::commands::median_p95(&values).0;
     for (refresh, name) in

@@ -51,6 +51,22 @@ impl AoArgs {
     // ANCHOR_END: radius
 }
 
+/// The checks every chapter that traces makes of the AO image as GL holds it: every value a
+/// fraction of rays, in [0, 1], and background pixels (position w = 0) exactly 1.
+pub fn check_occlusion(
+    report: &mut crate::Report,
+    gl: &glow::Context,
+    gbuffers: &GBuffers,
+    tracer: &AoTracer,
+) {
+    let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
+    let positions = crate::output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
+    let visibility = crate::output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
+    report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
+    let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
+    report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
+}
+
 /// Why no ray needs tracing, if none does: 0 samples asks for none, and within a radius of 0
 /// nothing can occlude. Visibility is then exactly 1 everywhere, without a ray.
 pub fn nothing_to_trace(samples: u32, radius: f32) -> Option<&'static str> {

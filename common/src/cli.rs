@@ -45,6 +45,41 @@ impl CommonArgs {
     }
 }
 
+/// The flags of the chapters that animate (09, 10): a reproducible sequence of frames.
+#[derive(clap::Args, Debug, Clone)]
+pub struct AnimationArgs {
+    /// The time of the first frame, in seconds.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub time: f32,
+    /// Seconds between frames (0: nothing moves, and the occlusion accumulates).
+    #[arg(long, default_value_t = 1.0 / 30.0, allow_negative_numbers = true)]
+    pub step: f32,
+    /// Rebuild the structure that moves every K frames instead of updating it in place (0: never).
+    #[arg(long, default_value_t = 0)]
+    pub rebuild_every: u32,
+    /// Headless: write every frame, not only the first and the last.
+    #[arg(long)]
+    pub every_frame: bool,
+}
+
+impl AnimationArgs {
+    /// Refuses a time that is not a number and a step that is not 0 or more seconds.
+    pub fn check(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.step.is_finite() && self.step >= 0.0,
+            "--step {}: must be 0 or more seconds",
+            self.step
+        );
+        anyhow::ensure!(self.time.is_finite(), "--time {}: must be a number of seconds", self.time);
+        Ok(())
+    }
+
+    /// The animation time of frame `frame`.
+    pub fn at(&self, frame: u32) -> f32 {
+        self.time + frame as f32 * self.step
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct Size {
     pub width: u32,
