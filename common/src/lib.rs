@@ -17,6 +17,7 @@ pub mod report;
 pub mod resources;
 pub mod scene;
 pub mod sync;
+pub mod timing;
 pub mod vulkan;
 pub mod window;
 

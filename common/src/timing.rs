@@ -1,0 +1,224 @@
+//! Per-pass GPU times: how long each pass of a frame ran on the GPU, over many frames, reported
+//! as median and 95th percentile (`timings_ms` in the report: `<pass>_median`, `<pass>_p95`).
+//!
+//! Measuring must not change what it measures, so nothing here makes the CPU wait for the GPU:
+//! GL's `GL_TIME_ELAPSED` queries are read a few frames later, once `GL_QUERY_RESULT_AVAILABLE`
+//! says so ([`GlPassTimer`]), and Vulkan's timestamps are read after the fence wait the frame
+//! already has ([`VkPassTimer`]).
+
+use crate::commands::{Timestamps, median_p95};
+use crate::report::Report;
+use crate::vulkan::VulkanContext;
+use anyhow::Result;
+use ash::vk;
+use glow::HasContext as _;
+use std::collections::VecDeque;
+
+/// Every pass's GPU times, in the order the passes first ran.
+#[derive(Default, Debug)]
+pub struct PassTimes {
+    passes: Vec<(&'static str, Vec<f64>)>,
+}
+
+impl PassTimes {
+    /// Adds one frame's time for `pass`.
+    pub fn add(&mut self, pass: &'static str, ms: f64) {
+        match self.passes.iter_mut().find(|(name, _)| *name == pass) {
+            Some((_, samples)) => samples.push(ms),
+            None => self.passes.push((pass, vec![ms])),
+        }
+    }
+
+    /// The samples of `pass` (empty when it never ran).
+    pub fn samples(&self, pass: &str) -> &[f64] {
+        self.passes.iter().find(|(name, _)| *name == pass).map_or(&[], |(_, s)| s)
+    }
+
+    /// Median and 95th percentile of each pass, in the order they first ran.
+    pub fn summary(&self) -> Vec<(&'static str, f64, f64)> {
+        self.passes
+            .iter()
+            .map(|(name, samples)| {
+                let (median, p95) = median_p95(samples);
+                (*name, median, p95)
+            })
+            .collect()
+    }
+
+    /// Writes `<pass>_median` and `<pass>_p95` into the report's `timings_ms`.
+    pub fn record(&self, report: &mut Report) {
+        for (name, median, p95) in self.summary() {
+            report.time_ms(&format!("{name}_median"), median);
+            report.time_ms(&format!("{name}_p95"), p95);
+        }
+    }
+
+    /// One line for a window's title bar or the terminal: "raster 1.20 · ao 3.10 ms (GPU)".
+    pub fn line(&self) -> String {
+        let parts: Vec<String> =
+            self.summary().iter().map(|(name, median, _)| format!("{name} {median:.2}")).collect();
+        if parts.is_empty() { "no GPU times yet".into() } else { format!("{} ms (GPU)", parts.join(" · ")) }
+    }
+}
+
+/// GL passes timed with `GL_TIME_ELAPSED` queries. A frame's queries are read when their
+/// results are available (a frame or two later), never waited for while frames still run.
+pub struct GlPassTimer {
+    /// Queries whose results are not read yet, oldest frame first.
+    pending: VecDeque<Vec<(&'static str, glow::Query)>>,
+    /// The frame being recorded.
+    current: Vec<(&'static str, glow::Query)>,
+    /// Queries read and ready to use again.
+    free: Vec<glow::Query>,
+    /// Every query made, to delete them all at the end.
+    all: Vec<glow::Query>,
+}
+
+impl GlPassTimer {
+    pub fn new() -> Self {
+        GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free: Vec::new(), all: Vec::new() }
+    }
+
+    /// Starts timing `pass`. GL time queries do not nest: end one pass before the next.
+    pub fn begin(&mut self, gl: &glow::Context, pass: &'static str) -> Result<()> {
+        let query = match self.free.pop() {
+            Some(query) => query,
+            None => {
+                let query = unsafe { gl.create_query() }.map_err(|e| anyhow::anyhow!("glGenQueries: {e}"))?;
+                self.all.push(query);
+                query
+            }
+        };
+        unsafe { gl.begin_query(glow::TIME_ELAPSED, query) };
+        self.current.push((pass, query));
+        Ok(())
+    }
+
+    /// Ends the pass begun last.
+    pub fn end(&mut self, gl: &glow::Context) {
+        unsafe { gl.end_query(glow::TIME_ELAPSED) };
+    }
+
+    /// Ends the frame: reads every earlier frame whose results have arrived, without waiting.
+    pub fn end_frame(&mut self, gl: &glow::Context, times: &mut PassTimes) {
+        self.pending.push_back(std::mem::take(&mut self.current));
+        while let Some(frame) = self.pending.front() {
+            // A frame's queries finish in order: when its last one is available, all are.
+            let available = frame.last().is_none_or(|&(_, query)| unsafe {
+                gl.get_query_parameter_u32(query, glow::QUERY_RESULT_AVAILABLE) != 0
+            });
+            if !available {
+                break;
+            }
+            let frame = self.pending.pop_front().expect("front exists");
+            self.read(gl, frame, times);
+        }
+    }
+
+    /// Reads what is left, waiting for it: call after the last measured frame.
+    pub fn finish(&mut self, gl: &glow::Context, times: &mut PassTimes) {
+        if !self.current.is_empty() {
+            self.pending.push_back(std::mem::take(&mut self.current));
+        }
+        while let Some(frame) = self.pending.pop_front() {
+            self.read(gl, frame, times);
+        }
+    }
+
+    fn read(&mut self, gl: &glow::Context, frame: Vec<(&'static str, glow::Query)>, times: &mut PassTimes) {
+        for (pass, query) in frame {
+            // GL_QUERY_RESULT of a GL_TIME_ELAPSED query: nanoseconds, 64 bits.
+            let ns = unsafe { gl.get_query_parameter_u64(query, glow::QUERY_RESULT) };
+            times.add(pass, ns as f64 / 1e6);
+            self.free.push(query);
+        }
+    }
+
+    pub fn delete(self, gl: &glow::Context) {
+        for query in self.all {
+            unsafe { gl.delete_query(query) };
+        }
+    }
+}
+
+impl Default for GlPassTimer {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Vulkan passes timed with timestamps: two per pass, read after the frame's fence has signalled
+/// (the wait the frame has anyway), so reading them costs the GPU nothing.
+pub struct VkPassTimer {
+    stamps: Timestamps,
+    max_passes: u32,
+    /// The passes recorded into the command buffer since the last reset.
+    recorded: Vec<&'static str>,
+}
+
+impl VkPassTimer {
+    /// Room for `max_passes` passes a frame; `None` when the queue cannot write timestamps.
+    pub fn new(vk: &VulkanContext, max_passes: u32) -> Result<Option<Self>> {
+        Ok(Timestamps::with_count(vk, 2 * max_passes)?.map(|stamps| VkPassTimer {
+            stamps,
+            max_passes,
+            recorded: Vec::new(),
+        }))
+    }
+
+    /// Resets the queries: record first in the frame's command buffer.
+    pub fn reset(&mut self, vk: &VulkanContext, cb: vk::CommandBuffer) {
+        self.stamps.reset(vk, cb);
+        self.recorded.clear();
+    }
+
+    /// Starts `pass`: the timestamp is written once every earlier command has finished, so the
+    /// pass's time does not include them.
+    pub fn begin(&mut self, vk: &VulkanContext, cb: vk::CommandBuffer, pass: &'static str) {
+        assert!((self.recorded.len() as u32) < self.max_passes, "more passes than VkPassTimer::new allowed");
+        let index = 2 * self.recorded.len() as u32;
+        self.stamps.write(vk, cb, vk::PipelineStageFlags::ALL_COMMANDS, index);
+        self.recorded.push(pass);
+    }
+
+    /// Ends the pass begun last, once all its commands have finished.
+    pub fn end(&mut self, vk: &VulkanContext, cb: vk::CommandBuffer) {
+        let index = 2 * self.recorded.len() as u32 - 1;
+        self.stamps.write(vk, cb, vk::PipelineStageFlags::ALL_COMMANDS, index);
+    }
+
+    /// Reads the passes of the finished submission into `times`: call after its fence signalled.
+    pub fn read(&self, vk: &VulkanContext, times: &mut PassTimes) -> Result<()> {
+        for (i, pass) in self.recorded.iter().enumerate() {
+            let i = i as u32;
+            times.add(pass, self.stamps.between_ms(vk, 2 * i, 2 * i + 1)?);
+        }
+        Ok(())
+    }
+
+    pub fn destroy(self, vk: &VulkanContext) {
+        self.stamps.destroy(vk);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pass_times_keep_first_run_order_and_summarise_each_pass() {
+        let mut times = PassTimes::default();
+        for i in 0..20 {
+            times.add("raster", 1.0 + i as f64);
+            times.add("ao", 10.0);
+        }
+        let summary = times.summary();
+        assert_eq!(summary.iter().map(|s| s.0).collect::<Vec<_>>(), ["raster", "ao"]);
+        // 1..=20: the median is element 10 of 0..19 rounded (10 -> 11.0), p95 element 18 (19.0).
+        assert_eq!(summary[0].1, 11.0);
+        assert_eq!(summary[0].2, 19.0);
+        assert_eq!(summary[1].1, 10.0);
+        assert_eq!(times.line(), "raster 11.00 · ao 10.00 ms (GPU)");
+        assert!(times.samples("blur").is_empty());
+    }
+}
