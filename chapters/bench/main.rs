@@ -1,0 +1,413 @@
+//! `bench`: chapter 08's whole frame (G-buffers, hand-over, AO trace, composite, overlays) in
+//! three modes, side by side in one process, on the same scenes, sizes and rays:
+//!
+//! - `zero-copy`: shared memory and shared semaphores (the host fallback where the driver has
+//!   no semaphores, as on lavapipe: the report's `zero_copy_sync` says which);
+//! - `host-sync`: shared memory, the CPU waiting at each hand-over;
+//! - `cpu-round-trip`: no interop at all; the G-buffers and the AO go through the CPU.
+//!
+//! Per-pass times come from the GPU (GL time queries, Vulkan timestamps); a frame's time is
+//! the wall-clock time between frames, once many frames run back to back.
+//!
+//! Run: `cargo run --release --bin bench -- [--json] [--quick] [--out DIR]`.
+
+use anyhow::{Result, ensure};
+use ash::vk;
+use common::accel::RayTracedScene;
+use common::ao::AoTracer;
+use common::cli::Size;
+use common::commands::{Timestamps, median_p95};
+use common::gbuffer::GBuffers;
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::raytrace::AoRays;
+use common::scene::{Camera, Scene};
+use common::sync::Sync;
+use common::timing::{GlPassTimer, PassTimes};
+use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
+use glow::HasContext;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+// Chapter 08's composite pass and overlays, used as they are (not copied): bench measures
+// exactly the frame the chapter draws. `check` comes along because `overlay` uses its `Pixels`.
+#[allow(dead_code)]
+#[path = "../08-composite/check.rs"]
+mod check;
+mod outputs;
+#[allow(dead_code)]
+#[path = "../08-composite/overlay.rs"]
+mod overlay;
+mod round_trip;
+mod scenes;
+
+use overlay::{Composite, Overlays, Uniforms, View};
+use round_trip::RoundTrip;
+use scenes::SceneKind;
+
+/// Chapter 08's frame, zero-copy against host-synchronised against a CPU round trip.
+#[derive(clap::Parser)]
+struct Args {
+    /// Print exactly one JSON report on stdout; the table goes to stderr.
+    #[arg(long)]
+    json: bool,
+    /// Small sizes and few frames: for tests, in seconds on a CPU.
+    #[arg(long)]
+    quick: bool,
+    /// Where bench.json, bench.md and bench.svg go.
+    #[arg(long, default_value = "out/bench")]
+    out: PathBuf,
+    /// Scenes [default: default, large, ceiling].
+    #[arg(long, value_enum, value_delimiter = ',')]
+    scenes: Vec<SceneKind>,
+    /// Sizes, WIDTHxHEIGHT [default: 1920x1080,3840x2160; --quick: 64x48,96x64].
+    #[arg(long, value_delimiter = ',', value_parser = parse_size)]
+    sizes: Vec<Size>,
+    /// Rays per pixel per frame [default: 1,4,16,64; --quick: 1,4].
+    #[arg(long, value_delimiter = ',')]
+    spp: Vec<u32>,
+    /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
+    #[arg(long)]
+    frames: Option<u32>,
+}
+
+fn parse_size(text: &str) -> Result<Size, String> {
+    let (w, h) = text.split_once('x').ok_or_else(|| format!("expected WIDTHxHEIGHT, not {text:?}"))?;
+    let side = |s: &str| s.parse::<u32>().ok().filter(|v| (8..=16384).contains(v));
+    match (side(w), side(h)) {
+        (Some(width), Some(height)) => Ok(Size { width, height }),
+        _ => Err(format!("{text}: each side must be a number from 8 to 16384")),
+    }
+}
+
+/// How the frame's images travel between GL and Vulkan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mode {
+    ZeroCopy,
+    HostSync,
+    CpuRoundTrip,
+}
+
+impl Mode {
+    const ALL: [Mode; 3] = [Mode::ZeroCopy, Mode::HostSync, Mode::CpuRoundTrip];
+}
+
+/// One line of the results: exactly the fields issue 10 asks for.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Row {
+    pub mode: Mode,
+    pub scene: &'static str,
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    /// Median wall-clock time from one frame to the next.
+    pub frame_ms: f64,
+    pub p95_ms: f64,
+    /// GPU medians of the G-buffer pass (GL), the trace (Vulkan), composite + overlays (GL).
+    pub raster_ms: f64,
+    /// What is left of a frame besides the three passes: hand-overs, copies, CPU waits.
+    pub handoff_ms: f64,
+    pub ao_ms: f64,
+    pub composite_ms: f64,
+    /// AO rays per second of trace time (every pixel casts `spp` rays), in billions.
+    pub grays_per_s: f64,
+}
+
+fn main() -> ExitCode {
+    let args: Args = clap::Parser::parse();
+    let mut report = Report::new("bench");
+    if let Err(error) = run(&args, &mut report) {
+        eprintln!("error: {error:#}");
+        return ExitCode::from(2);
+    }
+    common::finish(report, args.json)
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    // 1. What to measure
+    let scenes = if args.scenes.is_empty() {
+        vec![SceneKind::Default, SceneKind::Large, SceneKind::Ceiling]
+    } else {
+        args.scenes.clone()
+    };
+    let sizes = match (&args.sizes[..], args.quick) {
+        ([], false) => vec![Size { width: 1920, height: 1080 }, Size { width: 3840, height: 2160 }],
+        ([], true) => vec![Size { width: 64, height: 48 }, Size { width: 96, height: 64 }],
+        (sizes, _) => sizes.to_vec(),
+    };
+    let spps = match (&args.spp[..], args.quick) {
+        ([], false) => vec![1, 4, 16, 64],
+        ([], true) => vec![1, 4],
+        (spps, _) => spps.to_vec(),
+    };
+    ensure!(spps.iter().all(|s| (1..=256).contains(s)), "--spp: each must be 1 to 256");
+    let frames = args.frames.unwrap_or(if args.quick { 3 } else { 30 }).max(1);
+
+    // 2. Vulkan, GL, and both ways to synchronise
+    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
+    let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    common::connect(report, &vk, &gl)?;
+    report.set("device", &vk.info.name);
+    report.set("driver", &vk.info.driver);
+    let zero_copy = Sync::new(&vk, &gl)?;
+    report.set("zero_copy_sync", zero_copy.name());
+    let stamps = Timestamps::new(&vk)?;
+    ensure!(stamps.is_some(), "{}: the queue writes no timestamps, which bench measures with", vk.info.name);
+    let stamps = stamps.expect("checked");
+
+    // 3. Every scene, size and ray count, the modes interleaved
+    let mut rows = Vec::new();
+    let scenes_count = scenes.len();
+    for kind in scenes {
+        let scene = kind.build(args.quick)?;
+        let mut shared = RayTracedScene::new(&vk, &gl, &scene)?;
+        if kind == SceneKind::Large {
+            report.set("large_scene", acceleration_report(&scene, &shared));
+        }
+        for &size in &sizes {
+            let extent = vk::Extent2D { width: size.width, height: size.height };
+            let mut frame = Frame::new(&vk, &gl, &mut shared, &scene, extent)?;
+            for &spp in &spps {
+                let mut samples: Vec<Samples> = Mode::ALL.iter().map(|_| Samples::default()).collect();
+                // Two rounds of every mode in turn: a clock or thermal drift touches all alike.
+                for _round in 0..2 {
+                    for (mode, samples) in Mode::ALL.iter().zip(&mut samples) {
+                        let sync = if *mode == Mode::ZeroCopy { &zero_copy } else { &Sync::Host };
+                        frame.run(
+                            &vk,
+                            &gl,
+                            &shared,
+                            sync,
+                            *mode,
+                            spp,
+                            frames.div_ceil(2),
+                            &stamps,
+                            samples,
+                        )?;
+                    }
+                }
+                for (mode, samples) in Mode::ALL.iter().zip(&samples) {
+                    rows.push(samples.row(*mode, kind.name(), size, spp));
+                }
+                eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
+            }
+            frame.destroy(&vk, &gl, &mut shared);
+        }
+        shared.destroy(&vk, &gl);
+    }
+    stamps.destroy(&vk);
+    zero_copy.destroy(&vk, &gl);
+    gl.check_error("the bench")?;
+
+    // 4. What the rows say, in every form
+    checks(report, &rows, Mode::ALL.len() * scenes_count * sizes.len() * spps.len());
+    outputs::write(&args.out, &rows, &vk.info.name, &vk.info.driver)?;
+    if !args.json {
+        eprintln!("{}", outputs::table(&rows));
+    }
+    report.set("rows", &rows);
+    Ok(())
+}
+
+/// The BLAS/TLAS numbers of the large scene.
+fn acceleration_report(scene: &Scene, shared: &RayTracedScene) -> serde_json::Value {
+    let stats = &shared.structures.stats;
+    serde_json::json!({
+        "triangles": scene.triangles(),
+        "blas_count": stats.blas_count,
+        "blas_bytes": stats.blas_bytes,
+        "compacted_bytes": stats.compacted_bytes,
+        "tlas_bytes": stats.tlas_bytes,
+        "blas_build_ms": stats.blas_build_ms,
+        "compaction_ms": stats.compaction_ms,
+        "tlas_build_ms": stats.tlas_build_ms,
+    })
+}
+
+/// The shape of the results, which no speed can change: every row measured, every pass timed.
+fn checks(report: &mut Report, rows: &[Row], expected: usize) {
+    let finite = |r: &Row| {
+        [r.frame_ms, r.p95_ms, r.raster_ms, r.handoff_ms, r.ao_ms, r.composite_ms, r.grays_per_s]
+            .iter()
+            .all(|v| v.is_finite() && *v >= 0.0)
+    };
+    report.check("every_row_has_finite_times", !rows.is_empty() && rows.iter().all(finite));
+    report.check(
+        "every_pass_was_timed",
+        rows.iter().all(|r| r.raster_ms > 0.0 && r.ao_ms > 0.0 && r.composite_ms > 0.0),
+    );
+    report.check("every_setting_has_a_row_per_mode", rows.len() == expected);
+}
+
+/// One mode's measurements at one setting.
+#[derive(Default)]
+struct Samples {
+    frame_ms: Vec<f64>,
+    ao_ms: Vec<f64>,
+    passes: PassTimes,
+}
+
+impl Samples {
+    fn row(&self, mode: Mode, scene: &'static str, size: Size, spp: u32) -> Row {
+        let (frame_ms, p95_ms) = median_p95(&self.frame_ms);
+        let median = |pass| median_p95(self.passes.samples(pass)).0;
+        let (raster_ms, composite_ms) = (median("raster"), median("composite"));
+        let ao_ms = median_p95(&self.ao_ms).0;
+        let rays = spp as f64 * size.width as f64 * size.height as f64;
+        Row {
+            mode,
+            scene,
+            width: size.width,
+            height: size.height,
+            spp,
+            frame_ms,
+            p95_ms,
+            raster_ms,
+            handoff_ms: (frame_ms - raster_ms - ao_ms - composite_ms).max(0.0),
+            ao_ms,
+            composite_ms,
+            grays_per_s: if ao_ms > 0.0 { rays / (ao_ms * 1e-3) / 1e9 } else { 0.0 },
+        }
+    }
+}
+
+/// What one size needs: chapter 08's G-buffers, tracer, composite and overlays, and the round
+/// trip's buffers.
+struct Frame<'s> {
+    scene: &'s Scene,
+    camera: Camera,
+    gbuffers: GBuffers,
+    tracer: AoTracer,
+    composite: Composite,
+    overlays: Overlays,
+    round_trip: RoundTrip,
+    gl_timer: GlPassTimer,
+    uniforms: Uniforms,
+}
+
+impl<'s> Frame<'s> {
+    fn new(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        shared: &mut RayTracedScene,
+        scene: &'s Scene,
+        extent: vk::Extent2D,
+    ) -> Result<Self> {
+        let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
+        let storage = vk::ImageUsageFlags::STORAGE;
+        let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, storage)?;
+        let tracer = AoTracer::new(vk, gl, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+        let composite = Composite::new(&gl.gl, &gbuffers)?;
+        let overlays = Overlays::new(&gl.gl, scene, 0)?;
+        let round_trip = RoundTrip::new(vk, gl, &mut shared.allocator, extent)?;
+        // Chapter 08's defaults: blur radius 2, power 2, the final view.
+        let uniforms = Uniforms {
+            blur_radius: 2,
+            depth_tolerance: 0.02,
+            normal_tolerance: 0.9,
+            power: 2.0,
+            view: View::Final,
+            bounds: scene.bounds,
+            far_depth: camera.far,
+        };
+        Ok(Frame {
+            scene,
+            camera,
+            gbuffers,
+            tracer,
+            composite,
+            overlays,
+            round_trip,
+            gl_timer: GlPassTimer::new(),
+            uniforms,
+        })
+    }
+
+    /// `count` measured frames of `mode` after two to warm up, into `samples`. Nothing waits
+    /// inside a frame that the mode itself does not make wait.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &mut self,
+        vk: &VulkanContext,
+        gl: &GlContext,
+        shared: &RayTracedScene,
+        sync: &Sync,
+        mode: Mode,
+        spp: u32,
+        count: u32,
+        stamps: &Timestamps,
+        samples: &mut Samples,
+    ) -> Result<()> {
+        let g = &gl.gl;
+        let fence = shared.commands.fence;
+        let radius = self.scene.size() * 0.05;
+        let rays = AoRays { samples: spp, accumulated: 0, radius, scene_scale: self.scene.size() / 2.0 };
+        let aspect = self.gbuffers.extent.width as f32 / self.gbuffers.extent.height as f32;
+        let mut times = PassTimes::default();
+        let mut last: Option<Instant> = None;
+        for frame in 0..count + 2 {
+            let measured = frame >= 2;
+            // The previous frame's trace time: its fence is what the next `begin` waits for anyway.
+            if frame > 0 {
+                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+                if measured {
+                    samples.ao_ms.push(stamps.read_ms(vk)?);
+                }
+            }
+            self.gl_timer.begin(g, "raster")?;
+            self.gbuffers.draw(g, self.scene, &self.camera);
+            self.gl_timer.end(g);
+            if mode == Mode::CpuRoundTrip {
+                self.round_trip.gbuffers_to_vulkan(vk, gl, &self.gbuffers)?;
+            }
+            // Each frame a fresh estimate (weight 1), as when the camera moves every frame.
+            self.tracer.reset();
+            self.tracer.trace(vk, gl, sync, &shared.commands, &self.gbuffers, rays, Some(stamps))?;
+            if mode == Mode::CpuRoundTrip {
+                self.round_trip.ao_to_gl(vk, gl)?;
+            }
+            self.gl_timer.begin(g, "composite")?;
+            self.composite.draw(g, &self.gbuffers, &self.tracer, &self.uniforms);
+            self.overlays.draw(g, &self.composite, self.camera.view_projection(aspect));
+            self.gl_timer.end(g);
+            if measured {
+                self.gl_timer.end_frame(g, &mut times);
+            } else {
+                self.gl_timer.finish(g, &mut PassTimes::default());
+            }
+            unsafe { g.flush() };
+            let now = Instant::now();
+            if let Some(start) = last.replace(now) {
+                if measured {
+                    samples.frame_ms.push(common::ms_since(start));
+                }
+            }
+        }
+        // The last frame: until both APIs are done with it.
+        unsafe { g.finish() };
+        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+        samples.ao_ms.push(stamps.read_ms(vk)?);
+        self.gl_timer.finish(g, &mut times);
+        for pass in ["raster", "composite"] {
+            for &ms in times.samples(pass) {
+                samples.passes.add(pass, ms);
+            }
+        }
+        Ok(())
+    }
+
+    /// Newest first, once both APIs are idle.
+    fn destroy(self, vk: &VulkanContext, gl: &GlContext, shared: &mut RayTracedScene) {
+        unsafe { gl.gl.finish() };
+        unsafe {
+            let _ = vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX);
+        }
+        self.gl_timer.delete(&gl.gl);
+        self.round_trip.destroy(vk, gl, &mut shared.allocator);
+        self.overlays.destroy(&gl.gl);
+        self.composite.destroy(&gl.gl);
+        self.tracer.destroy(vk, gl, &mut shared.allocator);
+        self.gbuffers.destroy(vk, gl);
+    }
+}
