@@ -1,0 +1,69 @@
+//! The `bench` binary on the software stack: `--quick --json` runs, and its report has the shape
+//! issue 10 asks for (no timing asserts: lavapipe's speed says nothing about a GPU's).
+
+mod harness;
+
+use harness::run_chapter_with;
+use serde_json::Value;
+
+#[test]
+fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
+    let run = run_chapter_with(env!("CARGO_BIN_EXE_bench"), &["--quick"], &[]);
+    let report = run.succeeded();
+    assert!(report["device"].as_str().is_some_and(|d| !d.is_empty()));
+    assert!(report["driver"].as_str().is_some_and(|d| !d.is_empty()));
+    let rows = report["rows"].as_array().expect("rows");
+    // 3 modes x 3 scenes x 2 sizes x 2 ray counts.
+    assert_eq!(rows.len(), 36);
+    let fields = [
+        "mode",
+        "scene",
+        "width",
+        "height",
+        "spp",
+        "frame_ms",
+        "p95_ms",
+        "raster_ms",
+        "handoff_ms",
+        "ao_ms",
+        "composite_ms",
+        "grays_per_s",
+    ];
+    for row in rows {
+        let keys: Vec<&str> = row.as_object().unwrap().keys().map(String::as_str).collect();
+        let mut expected = fields.to_vec();
+        expected.sort();
+        let mut keys_sorted = keys.clone();
+        keys_sorted.sort();
+        assert_eq!(keys_sorted, expected, "exactly the issue's fields: {row}");
+        for field in &fields[2..] {
+            assert!(row[field].as_f64().is_some_and(|v| v.is_finite() && v >= 0.0), "{field} in {row}");
+        }
+    }
+    let set = |field: &str| {
+        let mut values: Vec<String> = rows.iter().map(|r| r[field].to_string()).collect();
+        values.sort();
+        values.dedup();
+        values
+    };
+    assert_eq!(set("mode"), [r#""cpu-round-trip""#, r#""host-sync""#, r#""zero-copy""#]);
+    assert_eq!(set("scene"), [r#""ceiling""#, r#""default""#, r#""large""#]);
+    assert_eq!(set("spp"), ["1", "4"]);
+    // The large scene's acceleration structures: sizes and GPU build times.
+    let large = &report["large_scene"];
+    for field in ["triangles", "blas_bytes", "compacted_bytes", "tlas_bytes"] {
+        assert!(large[field].as_u64().is_some_and(|v| v > 0), "{field} in {large}");
+    }
+    for field in ["blas_build_ms", "compaction_ms", "tlas_build_ms"] {
+        assert!(large[field].as_f64().is_some_and(|v| v >= 0.0), "{field} in {large}");
+    }
+    // The table and the plot beside the report.
+    for file in ["bench.json", "bench.md", "bench.svg"] {
+        let path = run.out_dir.path().join(file);
+        assert!(std::fs::metadata(&path).is_ok_and(|m| m.len() > 0), "{} written", path.display());
+    }
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(run.out_dir.path().join("bench.json")).unwrap())
+            .unwrap();
+    assert_eq!(json["rows"].as_array().unwrap().len(), rows.len());
+}
