@@ -18,7 +18,7 @@ use common::ao::AoTracer;
 use common::cli::Size;
 use common::commands::{Timestamps, median_p95};
 use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene};
 use common::sync::Sync;
@@ -66,6 +66,12 @@ struct Args {
     /// Rays per pixel per frame [default: 1,4,16,64; --quick: 1,4].
     #[arg(long, value_delimiter = ',')]
     spp: Vec<u32>,
+    /// How GL reports problems while the bench runs (every chapter: synchronous).
+    #[arg(long, value_enum, default_value = "synchronous")]
+    gl_debug: DebugOutput,
+    /// Draw the G-buffers depth first (`GBuffers::draw_depth_first`) instead of in one pass.
+    #[arg(long)]
+    depth_prepass: bool,
     /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
     #[arg(long)]
     frames: Option<u32>,
@@ -148,6 +154,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
+    gl.set_debug_output(args.gl_debug);
+    report.set(
+        "settings",
+        serde_json::json!({ "gl_debug": args.gl_debug, "depth_prepass": args.depth_prepass }),
+    );
     report.set("device", &vk.info.name);
     report.set("driver", &vk.info.driver);
     let zero_copy = Sync::new(&vk, &gl)?;
@@ -174,17 +185,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 for _round in 0..2 {
                     for (mode, samples) in Mode::ALL.iter().zip(&mut samples) {
                         let sync = if *mode == Mode::ZeroCopy { &zero_copy } else { &Sync::Host };
-                        frame.run(
-                            &vk,
-                            &gl,
-                            &shared,
-                            sync,
-                            *mode,
-                            spp,
-                            frames.div_ceil(2),
-                            &stamps,
-                            samples,
-                        )?;
+                        let frames = frames.div_ceil(2);
+                        let setting = Setting { mode: *mode, spp, frames, depth_prepass: args.depth_prepass };
+                        frame.run(&vk, &gl, &shared, sync, setting, &stamps, samples)?;
                     }
                 }
                 for (mode, samples) in Mode::ALL.iter().zip(&samples) {
@@ -272,6 +275,15 @@ impl Samples {
     }
 }
 
+/// How one run of frames is made.
+#[derive(Clone, Copy)]
+struct Setting {
+    mode: Mode,
+    spp: u32,
+    frames: u32,
+    depth_prepass: bool,
+}
+
 /// What one size needs: chapter 08's G-buffers, tracer, composite and overlays, and the round
 /// trip's buffers.
 struct Frame<'s> {
@@ -324,21 +336,19 @@ impl<'s> Frame<'s> {
         })
     }
 
-    /// `count` measured frames of `mode` after two to warm up, into `samples`. Nothing waits
+    /// `setting.frames` measured frames after two to warm up, into `samples`. Nothing waits
     /// inside a frame that the mode itself does not make wait.
-    #[allow(clippy::too_many_arguments)]
     fn run(
         &mut self,
         vk: &VulkanContext,
         gl: &GlContext,
         shared: &RayTracedScene,
         sync: &Sync,
-        mode: Mode,
-        spp: u32,
-        count: u32,
+        setting: Setting,
         stamps: &Timestamps,
         samples: &mut Samples,
     ) -> Result<()> {
+        let Setting { mode, spp, frames: count, depth_prepass } = setting;
         let g = &gl.gl;
         let fence = shared.commands.fence;
         let radius = self.scene.size() * 0.05;
@@ -356,7 +366,11 @@ impl<'s> Frame<'s> {
                 }
             }
             self.gl_timer.begin(g, "raster")?;
-            self.gbuffers.draw(g, self.scene, &self.camera);
+            if depth_prepass {
+                self.gbuffers.draw_depth_first(g, self.scene, &self.camera);
+            } else {
+                self.gbuffers.draw(g, self.scene, &self.camera);
+            }
             self.gl_timer.end(g);
             if mode == Mode::CpuRoundTrip {
                 self.round_trip.gbuffers_to_vulkan(vk, gl, &self.gbuffers)?;

@@ -119,20 +119,35 @@ impl GBuffers {
     // ANCHOR: draw
     /// Clears the G-buffers and draws the scene: one instanced draw per mesh.
     pub fn draw(&self, gl: &glow::Context, scene: &Scene, camera: &Camera) {
+        unsafe {
+            self.bind(gl, camera);
+            for attachment in 0..GBUFFERS.len() as u32 {
+                gl.clear_buffer_f32_slice(glow::COLOR, attachment, &[0.0; 4]);
+            }
+            gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
+            self.draw_meshes(gl, scene);
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+        }
+    }
+
+    /// The framebuffer, its viewport, the depth test, the program and the camera's matrices.
+    unsafe fn bind(&self, gl: &glow::Context, camera: &Camera) {
         let (width, height) = (self.extent.width, self.extent.height);
         unsafe {
             gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
             gl.viewport(0, 0, width as i32, height as i32);
             gl.enable(glow::DEPTH_TEST);
-            for attachment in 0..GBUFFERS.len() as u32 {
-                gl.clear_buffer_f32_slice(glow::COLOR, attachment, &[0.0; 4]);
-            }
-            gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
             gl.use_program(Some(self.program));
             let uniform = |name| gl.get_uniform_location(self.program, name);
             let projection = camera.projection(width as f32 / height as f32);
             gl.uniform_matrix_4_f32_slice(uniform("view").as_ref(), false, &camera.view().to_cols_array());
             gl.uniform_matrix_4_f32_slice(uniform("projection").as_ref(), false, &projection.to_cols_array());
+        }
+    }
+
+    /// One instanced draw per mesh.
+    unsafe fn draw_meshes(&self, gl: &glow::Context, scene: &Scene) {
+        unsafe {
             for ((mesh, instances), vao) in
                 scene.meshes.iter().zip(&scene.mesh_instances).zip(&self.vertex_arrays)
             {
@@ -151,10 +166,33 @@ impl GBuffers {
                 );
             }
             gl.bind_vertex_array(None);
-            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
         }
     }
     // ANCHOR_END: draw
+
+    /// The same pictures as [`GBuffers::draw`], drawn depth first (`bench --depth-prepass`): a
+    /// first pass writes only depth, a second writes the three colour targets only where its
+    /// depth equals the nearest (the same program and inputs give the same depth, bit for bit).
+    /// Each pixel's fragment shader and its 36 bytes of writes then run once, not once per
+    /// overlapping triangle, at the price of transforming the scene twice.
+    pub fn draw_depth_first(&self, gl: &glow::Context, scene: &Scene, camera: &Camera) {
+        unsafe {
+            self.bind(gl, camera);
+            gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
+            gl.color_mask(false, false, false, false);
+            self.draw_meshes(gl, scene);
+            gl.color_mask(true, true, true, true);
+            for attachment in 0..GBUFFERS.len() as u32 {
+                gl.clear_buffer_f32_slice(glow::COLOR, attachment, &[0.0; 4]);
+            }
+            gl.depth_func(glow::EQUAL);
+            gl.depth_mask(false);
+            self.draw_meshes(gl, scene);
+            gl.depth_func(glow::LESS);
+            gl.depth_mask(true);
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+        }
+    }
 
     /// GL's objects, then the images (each GL side first).
     pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {

@@ -315,6 +315,36 @@ pub fn gl_error_count() -> u32 {
     GL_ERRORS.load(Ordering::Relaxed)
 }
 
+/// How GL reports problems (`bench --gl-debug`). Every context starts `Synchronous`: a message
+/// arrives inside the call that caused it, which is what one wants while learning and testing,
+/// and what costs most (the driver may serialise its work to do it). Timed runs can choose less.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DebugOutput {
+    /// Messages inside the call that caused them (the default of every chapter).
+    Synchronous,
+    /// Messages whenever the driver gets to them: errors are still counted, later.
+    Asynchronous,
+    /// No messages: only `glGetError` (`GlContext::check_error`) still sees errors.
+    Off,
+}
+
+impl GlContext {
+    /// Changes how this context reports problems; see [`DebugOutput`].
+    pub fn set_debug_output(&self, mode: DebugOutput) {
+        unsafe {
+            match mode {
+                DebugOutput::Off => self.gl.disable(glow::DEBUG_OUTPUT),
+                _ => self.gl.enable(glow::DEBUG_OUTPUT),
+            }
+            match mode {
+                DebugOutput::Synchronous => self.gl.enable(glow::DEBUG_OUTPUT_SYNCHRONOUS),
+                _ => self.gl.disable(glow::DEBUG_OUTPUT_SYNCHRONOUS),
+            }
+        }
+    }
+}
+
 fn enable_debug_output(gl: &mut glow::Context) {
     unsafe {
         // Synchronous: the message arrives inside the call that caused it, so a backtrace helps.
