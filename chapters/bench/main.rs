@@ -72,6 +72,10 @@ struct Args {
     /// Draw the G-buffers depth first (`GBuffers::draw_depth_first`) instead of in one pass.
     #[arg(long)]
     depth_prepass: bool,
+    /// Where the shared scene buffers live: `host` (every chapter: the first host-visible type)
+    /// or `device` (device-local and host-visible, where the GPU offers such memory).
+    #[arg(long, value_enum, default_value = "host")]
+    scene_memory: SceneMemory,
     /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
     #[arg(long)]
     frames: Option<u32>,
@@ -155,10 +159,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
     gl.set_debug_output(args.gl_debug);
-    report.set(
-        "settings",
-        serde_json::json!({ "gl_debug": args.gl_debug, "depth_prepass": args.depth_prepass }),
-    );
+    common::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);
+    let settings = serde_json::json!({
+        "gl_debug": args.gl_debug,
+        "depth_prepass": args.depth_prepass,
+        "scene_memory": args.scene_memory,
+    });
+    report.set("settings", settings);
     report.set("device", &vk.info.name);
     report.set("driver", &vk.info.driver);
     let zero_copy = Sync::new(&vk, &gl)?;
@@ -173,6 +180,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     for kind in scenes {
         let scene = kind.build(args.quick)?;
         let mut shared = RayTracedScene::new(&vk, &gl, &scene)?;
+        // What the scene's memory turned out to be (`--scene-memory device` is a preference).
+        let flags = shared.buffers.instances.0.memory.property_flags;
+        report.set("scene_memory_flags", format!("{flags:?}"));
         if kind == SceneKind::Large {
             report.set("large_scene", acceleration_report(&scene, &shared));
         }
@@ -275,6 +285,13 @@ impl Samples {
     }
 }
 
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+enum SceneMemory {
+    Host,
+    Device,
+}
+
 /// How one run of frames is made.
 #[derive(Clone, Copy)]
 struct Setting {
@@ -358,13 +375,6 @@ impl<'s> Frame<'s> {
         let mut last: Option<Instant> = None;
         for frame in 0..count + 2 {
             let measured = frame >= 2;
-            // The previous frame's trace time: its fence is what the next `begin` waits for anyway.
-            if frame > 0 {
-                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
-                if measured {
-                    samples.ao_ms.push(stamps.read_ms(vk)?);
-                }
-            }
             self.gl_timer.begin(g, "raster")?;
             if depth_prepass {
                 self.gbuffers.draw_depth_first(g, self.scene, &self.camera);
@@ -374,6 +384,16 @@ impl<'s> Frame<'s> {
             self.gl_timer.end(g);
             if mode == Mode::CpuRoundTrip {
                 self.round_trip.gbuffers_to_vulkan(vk, gl, &self.gbuffers)?;
+            }
+            // The previous frame's trace time, read after its fence: the wait `trace` makes
+            // anyway before it records again (one command buffer), once this frame's G-buffers
+            // are queued, so the GPU has work while the CPU waits.
+            if frame > 0 {
+                unsafe { g.flush() };
+                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+                if frame > 2 {
+                    samples.ao_ms.push(stamps.read_ms(vk)?);
+                }
             }
             // Each frame a fresh estimate (weight 1), as when the camera moves every frame.
             self.tracer.reset();

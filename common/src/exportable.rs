@@ -211,7 +211,7 @@ impl ExportedBuffer {
         let buffer = unsafe { ctx.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
         crate::resources::created("vk_buffer_exportable", 0);
         let requirements = unsafe { ctx.device.get_buffer_memory_requirements(buffer) };
-        let host = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+        let host = buffer_memory_properties(ctx, requirements.memory_type_bits);
         let dedicated = if features.contains(vk::ExternalMemoryFeatureFlags::DEDICATED_ONLY) {
             Dedicated::Buffer(buffer)
         } else {
@@ -244,4 +244,24 @@ impl ExportedBuffer {
             ctx.device.destroy_buffer(self.buffer, None);
         }
     }
+}
+
+/// Whether exported buffers prefer memory that is device-local as well as host-visible
+/// (`bench --scene-memory device`). Off in every chapter: the first host-visible, coherent type
+/// is the simplest to explain, but on a discrete GPU it is usually system memory, which GL then
+/// reads over PCIe every frame it draws the scene. Resizable-BAR GPUs offer a type that is both.
+static PREFER_DEVICE_LOCAL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// See [`PREFER_DEVICE_LOCAL`]: applies to buffers made after the call.
+pub fn prefer_device_local_buffers(on: bool) {
+    PREFER_DEVICE_LOCAL.store(on, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Host-visible and coherent (the CPU writes the data in place), and device-local too when
+/// preferred and some allowed type has all three.
+fn buffer_memory_properties(ctx: &VulkanContext, type_bits: u32) -> vk::MemoryPropertyFlags {
+    let host = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+    let both = host | vk::MemoryPropertyFlags::DEVICE_LOCAL;
+    let prefer = PREFER_DEVICE_LOCAL.load(std::sync::atomic::Ordering::Relaxed);
+    if prefer && ctx.find_memory_type(type_bits, both).is_ok() { both } else { host }
 }
