@@ -177,6 +177,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 3. Every scene, size and ray count, the modes interleaved
     let mut rows = Vec::new();
     let scenes_count = scenes.len();
+    let mut same_depth_first = true;
     for kind in scenes {
         let scene = kind.build(args.quick)?;
         let mut shared = RayTracedScene::new(&vk, &gl, &scene)?;
@@ -189,6 +190,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         for &size in &sizes {
             let extent = vk::Extent2D { width: size.width, height: size.height };
             let mut frame = Frame::new(&vk, &gl, &mut shared, &scene, extent)?;
+            if args.depth_prepass {
+                same_depth_first &= frame.depth_first_draws_the_same(&gl.gl);
+            }
             for &spp in &spps {
                 let mut samples: Vec<Samples> = Mode::ALL.iter().map(|_| Samples::default()).collect();
                 // Two rounds of every mode in turn: a clock or thermal drift touches all alike.
@@ -214,6 +218,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl.check_error("the bench")?;
 
     // 4. What the rows say, in every form
+    if args.depth_prepass {
+        report.check("depth_prepass_draws_the_same_gbuffers", same_depth_first);
+    }
     checks(report, &rows, Mode::ALL.len() * scenes_count * sizes.len() * spps.len());
     outputs::write(&args.out, &rows, &vk.info.name, &vk.info.driver)?;
     if !args.json {
@@ -429,6 +436,21 @@ impl<'s> Frame<'s> {
             }
         }
         Ok(())
+    }
+
+    /// Does `GBuffers::draw_depth_first` draw exactly what `draw` does? Every G-buffer's pixels,
+    /// bit for bit, before any frame (GL has the images).
+    fn depth_first_draws_the_same(&self, gl: &glow::Context) -> bool {
+        let (w, h) = (self.gbuffers.extent.width, self.gbuffers.extent.height);
+        let read = || {
+            let textures = self.gbuffers.textures();
+            textures.iter().map(|&t| common::output::read_texture_f32(gl, t, w, h, 4)).collect::<Vec<_>>()
+        };
+        self.gbuffers.draw(gl, self.scene, &self.camera);
+        let one_pass = read();
+        self.gbuffers.draw_depth_first(gl, self.scene, &self.camera);
+        let bits = |images: &[Vec<f32>]| images.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+        bits(&one_pass) == bits(&read())
     }
 
     /// Newest first, once both APIs are idle.
