@@ -35,6 +35,19 @@ pub mod layout {
     pub const SHADER_READ_ONLY: u32 = 0x9591;
     pub const TRANSFER_SRC: u32 = 0x9592;
     pub const TRANSFER_DST: u32 = 0x9593;
+
+    /// GL's name for a Vulkan layout; `None` for one GL has no name for.
+    pub fn of(layout: ash::vk::ImageLayout) -> Option<u32> {
+        use ash::vk::ImageLayout as L;
+        Some(match layout {
+            L::GENERAL => GENERAL,
+            L::COLOR_ATTACHMENT_OPTIMAL => COLOR_ATTACHMENT,
+            L::SHADER_READ_ONLY_OPTIMAL => SHADER_READ_ONLY,
+            L::TRANSFER_SRC_OPTIMAL => TRANSFER_SRC,
+            L::TRANSFER_DST_OPTIMAL => TRANSFER_DST,
+            _ => return None,
+        })
+    }
 }
 
 /// Declares a struct of GL function pointers and a loader that refuses null ones.

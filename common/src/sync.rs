@@ -5,6 +5,8 @@ use crate::{GlContext, VulkanContext};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
+use std::cell::{Cell, RefCell};
+use std::collections::HashMap;
 use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
 
 /// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Sync::Host`].
@@ -27,8 +29,36 @@ pub enum Sync {
     },
     /// The driver cannot share semaphores (lavapipe, llvmpipe): the CPU waits for GL to finish
     /// (`glFinish`) before submitting Vulkan's work, and for Vulkan's fence before GL goes on.
-    /// Correct, but each API sits idle while the other works, and the CPU blocks twice a frame.
-    Host,
+    /// Each API sits idle while the other works, and the CPU blocks twice a frame. Nothing tells
+    /// GL a layout, so GL changes none: a shared image stays in the layout Vulkan last left it
+    /// in, which is why [`Sync::hand_over`] keeps it in `GENERAL` both ways on this path.
+    Host {
+        /// The GL layout each texture (by name) was in when Vulkan last handed it to GL.
+        left_by_vulkan: RefCell<HashMap<u32, u32>>,
+        /// Hand-overs to Vulkan that named another layout than the one Vulkan had left.
+        disagreements: Cell<u32>,
+    },
+}
+
+// ANCHOR: hand_over
+/// The layouts of one shared image at the two hand-overs of a frame. Vulkan's acquire barrier
+/// starts from `to_vulkan` and its release barrier ends in `to_gl`; GL's signal and wait name the
+/// same two (`common::gl::layout::of`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HandOver {
+    /// Where GL leaves the image for Vulkan.
+    pub to_vulkan: vk::ImageLayout,
+    /// Where Vulkan leaves the image for GL.
+    pub to_gl: vk::ImageLayout,
+}
+// ANCHOR_END: hand_over
+
+impl HandOver {
+    /// GL's names for the two layouts, for [`Sync::gl_release`] and [`Sync::gl_acquire`].
+    pub fn gl(self) -> (u32, u32) {
+        let name = |layout| crate::gl::layout::of(layout).expect("a layout GL can name");
+        (name(self.to_vulkan), name(self.to_gl))
+    }
 }
 
 impl Sync {
@@ -44,7 +74,7 @@ impl Sync {
                 _ => "GL cannot import semaphores (no GL_EXT_semaphore_fd)",
             };
             eprintln!("sync: host ({missing}): the CPU waits for each API in turn");
-            return Ok(Sync::Host);
+            return Ok(Sync::Host { left_by_vulkan: RefCell::default(), disagreements: Cell::new(0) });
         };
         let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
         let vulkan_done = match SharedSemaphore::new(vk, gl) {
@@ -63,7 +93,37 @@ impl Sync {
     pub fn name(&self) -> &'static str {
         match self {
             Sync::Semaphores { .. } => "semaphores",
-            Sync::Host => "host",
+            Sync::Host { .. } => "host",
+        }
+    }
+
+    // ANCHOR: hand_over_layouts
+    /// The layouts to hand a shared image over in, on this path. `to_vulkan` is the layout
+    /// Vulkan's work wants first, `to_gl` the one GL's work wants.
+    ///
+    /// - Semaphores: those two. GL's signal moves the image to `to_vulkan`, and GL's wait is
+    ///   told Vulkan left it in `to_gl`: each side finds the layout it asked for.
+    /// - Host: `GENERAL` both ways. `glFinish` and a fence carry no layout, so GL moves the image
+    ///   nowhere and Vulkan's next acquire finds it where Vulkan's last release left it. With two
+    ///   different layouts, Vulkan would acquire from a layout the image is not in. `GENERAL` is
+    ///   the one layout valid for every use on both sides (attachment, sampling, storage, copies).
+    pub fn hand_over(&self, to_vulkan: vk::ImageLayout, to_gl: vk::ImageLayout) -> HandOver {
+        match self {
+            Sync::Semaphores { .. } => HandOver { to_vulkan, to_gl },
+            Sync::Host { .. } => {
+                HandOver { to_vulkan: vk::ImageLayout::GENERAL, to_gl: vk::ImageLayout::GENERAL }
+            }
+        }
+    }
+    // ANCHOR_END: hand_over_layouts
+
+    /// On the host path: did every hand-over to Vulkan name the layout Vulkan itself had left
+    /// the image in (GL changes none there)? With semaphores GL makes the transitions, and any
+    /// pair of layouts agrees.
+    pub fn layouts_agreed(&self) -> bool {
+        match self {
+            Sync::Semaphores { .. } => true,
+            Sync::Host { disagreements, .. } => disagreements.get() == 0,
         }
     }
 
@@ -91,7 +151,22 @@ impl Sync {
                     gl.gl.flush();
                 }
             }
-            Sync::Host => unsafe { gl.gl.finish() },
+            Sync::Host { left_by_vulkan, disagreements } => {
+                // No layout travels with glFinish: Vulkan's acquire must name the layout Vulkan's
+                // own release left. Count every texture that says otherwise.
+                let left = left_by_vulkan.borrow();
+                for (texture, layout) in textures.iter().zip(layouts) {
+                    if left.get(&texture.0.get()).is_some_and(|left| left != layout) {
+                        disagreements.set(disagreements.get() + 1);
+                        eprintln!(
+                            "sync: host path: a texture is handed to Vulkan as layout {layout:#x}, but \
+                             Vulkan left it in {:#x} and GL changes no layout on this path",
+                            left[&texture.0.get()]
+                        );
+                    }
+                }
+                unsafe { gl.gl.finish() }
+            }
         }
     }
     // ANCHOR_END: gl_release
@@ -101,7 +176,7 @@ impl Sync {
     pub fn vulkan_waits_on(&self) -> Option<vk::Semaphore> {
         match self {
             Sync::Semaphores { gl_done, .. } => Some(gl_done.vk),
-            Sync::Host => None,
+            Sync::Host { .. } => None,
         }
     }
 
@@ -109,7 +184,7 @@ impl Sync {
     pub fn vulkan_signals(&self) -> Option<vk::Semaphore> {
         match self {
             Sync::Semaphores { vulkan_done, .. } => Some(vulkan_done.vk),
-            Sync::Host => None,
+            Sync::Host { .. } => None,
         }
     }
 
@@ -142,8 +217,12 @@ impl Sync {
                 };
                 Ok(())
             }
-            Sync::Host => unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
-                .context("waiting for Vulkan's work on the CPU"),
+            Sync::Host { left_by_vulkan, .. } => {
+                let mut left = left_by_vulkan.borrow_mut();
+                left.extend(textures.iter().map(|t| t.0.get()).zip(layouts.iter().copied()));
+                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
+                    .context("waiting for Vulkan's work on the CPU")
+            }
         }
     }
     // ANCHOR_END: gl_acquire
