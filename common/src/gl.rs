@@ -55,6 +55,7 @@ macro_rules! gl_functions {
     ($(#[$meta:meta])* $struct:ident { $($name:ident: fn($($ty:ty),*) $(-> $ret:ty)?;)* }) => {
         $(#[$meta])*
         #[allow(non_snake_case)]
+        #[derive(Clone, Copy)]
         pub struct $struct {
             $(pub $name: unsafe extern "system" fn($($ty),*) $(-> $ret)?,)*
         }
@@ -103,7 +104,8 @@ gl_functions! {
 
 /// A current GL context and what the chapters need to know about it.
 pub struct GlContext {
-    pub gl: glow::Context,
+    /// Shared (`Rc`) with the guards in `common` that delete their GL objects when dropped.
+    pub gl: std::rc::Rc<glow::Context>,
     /// Present when the chapter asked for [`MEMORY_EXTENSIONS`].
     pub memory: Option<MemoryObjectFns>,
     /// Present when the driver has [`SEMAPHORE_EXTENSIONS`] (and they are not hidden).
@@ -231,7 +233,7 @@ impl GlContext {
             }
         }
         Ok(GlContext {
-            gl,
+            gl: std::rc::Rc::new(gl),
             memory,
             semaphores,
             renderer,

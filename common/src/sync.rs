@@ -12,10 +12,13 @@ use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
 /// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Sync::Host`].
 pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
 
-/// One semaphore, seen by both APIs.
+/// One semaphore, seen by both APIs. Deleted on both sides when dropped (GL's first).
 pub struct SharedSemaphore {
     pub vk: vk::Semaphore,
+    /// GL's name for it; 0 until the import succeeded.
     pub gl: u32,
+    device: ash::Device,
+    gl_fns: Option<crate::gl::SemaphoreFns>,
 }
 
 /// The two hand-overs of every frame, and how they are made.
@@ -77,13 +80,8 @@ impl Sync {
             return Ok(Sync::Host { left_by_vulkan: RefCell::default(), disagreements: Cell::new(0) });
         };
         let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
-        let vulkan_done = match SharedSemaphore::new(vk, gl) {
-            Ok(s) => s,
-            Err(error) => {
-                gl_done.destroy(vk, gl);
-                return Err(error.context("sharing the vulkan_done semaphore"));
-            }
-        };
+        // Should this one fail, `gl_done` is dropped on the way out, which deletes it.
+        let vulkan_done = SharedSemaphore::new(vk, gl).context("sharing the vulkan_done semaphore")?;
         eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
         Ok(Sync::Semaphores { gl_done, vulkan_done })
     }
@@ -201,6 +199,7 @@ impl Sync {
         layouts: &[u32],
     ) -> Result<()> {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
+        crate::fail::at("gl_acquire")?;
         match self {
             Sync::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -255,44 +254,46 @@ impl SharedSemaphore {
     // ANCHOR: share_semaphore
     /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd.
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Self> {
+        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
         let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
         crate::resources::created("vk_semaphore_exportable", 0);
+        // From here on the guard destroys what exists on every early return.
+        let mut shared =
+            SharedSemaphore { vk: semaphore, gl: 0, device: vk.device.clone(), gl_fns: Some(*ext) };
         let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
         let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
-        let fd = match unsafe { loader.get_semaphore_fd(&get) } {
-            // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns.
-            Ok(fd) => unsafe { OwnedFd::from_raw_fd(fd) },
-            Err(error) => {
-                unsafe { vk.device.destroy_semaphore(semaphore, None) };
-                return Err(error).context("vkGetSemaphoreFdKHR");
-            }
-        };
-        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
-        let mut name = 0;
+        let fd = unsafe { loader.get_semaphore_fd(&get) }.context("vkGetSemaphoreFdKHR")?;
+        // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns. Until the import
+        // succeeds, `fd` closes it on every way out.
+        let fd = unsafe { OwnedFd::from_raw_fd(fd) };
+        unsafe { (ext.GenSemaphoresEXT)(1, &mut shared.gl) };
         unsafe {
-            (ext.GenSemaphoresEXT)(1, &mut name);
-            (ext.ImportSemaphoreFdEXT)(name, crate::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd());
-        }
-        if let Err(error) = gl.check_error("glImportSemaphoreFdEXT") {
-            unsafe {
-                (ext.DeleteSemaphoresEXT)(1, &name);
-                vk.device.destroy_semaphore(semaphore, None);
-            }
-            return Err(error); // `fd` is dropped, and so closed: the failed import did not take it.
-        }
+            (ext.ImportSemaphoreFdEXT)(shared.gl, crate::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
+        };
+        // On failure `fd` is dropped, and so closed (the failed import did not take it), and
+        // `shared` deletes GL's semaphore and Vulkan's.
+        gl.check_error("glImportSemaphoreFdEXT")?;
         // SAFETY: the import succeeded; the fd is GL's now.
         let _ = fd.into_raw_fd();
-        Ok(SharedSemaphore { vk: semaphore, gl: name })
+        Ok(shared)
     }
     // ANCHOR_END: share_semaphore
 
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
-        if let Some(ext) = &gl.semaphores {
+    /// GL's semaphore, then Vulkan's: what dropping it does.
+    pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {
+        drop(self);
+    }
+}
+
+impl Drop for SharedSemaphore {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
+        if let (Some(ext), true) = (&self.gl_fns, self.gl != 0) {
             unsafe { (ext.DeleteSemaphoresEXT)(1, &self.gl) };
         }
-        unsafe { vk.device.destroy_semaphore(self.vk, None) };
+        unsafe { self.device.destroy_semaphore(self.vk, None) };
     }
 }
