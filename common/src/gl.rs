@@ -406,15 +406,17 @@ fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow
 }
 
 /// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::output`].
+/// Deleted when dropped.
 pub struct RenderTarget {
     pub framebuffer: glow::Framebuffer,
     pub colour: glow::Renderbuffer,
     pub width: u32,
     pub height: u32,
+    gl: std::rc::Rc<glow::Context>,
 }
 
 impl RenderTarget {
-    pub fn new(gl: &glow::Context, width: u32, height: u32) -> Result<Self> {
+    pub fn new(gl: &std::rc::Rc<glow::Context>, width: u32, height: u32) -> Result<Self> {
         unsafe {
             let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
             gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
@@ -435,7 +437,7 @@ impl RenderTarget {
                 crate::resources::destroyed("gl_renderbuffer: RGBA8");
                 bail!("offscreen framebuffer incomplete: {status:#x}");
             }
-            Ok(RenderTarget { framebuffer, colour, width, height })
+            Ok(RenderTarget { framebuffer, colour, width, height, gl: gl.clone() })
         }
     }
 
@@ -447,11 +449,18 @@ impl RenderTarget {
         }
     }
 
-    pub fn delete(self, gl: &glow::Context) {
+    /// What dropping it does, where the reader sees it.
+    pub fn delete(self, _gl: &glow::Context) {
+        drop(self);
+    }
+}
+
+impl Drop for RenderTarget {
+    fn drop(&mut self) {
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
-            gl.delete_framebuffer(self.framebuffer);
-            gl.delete_renderbuffer(self.colour);
+            self.gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+            self.gl.delete_framebuffer(self.framebuffer);
+            self.gl.delete_renderbuffer(self.colour);
             crate::resources::destroyed("gl_renderbuffer: RGBA8");
         }
     }

@@ -54,6 +54,10 @@ pub fn run_chapter<A: clap::Parser>(
         // early return): so must its fds be. Drivers may keep a few of their own.
         let left: Vec<_> = fail::open_fds().into_iter().filter(|fd| !before.contains(fd)).collect();
         eprintln!("fds: left open after the chapter ran: {left:?}");
+        // And the objects whose destruction is counted (exportable memory and images, GL memory
+        // objects, imported textures and buffers, renderbuffers): none may be alive.
+        let alive: Vec<_> = resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
+        eprintln!("resources: alive after the chapter ran: {alive:?}");
     }
     if let Err(error) = result {
         eprintln!("error: {error:#}");
