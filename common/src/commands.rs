@@ -246,7 +246,10 @@ impl Drop for HostBuffer {
             if !self.mapped.is_null() {
                 self.device.unmap_memory(self.memory);
             }
-            self.device.free_memory(self.memory, None);
+            if self.memory != vk::DeviceMemory::null() {
+                self.device.free_memory(self.memory, None);
+                crate::resources::destroyed("vk_memory_host");
+            }
             self.device.destroy_buffer(self.buffer, None);
         }
     }
