@@ -77,7 +77,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // on the host path GL makes none, and `hand_over` answers GENERAL for both.
     let layouts =
         sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
-    let (to_vulkan_gl, to_gl_gl) = layouts.gl(); // the same two, by GL's names
+    let (signal_layout, wait_layout) = layouts.gl(); // the same two, as GL's signal and wait name them
     // ANCHOR_END: layouts
 
     let pixels = (extent.width * extent.height) as usize;
@@ -105,7 +105,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         let handshake = Instant::now();
         if !args.unsynchronised {
-            sync.gl_release(&gl_context, &[image.texture.texture], &[to_vulkan_gl]);
+            sync.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
         }
         let mut handshake_cpu = ms_since(handshake);
         // ANCHOR_END: gl_turn
@@ -141,7 +141,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: gl_reads
         if !args.unsynchronised {
             let texture = image.texture.texture;
-            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[to_gl_gl])?;
+            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[wait_layout])?;
         }
         handshake_cpu += ms_since(handshake);
         let seen = output::read_gl_rgba8(gl, extent.width, extent.height);

@@ -99,8 +99,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // (GENERAL both ways on the host path, where GL moves no layout).
     let layouts =
         sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
-    let (to_vulkan, to_gl) = layouts.gl();
-    sync.gl_release(&gl_context, &textures, &[to_vulkan; 3]);
+    let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
+    sync.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
     // Whatever the hand-over layout, the copies read in TRANSFER_SRC: the acquire moves them there.
     let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
@@ -127,7 +127,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     transfers_to_host(&vk, cb);
     let wait = sync.vulkan_waits_on().map(|s| (s, transfer));
     commands.submit(&vk, wait, sync.vulkan_signals())?;
-    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[to_gl; 3])?;
+    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     // ANCHOR_END: handover

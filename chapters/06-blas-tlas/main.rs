@@ -145,8 +145,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // As in chapter 05: copied from, then given back as attachments (GENERAL on the host path).
     let layouts =
         sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
-    let (to_vulkan, to_gl) = layouts.gl();
-    sync.gl_release(&gl_context, &textures, &[to_vulkan; 3]);
+    let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
+    sync.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
     unsafe {
         let trace = Trace {
@@ -162,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
     commands.submit(&vk, wait, sync.vulkan_signals())?;
-    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[to_gl; 3])?;
+    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     if let Some(t) = &timestamps {
         report.time_ms("trace_gpu", t.read_ms(&vk)?);
