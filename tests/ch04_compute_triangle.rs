@@ -81,3 +81,21 @@ fn ch04_in_a_window_under_xvfb() {
     assert_eq!(names, ["04-compute-triangle-frame0", "04-compute-triangle-frame4"]);
     assert_eq!(report["checks"]["frames_differ_over_time"], true);
 }
+
+#[test]
+fn ch04_names_a_display_without_gl_for_the_gpu() {
+    // What a GPU without its own X driver meets (an NVIDIA GPU beside Xvfb): the X server offers
+    // no GLX and EGL finds no driver for it. The chapter must say so, with the way out, and exit 2.
+    let test = "ch04_names_a_display_without_gl_for_the_gpu";
+    let Some(xvfb) = Xvfb::start_with(test, &["-extension", "GLX"]) else { return };
+    let display = xvfb.display.clone();
+    let env = [("DISPLAY", display.as_str()), ("__EGL_VENDOR_LIBRARY_FILENAMES", "/nonexistent/egl.json")];
+    let run = run_chapter_with(BIN, &["--size", "64x48", "--frames", "2"], &env);
+    drop(xvfb);
+    assert_eq!(run.output.status.code(), Some(2), "exit 2:\n{}", run.stderr);
+    assert!(!run.stderr.contains("panicked"), "no panic:\n{}", run.stderr);
+    let expected = format!("no GL configuration for a window on X display {display}");
+    assert!(run.stderr.contains(&expected), "names the display:\n{}", run.stderr);
+    assert!(run.stderr.contains("--headless"), "names the way out:\n{}", run.stderr);
+    assert!(!run.stderr.contains("has not been destroyed"), "nothing leaked:\n{}", run.stderr);
+}

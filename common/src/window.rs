@@ -147,7 +147,7 @@ impl App {
             .with_preference(ApiPreference::PreferEgl)
             .with_window_attributes(Some(attributes))
             .build(event_loop, ConfigTemplateBuilder::new(), pick_config)
-            .map_err(|e| anyhow!("no GL configuration for a window: {e}"))?;
+            .map_err(|e| no_window_config(&e.to_string()))?;
         let window = window.context("glutin-winit made no window")?;
         let display = config.display();
         let handle = window.window_handle().context("the window's native handle")?.as_raw();
@@ -166,6 +166,22 @@ impl App {
         self.opened = Some(Opened { surface, window });
         Ok(())
     }
+}
+
+/// The error for a display that offers no GL for this GPU: it names the display and the way out.
+/// It happens where the X server has no GLX for the GPU's driver and that driver's EGL has no X11
+/// platform: an NVIDIA GPU without NVIDIA's X driver (a headless server, Xvfb), for example.
+fn no_window_config(cause: &str) -> anyhow::Error {
+    let display = std::env::var("WAYLAND_DISPLAY")
+        .map(|d| format!("Wayland display {d}"))
+        .or_else(|_| std::env::var("DISPLAY").map(|d| format!("X display {d}")))
+        .unwrap_or_else(|_| "the display".into());
+    anyhow!(
+        "no GL configuration for a window on {display}: {cause}\n  \
+         neither EGL nor GLX offers this GPU's GL there (an X server without the GPU's own X \
+         driver, such as Xvfb beside an NVIDIA GPU, has none); run with --headless, which checks \
+         the same things"
+    )
 }
 
 /// A single-sampled configuration if there is one: the chapters read the back buffer back.

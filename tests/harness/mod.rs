@@ -239,9 +239,15 @@ impl Xvfb {
     /// Starts one on a free display. `None` (after saying so) only when Xvfb is not installed
     /// and this is not CI, which installs it (`.ci/deps`) and must run these tests.
     pub fn start(test: &str) -> Option<Xvfb> {
+        Xvfb::start_with(test, &[])
+    }
+
+    /// Like [`Xvfb::start`], with extra server arguments (`-extension GLX` turns GLX off).
+    pub fn start_with(test: &str, extra: &[&str]) -> Option<Xvfb> {
         // -displayfd: Xvfb picks a free display number and writes it once it accepts clients.
         let started = Command::new("Xvfb")
             .args(["-displayfd", "1", "-screen", "0", "1024x768x24", "-nolisten", "tcp"])
+            .args(extra)
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
             .spawn();
