@@ -12,7 +12,7 @@ use anyhow::Result;
 use ash::vk;
 use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::interop::SharedImage;
+use common::interop::{self, SharedImage};
 use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
 use glow::HasContext;
@@ -58,6 +58,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         | vk::ImageUsageFlags::TRANSFER_SRC // Vulkan copies GL's pixels out
         | vk::ImageUsageFlags::TRANSFER_DST; // Vulkan writes its own
     let image = SharedImage::new(&vk, &gl_context, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    // GL draws into it first: Vulkan moves it out of UNDEFINED and hands it over before that.
+    interop::hand_new_images_to_gl(&vk, &[&image])?;
     // ANCHOR_END: shared_image
     let framebuffer = unsafe {
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;

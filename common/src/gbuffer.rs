@@ -100,6 +100,8 @@ impl GBuffers {
         for (_, format, gl_format, _) in GBUFFERS {
             images.push(SharedImage::new(vk, gl, format, gl_format, usage, extent)?);
         }
+        // GL draws into them first: Vulkan hands them over, in GENERAL, before it does.
+        crate::interop::hand_new_images_to_gl(vk, &images.iter().collect::<Vec<_>>())?;
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };

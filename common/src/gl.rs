@@ -36,6 +36,18 @@ pub mod layout {
     pub const TRANSFER_SRC: u32 = 0x9592;
     pub const TRANSFER_DST: u32 = 0x9593;
 
+    /// The enum's name, for messages.
+    pub fn name(layout: u32) -> &'static str {
+        match layout {
+            GENERAL => "GL_LAYOUT_GENERAL_EXT",
+            COLOR_ATTACHMENT => "GL_LAYOUT_COLOR_ATTACHMENT_EXT",
+            SHADER_READ_ONLY => "GL_LAYOUT_SHADER_READ_ONLY_EXT",
+            TRANSFER_SRC => "GL_LAYOUT_TRANSFER_SRC_EXT",
+            TRANSFER_DST => "GL_LAYOUT_TRANSFER_DST_EXT",
+            _ => "a layout this tutorial does not use",
+        }
+    }
+
     /// GL's name for a Vulkan layout; `None` for one GL has no name for.
     pub fn of(layout: ash::vk::ImageLayout) -> Option<u32> {
         use ash::vk::ImageLayout as L;

@@ -172,6 +172,7 @@ impl SharedTexture {
 
 impl Drop for SharedTexture {
     fn drop(&mut self) {
+        crate::sync::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
         unsafe { self.gl.delete_texture(self.texture) };
         crate::resources::destroyed("gl_texture_imported");
     }
@@ -281,6 +282,34 @@ impl Drop for SharedImage {
         destroy_vulkan_half(&self.device, self.image, self.memory.memory, self.view);
     }
 }
+
+// ANCHOR: hand_new_images_to_gl
+/// Hands images nobody has used yet to GL, in `GENERAL`, before GL's first use: Vulkan moves
+/// them out of `UNDEFINED` (which may initialise what the driver keeps beside the pixels) and
+/// releases them to `VK_QUEUE_FAMILY_EXTERNAL`. For images GL uses first (chapter 03's, the
+/// G-buffers): from here on each is in a layout both sides know, the one the host path hands it
+/// over in (`Sync::hand_over`). Set-up work: the CPU waits for it.
+pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Result<()> {
+    let general = vk::ImageLayout::GENERAL;
+    let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
+    let none = vk::AccessFlags::NONE; // nothing written yet, nothing to make available
+    let barriers: Vec<_> = images
+        .iter()
+        .map(|image| {
+            image_barrier(image.image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
+        })
+        .collect();
+    let commands = crate::commands::Commands::new(vk)?;
+    commands.run_once(vk, |cb| unsafe {
+        let (top, bottom) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
+        vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
+    })?;
+    for image in images {
+        crate::sync::vulkan_left(image.texture.texture.0.get(), crate::gl::layout::of(general));
+    }
+    Ok(())
+}
+// ANCHOR_END: hand_new_images_to_gl
 
 // ANCHOR: ownership
 /// The barrier that takes `image` over from GL: ownership moves from outside Vulkan

@@ -5,9 +5,10 @@ use crate::{GlContext, VulkanContext};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
-use std::cell::{Cell, RefCell};
-use std::collections::HashMap;
+use std::cell::Cell;
+use std::collections::BTreeMap;
 use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
+use std::sync::Mutex;
 
 /// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Sync::Host`].
 pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
@@ -36,11 +37,24 @@ pub enum Sync {
     /// GL a layout, so GL changes none: a shared image stays in the layout Vulkan last left it
     /// in, which is why [`Sync::hand_over`] keeps it in `GENERAL` both ways on this path.
     Host {
-        /// The GL layout each texture (by name) was in when Vulkan last handed it to GL.
-        left_by_vulkan: RefCell<HashMap<u32, u32>>,
         /// Hand-overs to Vulkan that named another layout than the one Vulkan had left.
         disagreements: Cell<u32>,
     },
+}
+
+/// The layout (GL's name) each shared texture, by GL name, was in when Vulkan last handed it to
+/// GL: written by [`Sync::gl_acquire`] and `interop::hand_new_images_to_gl`, forgotten when the
+/// texture is deleted. On the host path GL moves no layout, so this is the layout Vulkan's next
+/// acquire must name.
+static LEFT_BY_VULKAN: Mutex<BTreeMap<u32, u32>> = Mutex::new(BTreeMap::new());
+
+/// Records that Vulkan left `texture` in `layout` for GL (`None`: the texture is gone).
+pub(crate) fn vulkan_left(texture: u32, layout: Option<u32>) {
+    let mut left = LEFT_BY_VULKAN.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    match layout {
+        Some(layout) => left.insert(texture, layout),
+        None => left.remove(&texture),
+    };
 }
 
 // ANCHOR: hand_over
@@ -77,7 +91,7 @@ impl Sync {
                 _ => "GL cannot import semaphores (no GL_EXT_semaphore_fd)",
             };
             eprintln!("sync: host ({missing}): the CPU waits for each API in turn");
-            return Ok(Sync::Host { left_by_vulkan: RefCell::default(), disagreements: Cell::new(0) });
+            return Ok(Sync::Host { disagreements: Cell::new(0) });
         };
         let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
         // Should this one fail, `gl_done` is dropped on the way out, which deletes it.
@@ -149,17 +163,22 @@ impl Sync {
                     gl.gl.flush();
                 }
             }
-            Sync::Host { left_by_vulkan, disagreements } => {
+            Sync::Host { disagreements } => {
                 // No layout travels with glFinish: Vulkan's acquire must name the layout Vulkan's
                 // own release left. Count every texture that says otherwise.
-                let left = left_by_vulkan.borrow();
+                let left = LEFT_BY_VULKAN.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
                 for (texture, layout) in textures.iter().zip(layouts) {
-                    if left.get(&texture.0.get()).is_some_and(|left| left != layout) {
+                    let actual = left.get(&texture.0.get());
+                    if actual != Some(layout) {
                         disagreements.set(disagreements.get() + 1);
+                        let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
+                            format!("{} (Vulkan's last release)", crate::gl::layout::name(*l))
+                        });
                         eprintln!(
-                            "sync: host path: a texture is handed to Vulkan as layout {layout:#x}, but \
-                             Vulkan left it in {:#x} and GL changes no layout on this path",
-                            left[&texture.0.get()]
+                            "sync: host path: texture {} handed to Vulkan as {}, but GL moves no \
+                             layout here and it is in {actual}",
+                            texture.0.get(),
+                            crate::gl::layout::name(*layout)
                         );
                     }
                 }
@@ -216,9 +235,8 @@ impl Sync {
                 };
                 Ok(())
             }
-            Sync::Host { left_by_vulkan, .. } => {
-                let mut left = left_by_vulkan.borrow_mut();
-                left.extend(textures.iter().map(|t| t.0.get()).zip(layouts.iter().copied()));
+            Sync::Host { .. } => {
+                textures.iter().zip(layouts).for_each(|(t, &layout)| vulkan_left(t.0.get(), Some(layout)));
                 unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
                     .context("waiting for Vulkan's work on the CPU")
             }
