@@ -164,24 +164,9 @@ impl Sync {
                 }
             }
             Sync::Host { disagreements } => {
-                // No layout travels with glFinish: Vulkan's acquire must name the layout Vulkan's
-                // own release left. Count every texture that says otherwise.
-                let left = LEFT_BY_VULKAN.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-                for (texture, layout) in textures.iter().zip(layouts) {
-                    let actual = left.get(&texture.0.get());
-                    if actual != Some(layout) {
-                        disagreements.set(disagreements.get() + 1);
-                        let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
-                            format!("{} (Vulkan's last release)", crate::gl::layout::name(*l))
-                        });
-                        eprintln!(
-                            "sync: host path: texture {} handed to Vulkan as {}, but GL moves no \
-                             layout here and it is in {actual}",
-                            texture.0.get(),
-                            crate::gl::layout::name(*layout)
-                        );
-                    }
-                }
+                // No layout travels with glFinish: the textures are in the layouts Vulkan's own
+                // releases left. Count every one that `layouts` misnames (for the chapter's check).
+                disagreements.set(disagreements.get() + misnamed_layouts(textures, layouts));
                 unsafe { gl.gl.finish() }
             }
         }
@@ -218,7 +203,7 @@ impl Sync {
         layouts: &[u32],
     ) -> Result<()> {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
-        crate::fail::at("gl_acquire")?;
+        crate::fail::at("gl_acquire")?; // `VKGL_FAIL_AT=gl_acquire`, for the error-path tests
         match self {
             Sync::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -236,6 +221,7 @@ impl Sync {
                 Ok(())
             }
             Sync::Host { .. } => {
+                // Where Vulkan left them, GL will not move them: the next gl_release checks it.
                 textures.iter().zip(layouts).for_each(|(t, &layout)| vulkan_left(t.0.get(), Some(layout)));
                 unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
                     .context("waiting for Vulkan's work on the CPU")
@@ -251,6 +237,30 @@ impl Sync {
             gl_done.destroy(vk, gl);
         }
     }
+}
+
+/// On the host path: how many of `textures` are not in the layout `layouts` names for them,
+/// that is not where Vulkan last left them (or Vulkan never handed them to GL). Each is named on
+/// stderr.
+fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
+    let left = LEFT_BY_VULKAN.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mut misnamed = 0;
+    for (texture, layout) in textures.iter().zip(layouts) {
+        let actual = left.get(&texture.0.get());
+        if actual != Some(layout) {
+            misnamed += 1;
+            let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
+                format!("{} (Vulkan's last release)", crate::gl::layout::name(*l))
+            });
+            eprintln!(
+                "sync: host path: texture {} handed to Vulkan as {}, but GL moves no layout here \
+                 and it is in {actual}",
+                texture.0.get(),
+                crate::gl::layout::name(*layout)
+            );
+        }
+    }
+    misnamed
 }
 
 /// Can this device export binary semaphores as opaque fds?
