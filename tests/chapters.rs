@@ -289,13 +289,16 @@ fn ch08_resizing_leaks_nothing() {
     assert_eq!(report["resizes"], 5);
     assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
     assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
+    assert_eq!(report["checks"]["no_gl_object_growth_across_resizes"], true);
     // The last frame, at the last size, still passes the composite and overlay checks.
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
 
-/// The soak: `cycles` resizes of chapter 08 at small sizes, open fds and live resources
-/// (exportable memory and images, GL's memory objects, textures, renderbuffers) counted after the
-/// first and after the last: no growth.
+/// The soak: `cycles` resizes of chapter 08 at small sizes, open fds, live resources (exportable
+/// and host memory, exportable images, GL's memory objects, textures, renderbuffers) and every
+/// kind of GL object as GL counts them (`GlContext::live_objects`: textures, buffers,
+/// framebuffers, renderbuffers, vertex arrays, programs, queries, memory objects, semaphores)
+/// counted after the first and after the last: no growth.
 fn soak(cycles: u32) {
     let frames = (cycles + 1).to_string();
     let args = ["--size", "32x24", "--frames", &frames, "--samples", "1", "--resize-every", "1"];
@@ -304,6 +307,8 @@ fn soak(cycles: u32) {
     assert_eq!(report["resizes"], cycles);
     assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
     assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
+    assert_eq!(report["checks"]["no_gl_object_growth_across_resizes"], true);
+    eprintln!("after {cycles} resizes: {}", report["live_gl_objects_after_resizes"]);
 }
 
 #[test]

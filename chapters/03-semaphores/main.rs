@@ -11,9 +11,9 @@
 use anyhow::Result;
 use ash::vk;
 use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
-use common::interop::SharedImage;
-use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::interop::{self, SharedImage};
+use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
 use glow::HasContext;
 use std::ffi::CStr;
@@ -24,17 +24,6 @@ const CHAPTER: &str = "03-semaphores";
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 /// Without it the chapter still runs, synchronising on the host.
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
-
-// ANCHOR: layouts
-/// Where GL leaves the image for Vulkan: ready to be copied from (GL makes the transition as
-/// part of its signal, so Vulkan's first barrier starts from here).
-const HANDED_TO_VULKAN: (vk::ImageLayout, u32) =
-    (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, layout::TRANSFER_SRC);
-/// Where Vulkan leaves it for GL: ready to be a framebuffer attachment, which is how GL both
-/// reads Vulkan's pattern and draws the next frame.
-const HANDED_TO_GL: (vk::ImageLayout, u32) =
-    (vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL, layout::COLOR_ATTACHMENT);
-// ANCHOR_END: layouts
 
 /// Chapter 03: GL and Vulkan take turns with a shared image, ordered by shared semaphores.
 #[derive(clap::Parser)]
@@ -69,6 +58,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         | vk::ImageUsageFlags::TRANSFER_SRC // Vulkan copies GL's pixels out
         | vk::ImageUsageFlags::TRANSFER_DST; // Vulkan writes its own
     let image = SharedImage::new(&vk, &gl_context, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    // GL draws into it first: Vulkan moves it out of UNDEFINED and hands it over before that.
+    interop::hand_new_images_to_gl(&vk, &[&image])?;
     // ANCHOR_END: shared_image
     let framebuffer = unsafe {
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
@@ -81,6 +72,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(if args.unsynchronised { "none" } else { sync.name() });
     // ANCHOR_END: sync
+    // ANCHOR: layouts
+    // Where GL leaves the image for Vulkan: ready to be copied from. Where Vulkan leaves it for GL:
+    // ready to be a framebuffer attachment, which is how GL both reads Vulkan's pattern and draws
+    // the next frame. With semaphores, GL makes both transitions as part of its signal and wait;
+    // on the host path GL makes none, and `hand_over` answers GENERAL for both.
+    let layouts =
+        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+    let (signal_layout, wait_layout) = layouts.gl(); // the same two, as GL's signal and wait name them
+    // ANCHOR_END: layouts
 
     let pixels = (extent.width * extent.height) as usize;
     let commands = Commands::new(&vk)?;
@@ -107,7 +107,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         let handshake = Instant::now();
         if !args.unsynchronised {
-            sync.gl_release(&gl_context, &[image.texture.texture], &[HANDED_TO_VULKAN.1]);
+            sync.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
         }
         let mut handshake_cpu = ms_since(handshake);
         // ANCHOR_END: gl_turn
@@ -125,7 +125,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if let Some(t) = &timestamps {
             t.reset(&vk, cb);
         }
-        record_vulkan_turn(&vk, cb, &image, &vulkan_pattern, &gl_pixels_seen_by_vulkan, timestamps.as_ref());
+        let buffers = (&vulkan_pattern, &gl_pixels_seen_by_vulkan);
+        record_vulkan_turn(&vk, cb, &image, layouts, buffers, timestamps.as_ref());
         let handshake = Instant::now();
         // ANCHOR: submit
         // Wait for GL's signal before the copy (TRANSFER) stage; nothing earlier touches the image.
@@ -142,7 +143,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: gl_reads
         if !args.unsynchronised {
             let texture = image.texture.texture;
-            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[HANDED_TO_GL.1])?;
+            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[wait_layout])?;
         }
         handshake_cpu += ms_since(handshake);
         let seen = output::read_gl_rgba8(gl, extent.width, extent.height);
@@ -184,6 +185,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     record_timings(report, &handshake_ms, &vulkan_gpu_ms, &frame_ms, &sync);
     report.set("frames", frames);
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 6. Clean up, newest first (the GPU is idle: the last fence has signalled, GL has read)
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -210,8 +213,8 @@ fn record_vulkan_turn(
     vk: &VulkanContext,
     cb: vk::CommandBuffer,
     image: &SharedImage,
-    pattern: &HostBuffer,
-    readback: &HostBuffer,
+    layouts: HandOver,
+    (pattern, readback): (&HostBuffer, &HostBuffer),
     timestamps: Option<&Timestamps>,
 ) {
     let barrier = |old, new, src_access, dst_access, src_family, dst_family| {
@@ -236,12 +239,13 @@ fn record_vulkan_turn(
         .image_extent(vk::Extent3D { width: image.extent.width, height: image.extent.height, depth: 1 });
     let device = &vk.device;
     unsafe {
-        // Acquire from GL: ownership moves from "outside Vulkan" to our queue family. The layout
-        // is the one GL promised in its signal; the semaphore wait already made GL's writes
-        // available, so there is no source access to wait for.
+        // Acquire from GL: ownership moves from "outside Vulkan" to our queue family, and the
+        // image from the layout GL left it in (its signal's; on the host path GENERAL, where
+        // Vulkan's last release left it) to the one the copy wants. The semaphore wait (or
+        // glFinish) already made GL's writes available: no source access to wait for.
         let acquire = barrier(
-            HANDED_TO_VULKAN.0,
-            HANDED_TO_VULKAN.0,
+            layouts.to_vulkan,
+            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
             vk::AccessFlags::NONE,
             vk::AccessFlags::TRANSFER_READ,
             external,
@@ -256,11 +260,12 @@ fn record_vulkan_turn(
         if let Some(t) = timestamps {
             t.start(vk, cb, transfer);
         }
-        device.cmd_copy_image_to_buffer(cb, image.image, HANDED_TO_VULKAN.0, readback.buffer, &[region]);
+        let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
+        device.cmd_copy_image_to_buffer(cb, image.image, transfer_src, readback.buffer, &[region]);
         // The copy's reads must finish before the image is overwritten: a write-after-read hazard,
         // so an execution dependency is enough, plus the move to TRANSFER_DST for the write.
         let to_write = barrier(
-            HANDED_TO_VULKAN.0,
+            transfer_src,
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
             vk::AccessFlags::NONE,
             vk::AccessFlags::TRANSFER_WRITE,
@@ -275,11 +280,12 @@ fn record_vulkan_turn(
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
             &[region],
         );
-        // Release to GL: make the write available, move to the layout GL will wait with, and hand
-        // ownership back outside Vulkan. GL's wait on our semaphore does the rest.
+        // Release to GL: make the write available, move to the layout GL will wait with (on the
+        // host path, GENERAL: the layout the next frame's acquire starts from), and hand ownership
+        // back outside Vulkan. GL's wait on our semaphore (or the fence) does the rest.
         let release = barrier(
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            HANDED_TO_GL.0,
+            layouts.to_gl,
             vk::AccessFlags::TRANSFER_WRITE,
             vk::AccessFlags::NONE,
             ours,

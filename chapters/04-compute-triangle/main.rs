@@ -326,6 +326,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("resizes", resizes);
     report.set("compute_image", [extent.width, extent.height]);
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 11. Clean up, newest first, once both APIs are idle
     // ANCHOR: cleanup
     unsafe {

@@ -10,7 +10,7 @@ use anyhow::Result;
 use ash::vk;
 use common::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::scene::{Camera, Scene, SceneArgs};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
@@ -95,20 +95,24 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // ANCHOR: handover
     let textures = gbuffers.textures();
-    // GL puts them in TRANSFER_SRC for Vulkan's copies; Vulkan gives them back as attachments.
-    sync.gl_release(&gl_context, &textures, &[layout::TRANSFER_SRC; 3]);
+    // GL puts them in TRANSFER_SRC for Vulkan's copies; Vulkan gives them back as attachments
+    // (GENERAL both ways on the host path, where GL moves no layout).
+    let layouts =
+        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+    let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
+    sync.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
+    // Whatever the hand-over layout, the copies read in TRANSFER_SRC: the acquire moves them there.
     let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
     let (acquire, release): (Vec<_>, Vec<_>) = gbuffers
         .images
         .iter()
         .map(|image| {
             let read = vk::AccessFlags::TRANSFER_READ;
-            let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
             let none = vk::AccessFlags::NONE; // reads only: nothing to make available to GL
             (
-                acquire_from_gl(&vk, image, transfer_src, transfer_src, read),
-                release_to_gl(&vk, image, transfer_src, attachment, none),
+                acquire_from_gl(&vk, image, layouts.to_vulkan, transfer_src, read),
+                release_to_gl(&vk, image, transfer_src, layouts.to_gl, none),
             )
         })
         .unzip();
@@ -123,7 +127,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     transfers_to_host(&vk, cb);
     let wait = sync.vulkan_waits_on().map(|s| (s, transfer));
     commands.submit(&vk, wait, sync.vulkan_signals())?;
-    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[layout::COLOR_ATTACHMENT; 3])?;
+    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     // ANCHOR_END: handover
@@ -174,6 +178,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // ANCHOR_END: resize
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 9. Clean up, newest first
     // ANCHOR: cleanup
     readbacks.into_iter().for_each(|b| b.destroy(&vk));

@@ -150,6 +150,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         &upright,
     )?;
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 6. Clean up, newest first
     // ANCHOR: cleanup
     // Once the GPU is done with the last frame: its pipeline and images must outlive the

@@ -206,7 +206,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             resizes += 1;
             if resizes == 1 {
                 // What exists after one resize must be what exists after every later one.
-                fds_after_first_resize = Some((open_fd_count()?, common::resources::live()));
+                let live = (common::resources::live(), gl_context.live_objects());
+                fds_after_first_resize = Some((open_fd_count()?, live));
             }
         }
         // ANCHOR_END: resize
@@ -241,13 +242,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         frame += 1;
         drew_a_frame = true;
     }
-    if let Some((fds, live)) = fds_after_first_resize {
+    if let Some((fds, (live, gl_live))) = fds_after_first_resize {
         report.set("resizes", resizes);
         report.check("no_fd_growth_across_resizes", open_fd_count()? == fds);
-        // Exportable memory and images, GL's memory objects, textures and renderbuffers.
+        // Exportable and host memory, exportable images, GL's memory objects, textures and
+        // renderbuffers, as counted where they are made and destroyed...
         let now = common::resources::live();
         report.check("no_resource_growth_across_resizes", now == live);
         report.set("live_resources_after_resizes", now);
+        // ... and every kind of GL object, as GL itself counts them.
+        let gl_now = gl_context.live_objects();
+        report.check("no_gl_object_growth_across_resizes", gl_now == gl_live);
+        report.set("live_gl_objects_after_resizes", gl_now);
     }
     check::report_trace_times(report, &trace_ms, traced);
     gl_context.check_error("the frame loop")?;
@@ -280,6 +286,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
     }
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };

@@ -232,6 +232,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         );
     }
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };

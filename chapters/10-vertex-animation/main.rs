@@ -101,7 +101,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // Signalled by Vulkan once the vertices have moved; GL waits on it before drawing them.
     let vertices_moved = match &sync {
         Sync::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
-        Sync::Host => None,
+        Sync::Host { .. } => None,
     };
     // ANCHOR_END: share
 
@@ -297,6 +297,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         );
     }
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };

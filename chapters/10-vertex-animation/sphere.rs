@@ -75,9 +75,11 @@ impl Wave {
 // ANCHOR_END: wave
 
 /// The compute pipeline: no descriptors, only push constants (the buffers by device address).
+/// Destroyed when dropped too, so that an early return from `run` leaks nothing.
 pub struct WavePipeline {
     pub layout: vk::PipelineLayout,
     pub pipeline: vk::Pipeline,
+    device: ash::Device,
 }
 
 impl WavePipeline {
@@ -107,7 +109,7 @@ impl WavePipeline {
         let created = unsafe { vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
         unsafe { vk.device.destroy_shader_module(module, None) };
         match created {
-            Ok(pipelines) => Ok(WavePipeline { layout, pipeline: pipelines[0] }),
+            Ok(pipelines) => Ok(WavePipeline { layout, pipeline: pipelines[0], device: vk.device.clone() }),
             Err((_, error)) => {
                 unsafe { vk.device.destroy_pipeline_layout(layout, None) };
                 Err(error).context("vkCreateComputePipelines")
@@ -125,10 +127,18 @@ impl WavePipeline {
         }
     }
 
-    pub fn destroy(self, vk: &VulkanContext) {
+    /// The pipeline, then its layout (what dropping it does). The GPU must be done with it.
+    pub fn destroy(self, _vk: &VulkanContext) {
+        drop(self);
+    }
+}
+
+impl Drop for WavePipeline {
+    fn drop(&mut self) {
         unsafe {
-            vk.device.destroy_pipeline(self.pipeline, None);
-            vk.device.destroy_pipeline_layout(self.layout, None);
+            let _ = self.device.device_wait_idle(); // after an early return, work may be in flight
+            self.device.destroy_pipeline(self.pipeline, None);
+            self.device.destroy_pipeline_layout(self.layout, None);
         }
     }
 }

@@ -28,11 +28,14 @@ pub fn allocator(vk: &VulkanContext) -> Result<Allocator> {
     .context("creating gpu-allocator's allocator")
 }
 
-/// A buffer in memory from gpu-allocator, with its device address.
+/// A buffer in memory from gpu-allocator, with its device address. Dropped without
+/// [`DeviceBuffer::destroy`] (an early return), it destroys the buffer and leaves its memory to
+/// the allocator, which frees all of its memory when it is dropped.
 pub struct DeviceBuffer {
     pub buffer: vk::Buffer,
     pub allocation: Allocation,
     pub address: vk::DeviceAddress,
+    device: ash::Device,
 }
 
 impl DeviceBuffer {
@@ -47,6 +50,8 @@ impl DeviceBuffer {
         let usage = usage | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let info = vk::BufferCreateInfo::default().size(size).usage(usage);
         let buffer = unsafe { vk.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
+        let mut guarded =
+            DeviceBuffer { buffer, allocation: Allocation::default(), address: 0, device: vk.device.clone() };
         let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
         let description = AllocationCreateDesc {
             name,
@@ -55,33 +60,40 @@ impl DeviceBuffer {
             linear: true,
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
-        let allocation = match allocator.allocate(&description) {
-            Ok(allocation) => allocation,
-            Err(error) => {
-                unsafe { vk.device.destroy_buffer(buffer, None) };
-                return Err(error).with_context(|| format!("allocating {size} bytes for {name}"));
-            }
-        };
+        guarded.allocation = allocator
+            .allocate(&description)
+            .with_context(|| format!("allocating {size} bytes for {name}"))?;
+        let allocation = &guarded.allocation;
         crate::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
-        let address = unsafe {
+        guarded.address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
         };
-        Ok(DeviceBuffer { buffer, allocation, address })
+        Ok(guarded)
     }
 
-    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
-        unsafe { vk.device.destroy_buffer(self.buffer, None) };
-        let _ = allocator.free(self.allocation);
+    /// The buffer, then its memory, given back to the allocator.
+    pub fn destroy(mut self, _vk: &VulkanContext, allocator: &mut Allocator) {
+        let allocation = std::mem::take(&mut self.allocation);
+        drop(self); // destroys the buffer
+        let _ = allocator.free(allocation);
     }
 }
 
-/// One acceleration structure and the buffer that holds it.
+impl Drop for DeviceBuffer {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
+        unsafe { self.device.destroy_buffer(self.buffer, None) };
+    }
+}
+
+/// One acceleration structure and the buffer that holds it; destroyed when dropped.
 pub struct AccelerationStructure {
     pub handle: vk::AccelerationStructureKHR,
     pub buffer: DeviceBuffer,
     pub address: vk::DeviceAddress,
     pub bytes: u64,
+    loader: ash::khr::acceleration_structure::Device,
 }
 
 impl AccelerationStructure {
@@ -105,29 +117,34 @@ impl AccelerationStructure {
             MemoryLocation::GpuOnly,
         )?;
         let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(buffer.buffer).size(bytes).ty(ty);
-        let handle = match unsafe { loader.create_acceleration_structure(&info, None) } {
-            Ok(handle) => handle,
-            Err(error) => {
-                buffer.destroy(vk, allocator);
-                return Err(error).context("vkCreateAccelerationStructureKHR");
-            }
-        };
+        // On failure `buffer` is dropped, which destroys it.
+        let handle = unsafe { loader.create_acceleration_structure(&info, None) }
+            .context("vkCreateAccelerationStructureKHR")?;
         // Its bytes are counted with its buffer; the kind says what was built, and how.
         crate::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
-        Ok(AccelerationStructure { handle, buffer, address, bytes })
+        Ok(AccelerationStructure { handle, buffer, address, bytes, loader: loader.clone() })
     }
 
+    /// The structure, then its buffer and the buffer's memory.
     pub fn destroy(
-        self,
-        vk: &VulkanContext,
-        loader: &ash::khr::acceleration_structure::Device,
+        mut self,
+        _vk: &VulkanContext,
+        _loader: &ash::khr::acceleration_structure::Device,
         allocator: &mut Allocator,
     ) {
-        unsafe { loader.destroy_acceleration_structure(self.handle, None) };
-        self.buffer.destroy(vk, allocator);
+        let allocation = std::mem::take(&mut self.buffer.allocation);
+        drop(self); // the structure, then (a field) its buffer
+        let _ = allocator.free(allocation);
+    }
+}
+
+impl Drop for AccelerationStructure {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.buffer.device);
+        unsafe { self.loader.destroy_acceleration_structure(self.handle, None) };
     }
 }
 
@@ -259,7 +276,7 @@ pub fn build_with(
             t.reset(vk, cb);
             t.write(vk, cb, vk::PipelineStageFlags::TOP_OF_PIPE, 0);
         }
-        vk.device.cmd_reset_query_pool(cb, compacted_sizes, 0, blases.len() as u32);
+        vk.device.cmd_reset_query_pool(cb, compacted_sizes.pool, 0, blases.len() as u32);
         for (i, (info, triangles)) in builds.iter().enumerate() {
             let info = info.scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch.address(i) });
             let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(*triangles);
@@ -269,7 +286,7 @@ pub fn build_with(
         build_barrier(vk, cb);
         let handles: Vec<_> = blases.iter().map(|b| b.handle).collect();
         let query = vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR;
-        loader.cmd_write_acceleration_structures_properties(cb, &handles, query, compacted_sizes, 0);
+        loader.cmd_write_acceleration_structures_properties(cb, &handles, query, compacted_sizes.pool, 0);
         if let Some(t) = &timestamps {
             t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
         }
@@ -284,14 +301,14 @@ pub fn build_with(
     let mut sizes = vec![0u64; blases.len()];
     unsafe {
         vk.device.get_query_pool_results(
-            compacted_sizes,
+            compacted_sizes.pool,
             0,
             &mut sizes,
             vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
         )
     }
     .context("reading the compacted sizes")?;
-    unsafe { vk.device.destroy_query_pool(compacted_sizes, None) };
+    drop(compacted_sizes); // destroys the query pool
     let mut compacted = Vec::new();
     for &size in &sizes {
         compacted.push(AccelerationStructure::new(
@@ -455,11 +472,24 @@ fn tlas_built_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
     };
 }
 
-fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::QueryPool> {
+/// A query pool, destroyed when dropped (also on an early return, once the device is idle).
+struct QueryPool {
+    pool: vk::QueryPool,
+    device: ash::Device,
+}
+
+impl Drop for QueryPool {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
+        unsafe { self.device.destroy_query_pool(self.pool, None) };
+    }
+}
+
+fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
     let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
     crate::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
-    Ok(pool)
+    Ok(QueryPool { pool, device: vk.device.clone() })
 }
 
 /// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.
@@ -541,11 +571,12 @@ impl Scratch {
 /// Chapters 05 and 06 in one call, for the chapters after them: the scene's buffers shared with
 /// GL and readable by acceleration-structure builds, the structures built from them, and the
 /// allocator and command buffer that took.
+/// (Fields are dropped in this order on an early return: newest first, as in `destroy`.)
 pub struct RayTracedScene {
+    pub structures: SceneAccel,
+    pub commands: Commands,
     pub allocator: Allocator,
     pub buffers: SceneBuffers,
-    pub commands: Commands,
-    pub structures: SceneAccel,
 }
 
 impl RayTracedScene {
