@@ -19,6 +19,7 @@ use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene, SceneArgs};
 use common::sync::Sync;
+use common::timing::{GlPassTimer, PassTimes};
 use common::window::{Key, NamedKey, Window};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
@@ -147,10 +148,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut frame = 0;
     let mut drew_a_frame = false;
     let (mut new_size, mut resizes, mut fds_after_first_resize) = (None, 0, None);
-    // Headless runs measure the trace, waiting for each frame's rays before the next frame: a
-    // measurement, not a way to run. A window adds no such wait.
-    let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
-    let (mut trace_ms, mut traced) = (Vec::new(), 0u64);
+    // Each pass's GPU time: GL's read when they arrive, the trace's once its fence has signalled
+    // for the next frame's trace (the wait that frame makes anyway): timing adds no wait.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
+    let timestamps = Timestamps::new(&vk)?;
+    let (mut trace_pending, mut traced) = (false, 0u64);
     let mut skipped = None;
     loop {
         // ANCHOR: input
@@ -213,7 +215,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR_END: resize
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
-        gbuffers.draw(gl, &scene, &camera);
+        gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         if let Some(reason) = common::ao::nothing_to_trace(settings.samples, settings.radius) {
             if skipped.replace(reason).is_none() {
                 eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
@@ -223,22 +225,27 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
             let scene_scale = scene.size() / 2.0;
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
+            if std::mem::take(&mut trace_pending) {
+                common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+            }
             tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
-            if let Some(t) = &timestamps {
-                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-                trace_ms.push(t.read_ms(&vk)?);
-            }
+            trace_pending = timestamps.is_some();
         }
-        composite.draw(gl, &gbuffers, &tracer, &settings_uniforms(&settings, &scene, &camera));
+        let uniforms = settings_uniforms(&settings, &scene, &camera);
+        gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         if settings.overlays {
-            overlays.draw(gl, &composite, camera.view_projection(aspect));
+            let view_projection = camera.view_projection(aspect);
+            gl_timer.time(gl, "overlays", || overlays.draw(gl, &composite, view_projection))?;
         }
+        gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
-        if let Some(window) = &window {
+        if let Some(window) = &mut window {
+            window.show_times(&times);
             composite.show(gl, window.size());
             window.swap_buffers(&gl_context)?;
         }
+        times.frame_done();
         frame += 1;
         drew_a_frame = true;
     }
@@ -255,7 +262,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.check("no_gl_object_growth_across_resizes", gl_now == gl_live);
         report.set("live_gl_objects_after_resizes", gl_now);
     }
-    check::report_trace_times(report, &trace_ms, traced);
+    if trace_pending {
+        common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+    }
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
+    check::report_trace_times(report, times.samples("ao_trace"), traced);
     gl_context.check_error("the frame loop")?;
 
     // 6. Check the last frame: the composite against a CPU reference, the overlays' depth test
@@ -295,6 +307,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
+    gl_timer.delete(gl);
     overlays.destroy(gl);
     composite.destroy(gl);
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);

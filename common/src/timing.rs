@@ -14,17 +14,39 @@ use ash::vk;
 use glow::HasContext as _;
 use std::collections::VecDeque;
 
-/// Every pass's GPU times, in the order the passes first ran.
-#[derive(Default, Debug)]
+/// Every pass's GPU times, in the order the passes first ran, and the frames' wall-clock times.
+#[derive(Debug)]
 pub struct PassTimes {
     passes: Vec<(&'static str, Vec<f64>)>,
+    /// When the current frame started (for `frame_wall`).
+    frame_started: std::time::Instant,
 }
 
 impl PassTimes {
+    pub fn new() -> Self {
+        PassTimes { passes: Vec::new(), frame_started: std::time::Instant::now() }
+    }
+
+    /// Ends a frame: adds `frame_wall`, the wall-clock time since the last frame ended (or since
+    /// `new`), which is the whole frame as the CPU sees it, waits included.
+    pub fn frame_done(&mut self) {
+        let now = std::time::Instant::now();
+        self.add("frame_wall", (now - self.frame_started).as_secs_f64() * 1e3);
+        self.frame_started = now;
+    }
+
+    /// The most samples kept per pass: a window that runs for hours forgets the oldest half.
+    const KEEP: usize = 1 << 16;
+
     /// Adds one frame's time for `pass`.
     pub fn add(&mut self, pass: &'static str, ms: f64) {
         match self.passes.iter_mut().find(|(name, _)| *name == pass) {
-            Some((_, samples)) => samples.push(ms),
+            Some((_, samples)) => {
+                if samples.len() == Self::KEEP {
+                    samples.drain(..Self::KEEP / 2);
+                }
+                samples.push(ms)
+            }
             None => self.passes.push((pass, vec![ms])),
         }
     }
@@ -53,12 +75,37 @@ impl PassTimes {
         }
     }
 
-    /// One line for a window's title bar or the terminal: "raster 1.20 · ao 3.10 ms (GPU)".
+    /// One line for a window's title bar or the terminal, the medians of the last 60 frames:
+    /// "raster 1.20 · ao 3.10 ms (GPU)".
     pub fn line(&self) -> String {
+        let recent = |s: &[f64]| median_p95(&s[s.len().saturating_sub(60)..]).0;
         let parts: Vec<String> =
-            self.summary().iter().map(|(name, median, _)| format!("{name} {median:.2}")).collect();
+            self.passes.iter().map(|(name, samples)| format!("{name} {:.2}", recent(samples))).collect();
         if parts.is_empty() { "no GPU times yet".into() } else { format!("{} ms (GPU)", parts.join(" · ")) }
     }
+}
+
+impl Default for PassTimes {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Adds the GPU time `stamps` measured (between its first two timestamps) to `pass`, once
+/// `fence` has signalled. Call it just before the next submission that waits for `fence` anyway
+/// (or after the last frame), so that reading adds no wait.
+pub fn read_after(
+    vk: &VulkanContext,
+    fence: vk::Fence,
+    stamps: Option<&Timestamps>,
+    pass: &'static str,
+    times: &mut PassTimes,
+) -> Result<()> {
+    if let Some(stamps) = stamps {
+        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+        times.add(pass, stamps.read_ms(vk)?);
+    }
+    Ok(())
 }
 
 /// GL passes timed with `GL_TIME_ELAPSED` queries. A frame's queries are read when their
@@ -75,8 +122,31 @@ pub struct GlPassTimer {
 }
 
 impl GlPassTimer {
-    pub fn new() -> Self {
-        GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free: Vec::new(), all: Vec::new() }
+    pub fn new(gl: &glow::Context) -> Result<Self> {
+        let mut timer =
+            GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free: Vec::new(), all: Vec::new() };
+        // llvmpipe answers the first GL_TIME_ELAPSED query around a context's first drawing with
+        // a time since boot: time one clear of a 1x1 target, and throw the answer away.
+        unsafe {
+            let target = gl.create_renderbuffer().map_err(|e| anyhow::anyhow!("glGenRenderbuffers: {e}"))?;
+            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(target));
+            gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, 1, 1);
+            let framebuffer =
+                gl.create_framebuffer().map_err(|e| anyhow::anyhow!("glGenFramebuffers: {e}"))?;
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.framebuffer_renderbuffer(
+                glow::FRAMEBUFFER,
+                glow::COLOR_ATTACHMENT0,
+                glow::RENDERBUFFER,
+                Some(target),
+            );
+            timer.time(gl, "warm-up", || gl.clear(glow::COLOR_BUFFER_BIT))?;
+            timer.finish(gl, &mut PassTimes::new());
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+            gl.delete_framebuffer(framebuffer);
+            gl.delete_renderbuffer(target);
+        }
+        Ok(timer)
     }
 
     /// Starts timing `pass`. GL time queries do not nest: end one pass before the next.
@@ -97,6 +167,14 @@ impl GlPassTimer {
     /// Ends the pass begun last.
     pub fn end(&mut self, gl: &glow::Context) {
         unsafe { gl.end_query(glow::TIME_ELAPSED) };
+    }
+
+    /// Times the GL commands `pass` issues: `begin`, `pass()`, `end`.
+    pub fn time<R>(&mut self, gl: &glow::Context, name: &'static str, pass: impl FnOnce() -> R) -> Result<R> {
+        self.begin(gl, name)?;
+        let result = pass();
+        self.end(gl);
+        Ok(result)
     }
 
     /// Ends the frame: reads every earlier frame whose results have arrived, without waiting.
@@ -138,12 +216,6 @@ impl GlPassTimer {
         for query in self.all {
             unsafe { gl.delete_query(query) };
         }
-    }
-}
-
-impl Default for GlPassTimer {
-    fn default() -> Self {
-        Self::new()
     }
 }
 
@@ -218,7 +290,13 @@ mod tests {
         assert_eq!(summary[0].1, 11.0);
         assert_eq!(summary[0].2, 19.0);
         assert_eq!(summary[1].1, 10.0);
+        // The line shows the last 60 frames only: all 20 here.
         assert_eq!(times.line(), "raster 11.00 · ao 10.00 ms (GPU)");
+        for _ in 0..PassTimes::KEEP {
+            times.add("ao", 2.0);
+        }
+        assert_eq!(times.samples("ao").len(), PassTimes::KEEP / 2 + 20, "the oldest half forgotten");
+        assert_eq!(times.line(), "raster 11.00 · ao 2.00 ms (GPU)");
         assert!(times.samples("blur").is_empty());
     }
 }
