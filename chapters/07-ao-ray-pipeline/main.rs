@@ -76,7 +76,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(reason) = nothing_to_trace {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
         report.set("ao_skipped", reason);
-        tracer.fill_unoccluded(&gl_context)?;
+        tracer.fill_unoccluded(&vk, &gl_context)?;
     }
     for frame in 0..args.common.frame_count(false) {
         // ANCHOR: loop

@@ -220,7 +220,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if skipped.replace(reason).is_none() {
                 eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
             }
-            tracer.fill_unoccluded(&gl_context)?; // once per AO image
+            tracer.fill_unoccluded(&vk, &gl_context)?; // once per AO image
         } else if tracer.accumulated < args.ao.max_samples {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
             let scene_scale = scene.size() / 2.0;

@@ -143,13 +143,15 @@ impl AoTracer {
     // ANCHOR_END: image
 
     /// Visibility 1 everywhere without tracing (see [`nothing_to_trace`]): GL clears the AO
-    /// image to 1 through a framebuffer of its own, once per image. The image is still GL's
-    /// (never handed to Vulkan) and stays GL's.
-    pub fn fill_unoccluded(&mut self, gl: &GlContext) -> Result<()> {
+    /// image to 1 through a framebuffer of its own, once per image. GL uses the image first, so
+    /// Vulkan hands it over (in GENERAL) before, as it does the G-buffers; it stays GL's until a
+    /// trace takes it.
+    pub fn fill_unoccluded(&mut self, vk: &VulkanContext, gl: &GlContext) -> Result<()> {
         if self.unoccluded {
             return Ok(());
         }
         anyhow::ensure!(!self.gl_has_image, "fill_unoccluded: the AO image was already traced into");
+        crate::interop::hand_new_images_to_gl(vk, &[&self.image])?;
         unsafe {
             let gl = &gl.gl;
             let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
