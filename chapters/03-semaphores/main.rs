@@ -14,6 +14,7 @@ use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::interop::{self, SharedImage};
 use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
+use common::timing::{GlPassTimer, PassTimes};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
 use glow::HasContext;
 use std::ffi::CStr;
@@ -90,7 +91,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_pixels_seen_by_vulkan = HostBuffer::new(&vk, pixels as u64 * 4, transfer)?;
 
     let (mut vulkan_saw_gl, mut gl_saw_vulkan) = (true, true);
-    let (mut handshake_ms, mut vulkan_gpu_ms, mut frame_ms) = (Vec::new(), Vec::new(), Vec::new());
+    // Each frame's GL clear and Vulkan copies (GPU), handshake and whole frame (CPU): common::timing.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_seen_by_gl = Vec::new();
     for frame in 0..frames {
         let started = Instant::now();
@@ -103,8 +105,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             gl.viewport(0, 0, extent.width as i32, extent.height as i32);
             let [r, g, b] = gl_colour.map(|c| c as f32 / 255.0);
             gl.clear_color(r, g, b, 1.0);
-            gl.clear(glow::COLOR_BUFFER_BIT);
         }
+        gl_timer.time(gl, "gl_clear", || unsafe { gl.clear(glow::COLOR_BUFFER_BIT) })?;
         let handshake = Instant::now();
         if !args.unsynchronised {
             sync.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
@@ -118,7 +120,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if frame > 0 {
             vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frame - 1).0);
             if let Some(t) = &timestamps {
-                vulkan_gpu_ms.push(t.read_ms(&vk)?);
+                times.add("vulkan_gpu", t.read_ms(&vk)?);
             }
         }
         checkerboard(vulkan_pattern.bytes_mut(), extent, vulkan_colour);
@@ -152,8 +154,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // Vulkan's top row (a lit square), is GL's bottom row, which read_gl_rgba8 puts last.
         let memory_row_0 = (extent.height - 1) as usize * extent.width as usize * 4;
         gl_saw_vulkan &= seen[memory_row_0..memory_row_0 + 3] == vulkan_colour;
-        handshake_ms.push(handshake_cpu);
-        frame_ms.push(ms_since(started));
+        times.add("handshake_cpu", handshake_cpu);
+        times.add("frame", ms_since(started));
+        gl_timer.end_frame(gl, &mut times);
         last_seen_by_gl = seen;
     }
 
@@ -161,8 +164,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frames - 1).0);
     if let Some(t) = &timestamps {
-        vulkan_gpu_ms.push(t.read_ms(&vk)?);
+        times.add("vulkan_gpu", t.read_ms(&vk)?);
     }
+    gl_timer.finish(gl, &mut times);
     report.check("vulkan_sees_each_frame_gl_drew", vulkan_saw_gl);
     report.check("gl_sees_each_frame_vulkan_wrote", gl_saw_vulkan);
     output::save_rgba8(
@@ -182,7 +186,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         extent.height,
         &from_gl,
     )?;
-    record_timings(report, &handshake_ms, &vulkan_gpu_ms, &frame_ms, &sync);
+    times.record(report);
+    let (median, _) = median_p95(times.samples("handshake_cpu"));
+    eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", sync.name());
     report.set("frames", frames);
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
@@ -196,6 +202,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         t.destroy(&vk);
     }
     commands.destroy(&vk);
+    gl_timer.delete(gl);
     sync.destroy(&vk, &gl_context);
     unsafe { gl.delete_framebuffer(framebuffer) };
     image.destroy(&vk, &gl_context);
@@ -325,14 +332,4 @@ fn checkerboard(bytes: &mut [u8], extent: vk::Extent2D, colour: [u8; 3]) {
 /// Does the image Vulkan copied out start with GL's colour? (Its first square is all GL's.)
 fn first_pixel_is(readback: &HostBuffer, colour: [u8; 3]) -> bool {
     readback.bytes()[..3].iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 1)
-}
-
-fn record_timings(report: &mut Report, handshake: &[f64], vulkan_gpu: &[f64], frame: &[f64], sync: &Sync) {
-    for (name, samples) in [("handshake_cpu", handshake), ("vulkan_gpu", vulkan_gpu), ("frame", frame)] {
-        let (median, p95) = median_p95(samples);
-        report.time_ms(&format!("{name}_median"), median);
-        report.time_ms(&format!("{name}_p95"), p95);
-    }
-    let (median, _) = median_p95(handshake);
-    eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", sync.name());
 }
