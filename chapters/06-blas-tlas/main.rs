@@ -19,6 +19,7 @@ use common::interop::{acquire_from_gl, release_to_gl};
 use common::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
 use common::scene::{Camera, SceneArgs};
 use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
+use common::timing::{GlPassTimer, PassTimes};
 use common::{
     CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
 };
@@ -106,7 +107,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. GL draws the G-buffers (chapter 05)
     let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
-    gbuffers.draw(gl, &scene, &camera);
+    let mut gl_timer = GlPassTimer::new(gl)?; // common::timing, as in chapter 05
+    gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;
 
     // 6. Trace one primary ray per pixel
@@ -167,6 +169,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(t) = &timestamps {
         report.time_ms("trace_gpu", t.read_ms(&vk)?);
     }
+    // The raster's time, read now that the trace has waited for it (reading earlier would wait).
+    let mut times = PassTimes::new();
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
+    gl_timer.delete(gl);
 
     // 7. Compare what the rays hit with what GL covered
     // ANCHOR: compare
