@@ -9,7 +9,7 @@
 use crate::commands::{Timestamps, median_p95};
 use crate::report::Report;
 use crate::vulkan::VulkanContext;
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext as _;
 use std::collections::VecDeque;
@@ -109,7 +109,8 @@ pub fn read_after(
 }
 
 /// GL passes timed with `GL_TIME_ELAPSED` queries. A frame's queries are read when their
-/// results are available (a frame or two later), never waited for while frames still run.
+/// results are available (a frame or two later), never waited for while frames still run; the
+/// queries are made once, up front, so that a long run makes no more GL objects as it goes.
 pub struct GlPassTimer {
     /// Queries whose results are not read yet, oldest frame first.
     pending: VecDeque<Vec<(&'static str, glow::Query)>>,
@@ -119,14 +120,25 @@ pub struct GlPassTimer {
     free: Vec<glow::Query>,
     /// Every query made, to delete them all at the end.
     all: Vec<glow::Query>,
+    /// Times read early (to free queries), handed over at the next `end_frame`.
+    early: Vec<(&'static str, f64)>,
 }
 
 impl GlPassTimer {
+    /// Queries made up front: 8 passes a frame for 4 frames in flight. When all are in use, the
+    /// oldest frame's are read, waiting for them: the GPU is then 4 frames behind anyway.
+    const QUERIES: usize = 32;
+
     pub fn new(gl: &glow::Context) -> Result<Self> {
+        let mut all = Vec::with_capacity(Self::QUERIES);
+        for _ in 0..Self::QUERIES {
+            all.push(unsafe { gl.create_query() }.map_err(|e| anyhow::anyhow!("glGenQueries: {e}"))?);
+        }
+        let free = all.clone();
         let mut timer =
-            GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free: Vec::new(), all: Vec::new() };
+            GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free, all, early: Vec::new() };
         // llvmpipe answers the first GL_TIME_ELAPSED query around a context's first drawing with
-        // a time since boot: time one clear of a 1x1 target, and throw the answer away.
+        // a time since boot: time a clear of a 1x1 target, and throw the answers away.
         unsafe {
             let target = gl.create_renderbuffer().map_err(|e| anyhow::anyhow!("glGenRenderbuffers: {e}"))?;
             gl.bind_renderbuffer(glow::RENDERBUFFER, Some(target));
@@ -140,7 +152,11 @@ impl GlPassTimer {
                 glow::RENDERBUFFER,
                 Some(target),
             );
-            timer.time(gl, "warm-up", || gl.clear(glow::COLOR_BUFFER_BIT))?;
+            // Every query once: a name from glGenQueries becomes a query object at its first
+            // use, and a leak check counting GL's objects would see them appear one by one.
+            for _ in 0..Self::QUERIES {
+                timer.time(gl, "warm-up", || gl.clear(glow::COLOR_BUFFER_BIT))?;
+            }
             timer.finish(gl, &mut PassTimes::new());
             gl.bind_framebuffer(glow::FRAMEBUFFER, None);
             gl.delete_framebuffer(framebuffer);
@@ -151,14 +167,15 @@ impl GlPassTimer {
 
     /// Starts timing `pass`. GL time queries do not nest: end one pass before the next.
     pub fn begin(&mut self, gl: &glow::Context, pass: &'static str) -> Result<()> {
-        let query = match self.free.pop() {
-            Some(query) => query,
-            None => {
-                let query = unsafe { gl.create_query() }.map_err(|e| anyhow::anyhow!("glGenQueries: {e}"))?;
-                self.all.push(query);
-                query
-            }
-        };
+        if self.free.is_empty() {
+            let oldest = self
+                .pending
+                .pop_front()
+                .context("more GL passes in one frame than GlPassTimer has queries")?;
+            let early = self.read(gl, oldest);
+            self.early.extend(early);
+        }
+        let query = self.free.pop().expect("a query was freed above");
         unsafe { gl.begin_query(glow::TIME_ELAPSED, query) };
         self.current.push((pass, query));
         Ok(())
@@ -180,6 +197,9 @@ impl GlPassTimer {
     /// Ends the frame: reads every earlier frame whose results have arrived, without waiting.
     pub fn end_frame(&mut self, gl: &glow::Context, times: &mut PassTimes) {
         self.pending.push_back(std::mem::take(&mut self.current));
+        for (pass, ms) in self.early.drain(..) {
+            times.add(pass, ms);
+        }
         while let Some(frame) = self.pending.front() {
             // A frame's queries finish in order: when its last one is available, all are.
             let available = frame.last().is_none_or(|&(_, query)| unsafe {
@@ -189,7 +209,9 @@ impl GlPassTimer {
                 break;
             }
             let frame = self.pending.pop_front().expect("front exists");
-            self.read(gl, frame, times);
+            for (pass, ms) in self.read(gl, frame) {
+                times.add(pass, ms);
+            }
         }
     }
 
@@ -198,18 +220,30 @@ impl GlPassTimer {
         if !self.current.is_empty() {
             self.pending.push_back(std::mem::take(&mut self.current));
         }
+        for (pass, ms) in self.early.drain(..) {
+            times.add(pass, ms);
+        }
         while let Some(frame) = self.pending.pop_front() {
-            self.read(gl, frame, times);
+            for (pass, ms) in self.read(gl, frame) {
+                times.add(pass, ms);
+            }
         }
     }
 
-    fn read(&mut self, gl: &glow::Context, frame: Vec<(&'static str, glow::Query)>, times: &mut PassTimes) {
+    /// Reads a frame's queries (waiting for them if need be) and frees them.
+    fn read(
+        &mut self,
+        gl: &glow::Context,
+        frame: Vec<(&'static str, glow::Query)>,
+    ) -> Vec<(&'static str, f64)> {
+        let mut read = Vec::with_capacity(frame.len());
         for (pass, query) in frame {
             // GL_QUERY_RESULT of a GL_TIME_ELAPSED query: nanoseconds, 64 bits.
             let ns = unsafe { gl.get_query_parameter_u64(query, glow::QUERY_RESULT) };
-            times.add(pass, ns as f64 / 1e6);
+            read.push((pass, ns as f64 / 1e6));
             self.free.push(query);
         }
+        read
     }
 
     pub fn delete(self, gl: &glow::Context) {
