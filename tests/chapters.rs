@@ -275,6 +275,31 @@ fn ch08_composite_bunny() {
 }
 
 #[test]
+fn ch08_flat_blas_traces_like_per_mesh() {
+    // One BLAS of every instance's triangles, each placed by its transform, under a TLAS of one
+    // instance: the same triangles, so the same occlusion, pixel for pixel within tolerance of
+    // the per-mesh references.
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "4", "--all-views", "--blas", "flat"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["blas_layout"], "flat");
+    let built = |kind: &str| {
+        report["resources"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["kind"].as_str().unwrap().starts_with(kind))
+            .unwrap()["count"]
+            .as_u64()
+            .unwrap()
+    };
+    // One BLAS built and its compacted copy (per mesh: two of each), and the one-instance buffer.
+    assert_eq!(built("vk_acceleration_structure: BOTTOM_LEVEL"), 2);
+    assert_eq!(built("vk_buffer: flat TLAS instance"), 1);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
 fn ch08_composite_without_blur() {
     let args = ["--size", "64x48", "--frames", "1", "--samples", "4", "--blur", "0"];
     let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);

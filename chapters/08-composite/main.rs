@@ -11,7 +11,7 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::RayTracedScene;
+use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
 use common::ao::{AoArgs, AoTracer};
 use common::commands::Timestamps;
 use common::gbuffer::GBuffers;
@@ -61,6 +61,11 @@ struct Args {
     /// the mouse wheel does; from about 3000 on, the far plane is over 10^5 times the near one).
     #[arg(long, default_value_t = 1.0)]
     zoom: f32,
+    /// How the rays' structures hold the triangles: one BLAS per mesh under a TLAS of every
+    /// instance (chapter 06), or one flat BLAS of every instance's triangles (see the
+    /// performance page).
+    #[arg(long, value_enum, default_value = "per-mesh")]
+    blas: BlasLayout,
 }
 
 fn main() -> ExitCode {
@@ -129,7 +134,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
-    let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
+    let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let commands = &shared.commands;
     let extent = |size: common::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
@@ -291,6 +296,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("radius", settings.radius);
         report.set("near_far_ratio", (camera.far / camera.near).round());
         report.set("blur", settings.blur);
+        report.set("blas_layout", args.blas);
         report.set("frames", frame);
         if window.is_none() {
             let out_dir = args.common.out_dir(CHAPTER);
