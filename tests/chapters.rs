@@ -275,6 +275,31 @@ fn ch08_composite_bunny() {
 }
 
 #[test]
+fn ch08_flat_blas_traces_like_per_mesh() {
+    // One BLAS of every instance's triangles, each placed by its transform, under a TLAS of one
+    // instance: the same triangles, so the same occlusion, pixel for pixel within tolerance of
+    // the per-mesh references.
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "4", "--all-views", "--blas", "flat"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["blas_layout"], "flat");
+    let built = |kind: &str| {
+        report["resources"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["kind"].as_str().unwrap().starts_with(kind))
+            .unwrap()["count"]
+            .as_u64()
+            .unwrap()
+    };
+    // One BLAS built and its compacted copy (per mesh: two of each), and the one-instance buffer.
+    assert_eq!(built("vk_acceleration_structure: BOTTOM_LEVEL"), 2);
+    assert_eq!(built("vk_buffer: flat TLAS instance"), 1);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
 fn ch08_composite_without_blur() {
     let args = ["--size", "64x48", "--frames", "1", "--samples", "4", "--blur", "0"];
     let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
@@ -289,13 +314,16 @@ fn ch08_resizing_leaks_nothing() {
     assert_eq!(report["resizes"], 5);
     assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
     assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
+    assert_eq!(report["checks"]["no_gl_object_growth_across_resizes"], true);
     // The last frame, at the last size, still passes the composite and overlay checks.
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
 
-/// The soak: `cycles` resizes of chapter 08 at small sizes, open fds and live resources
-/// (exportable memory and images, GL's memory objects, textures, renderbuffers) counted after the
-/// first and after the last: no growth.
+/// The soak: `cycles` resizes of chapter 08 at small sizes, open fds, live resources (exportable
+/// and host memory, exportable images, GL's memory objects, textures, renderbuffers) and every
+/// kind of GL object as GL counts them (`GlContext::live_objects`: textures, buffers,
+/// framebuffers, renderbuffers, vertex arrays, programs, queries, memory objects, semaphores)
+/// counted after the first and after the last: no growth.
 fn soak(cycles: u32) {
     let frames = (cycles + 1).to_string();
     let args = ["--size", "32x24", "--frames", &frames, "--samples", "1", "--resize-every", "1"];
@@ -304,6 +332,8 @@ fn soak(cycles: u32) {
     assert_eq!(report["resizes"], cycles);
     assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
     assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
+    assert_eq!(report["checks"]["no_gl_object_growth_across_resizes"], true);
+    eprintln!("after {cycles} resizes: {}", report["live_gl_objects_after_resizes"]);
 }
 
 #[test]

@@ -111,15 +111,17 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let target = RenderTarget::new(gl, width, height)?;
     // ANCHOR_END: draw_setup
-    let draw = |name: &str, report: &mut Report| -> Result<Vec<u8>> {
-        unsafe {
+    // The draw's GPU time (common::timing; the read-back waits for it anyway).
+    let (mut gl_timer, mut times) = (common::timing::GlPassTimer::new(gl)?, common::timing::PassTimes::new());
+    let mut draw = |name: &str, report: &mut Report| -> Result<Vec<u8>> {
+        gl_timer.time(gl, "gl_draw", || unsafe {
             target.bind(gl);
             gl.clear_color(CLEAR[0], CLEAR[1], CLEAR[2], CLEAR[3]);
             gl.clear(glow::COLOR_BUFFER_BIT);
             gl.use_program(Some(program));
             gl.bind_vertex_array(Some(vertex_array));
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
-        }
+        })?;
         gl_context.check_error("drawing from the imported buffer")?;
         let pixels = output::read_gl_rgba8(gl, width, height);
         output::save_rgba8(report, &out_dir, name, width, height, &pixels)?;
@@ -161,6 +163,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 8. Clean up, newest first
     // ANCHOR: cleanup
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
+    gl_timer.delete(gl);
     target.delete(gl);
     unsafe {
         gl.delete_vertex_array(vertex_array);

@@ -11,9 +11,10 @@
 use anyhow::Result;
 use ash::vk;
 use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
-use common::interop::SharedImage;
-use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::interop::{self, SharedImage};
+use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
+use common::timing::{GlPassTimer, PassTimes};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
 use glow::HasContext;
 use std::ffi::CStr;
@@ -24,17 +25,6 @@ const CHAPTER: &str = "03-semaphores";
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 /// Without it the chapter still runs, synchronising on the host.
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
-
-// ANCHOR: layouts
-/// Where GL leaves the image for Vulkan: ready to be copied from (GL makes the transition as
-/// part of its signal, so Vulkan's first barrier starts from here).
-const HANDED_TO_VULKAN: (vk::ImageLayout, u32) =
-    (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, layout::TRANSFER_SRC);
-/// Where Vulkan leaves it for GL: ready to be a framebuffer attachment, which is how GL both
-/// reads Vulkan's pattern and draws the next frame.
-const HANDED_TO_GL: (vk::ImageLayout, u32) =
-    (vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL, layout::COLOR_ATTACHMENT);
-// ANCHOR_END: layouts
 
 /// Chapter 03: GL and Vulkan take turns with a shared image, ordered by shared semaphores.
 #[derive(clap::Parser)]
@@ -69,6 +59,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         | vk::ImageUsageFlags::TRANSFER_SRC // Vulkan copies GL's pixels out
         | vk::ImageUsageFlags::TRANSFER_DST; // Vulkan writes its own
     let image = SharedImage::new(&vk, &gl_context, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    // GL draws into it first: Vulkan moves it out of UNDEFINED and hands it over before that.
+    interop::hand_new_images_to_gl(&vk, &[&image])?;
     // ANCHOR_END: shared_image
     let framebuffer = unsafe {
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
@@ -81,6 +73,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let sync = Sync::new(&vk, &gl_context)?;
     report.sync = Some(if args.unsynchronised { "none" } else { sync.name() });
     // ANCHOR_END: sync
+    // ANCHOR: layouts
+    // Where GL leaves the image for Vulkan: ready to be copied from. Where Vulkan leaves it for GL:
+    // ready to be a framebuffer attachment, which is how GL both reads Vulkan's pattern and draws
+    // the next frame. With semaphores, GL makes both transitions as part of its signal and wait;
+    // on the host path GL makes none, and `hand_over` answers GENERAL for both.
+    let layouts =
+        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+    let (signal_layout, wait_layout) = layouts.gl(); // the same two, as GL's signal and wait name them
+    // ANCHOR_END: layouts
 
     let pixels = (extent.width * extent.height) as usize;
     let commands = Commands::new(&vk)?;
@@ -90,7 +91,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_pixels_seen_by_vulkan = HostBuffer::new(&vk, pixels as u64 * 4, transfer)?;
 
     let (mut vulkan_saw_gl, mut gl_saw_vulkan) = (true, true);
-    let (mut handshake_ms, mut vulkan_gpu_ms, mut frame_ms) = (Vec::new(), Vec::new(), Vec::new());
+    // Each frame's GL clear and Vulkan copies (GPU), handshake and whole frame (CPU): common::timing.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_seen_by_gl = Vec::new();
     for frame in 0..frames {
         let started = Instant::now();
@@ -103,11 +105,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             gl.viewport(0, 0, extent.width as i32, extent.height as i32);
             let [r, g, b] = gl_colour.map(|c| c as f32 / 255.0);
             gl.clear_color(r, g, b, 1.0);
-            gl.clear(glow::COLOR_BUFFER_BIT);
         }
+        gl_timer.time(gl, "gl_clear", || unsafe { gl.clear(glow::COLOR_BUFFER_BIT) })?;
         let handshake = Instant::now();
         if !args.unsynchronised {
-            sync.gl_release(&gl_context, &[image.texture.texture], &[HANDED_TO_VULKAN.1]);
+            sync.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
         }
         let mut handshake_cpu = ms_since(handshake);
         // ANCHOR_END: gl_turn
@@ -118,14 +120,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if frame > 0 {
             vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frame - 1).0);
             if let Some(t) = &timestamps {
-                vulkan_gpu_ms.push(t.read_ms(&vk)?);
+                times.add("vulkan_gpu", t.read_ms(&vk)?);
             }
         }
         checkerboard(vulkan_pattern.bytes_mut(), extent, vulkan_colour);
         if let Some(t) = &timestamps {
             t.reset(&vk, cb);
         }
-        record_vulkan_turn(&vk, cb, &image, &vulkan_pattern, &gl_pixels_seen_by_vulkan, timestamps.as_ref());
+        let buffers = (&vulkan_pattern, &gl_pixels_seen_by_vulkan);
+        record_vulkan_turn(&vk, cb, &image, layouts, buffers, timestamps.as_ref());
         let handshake = Instant::now();
         // ANCHOR: submit
         // Wait for GL's signal before the copy (TRANSFER) stage; nothing earlier touches the image.
@@ -142,7 +145,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: gl_reads
         if !args.unsynchronised {
             let texture = image.texture.texture;
-            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[HANDED_TO_GL.1])?;
+            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[wait_layout])?;
         }
         handshake_cpu += ms_since(handshake);
         let seen = output::read_gl_rgba8(gl, extent.width, extent.height);
@@ -151,8 +154,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // Vulkan's top row (a lit square), is GL's bottom row, which read_gl_rgba8 puts last.
         let memory_row_0 = (extent.height - 1) as usize * extent.width as usize * 4;
         gl_saw_vulkan &= seen[memory_row_0..memory_row_0 + 3] == vulkan_colour;
-        handshake_ms.push(handshake_cpu);
-        frame_ms.push(ms_since(started));
+        times.add("handshake_cpu", handshake_cpu);
+        times.add("frame", ms_since(started));
+        gl_timer.end_frame(gl, &mut times);
         last_seen_by_gl = seen;
     }
 
@@ -160,8 +164,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frames - 1).0);
     if let Some(t) = &timestamps {
-        vulkan_gpu_ms.push(t.read_ms(&vk)?);
+        times.add("vulkan_gpu", t.read_ms(&vk)?);
     }
+    gl_timer.finish(gl, &mut times);
     report.check("vulkan_sees_each_frame_gl_drew", vulkan_saw_gl);
     report.check("gl_sees_each_frame_vulkan_wrote", gl_saw_vulkan);
     output::save_rgba8(
@@ -181,9 +186,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         extent.height,
         &from_gl,
     )?;
-    record_timings(report, &handshake_ms, &vulkan_gpu_ms, &frame_ms, &sync);
+    times.record(report);
+    let (median, _) = median_p95(times.samples("handshake_cpu"));
+    eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", sync.name());
     report.set("frames", frames);
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 6. Clean up, newest first (the GPU is idle: the last fence has signalled, GL has read)
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -193,6 +202,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         t.destroy(&vk);
     }
     commands.destroy(&vk);
+    gl_timer.delete(gl);
     sync.destroy(&vk, &gl_context);
     unsafe { gl.delete_framebuffer(framebuffer) };
     image.destroy(&vk, &gl_context);
@@ -210,8 +220,8 @@ fn record_vulkan_turn(
     vk: &VulkanContext,
     cb: vk::CommandBuffer,
     image: &SharedImage,
-    pattern: &HostBuffer,
-    readback: &HostBuffer,
+    layouts: HandOver,
+    (pattern, readback): (&HostBuffer, &HostBuffer),
     timestamps: Option<&Timestamps>,
 ) {
     let barrier = |old, new, src_access, dst_access, src_family, dst_family| {
@@ -236,12 +246,13 @@ fn record_vulkan_turn(
         .image_extent(vk::Extent3D { width: image.extent.width, height: image.extent.height, depth: 1 });
     let device = &vk.device;
     unsafe {
-        // Acquire from GL: ownership moves from "outside Vulkan" to our queue family. The layout
-        // is the one GL promised in its signal; the semaphore wait already made GL's writes
-        // available, so there is no source access to wait for.
+        // Acquire from GL: ownership moves from "outside Vulkan" to our queue family, and the
+        // image from the layout GL left it in (its signal's; on the host path GENERAL, where
+        // Vulkan's last release left it) to the one the copy wants. The semaphore wait (or
+        // glFinish) already made GL's writes available: no source access to wait for.
         let acquire = barrier(
-            HANDED_TO_VULKAN.0,
-            HANDED_TO_VULKAN.0,
+            layouts.to_vulkan,
+            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
             vk::AccessFlags::NONE,
             vk::AccessFlags::TRANSFER_READ,
             external,
@@ -256,11 +267,12 @@ fn record_vulkan_turn(
         if let Some(t) = timestamps {
             t.start(vk, cb, transfer);
         }
-        device.cmd_copy_image_to_buffer(cb, image.image, HANDED_TO_VULKAN.0, readback.buffer, &[region]);
+        let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
+        device.cmd_copy_image_to_buffer(cb, image.image, transfer_src, readback.buffer, &[region]);
         // The copy's reads must finish before the image is overwritten: a write-after-read hazard,
         // so an execution dependency is enough, plus the move to TRANSFER_DST for the write.
         let to_write = barrier(
-            HANDED_TO_VULKAN.0,
+            transfer_src,
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
             vk::AccessFlags::NONE,
             vk::AccessFlags::TRANSFER_WRITE,
@@ -275,11 +287,12 @@ fn record_vulkan_turn(
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
             &[region],
         );
-        // Release to GL: make the write available, move to the layout GL will wait with, and hand
-        // ownership back outside Vulkan. GL's wait on our semaphore does the rest.
+        // Release to GL: make the write available, move to the layout GL will wait with (on the
+        // host path, GENERAL: the layout the next frame's acquire starts from), and hand ownership
+        // back outside Vulkan. GL's wait on our semaphore (or the fence) does the rest.
         let release = barrier(
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            HANDED_TO_GL.0,
+            layouts.to_gl,
             vk::AccessFlags::TRANSFER_WRITE,
             vk::AccessFlags::NONE,
             ours,
@@ -319,14 +332,4 @@ fn checkerboard(bytes: &mut [u8], extent: vk::Extent2D, colour: [u8; 3]) {
 /// Does the image Vulkan copied out start with GL's colour? (Its first square is all GL's.)
 fn first_pixel_is(readback: &HostBuffer, colour: [u8; 3]) -> bool {
     readback.bytes()[..3].iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 1)
-}
-
-fn record_timings(report: &mut Report, handshake: &[f64], vulkan_gpu: &[f64], frame: &[f64], sync: &Sync) {
-    for (name, samples) in [("handshake_cpu", handshake), ("vulkan_gpu", vulkan_gpu), ("frame", frame)] {
-        let (median, p95) = median_p95(samples);
-        report.time_ms(&format!("{name}_median"), median);
-        report.time_ms(&format!("{name}_p95"), p95);
-    }
-    let (median, _) = median_p95(handshake);
-    eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", sync.name());
 }

@@ -3,7 +3,7 @@
 use crate::{CLEAR, Triangle};
 use anyhow::Result;
 use ash::vk;
-use common::commands::median_p95;
+use common::timing::PassTimes;
 use common::{Report, open_fd_count};
 use std::f32::consts::TAU;
 
@@ -14,9 +14,8 @@ pub struct Checks {
     shows_image: Option<bool>,
     first_seen: Option<Vec<u8>>,
     last_seen: Option<Vec<u8>>,
-    /// GPU time of each frame's dispatch, and CPU time of each whole frame, in ms.
-    pub gpu_ms: Vec<f64>,
-    pub frame_ms: Vec<f64>,
+    /// GPU time of each frame's dispatch and draw, and CPU time of each whole frame.
+    pub times: PassTimes,
     /// Open fds once a whole cycle of `--resize-every` sizes has run (back at full size).
     pub fds_after_cycle: Option<usize>,
 }
@@ -56,11 +55,7 @@ impl Checks {
                 serde_json::json!({ "after_first_cycle": self.fds_after_cycle, "at_end": at_end }),
             );
         }
-        for (name, samples) in [("compute_gpu", &self.gpu_ms), ("frame_cpu", &self.frame_ms)] {
-            let (median, p95) = median_p95(samples);
-            report.time_ms(&format!("{name}_median"), median);
-            report.time_ms(&format!("{name}_p95"), p95);
-        }
+        self.times.record(report);
         Ok(())
     }
 }

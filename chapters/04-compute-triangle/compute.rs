@@ -21,6 +21,7 @@ const WORKGROUP: u32 = 16;
 // ANCHOR_END: interface
 
 /// The compute pipeline, its layout, and the one descriptor set that points at the shared image.
+/// Destroyed when dropped too, so that an early return from `run` leaks nothing.
 pub struct ComputePipeline {
     set_layout: vk::DescriptorSetLayout,
     layout: vk::PipelineLayout,
@@ -28,6 +29,7 @@ pub struct ComputePipeline {
     descriptor_pool: vk::DescriptorPool,
     /// Written by `share_image` whenever the image is made (anew).
     pub set: vk::DescriptorSet,
+    device: ash::Device,
 }
 
 impl ComputePipeline {
@@ -71,7 +73,7 @@ impl ComputePipeline {
             .set_layouts(&set_layouts);
         let set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
         // ANCHOR_END: pipeline
-        Ok(ComputePipeline { set_layout, layout, pipeline, descriptor_pool, set })
+        Ok(ComputePipeline { set_layout, layout, pipeline, descriptor_pool, set, device: device.clone() })
     }
 
     // ANCHOR: record_compute
@@ -142,12 +144,19 @@ impl ComputePipeline {
     // ANCHOR_END: record_compute
 
     /// Newest first; the descriptor set goes with its pool. The GPU must be idle.
-    pub fn destroy(self, vk: &VulkanContext) {
+    pub fn destroy(self, _vk: &VulkanContext) {
+        drop(self); // Drop below does it
+    }
+}
+
+impl Drop for ComputePipeline {
+    fn drop(&mut self) {
         unsafe {
-            vk.device.destroy_descriptor_pool(self.descriptor_pool, None);
-            vk.device.destroy_pipeline(self.pipeline, None);
-            vk.device.destroy_pipeline_layout(self.layout, None);
-            vk.device.destroy_descriptor_set_layout(self.set_layout, None);
+            let _ = self.device.device_wait_idle(); // after an early return, work may be in flight
+            self.device.destroy_descriptor_pool(self.descriptor_pool, None);
+            self.device.destroy_pipeline(self.pipeline, None);
+            self.device.destroy_pipeline_layout(self.layout, None);
+            self.device.destroy_descriptor_set_layout(self.set_layout, None);
         }
     }
 }

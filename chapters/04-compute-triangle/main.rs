@@ -182,7 +182,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     let out_dir = args.common.out_dir(CHAPTER);
     let started = Instant::now();
-    let mut checks = Checks::default();
+    let (mut checks, mut gl_timer) = (Checks::default(), common::timing::GlPassTimer::new(gl)?);
     let mut resizes = 0;
     let mut frame = 0;
     while frames == 0 || frame < frames {
@@ -256,7 +256,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if frame > 0
             && let Some(t) = &timestamps
         {
-            checks.gpu_ms.push(t.read_ms(&vk)?);
+            checks.times.add("compute_gpu", t.read_ms(&vk)?);
         }
         let slot = frame as u64 % SLOTS;
         let triangle = triangle_at(time);
@@ -285,7 +285,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         sync.gl_acquire(&vk, &gl_context, commands.fence, &texture, &[layout::SHADER_READ_ONLY])?;
         image_is_new = false;
         let (width, height) = window.as_ref().map_or((size.width, size.height), |w| w.size());
-        unsafe {
+        gl_timer.time(gl, "gl_draw", || unsafe {
             gl.bind_framebuffer(glow::FRAMEBUFFER, target.as_ref().map(|t| t.framebuffer));
             gl.viewport(0, 0, width as i32, height as i32);
             gl.clear_color(CLEAR[0], CLEAR[1], CLEAR[2], CLEAR[3]);
@@ -297,7 +297,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             gl.bind_vertex_array(Some(vertex_array));
             gl.bind_texture_unit(0, Some(image.texture.texture)); // `binding = 0` in the shader
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
-        }
+        })?;
+        gl_timer.end_frame(gl, &mut checks.times);
         // ANCHOR_END: draw
         gl_context.check_error("drawing the triangle")?;
 
@@ -309,29 +310,34 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             output::save_rgba8(report, &out_dir, &name, width, height, &pixels)?;
             checks.frame(pixels, (width, height), &triangle, extent, time);
         }
-        if let Some(window) = &window {
+        if let Some(window) = &mut window {
+            window.show_times(&checks.times);
             window.swap_buffers(&gl_context)?;
         }
-        checks.frame_ms.push(ms_since(frame_started));
+        checks.times.add("frame_cpu", ms_since(frame_started));
         frame += 1;
     }
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     if frame > 0
         && let Some(t) = &timestamps
     {
-        checks.gpu_ms.push(t.read_ms(&vk)?); // the last frame's
+        checks.times.add("compute_gpu", t.read_ms(&vk)?); // the last frame's
     }
+    gl_timer.finish(gl, &mut checks.times);
     checks.report(report, args.resize_every.is_some())?;
     report.set("frames", frame);
     report.set("resizes", resizes);
     report.set("compute_image", [extent.width, extent.height]);
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 11. Clean up, newest first, once both APIs are idle
     // ANCHOR: cleanup
     unsafe {
         gl.finish();
         vk.device.device_wait_idle()?;
     }
+    gl_timer.delete(gl);
     if let Some(target) = target {
         target.delete(gl);
     }

@@ -10,10 +10,11 @@ use anyhow::Result;
 use ash::vk;
 use common::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::scene::{Camera, Scene, SceneArgs};
 use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::timing::{GlPassTimer, PassTimes, VkPassTimer};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
 use glow::HasContext;
 use std::ffi::CStr;
@@ -80,10 +81,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Rasterise: one instanced draw per mesh
     let started = Instant::now();
-    let query = unsafe { gl.create_query() }.map_err(anyhow::Error::msg)?;
-    unsafe { gl.begin_query(glow::TIME_ELAPSED, query) };
-    gbuffers.draw(gl, &scene, &camera);
-    unsafe { gl.end_query(glow::TIME_ELAPSED) };
+    // Each pass's GPU time (common::timing): GL's raster, Vulkan's copies.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
+    gl_timer.time(gl, "raster", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;
 
     // 6. Hand the G-buffers to Vulkan, which copies them out
@@ -95,20 +95,28 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // ANCHOR: handover
     let textures = gbuffers.textures();
-    // GL puts them in TRANSFER_SRC for Vulkan's copies; Vulkan gives them back as attachments.
-    sync.gl_release(&gl_context, &textures, &[layout::TRANSFER_SRC; 3]);
+    // GL puts them in TRANSFER_SRC for Vulkan's copies; Vulkan gives them back as attachments
+    // (GENERAL both ways on the host path, where GL moves no layout).
+    let layouts =
+        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+    let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
+    sync.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
+    let mut vk_timer = VkPassTimer::new(&vk, 1)?;
+    if let Some(t) = vk_timer.as_mut() {
+        t.reset(&vk, cb);
+    }
+    // Whatever the hand-over layout, the copies read in TRANSFER_SRC: the acquire moves them there.
     let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
     let (acquire, release): (Vec<_>, Vec<_>) = gbuffers
         .images
         .iter()
         .map(|image| {
             let read = vk::AccessFlags::TRANSFER_READ;
-            let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
             let none = vk::AccessFlags::NONE; // reads only: nothing to make available to GL
             (
-                acquire_from_gl(&vk, image, transfer_src, transfer_src, read),
-                release_to_gl(&vk, image, transfer_src, attachment, none),
+                acquire_from_gl(&vk, image, layouts.to_vulkan, transfer_src, read),
+                release_to_gl(&vk, image, transfer_src, layouts.to_gl, none),
             )
         })
         .unzip();
@@ -116,21 +124,31 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let none = vk::DependencyFlags::empty();
     // From TRANSFER, the stage the submission waits for GL at: the acquire comes after GL's signal.
     unsafe { vk.device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &acquire) };
+    if let Some(t) = vk_timer.as_mut() {
+        t.begin(&vk, cb, "copies"); // after the acquire: waiting for GL is not the copies' time
+    }
     for (image, readback) in gbuffers.images.iter().zip(&readbacks) {
         copy_image_to_buffer(&vk, cb, image.image, transfer_src, extent, readback.buffer);
     }
     unsafe { vk.device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &release) };
+    if let Some(t) = vk_timer.as_mut() {
+        t.end(&vk, cb);
+    }
     transfers_to_host(&vk, cb);
     let wait = sync.vulkan_waits_on().map(|s| (s, transfer));
     commands.submit(&vk, wait, sync.vulkan_signals())?;
-    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[layout::COLOR_ATTACHMENT; 3])?;
+    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     // ANCHOR_END: handover
     report.time_ms("raster_and_handover_cpu", ms_since(started));
-    // 64 bits: nanoseconds overflow 32 bits after 4.3 s, and llvmpipe has reported 2^32 - 1 here.
-    let raster_ns = unsafe { gl.get_query_parameter_u64(query, glow::QUERY_RESULT) };
-    report.time_ms("raster_gpu", raster_ns as f64 / 1e6);
+    gl_timer.finish(gl, &mut times);
+    if let Some(t) = vk_timer {
+        t.read(&vk, &mut times)?;
+        t.destroy(&vk);
+    }
+    times.record(report);
+    gl_timer.delete(gl);
 
     // 7. Check what Vulkan sees, and write it out
     let seen = GBufferPixels { position: readbacks[0].rgba32f(), normal: readbacks[1].rgba32f() };
@@ -174,11 +192,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // ANCHOR_END: resize
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 9. Clean up, newest first
     // ANCHOR: cleanup
     readbacks.into_iter().for_each(|b| b.destroy(&vk));
     commands.destroy(&vk);
-    unsafe { gl.delete_query(query) };
     gbuffers.destroy(&vk, &gl_context);
     buffers.destroy(&vk, &gl_context);
     sync.destroy(&vk, &gl_context);

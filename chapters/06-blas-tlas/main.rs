@@ -14,11 +14,12 @@ use common::commands::{
     Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
 use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, layout};
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
 use common::scene::{Camera, SceneArgs};
-use common::sync::{SEMAPHORE_EXTENSION, Sync};
+use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
+use common::timing::{GlPassTimer, PassTimes};
 use common::{
     CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
 };
@@ -106,7 +107,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. GL draws the G-buffers (chapter 05)
     let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
-    gbuffers.draw(gl, &scene, &camera);
+    let mut gl_timer = GlPassTimer::new(gl)?; // common::timing, as in chapter 05
+    gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;
 
     // 6. Trace one primary ray per pixel
@@ -142,11 +144,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let coverage = HostBuffer::new(&vk, pixels * 16, vk::BufferUsageFlags::TRANSFER_DST)?;
     let timestamps = Timestamps::new(&vk)?;
     let textures = gbuffers.textures();
-    sync.gl_release(&gl_context, &textures, &[layout::TRANSFER_SRC; 3]);
+    // As in chapter 05: copied from, then given back as attachments (GENERAL on the host path).
+    let layouts =
+        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+    let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
+    sync.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
     unsafe {
         let trace = Trace {
             gbuffers: &gbuffers,
+            layouts,
             pipeline: &pipeline,
             mask: &mask,
             push: &push,
@@ -157,11 +164,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
     commands.submit(&vk, wait, sync.vulkan_signals())?;
-    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[layout::COLOR_ATTACHMENT; 3])?;
+    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     if let Some(t) = &timestamps {
         report.time_ms("trace_gpu", t.read_ms(&vk)?);
     }
+    // The raster's time, read now that the trace has waited for it (reading earlier would wait).
+    let mut times = PassTimes::new();
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
+    gl_timer.delete(gl);
 
     // 7. Compare what the rays hit with what GL covered
     // ANCHOR: compare
@@ -215,6 +227,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         &upright,
     )?;
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     if let Some(t) = timestamps {
@@ -240,6 +254,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 /// What one frame's trace reads and writes.
 struct Trace<'a> {
     gbuffers: &'a GBuffers,
+    /// The G-buffers' layouts at the hand-overs (`Sync::hand_over`).
+    layouts: HandOver,
     pipeline: &'a RayPipeline,
     /// Where the rays write what they hit, and the host buffer it is copied into.
     mask: &'a StorageImage,
@@ -253,7 +269,7 @@ impl Trace<'_> {
     /// Take the position G-buffer from GL and copy it out (GL's coverage); trace the rays into the
     /// mask and copy that out; give the G-buffers back.
     unsafe fn record(&self, vk: &VulkanContext, cb: vk::CommandBuffer, timestamps: Option<&Timestamps>) {
-        let Trace { gbuffers, pipeline, mask, hits, push, coverage } = *self;
+        let Trace { gbuffers, layouts, pipeline, mask, hits, push, coverage } = *self;
         let device = &vk.device;
         let none = vk::DependencyFlags::empty();
         let (transfer_src, general) = (vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::GENERAL);
@@ -265,20 +281,12 @@ impl Trace<'_> {
         let acquire: Vec<_> = gbuffers
             .images
             .iter()
-            .map(|i| acquire_from_gl(vk, i, transfer_src, transfer_src, vk::AccessFlags::TRANSFER_READ))
+            .map(|i| acquire_from_gl(vk, i, layouts.to_vulkan, transfer_src, vk::AccessFlags::TRANSFER_READ))
             .collect();
         let release: Vec<_> = gbuffers
             .images
             .iter()
-            .map(|i| {
-                release_to_gl(
-                    vk,
-                    i,
-                    transfer_src,
-                    vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
-                    vk::AccessFlags::NONE,
-                )
-            })
+            .map(|i| release_to_gl(vk, i, transfer_src, layouts.to_gl, vk::AccessFlags::NONE))
             .collect();
         unsafe {
             if let Some(t) = timestamps {

@@ -17,6 +17,7 @@ use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::{Camera, SceneArgs};
 use common::sync::Sync;
+use common::timing::{self, GlPassTimer, PassTimes};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use std::process::ExitCode;
 
@@ -68,32 +69,36 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: tracer
 
     // 4. Every frame: GL draws, Vulkan traces and accumulates, GL reads
-    let timestamps = Timestamps::new(&vk)?;
-    let (mut trace_ms, mut rays) = (0.0, 0u64);
+    // Each pass's GPU time (common::timing): GL's read when they arrive, the trace's just before
+    // the next trace, which waits for the previous one's fence anyway.
+    let (mut gl_timer, mut times, timestamps) =
+        (GlPassTimer::new(gl)?, PassTimes::new(), Timestamps::new(&vk)?);
+    let (mut trace_pending, mut rays) = (false, 0u64);
     let mut first_noise = None;
     let mut positions = Vec::new();
     let nothing_to_trace = common::ao::nothing_to_trace(args.ao.samples, radius);
     if let Some(reason) = nothing_to_trace {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
         report.set("ao_skipped", reason);
-        tracer.fill_unoccluded(&gl_context)?;
+        tracer.fill_unoccluded(&vk, &gl_context)?;
     }
     for frame in 0..args.common.frame_count(false) {
         // ANCHOR: loop
-        gbuffers.draw(gl, &scene, &camera);
+        gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         let samples = args.ao.samples.min(args.ao.max_samples.saturating_sub(tracer.accumulated));
         // Nothing left to add once converged (a viewer would just show it), or nothing to trace.
         let traced = samples > 0 && nothing_to_trace.is_none();
         if traced {
             let params = AoRays { samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+            if std::mem::take(&mut trace_pending) {
+                timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+            }
             tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
+            trace_pending = timestamps.is_some();
         }
+        gl_timer.end_frame(gl, &mut times);
+        times.frame_done();
         // ANCHOR_END: loop
-        if let (true, Some(t)) = (traced, &timestamps) {
-            // A measurement: wait for this frame's rays to read their GPU time.
-            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-            trace_ms += t.read_ms(&vk)?;
-        }
         if frame == 0 {
             // For the checks, once: GL reads the first frame's AO and the positions back (the
             // CPU waits for them). The last frame's AO is read after the loop.
@@ -106,6 +111,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             rays += positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64 * samples as u64;
         }
     }
+    if trace_pending {
+        timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+    }
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
     gl_context.check_error("the frame loop")?;
     let visibility =
         output::read_texture_f32(gl, tracer.image.texture.texture, extent.width, extent.height, 1);
@@ -135,6 +145,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("samples_per_pixel", tracer.accumulated);
     report.set("radius", radius);
     report.set("rays_traced", rays);
+    let trace_ms: f64 = times.samples("ao_trace").iter().sum();
     if timestamps.is_some() && rays > 0 {
         report.time_ms("trace_gpu_total", trace_ms);
         report.set("mrays_per_s", ((rays as f64 / (trace_ms / 1e3)) / 1e6 * 10.0).round() / 10.0);
@@ -150,6 +161,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         &upright,
     )?;
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 6. Clean up, newest first
     // ANCHOR: cleanup
     // Once the GPU is done with the last frame: its pipeline and images must outlive the
@@ -158,6 +171,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
+    gl_timer.delete(gl);
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
     shared.destroy(&vk, &gl_context);

@@ -97,15 +97,11 @@ impl LastFrame<'_> {
     }
 }
 
-/// The trace's GPU time per frame (headless runs wait for each frame's rays to time them), and
-/// the rays launched per second.
+/// The rays launched per second of the trace's GPU time.
 pub fn report_trace_times(report: &mut Report, trace_ms: &[f64], rays_launched: u64) {
     if trace_ms.is_empty() {
         return;
     }
-    let (median, p95) = common::commands::median_p95(trace_ms);
-    report.time_ms("trace_gpu_median", median);
-    report.time_ms("trace_gpu_p95", p95);
     let total: f64 = trace_ms.iter().sum();
     // Every pixel launches its rays (background pixels return at once): launched rays.
     report.set("mrays_per_s_launched", (rays_launched as f64 / (total / 1e3) / 1e6 * 10.0).round() / 10.0);

@@ -11,7 +11,7 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::RayTracedScene;
+use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
 use common::ao::{AoArgs, AoTracer};
 use common::commands::Timestamps;
 use common::gbuffer::GBuffers;
@@ -19,6 +19,7 @@ use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene, SceneArgs};
 use common::sync::Sync;
+use common::timing::{GlPassTimer, PassTimes};
 use common::window::{Key, NamedKey, Window};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
@@ -60,6 +61,11 @@ struct Args {
     /// the mouse wheel does; from about 3000 on, the far plane is over 10^5 times the near one).
     #[arg(long, default_value_t = 1.0)]
     zoom: f32,
+    /// How the rays' structures hold the triangles: one BLAS per mesh under a TLAS of every
+    /// instance (chapter 06), or one flat BLAS of every instance's triangles (see the
+    /// performance page).
+    #[arg(long, value_enum, default_value = "per-mesh")]
+    blas: BlasLayout,
 }
 
 fn main() -> ExitCode {
@@ -128,7 +134,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
-    let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
+    let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let commands = &shared.commands;
     let extent = |size: common::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
@@ -147,10 +153,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut frame = 0;
     let mut drew_a_frame = false;
     let (mut new_size, mut resizes, mut fds_after_first_resize) = (None, 0, None);
-    // Headless runs measure the trace, waiting for each frame's rays before the next frame: a
-    // measurement, not a way to run. A window adds no such wait.
-    let timestamps = if window.is_none() { Timestamps::new(&vk)? } else { None };
-    let (mut trace_ms, mut traced) = (Vec::new(), 0u64);
+    // Each pass's GPU time: GL's read when they arrive, the trace's once its fence has signalled
+    // for the next frame's trace (the wait that frame makes anyway): timing adds no wait.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
+    let timestamps = Timestamps::new(&vk)?;
+    let (mut trace_pending, mut traced) = (false, 0u64);
     let mut skipped = None;
     loop {
         // ANCHOR: input
@@ -206,50 +213,66 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             resizes += 1;
             if resizes == 1 {
                 // What exists after one resize must be what exists after every later one.
-                fds_after_first_resize = Some((open_fd_count()?, common::resources::live()));
+                let live = (common::resources::live(), gl_context.live_objects());
+                fds_after_first_resize = Some((open_fd_count()?, live));
             }
         }
         // ANCHOR_END: resize
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
-        gbuffers.draw(gl, &scene, &camera);
+        gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         if let Some(reason) = common::ao::nothing_to_trace(settings.samples, settings.radius) {
             if skipped.replace(reason).is_none() {
                 eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
             }
-            tracer.fill_unoccluded(&gl_context)?; // once per AO image
+            tracer.fill_unoccluded(&vk, &gl_context)?; // once per AO image
         } else if tracer.accumulated < args.ao.max_samples {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
             let scene_scale = scene.size() / 2.0;
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
+            if std::mem::take(&mut trace_pending) {
+                common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+            }
             tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
-            if let Some(t) = &timestamps {
-                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-                trace_ms.push(t.read_ms(&vk)?);
-            }
+            trace_pending = timestamps.is_some();
         }
-        composite.draw(gl, &gbuffers, &tracer, &settings_uniforms(&settings, &scene, &camera));
+        let uniforms = settings_uniforms(&settings, &scene, &camera);
+        gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         if settings.overlays {
-            overlays.draw(gl, &composite, camera.view_projection(aspect));
+            let view_projection = camera.view_projection(aspect);
+            gl_timer.time(gl, "overlays", || overlays.draw(gl, &composite, view_projection))?;
         }
+        gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
-        if let Some(window) = &window {
+        if let Some(window) = &mut window {
+            window.show_times(&times);
             composite.show(gl, window.size());
             window.swap_buffers(&gl_context)?;
         }
+        times.frame_done();
         frame += 1;
         drew_a_frame = true;
     }
-    if let Some((fds, live)) = fds_after_first_resize {
+    if let Some((fds, (live, gl_live))) = fds_after_first_resize {
         report.set("resizes", resizes);
         report.check("no_fd_growth_across_resizes", open_fd_count()? == fds);
-        // Exportable memory and images, GL's memory objects, textures and renderbuffers.
+        // Exportable and host memory, exportable images, GL's memory objects, textures and
+        // renderbuffers, as counted where they are made and destroyed...
         let now = common::resources::live();
         report.check("no_resource_growth_across_resizes", now == live);
         report.set("live_resources_after_resizes", now);
+        // ... and every kind of GL object, as GL itself counts them.
+        let gl_now = gl_context.live_objects();
+        report.check("no_gl_object_growth_across_resizes", gl_now == gl_live);
+        report.set("live_gl_objects_after_resizes", gl_now);
     }
-    check::report_trace_times(report, &trace_ms, traced);
+    if trace_pending {
+        common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+    }
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
+    check::report_trace_times(report, times.samples("ao_trace"), traced);
     gl_context.check_error("the frame loop")?;
 
     // 6. Check the last frame: the composite against a CPU reference, the overlays' depth test
@@ -273,6 +296,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("radius", settings.radius);
         report.set("near_far_ratio", (camera.far / camera.near).round());
         report.set("blur", settings.blur);
+        report.set("blas_layout", args.blas);
         report.set("frames", frame);
         if window.is_none() {
             let out_dir = args.common.out_dir(CHAPTER);
@@ -280,6 +304,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
     }
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -287,6 +313,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
+    gl_timer.delete(gl);
     overlays.destroy(gl);
     composite.destroy(gl);
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);

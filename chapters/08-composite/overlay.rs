@@ -54,6 +54,7 @@ pub struct Uniforms {
 
 /// The composite pass: a full-screen triangle into an offscreen colour buffer whose depth
 /// buffer is the G-buffer pass's, so that overlays drawn next are tested against the scene.
+/// Deleted when dropped too, so that an early return from `run` leaves nothing behind.
 pub struct Composite {
     program: glow::Program,
     empty: glow::VertexArray,
@@ -61,16 +62,17 @@ pub struct Composite {
     colour: glow::Renderbuffer,
     width: u32,
     height: u32,
+    gl: std::rc::Rc<glow::Context>,
 }
 
 impl Composite {
-    pub fn new(gl: &glow::Context, gbuffers: &GBuffers) -> Result<Self> {
+    pub fn new(gl: &std::rc::Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
         let program = common::gl::program(gl, FULLSCREEN, COMPOSITE)?;
         // Core profile draws need a vertex array bound, even one that feeds nothing.
         let empty = unsafe { gl.create_named_vertex_array() }.map_err(anyhow::Error::msg)?;
         let (framebuffer, colour) = unsafe { target(gl, gbuffers)? };
         let (width, height) = (gbuffers.extent.width, gbuffers.extent.height);
-        Ok(Composite { program, empty, framebuffer, colour, width, height })
+        Ok(Composite { program, empty, framebuffer, colour, width, height, gl: gl.clone() })
     }
 
     /// After the G-buffers were made anew: a colour buffer of their size, their depth buffer.
@@ -159,7 +161,14 @@ impl Composite {
         }
     }
 
-    pub fn destroy(self, gl: &glow::Context) {
+    pub fn destroy(self, _gl: &glow::Context) {
+        drop(self); // Drop below
+    }
+}
+
+impl Drop for Composite {
+    fn drop(&mut self) {
+        let gl = &self.gl;
         unsafe {
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.colour);

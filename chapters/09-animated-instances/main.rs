@@ -12,12 +12,13 @@ use ash::vk;
 use common::accel::{InPlace, RayTracedScene, Refresh, TlasFlags, instances_geometry};
 use common::ao::{AoArgs, AoTracer};
 use common::cli::AnimationArgs;
-use common::commands::{Commands, Timestamps, median_p95};
+use common::commands::{Commands, Timestamps};
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::Camera;
 use common::sync::Sync;
+use common::timing::{GlPassTimer, PassTimes};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use glow::HasContext;
 use std::process::ExitCode;
@@ -124,7 +125,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
     let frames = args.common.frame_count(false);
     let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-    let (mut update_ms, mut rebuild_ms, mut trace_ms) = (Vec::new(), Vec::new(), Vec::new());
+    // Each pass's GPU time (common::timing): GL's read when they arrive, Vulkan's after the wait
+    // at the top of the next frame, which the frame makes anyway.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
+    let mut last_refresh = None;
     let (mut tlas_updates, mut tlas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
     for frame in 0..frames {
@@ -134,37 +138,37 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // it, and (the trace having waited for it) GL's draw. Nothing reads the instance
         // buffer now, so the CPU may write it. (The trace's own `begin` would wait here anyway.)
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        read_times(&vk, last_refresh.take(), &update_timer, &trace_timer, &mut times)?;
         ring.write(instances, time);
         let refresh = match args.animation.rebuild_every {
             k if k > 0 && frame > 0 && frame % k == 0 => Refresh::Rebuild,
             _ => Refresh::Update,
         };
         refresh_tlas(&vk, &updates, &shared.structures.loader, &tlas, refresh, update_timer.as_ref())?;
-        gbuffers.draw(gl, &scene, &camera);
+        gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         // Anything that moved changes the occlusion around it: the running mean is of a
         // picture that is gone. Start it again (with --step 0 it accumulates).
         if args.animation.step > 0.0 {
             tracer.reset();
         }
         tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
-        composite.draw(gl, &gbuffers, &tracer, &uniforms);
+        gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
+        gl_timer.end_frame(gl, &mut times);
+        times.frame_done();
         // ANCHOR_END: frame
         match refresh {
             Refresh::Update => tlas_updates += 1,
             Refresh::Rebuild => tlas_rebuilds += 1,
         }
-        if let (Some(u), Some(t)) = (&update_timer, &trace_timer) {
-            // A measurement: wait for this frame's GPU work to read its times.
-            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-            let list = if refresh == Refresh::Update { &mut update_ms } else { &mut rebuild_ms };
-            list.push(u.read_ms(&vk)?);
-            trace_ms.push(t.read_ms(&vk)?);
-        }
+        last_refresh = Some(refresh);
         if frame == 0 || frame + 1 == frames || args.animation.every_frame {
             let upright = output::flip_rows(&composite.read(gl), extent.width, extent.height);
             pictures.push((frame, upright));
         }
     }
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    read_times(&vk, last_refresh, &update_timer, &trace_timer, &mut times)?;
+    gl_timer.finish(gl, &mut times);
     gl_context.check_error("the frame loop")?;
     report.set("frames", frames);
     report.set("samples_per_pixel", tracer.accumulated);
@@ -210,19 +214,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("updated_tlas_traces_like_a_rebuilt_one", differing * 1000 <= (w * h) as usize);
     // ANCHOR_END: measure
     if let Some(u) = &update_timer {
-        rebuild_ms.push(u.read_ms(&vk)?);
+        times.add("tlas_rebuild", u.read_ms(&vk)?);
     }
-    if !update_ms.is_empty() {
-        report.time_ms("tlas_update_gpu_median", median_p95(&update_ms).0);
-    }
-    if !rebuild_ms.is_empty() {
-        report.time_ms("tlas_rebuild_gpu_median", median_p95(&rebuild_ms).0);
-    }
-    if !trace_ms.is_empty() {
-        let (median, p95) = median_p95(&trace_ms);
-        report.time_ms("trace_gpu_median", median);
-        report.time_ms("trace_gpu_p95", p95);
-    }
+    times.record(report);
     if let (Some(updated), Some(rebuilt)) = (updated_ms, rebuilt_ms) {
         report.time_ms("trace_after_updates", updated);
         report.time_ms("trace_after_rebuild", rebuilt);
@@ -232,6 +226,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         );
     }
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -239,6 +235,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     for timer in [trace_timer, update_timer].into_iter().flatten() {
         timer.destroy(&vk);
     }
+    gl_timer.delete(gl);
     composite.destroy(gl);
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
@@ -305,3 +302,18 @@ fn refresh_tlas(
     updates.submit(vk, None, None)
 }
 // ANCHOR_END: refresh
+
+/// Adds the GPU times of the frame whose fence has signalled: its TLAS refresh and its trace.
+fn read_times(
+    vk: &VulkanContext,
+    refresh: Option<Refresh>,
+    update_timer: &Option<Timestamps>,
+    trace_timer: &Option<Timestamps>,
+    times: &mut PassTimes,
+) -> Result<()> {
+    if let (Some(refresh), Some(u), Some(t)) = (refresh, update_timer, trace_timer) {
+        times.add(if refresh == Refresh::Update { "tlas_update" } else { "tlas_rebuild" }, u.read_ms(vk)?);
+        times.add("ao_trace", t.read_ms(vk)?);
+    }
+    Ok(())
+}

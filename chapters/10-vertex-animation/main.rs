@@ -18,6 +18,7 @@ use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
 use common::scene::{Camera, Instance, Scene, ground_plane};
 use common::sync::{SharedSemaphore, Sync};
+use common::timing::{self, GlPassTimer, PassTimes};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use glam::{Mat4, Vec3};
 use glow::HasContext;
@@ -101,7 +102,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // Signalled by Vulkan once the vertices have moved; GL waits on it before drawing them.
     let vertices_moved = match &sync {
         Sync::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
-        Sync::Host => None,
+        Sync::Host { .. } => None,
     };
     // ANCHOR_END: share
 
@@ -180,7 +181,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Every frame: move the vertices, refit, update, draw, trace, composite
     let frames = args.common.frame_count(false);
-    let (mut times, mut trace_ms) = (Vec::new(), Vec::new());
+    // Each pass's GPU time (common::timing), read once its fence has signalled for the next
+    // frame's submission on it, which waits anyway: timing adds no wait.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
+    let (mut animated, mut traced) = (None, false);
     let (mut blas_refits, mut blas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
     let vertex_buffer = buffers.meshes[1][0].1.buffer;
@@ -194,6 +198,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             _ => Refresh::Update,
         };
         let cb = animation.begin(&vk)?;
+        if let (Some(done), Some(timer)) = (animated.take(), &animation_timer) {
+            sphere::add_times(&vk, timer, done, &mut times)?;
+        }
         let parts = Animation { pipeline: &pipeline, wave: &wave, blases: &blases, tlas: &tlas_in_place };
         record_animation(&vk, &loader, cb, &parts, refresh, frame == 0, animation_timer.as_ref());
         animation.submit(&vk, None, vertices_moved.as_ref().map(|s| s.vk))?;
@@ -213,32 +220,39 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             },
             None => unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }?,
         }
-        gbuffers.draw(gl, &scene, &camera);
+        gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         if args.animation.step > 0.0 {
             tracer.reset(); // the surface moved: the running mean is of a picture that is gone
         }
         let rays =
             AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+        if std::mem::take(&mut traced) {
+            timing::read_after(&vk, commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
+        }
         tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
-        composite.draw(gl, &gbuffers, &tracer, &uniforms);
+        gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
+        gl_timer.end_frame(gl, &mut times);
+        times.frame_done();
         // ANCHOR_END: frame
         match refresh {
             Refresh::Update => blas_refits += 1,
             Refresh::Rebuild if frame > 0 => blas_rebuilds += 1,
             Refresh::Rebuild => {} // the first build
         }
-        if let (Some(a), Some(t)) = (&animation_timer, &trace_timer) {
-            // A measurement: wait for this frame's GPU work to read its times.
-            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-            if frame > 0 {
-                times.push(sphere::read_times(&vk, a, refresh)?); // frame 0 builds everything
-            }
-            trace_ms.push(t.read_ms(&vk)?);
-        }
+        // Frame 0 builds everything: its time is not a refresh.
+        (animated, traced) = ((frame > 0).then_some(refresh), true);
         if frame == 0 || frame + 1 == frames || args.animation.every_frame {
             pictures.push((frame, output::flip_rows(&composite.read(gl), extent.width, extent.height)));
         }
     }
+    unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }?;
+    if let (Some(done), Some(timer)) = (animated, &animation_timer) {
+        sphere::add_times(&vk, timer, done, &mut times)?;
+    }
+    if traced {
+        timing::read_after(&vk, commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
+    }
+    gl_timer.finish(gl, &mut times);
     gl_context.check_error("the frame loop")?;
     report.set("frames", frames);
     report.set("blas_refits", blas_refits);
@@ -285,9 +299,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("refitted_blas_traces_like_a_rebuilt_one", differing * 1000 <= (w * h) as usize);
     // ANCHOR_END: measure
     if let Some(a) = &animation_timer {
-        times.push(sphere::read_times(&vk, a, Refresh::Rebuild)?);
+        sphere::add_times(&vk, a, Refresh::Rebuild, &mut times)?;
     }
-    sphere::report_times(report, &times, &trace_ms);
+    times.record(report);
     if let (Some(refitted), Some(rebuilt)) = (refitted_ms, rebuilt_ms) {
         report.time_ms("trace_after_refits", refitted);
         report.time_ms("trace_after_rebuild", rebuilt);
@@ -297,6 +311,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         );
     }
 
+    // On the host path GL moves no image: each hand-over named the layout the image was in.
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -306,6 +322,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     animation.destroy(&vk);
     commands.destroy(&vk);
+    gl_timer.delete(gl);
     composite.destroy(gl);
     tracer.destroy(&vk, &gl_context, &mut allocator);
     gbuffers.destroy(&vk, &gl_context);

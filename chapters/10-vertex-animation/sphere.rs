@@ -8,6 +8,7 @@ use common::VulkanContext;
 use common::accel::{AccelerationStructure, InPlace, Refresh};
 use common::commands::Timestamps;
 use common::scene::{Mesh, Vertex};
+use common::timing::PassTimes;
 use glam::Vec3;
 use std::f32::consts::PI;
 
@@ -75,9 +76,11 @@ impl Wave {
 // ANCHOR_END: wave
 
 /// The compute pipeline: no descriptors, only push constants (the buffers by device address).
+/// Destroyed when dropped too, so that an early return from `run` leaks nothing.
 pub struct WavePipeline {
     pub layout: vk::PipelineLayout,
     pub pipeline: vk::Pipeline,
+    device: ash::Device,
 }
 
 impl WavePipeline {
@@ -107,7 +110,7 @@ impl WavePipeline {
         let created = unsafe { vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
         unsafe { vk.device.destroy_shader_module(module, None) };
         match created {
-            Ok(pipelines) => Ok(WavePipeline { layout, pipeline: pipelines[0] }),
+            Ok(pipelines) => Ok(WavePipeline { layout, pipeline: pipelines[0], device: vk.device.clone() }),
             Err((_, error)) => {
                 unsafe { vk.device.destroy_pipeline_layout(layout, None) };
                 Err(error).context("vkCreateComputePipelines")
@@ -125,10 +128,18 @@ impl WavePipeline {
         }
     }
 
-    pub fn destroy(self, vk: &VulkanContext) {
+    /// The pipeline, then its layout (what dropping it does). The GPU must be done with it.
+    pub fn destroy(self, _vk: &VulkanContext) {
+        drop(self);
+    }
+}
+
+impl Drop for WavePipeline {
+    fn drop(&mut self) {
         unsafe {
-            vk.device.destroy_pipeline(self.pipeline, None);
-            vk.device.destroy_pipeline_layout(self.layout, None);
+            let _ = self.device.device_wait_idle(); // after an early return, work may be in flight
+            self.device.destroy_pipeline(self.pipeline, None);
+            self.device.destroy_pipeline_layout(self.layout, None);
         }
     }
 }
@@ -205,16 +216,21 @@ pub fn record_animation(
 }
 // ANCHOR_END: record
 
-/// One frame's GPU times in milliseconds: how the BLAS was refreshed, then the compute pass, the
-/// BLAS refit or rebuild, and the TLAS update (timestamps 0-3 of `record_animation`).
-pub type FrameTimes = (Refresh, f64, f64, f64);
-
-pub fn read_times(vk: &VulkanContext, timer: &Timestamps, refresh: Refresh) -> Result<FrameTimes> {
+/// Adds one frame's animation GPU times (timestamps 0-3 of `record_animation`, read once its
+/// fence has signalled): the compute pass, the BLAS refit or rebuild, and the TLAS update.
+pub fn add_times(
+    vk: &VulkanContext,
+    timer: &Timestamps,
+    refresh: Refresh,
+    times: &mut PassTimes,
+) -> Result<()> {
     let ms = |from, to| timer.between_ms(vk, from, to);
-    Ok((refresh, ms(0, 1)?, ms(1, 2)?, ms(2, 3)?))
+    times.add("compute", ms(0, 1)?);
+    times.add(if refresh == Refresh::Update { "blas_refit" } else { "blas_rebuild" }, ms(1, 2)?);
+    times.add("tlas_update", ms(2, 3)?);
+    Ok(())
 }
 
-/// Medians into the report's timings: compute, refit, rebuild, TLAS update, trace.
 /// The rebuild policy, as the report names it.
 pub fn policy(rebuild_every: u32) -> String {
     match rebuild_every {
@@ -232,25 +248,6 @@ pub fn vertices_match(wave: &Wave, directions: &[Vec3], gpu: &[Vertex]) -> bool 
         let expected = wave.vertex(d);
         close(v.position, expected.position, 1e-5) && close(v.normal, expected.normal, 1e-3)
     })
-}
-
-pub fn report_times(report: &mut common::Report, times: &[FrameTimes], trace_ms: &[f64]) {
-    let median = |values: Vec<f64>| common::commands::median_p95(&values).0;
-    for (refresh, name) in
-        [(Refresh::Update, "blas_refit_gpu_median"), (Refresh::Rebuild, "blas_rebuild_gpu_median")]
-    {
-        let blas: Vec<f64> = times.iter().filter(|t| t.0 == refresh).map(|t| t.2).collect();
-        if !blas.is_empty() {
-            report.time_ms(name, median(blas));
-        }
-    }
-    if !times.is_empty() {
-        report.time_ms("compute_gpu_median", median(times.iter().map(|t| t.1).collect()));
-        report.time_ms("tlas_update_gpu_median", median(times.iter().map(|t| t.3).collect()));
-    }
-    if !trace_ms.is_empty() {
-        report.time_ms("trace_gpu_median", median(trace_ms.to_vec()));
-    }
 }
 
 #[cfg(test)]

@@ -13,7 +13,7 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::RayTracedScene;
+use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
 use common::ao::AoTracer;
 use common::cli::Size;
 use common::commands::{Timestamps, median_p95};
@@ -76,6 +76,10 @@ struct Args {
     /// or `device` (device-local and host-visible, where the GPU offers such memory).
     #[arg(long, value_enum, default_value = "host")]
     scene_memory: SceneMemory,
+    /// The BLAS layout: one BLAS per mesh and a TLAS instance per scene instance (every chapter),
+    /// or `flat`, every instance's triangles in one BLAS under one TLAS instance.
+    #[arg(long, value_enum, default_value = "per-mesh")]
+    blas: BlasLayout,
     /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
     #[arg(long)]
     frames: Option<u32>,
@@ -152,7 +156,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         (spps, _) => spps.to_vec(),
     };
     ensure!(spps.iter().all(|s| (1..=256).contains(s)), "--spp: each must be 1 to 256");
-    let frames = args.frames.unwrap_or(if args.quick { 3 } else { 30 }).max(1);
+    // Half in each of two rounds.
+    let frames_per_run = args.frames.unwrap_or(if args.quick { 3 } else { 30 }).max(1).div_ceil(2);
 
     // 2. Vulkan, GL, and both ways to synchronise
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
@@ -164,12 +169,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         "gl_debug": args.gl_debug,
         "depth_prepass": args.depth_prepass,
         "scene_memory": args.scene_memory,
+        "blas": args.blas,
     });
     report.set("settings", settings);
     report.set("device", &vk.info.name);
     report.set("driver", &vk.info.driver);
     let zero_copy = Sync::new(&vk, &gl)?;
     report.set("zero_copy_sync", zero_copy.name());
+    let host = Sync::Host { disagreements: std::cell::Cell::new(0) };
     let stamps = Timestamps::new(&vk)?;
     ensure!(stamps.is_some(), "{}: the queue writes no timestamps, which bench measures with", vk.info.name);
     let stamps = stamps.expect("checked");
@@ -180,7 +187,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut same_depth_first = true;
     for kind in scenes {
         let scene = kind.build(args.quick)?;
-        let mut shared = RayTracedScene::new(&vk, &gl, &scene)?;
+        let mut shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         // What the scene's memory turned out to be (`--scene-memory device` is a preference).
         let flags = shared.buffers.instances.0.memory.property_flags;
         report.set("scene_memory_flags", format!("{flags:?}"));
@@ -189,18 +196,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         for &size in &sizes {
             let extent = vk::Extent2D { width: size.width, height: size.height };
-            let mut frame = Frame::new(&vk, &gl, &mut shared, &scene, extent)?;
+            // One set of images per mode: each mode hands its images over its own way, with
+            // its own layouts, from the first frame to the last.
+            let mut frames = Vec::new();
+            for mode in Mode::ALL {
+                frames.push(Frame::new(&vk, &gl, &mut shared, &scene, extent, mode)?);
+            }
             if args.depth_prepass {
-                same_depth_first &= frame.depth_first_draws_the_same(&gl.gl);
+                same_depth_first &= frames[0].depth_first_draws_the_same(&gl.gl);
             }
             for &spp in &spps {
                 let mut samples: Vec<Samples> = Mode::ALL.iter().map(|_| Samples::default()).collect();
                 // Two rounds of every mode in turn: a clock or thermal drift touches all alike.
                 for _round in 0..2 {
-                    for (mode, samples) in Mode::ALL.iter().zip(&mut samples) {
-                        let sync = if *mode == Mode::ZeroCopy { &zero_copy } else { &Sync::Host };
-                        let frames = frames.div_ceil(2);
-                        let setting = Setting { mode: *mode, spp, frames, depth_prepass: args.depth_prepass };
+                    for (frame, samples) in frames.iter_mut().zip(&mut samples) {
+                        let sync = if frame.mode == Mode::ZeroCopy { &zero_copy } else { &host };
+                        let setting =
+                            Setting { spp, frames: frames_per_run, depth_prepass: args.depth_prepass };
                         frame.run(&vk, &gl, &shared, sync, setting, &stamps, samples)?;
                     }
                 }
@@ -209,11 +221,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 }
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
-            frame.destroy(&vk, &gl, &mut shared);
+            for frame in frames.into_iter().rev() {
+                frame.destroy(&vk, &gl, &mut shared);
+            }
         }
         shared.destroy(&vk, &gl);
     }
     stamps.destroy(&vk);
+    report.check("hand_over_layouts_agreed", zero_copy.layouts_agreed() && host.layouts_agreed());
+    host.destroy(&vk, &gl);
     zero_copy.destroy(&vk, &gl);
     gl.check_error("the bench")?;
 
@@ -302,7 +318,6 @@ enum SceneMemory {
 /// How one run of frames is made.
 #[derive(Clone, Copy)]
 struct Setting {
-    mode: Mode,
     spp: u32,
     frames: u32,
     depth_prepass: bool,
@@ -311,13 +326,15 @@ struct Setting {
 /// What one size needs: chapter 08's G-buffers, tracer, composite and overlays, and the round
 /// trip's buffers.
 struct Frame<'s> {
+    mode: Mode,
     scene: &'s Scene,
     camera: Camera,
     gbuffers: GBuffers,
     tracer: AoTracer,
     composite: Composite,
     overlays: Overlays,
-    round_trip: RoundTrip,
+    /// `cpu-round-trip` only.
+    round_trip: Option<RoundTrip>,
     gl_timer: GlPassTimer,
     uniforms: Uniforms,
 }
@@ -329,6 +346,7 @@ impl<'s> Frame<'s> {
         shared: &mut RayTracedScene,
         scene: &'s Scene,
         extent: vk::Extent2D,
+        mode: Mode,
     ) -> Result<Self> {
         let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
         let storage = vk::ImageUsageFlags::STORAGE;
@@ -336,7 +354,10 @@ impl<'s> Frame<'s> {
         let tracer = AoTracer::new(vk, gl, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
         let composite = Composite::new(&gl.gl, &gbuffers)?;
         let overlays = Overlays::new(&gl.gl, scene, 0)?;
-        let round_trip = RoundTrip::new(vk, gl, &mut shared.allocator, extent)?;
+        let round_trip = match mode {
+            Mode::CpuRoundTrip => Some(RoundTrip::new(vk, gl, &mut shared.allocator, extent)?),
+            _ => None,
+        };
         // Chapter 08's defaults: blur radius 2, power 2, the final view.
         let uniforms = Uniforms {
             blur_radius: 2,
@@ -348,6 +369,7 @@ impl<'s> Frame<'s> {
             far_depth: camera.far,
         };
         Ok(Frame {
+            mode,
             scene,
             camera,
             gbuffers,
@@ -355,7 +377,7 @@ impl<'s> Frame<'s> {
             composite,
             overlays,
             round_trip,
-            gl_timer: GlPassTimer::new(),
+            gl_timer: GlPassTimer::new(&gl.gl)?,
             uniforms,
         })
     }
@@ -372,7 +394,7 @@ impl<'s> Frame<'s> {
         stamps: &Timestamps,
         samples: &mut Samples,
     ) -> Result<()> {
-        let Setting { mode, spp, frames: count, depth_prepass } = setting;
+        let Setting { spp, frames: count, depth_prepass } = setting;
         let g = &gl.gl;
         let fence = shared.commands.fence;
         let radius = self.scene.size() * 0.05;
@@ -389,8 +411,8 @@ impl<'s> Frame<'s> {
                 self.gbuffers.draw(g, self.scene, &self.camera);
             }
             self.gl_timer.end(g);
-            if mode == Mode::CpuRoundTrip {
-                self.round_trip.gbuffers_to_vulkan(vk, gl, &self.gbuffers)?;
+            if let Some(round_trip) = &mut self.round_trip {
+                round_trip.gbuffers_to_vulkan(vk, gl, &self.gbuffers)?;
             }
             // The previous frame's trace time, read after its fence: the wait `trace` makes
             // anyway before it records again (one command buffer), once this frame's G-buffers
@@ -405,8 +427,8 @@ impl<'s> Frame<'s> {
             // Each frame a fresh estimate (weight 1), as when the camera moves every frame.
             self.tracer.reset();
             self.tracer.trace(vk, gl, sync, &shared.commands, &self.gbuffers, rays, Some(stamps))?;
-            if mode == Mode::CpuRoundTrip {
-                self.round_trip.ao_to_gl(vk, gl)?;
+            if let Some(round_trip) = &mut self.round_trip {
+                round_trip.ao_to_gl(vk, gl)?;
             }
             self.gl_timer.begin(g, "composite")?;
             self.composite.draw(g, &self.gbuffers, &self.tracer, &self.uniforms);
@@ -460,7 +482,9 @@ impl<'s> Frame<'s> {
             let _ = vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX);
         }
         self.gl_timer.delete(&gl.gl);
-        self.round_trip.destroy(vk, gl, &mut shared.allocator);
+        if let Some(round_trip) = self.round_trip {
+            round_trip.destroy(vk, gl, &mut shared.allocator);
+        }
         self.overlays.destroy(&gl.gl);
         self.composite.destroy(&gl.gl);
         self.tracer.destroy(vk, gl, &mut shared.allocator);

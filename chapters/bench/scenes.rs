@@ -15,9 +15,6 @@ pub enum SceneKind {
     Large,
     /// One triangle: every AO ray misses it.
     Ceiling,
-    /// The default scene baked into one mesh: one BLAS and one instance instead of a BLAS per
-    /// mesh and 10,001 instances (a static scene can do this; the albedo becomes one grey).
-    DefaultFlat,
 }
 
 impl SceneKind {
@@ -26,7 +23,6 @@ impl SceneKind {
             SceneKind::Default => "default",
             SceneKind::Large => "large",
             SceneKind::Ceiling => "ceiling",
-            SceneKind::DefaultFlat => "default-flat",
         }
     }
 
@@ -51,32 +47,8 @@ impl SceneKind {
                 };
                 Scene::new(vec![mesh], vec![Instance::new(Mat4::IDENTITY, [200, 200, 200])], vec![0..1])
             }
-            SceneKind::DefaultFlat => {
-                let flat = flatten(&default_scene(10_000, 1));
-                Scene::new(vec![flat], vec![Instance::new(Mat4::IDENTITY, [200, 200, 200])], vec![0..1])
-            }
         }
     }
-}
-
-/// Every instance's triangles in world space, in one mesh.
-fn flatten(scene: &Scene) -> Mesh {
-    let (mut vertices, mut indices) = (Vec::new(), Vec::new());
-    for (mesh, range) in scene.meshes.iter().zip(&scene.mesh_instances) {
-        for instance in &scene.instances[range.start as usize..range.end as usize] {
-            let to_world = instance.object_to_world();
-            // Normals go through the inverse transpose, which keeps them perpendicular to the
-            // surface under non-uniform scales.
-            let normal_matrix = to_world.inverse().transpose();
-            let base = vertices.len() as u32;
-            vertices.extend(mesh.vertices.iter().map(|v| Vertex {
-                position: to_world.transform_point3(Vec3::from(v.position)).to_array(),
-                normal: normal_matrix.transform_vector3(Vec3::from(v.normal)).normalize().to_array(),
-            }));
-            indices.extend(mesh.indices.iter().map(|i| base + i));
-        }
-    }
-    Mesh { name: "default scene, flattened".into(), vertices, indices }
 }
 
 /// A 20 x 20 ground of `n` x `n` quads in y = 0, with gentle ripples (0.1 high) so that the

@@ -28,11 +28,14 @@ pub fn allocator(vk: &VulkanContext) -> Result<Allocator> {
     .context("creating gpu-allocator's allocator")
 }
 
-/// A buffer in memory from gpu-allocator, with its device address.
+/// A buffer in memory from gpu-allocator, with its device address. Dropped without
+/// [`DeviceBuffer::destroy`] (an early return), it destroys the buffer and leaves its memory to
+/// the allocator, which frees all of its memory when it is dropped.
 pub struct DeviceBuffer {
     pub buffer: vk::Buffer,
     pub allocation: Allocation,
     pub address: vk::DeviceAddress,
+    device: ash::Device,
 }
 
 impl DeviceBuffer {
@@ -47,6 +50,8 @@ impl DeviceBuffer {
         let usage = usage | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let info = vk::BufferCreateInfo::default().size(size).usage(usage);
         let buffer = unsafe { vk.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
+        let mut guarded =
+            DeviceBuffer { buffer, allocation: Allocation::default(), address: 0, device: vk.device.clone() };
         let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
         let description = AllocationCreateDesc {
             name,
@@ -55,33 +60,40 @@ impl DeviceBuffer {
             linear: true,
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
-        let allocation = match allocator.allocate(&description) {
-            Ok(allocation) => allocation,
-            Err(error) => {
-                unsafe { vk.device.destroy_buffer(buffer, None) };
-                return Err(error).with_context(|| format!("allocating {size} bytes for {name}"));
-            }
-        };
+        guarded.allocation = allocator
+            .allocate(&description)
+            .with_context(|| format!("allocating {size} bytes for {name}"))?;
+        let allocation = &guarded.allocation;
         crate::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
-        let address = unsafe {
+        guarded.address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
         };
-        Ok(DeviceBuffer { buffer, allocation, address })
+        Ok(guarded)
     }
 
-    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
-        unsafe { vk.device.destroy_buffer(self.buffer, None) };
-        let _ = allocator.free(self.allocation);
+    /// The buffer, then its memory, given back to the allocator.
+    pub fn destroy(mut self, _vk: &VulkanContext, allocator: &mut Allocator) {
+        let allocation = std::mem::take(&mut self.allocation);
+        drop(self); // destroys the buffer
+        let _ = allocator.free(allocation);
     }
 }
 
-/// One acceleration structure and the buffer that holds it.
+impl Drop for DeviceBuffer {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
+        unsafe { self.device.destroy_buffer(self.buffer, None) };
+    }
+}
+
+/// One acceleration structure and the buffer that holds it; destroyed when dropped.
 pub struct AccelerationStructure {
     pub handle: vk::AccelerationStructureKHR,
     pub buffer: DeviceBuffer,
     pub address: vk::DeviceAddress,
     pub bytes: u64,
+    loader: ash::khr::acceleration_structure::Device,
 }
 
 impl AccelerationStructure {
@@ -105,29 +117,34 @@ impl AccelerationStructure {
             MemoryLocation::GpuOnly,
         )?;
         let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(buffer.buffer).size(bytes).ty(ty);
-        let handle = match unsafe { loader.create_acceleration_structure(&info, None) } {
-            Ok(handle) => handle,
-            Err(error) => {
-                buffer.destroy(vk, allocator);
-                return Err(error).context("vkCreateAccelerationStructureKHR");
-            }
-        };
+        // On failure `buffer` is dropped, which destroys it.
+        let handle = unsafe { loader.create_acceleration_structure(&info, None) }
+            .context("vkCreateAccelerationStructureKHR")?;
         // Its bytes are counted with its buffer; the kind says what was built, and how.
         crate::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
-        Ok(AccelerationStructure { handle, buffer, address, bytes })
+        Ok(AccelerationStructure { handle, buffer, address, bytes, loader: loader.clone() })
     }
 
+    /// The structure, then its buffer and the buffer's memory.
     pub fn destroy(
-        self,
-        vk: &VulkanContext,
-        loader: &ash::khr::acceleration_structure::Device,
+        mut self,
+        _vk: &VulkanContext,
+        _loader: &ash::khr::acceleration_structure::Device,
         allocator: &mut Allocator,
     ) {
-        unsafe { loader.destroy_acceleration_structure(self.handle, None) };
-        self.buffer.destroy(vk, allocator);
+        let allocation = std::mem::take(&mut self.buffer.allocation);
+        drop(self); // the structure, then (a field) its buffer
+        let _ = allocator.free(allocation);
+    }
+}
+
+impl Drop for AccelerationStructure {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.buffer.device);
+        unsafe { self.loader.destroy_acceleration_structure(self.handle, None) };
     }
 }
 
@@ -136,11 +153,15 @@ pub struct SceneAccel {
     pub loader: ash::khr::acceleration_structure::Device,
     pub blases: Vec<AccelerationStructure>,
     pub tlas: AccelerationStructure,
+    /// [`BlasLayout::Flat`]: the TLAS's one instance.
+    pub flat_instance: Option<DeviceBuffer>,
     pub stats: AccelStats,
 }
 
 #[derive(Debug, Default, Clone, serde::Serialize)]
 pub struct AccelStats {
+    /// How the BLASes hold the triangles (`None` for structures not built by [`build_with`]).
+    pub layout: Option<BlasLayout>,
     pub blas_count: usize,
     /// Every BLAS as built, before compaction.
     pub blas_bytes: u64,
@@ -167,7 +188,20 @@ pub fn build(
     scene: &Scene,
     buffers: &SceneBuffers,
 ) -> Result<SceneAccel> {
-    build_with(vk, allocator, commands, scene, buffers, TlasFlags::STATIC)
+    build_with(vk, allocator, commands, scene, buffers, TlasFlags::STATIC, BlasLayout::PerMesh)
+}
+
+/// Which bottom-level structures hold the scene's triangles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum BlasLayout {
+    /// One BLAS per mesh and one TLAS instance per scene instance, as the scene itself is built
+    /// (chapters 06-10): the only layout whose instances can move.
+    PerMesh,
+    /// One BLAS holding every instance's triangles (each instance one geometry, placed by its own
+    /// transform) under a TLAS of one instance: for a static scene of many small instances, a
+    /// ray walks one tree instead of a TLAS and then thousands of tiny BLASes.
+    Flat,
 }
 
 /// The TLAS's build flags: [`TlasFlags::STATIC`] for a scene that stands still (chapters
@@ -193,10 +227,11 @@ pub fn build_with(
     scene: &Scene,
     buffers: &SceneBuffers,
     tlas_flags: TlasFlags,
+    layout: BlasLayout,
 ) -> Result<SceneAccel> {
     let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
     let timestamps = Timestamps::with_count(vk, 2)?;
-    let mut stats = AccelStats { blas_count: scene.meshes.len(), ..Default::default() };
+    let mut stats = AccelStats { layout: Some(layout), ..Default::default() };
 
     // ANCHOR: blas_geometry
     // One geometry per mesh: its triangles, read in place from the buffers GL draws.
@@ -222,6 +257,16 @@ pub fn build_with(
         })
         .collect();
     // ANCHOR_END: blas_geometry
+    // Each BLAS's geometries and their triangle counts: one BLAS per mesh, or one for everything.
+    let inputs: Vec<(Vec<vk::AccelerationStructureGeometryKHR>, Vec<u32>)> = match layout {
+        BlasLayout::PerMesh => geometries
+            .into_iter()
+            .zip(&scene.meshes)
+            .map(|(geometry, mesh)| (vec![geometry], vec![mesh.indices.len() as u32 / 3]))
+            .collect(),
+        BlasLayout::Flat => vec![flat_geometries(vk, scene, buffers)?],
+    };
+    stats.blas_count = inputs.len();
 
     // ANCHOR: blas_build
     let blas_flags = vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE
@@ -229,13 +274,12 @@ pub fn build_with(
     let mut blases = Vec::new();
     let mut builds = Vec::new();
     let mut scratch_sizes = Vec::new();
-    for (geometry, mesh) in geometries.iter().zip(&scene.meshes) {
-        let triangles = mesh.indices.len() as u32 / 3;
+    for (geometries, triangles) in &inputs {
         let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
             .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
             .flags(blas_flags)
             .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
-            .geometries(std::slice::from_ref(geometry));
+            .geometries(geometries);
         let sizes = build_sizes(&loader, &info, triangles);
         let blas = AccelerationStructure::new(
             vk,
@@ -259,17 +303,20 @@ pub fn build_with(
             t.reset(vk, cb);
             t.write(vk, cb, vk::PipelineStageFlags::TOP_OF_PIPE, 0);
         }
-        vk.device.cmd_reset_query_pool(cb, compacted_sizes, 0, blases.len() as u32);
+        vk.device.cmd_reset_query_pool(cb, compacted_sizes.pool, 0, blases.len() as u32);
         for (i, (info, triangles)) in builds.iter().enumerate() {
             let info = info.scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch.address(i) });
-            let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(*triangles);
-            loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]);
+            let ranges: Vec<_> = triangles
+                .iter()
+                .map(|&n| vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(n))
+                .collect();
+            loader.cmd_build_acceleration_structures(cb, &[info], &[&ranges]);
         }
         // The builds must finish before their compacted sizes can be read.
         build_barrier(vk, cb);
         let handles: Vec<_> = blases.iter().map(|b| b.handle).collect();
         let query = vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR;
-        loader.cmd_write_acceleration_structures_properties(cb, &handles, query, compacted_sizes, 0);
+        loader.cmd_write_acceleration_structures_properties(cb, &handles, query, compacted_sizes.pool, 0);
         if let Some(t) = &timestamps {
             t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
         }
@@ -284,14 +331,14 @@ pub fn build_with(
     let mut sizes = vec![0u64; blases.len()];
     unsafe {
         vk.device.get_query_pool_results(
-            compacted_sizes,
+            compacted_sizes.pool,
             0,
             &mut sizes,
             vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
         )
     }
     .context("reading the compacted sizes")?;
-    unsafe { vk.device.destroy_query_pool(compacted_sizes, None) };
+    drop(compacted_sizes); // destroys the query pool
     let mut compacted = Vec::new();
     for &size in &sizes {
         compacted.push(AccelerationStructure::new(
@@ -330,22 +377,32 @@ pub fn build_with(
     // Each instance points at its mesh's BLAS. The write goes straight into the instance buffer
     // GL draws from (GL never reads these 8 bytes): the TLAS is built from the same buffer.
     let instances = &buffers.instances.0;
-    for (blas, range) in blases.iter().zip(&scene.mesh_instances) {
-        for i in range.clone() {
-            set_blas_address(instances, i as usize, blas.address);
+    if layout == BlasLayout::PerMesh {
+        for (blas, range) in blases.iter().zip(&scene.mesh_instances) {
+            for i in range.clone() {
+                set_blas_address(instances, i as usize, blas.address);
+            }
         }
     }
     // ANCHOR_END: instances
+    // Flat: the TLAS's one instance, the identity, in a buffer of its own (GL draws the scene's).
+    let flat_instance = match layout {
+        BlasLayout::PerMesh => None,
+        BlasLayout::Flat => Some(one_instance(vk, allocator, blases[0].address)?),
+    };
 
     // ANCHOR: tlas
-    let geometry = instances_geometry(vk, instances);
+    let geometry = match &flat_instance {
+        None => instances_geometry(vk, instances),
+        Some(buffer) => instances_at(buffer.address),
+    };
     let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
         .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
         .flags(tlas_flags.0) // PREFER_FAST_TRACE (and ALLOW_UPDATE for chapter 09)
         .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
         .geometries(std::slice::from_ref(&geometry));
-    let count = scene.instances.len() as u32;
-    let sizes = build_sizes(&loader, &info, count);
+    let count = if flat_instance.is_some() { 1 } else { scene.instances.len() as u32 };
+    let sizes = build_sizes(&loader, &info, &[count]);
     let tlas = AccelerationStructure::new(
         vk,
         &loader,
@@ -382,7 +439,72 @@ pub fn build_with(
     if let Some(t) = timestamps {
         t.destroy(vk);
     }
-    Ok(SceneAccel { loader, blases, tlas, stats })
+    Ok(SceneAccel { loader, blases, tlas, flat_instance, stats })
+}
+
+/// A flat BLAS's geometries: every instance's mesh, each placed by the instance's transform,
+/// read in place from the shared instance buffer (its first 48 bytes are a
+/// `VkTransformMatrixKHR`, 16-byte aligned as `transformData` must be).
+fn flat_geometries(
+    vk: &VulkanContext,
+    scene: &Scene,
+    buffers: &SceneBuffers,
+) -> Result<(Vec<vk::AccelerationStructureGeometryKHR<'static>>, Vec<u32>)> {
+    let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
+    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    let (instances, triangles) = (scene.instances.len() as u64, scene.triangles());
+    anyhow::ensure!(
+        instances <= properties.max_geometry_count && triangles <= properties.max_primitive_count,
+        "a flat BLAS of this scene needs {instances} geometries and {triangles} triangles; {} builds \
+         at most {} (maxGeometryCount) and {} (maxPrimitiveCount): use the per-mesh layout",
+        vk.info.name,
+        properties.max_geometry_count,
+        properties.max_primitive_count
+    );
+    let transforms = buffers.instances.0.device_address(vk);
+    let mut geometries = Vec::new();
+    let mut counts = Vec::new();
+    for ((mesh, [vertices, indices]), range) in
+        scene.meshes.iter().zip(&buffers.meshes).zip(&scene.mesh_instances)
+    {
+        for i in range.clone() {
+            let mut geometry = triangles_geometry(vk, mesh, &vertices.0, &indices.0);
+            let at = transforms + i as u64 * size_of::<crate::scene::Instance>() as u64;
+            // `triangles_geometry` made a TRIANGLES geometry: `triangles` is the union's live field.
+            geometry.geometry.triangles.transform_data.device_address = at;
+            geometries.push(geometry);
+            counts.push(mesh.indices.len() as u32 / 3);
+        }
+    }
+    Ok((geometries, counts))
+}
+
+/// One TLAS instance with the identity transform, pointing at `blas`, in a buffer of its own.
+fn one_instance(
+    vk: &VulkanContext,
+    allocator: &mut Allocator,
+    blas: vk::DeviceAddress,
+) -> Result<DeviceBuffer> {
+    let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR;
+    let size = size_of::<crate::scene::Instance>() as u64;
+    let mut buffer =
+        DeviceBuffer::new(vk, allocator, "flat TLAS instance", size, usage, MemoryLocation::CpuToGpu)?;
+    let mut instance = crate::scene::Instance::new(glam::Mat4::IDENTITY, [255, 255, 255]);
+    instance.blas_address = blas;
+    let mapped = buffer.allocation.mapped_slice_mut().context("the instance buffer is mapped")?;
+    mapped[..size as usize].copy_from_slice(crate::gbuffer::as_bytes(std::slice::from_ref(&instance)));
+    Ok(buffer)
+}
+
+/// A TLAS geometry of the instances at `address`.
+fn instances_at(address: vk::DeviceAddress) -> vk::AccelerationStructureGeometryKHR<'static> {
+    let data = vk::AccelerationStructureGeometryInstancesDataKHR::default()
+        .array_of_pointers(false)
+        .data(vk::DeviceOrHostAddressConstKHR { device_address: address });
+    vk::AccelerationStructureGeometryKHR::default()
+        .geometry_type(vk::GeometryTypeKHR::INSTANCES)
+        .geometry(vk::AccelerationStructureGeometryDataKHR { instances: data })
 }
 
 // ANCHOR: instances_geometry
@@ -391,12 +513,8 @@ pub fn instances_geometry(
     vk: &VulkanContext,
     instances: &ExportedBuffer,
 ) -> vk::AccelerationStructureGeometryKHR<'static> {
-    let data = vk::AccelerationStructureGeometryInstancesDataKHR::default()
-        .array_of_pointers(false) // an array of VkAccelerationStructureInstanceKHR, as Instance is
-        .data(vk::DeviceOrHostAddressConstKHR { device_address: instances.device_address(vk) });
-    vk::AccelerationStructureGeometryKHR::default()
-        .geometry_type(vk::GeometryTypeKHR::INSTANCES)
-        .geometry(vk::AccelerationStructureGeometryDataKHR { instances: data })
+    // An array of VkAccelerationStructureInstanceKHR, as Instance is (not of pointers).
+    instances_at(instances.device_address(vk))
 }
 // ANCHOR_END: instances_geometry
 
@@ -404,6 +522,9 @@ impl SceneAccel {
     /// The TLAS first (it refers to the BLASes), then the BLASes.
     pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
         self.tlas.destroy(vk, &self.loader, allocator);
+        if let Some(instance) = self.flat_instance {
+            instance.destroy(vk, allocator);
+        }
         for blas in self.blases {
             blas.destroy(vk, &self.loader, allocator);
         }
@@ -413,14 +534,14 @@ impl SceneAccel {
 fn build_sizes(
     loader: &ash::khr::acceleration_structure::Device,
     info: &vk::AccelerationStructureBuildGeometryInfoKHR,
-    primitives: u32,
+    primitives: &[u32],
 ) -> vk::AccelerationStructureBuildSizesInfoKHR<'static> {
     let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
     unsafe {
         loader.get_acceleration_structure_build_sizes(
             vk::AccelerationStructureBuildTypeKHR::DEVICE,
             info,
-            &[primitives],
+            primitives,
             &mut sizes,
         )
     };
@@ -455,11 +576,24 @@ fn tlas_built_barrier(vk: &VulkanContext, cb: vk::CommandBuffer) {
     };
 }
 
-fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<vk::QueryPool> {
+/// A query pool, destroyed when dropped (also on an early return, once the device is idle).
+struct QueryPool {
+    pool: vk::QueryPool,
+    device: ash::Device,
+}
+
+impl Drop for QueryPool {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
+        unsafe { self.device.destroy_query_pool(self.pool, None) };
+    }
+}
+
+fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
     let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
     crate::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
-    Ok(pool)
+    Ok(QueryPool { pool, device: vk.device.clone() })
 }
 
 /// Writes `Instance::blas_address` of instance `index` through Vulkan's mapping.
@@ -541,11 +675,12 @@ impl Scratch {
 /// Chapters 05 and 06 in one call, for the chapters after them: the scene's buffers shared with
 /// GL and readable by acceleration-structure builds, the structures built from them, and the
 /// allocator and command buffer that took.
+/// (Fields are dropped in this order on an early return: newest first, as in `destroy`.)
 pub struct RayTracedScene {
+    pub structures: SceneAccel,
+    pub commands: Commands,
     pub allocator: Allocator,
     pub buffers: SceneBuffers,
-    pub commands: Commands,
-    pub structures: SceneAccel,
 }
 
 impl RayTracedScene {
@@ -560,13 +695,24 @@ impl RayTracedScene {
         scene: &Scene,
         tlas_flags: TlasFlags,
     ) -> Result<Self> {
+        Self::with_layout(vk, gl, scene, tlas_flags, BlasLayout::PerMesh)
+    }
+
+    /// [`RayTracedScene::with_tlas`], with the BLASes laid out as `layout` says.
+    pub fn with_layout(
+        vk: &VulkanContext,
+        gl: &crate::GlContext,
+        scene: &Scene,
+        tlas_flags: TlasFlags,
+        layout: BlasLayout,
+    ) -> Result<Self> {
         check_limits(vk, scene)?;
         let mut allocator = allocator(vk)?;
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let buffers = SceneBuffers::share(vk, gl, scene, usage)?;
         let commands = Commands::new(vk)?;
-        let structures = build_with(vk, &mut allocator, &commands, scene, &buffers, tlas_flags)?;
+        let structures = build_with(vk, &mut allocator, &commands, scene, &buffers, tlas_flags, layout)?;
         Ok(RayTracedScene { allocator, buffers, commands, structures })
     }
 
@@ -630,7 +776,7 @@ impl InPlace {
             .ty(ty)
             .flags(flags)
             .geometries(std::slice::from_ref(&geometry));
-        let sizes = build_sizes(loader, &info, primitives);
+        let sizes = build_sizes(loader, &info, &[primitives]);
         // One region, as large as the larger need: an update and a rebuild never run at once.
         let bytes = sizes.update_scratch_size.max(sizes.build_scratch_size);
         let scratch = Scratch::new(vk, allocator, &[bytes])?;
@@ -717,5 +863,5 @@ pub fn structure_size(
         .ty(ty)
         .flags(flags)
         .geometries(std::slice::from_ref(geometry));
-    build_sizes(loader, &info, primitives).acceleration_structure_size
+    build_sizes(loader, &info, &[primitives]).acceleration_structure_size
 }

@@ -3,10 +3,9 @@
 
 use crate::commands::{Commands, Timestamps, first_use};
 use crate::gbuffer::GBuffers;
-use crate::gl::layout;
 use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
 use crate::raytrace::{AoRays, RayPipeline, push_bytes};
-use crate::sync::Sync;
+use crate::sync::{HandOver, Sync};
 use crate::{GlContext, VulkanContext};
 use anyhow::Result;
 use ash::vk;
@@ -144,13 +143,15 @@ impl AoTracer {
     // ANCHOR_END: image
 
     /// Visibility 1 everywhere without tracing (see [`nothing_to_trace`]): GL clears the AO
-    /// image to 1 through a framebuffer of its own, once per image. The image is still GL's
-    /// (never handed to Vulkan) and stays GL's.
-    pub fn fill_unoccluded(&mut self, gl: &GlContext) -> Result<()> {
+    /// image to 1 through a framebuffer of its own, once per image. GL uses the image first, so
+    /// Vulkan hands it over (in GENERAL) before, as it does the G-buffers; it stays GL's until a
+    /// trace takes it.
+    pub fn fill_unoccluded(&mut self, vk: &VulkanContext, gl: &GlContext) -> Result<()> {
         if self.unoccluded {
             return Ok(());
         }
         anyhow::ensure!(!self.gl_has_image, "fill_unoccluded: the AO image was already traced into");
+        crate::interop::hand_new_images_to_gl(vk, &[&self.image])?;
         unsafe {
             let gl = &gl.gl;
             let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
@@ -203,19 +204,28 @@ impl AoTracer {
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
         let gbuffer_textures = gbuffers.textures();
-        // GL hands over positions and normals in GENERAL, the layout storage images need, and the
-        // AO image (once it has had it) as it sampled it.
+        // Positions and normals come to Vulkan in GENERAL, the layout storage images need, and go
+        // back as attachments for GL's next draw; the AO image is sampled by GL. On the host path
+        // `hand_over` makes all of them GENERAL both ways (GL moves no layout there).
+        let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
+        let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
+        let layouts =
+            (sync.hand_over(vk::ImageLayout::GENERAL, attachment), sync.hand_over(read_only, read_only));
+        let ((gbuffer_to_vulkan, gbuffer_to_gl), (ao_to_vulkan, ao_to_gl)) = (layouts.0.gl(), layouts.1.gl());
         let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
-        let layouts = [layout::GENERAL, layout::GENERAL, layout::SHADER_READ_ONLY];
+        // The AO image only once GL has had it.
         let handed = if self.gl_has_image { 3 } else { 2 };
-        sync.gl_release(gl, &textures[..handed], &layouts[..handed]);
+        sync.gl_release(
+            gl,
+            &textures[..handed],
+            &[gbuffer_to_vulkan, gbuffer_to_vulkan, ao_to_vulkan][..handed],
+        );
         let cb = commands.begin(vk)?;
         rays.accumulated = self.accumulated;
-        unsafe { self.record(vk, cb, gbuffers, &rays, timestamps) };
+        unsafe { self.record(vk, cb, gbuffers, layouts, &rays, timestamps) };
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         commands.submit(vk, sync.vulkan_waits_on().map(|s| (s, stage)), sync.vulkan_signals())?;
-        let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
-        let layouts = [layout::COLOR_ATTACHMENT, layout::COLOR_ATTACHMENT, layout::SHADER_READ_ONLY];
+        let layouts = [gbuffer_to_gl, gbuffer_to_gl, ao_to_gl];
         sync.gl_acquire(vk, gl, commands.fence, &textures, &layouts)?;
         self.gl_has_image = true;
         self.accumulated += rays.samples;
@@ -230,6 +240,7 @@ impl AoTracer {
         vk: &VulkanContext,
         cb: vk::CommandBuffer,
         gbuffers: &GBuffers,
+        (gbuffer_layouts, ao_layouts): (HandOver, HandOver),
         rays: &AoRays,
         timestamps: Option<&Timestamps>,
     ) {
@@ -238,23 +249,22 @@ impl AoTracer {
         let [positions, normals] = [&gbuffers.images[0], &gbuffers.images[1]];
         let ao = if self.gl_has_image {
             // Its contents are the running mean so far, which the shader reads and updates.
-            acquire_from_gl(vk, &self.image, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, general, read | write)
+            acquire_from_gl(vk, &self.image, ao_layouts.to_vulkan, general, read | write)
         } else {
             // Never GL's yet: undefined contents, which the first frame overwrites (weight 1).
             first_use(self.image.image, general, read | write)
         };
         let acquire = [
-            acquire_from_gl(vk, positions, general, general, read),
-            acquire_from_gl(vk, normals, general, general, read),
+            acquire_from_gl(vk, positions, gbuffer_layouts.to_vulkan, general, read),
+            acquire_from_gl(vk, normals, gbuffer_layouts.to_vulkan, general, read),
             ao,
         ];
-        // Back to GL: the G-buffers as attachments for the next frame's draw (nothing written
-        // here), the AO image to sample, its writes made available.
-        let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
+        // Back to GL: the G-buffers for the next frame's draw (nothing written here), the AO
+        // image to sample, its writes made available.
         let release = [
-            release_to_gl(vk, positions, general, attachment, vk::AccessFlags::NONE),
-            release_to_gl(vk, normals, general, attachment, vk::AccessFlags::NONE),
-            release_to_gl(vk, &self.image, general, vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, write),
+            release_to_gl(vk, positions, general, gbuffer_layouts.to_gl, vk::AccessFlags::NONE),
+            release_to_gl(vk, normals, general, gbuffer_layouts.to_gl, vk::AccessFlags::NONE),
+            release_to_gl(vk, &self.image, general, ao_layouts.to_gl, write),
         ];
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         let none = vk::DependencyFlags::empty();

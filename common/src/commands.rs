@@ -6,37 +6,54 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 
 /// A command pool with one primary command buffer and the fence of its last submission.
+/// Dropped without [`Commands::destroy`] (an early return), it waits for its last submission
+/// and destroys itself all the same.
 pub struct Commands {
     pub pool: vk::CommandPool,
     pub buffer: vk::CommandBuffer,
     /// Signalled when the last submission of `buffer` has finished.
     pub fence: vk::Fence,
+    /// Whether a submission is on its way to signalling `fence`. A failed `vkQueueSubmit` leaves
+    /// an already reset fence unsignalled for ever: nothing may wait for it then.
+    in_flight: std::cell::Cell<bool>,
+    device: ash::Device,
 }
 
 impl Commands {
     pub fn new(vk: &VulkanContext) -> Result<Self> {
+        // Built up one object at a time inside the guard: a failure half-way destroys the rest.
+        let mut commands = Commands {
+            pool: vk::CommandPool::null(),
+            buffer: vk::CommandBuffer::null(),
+            fence: vk::Fence::null(),
+            in_flight: std::cell::Cell::new(false),
+            device: vk.device.clone(),
+        };
         unsafe {
             let pool_info = vk::CommandPoolCreateInfo::default()
                 .queue_family_index(vk.queue_family_index)
                 .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-            let pool = vk.device.create_command_pool(&pool_info, None).context("vkCreateCommandPool")?;
+            commands.pool = vk.device.create_command_pool(&pool_info, None).context("vkCreateCommandPool")?;
             let allocate =
-                vk::CommandBufferAllocateInfo::default().command_pool(pool).command_buffer_count(1);
-            let buffer =
+                vk::CommandBufferAllocateInfo::default().command_pool(commands.pool).command_buffer_count(1);
+            commands.buffer =
                 vk.device.allocate_command_buffers(&allocate).context("vkAllocateCommandBuffers")?[0];
-            // Created signalled, so that the first `begin` need not wait for anything.
+            // Created signalled, so that waiting before the first submission returns at once.
             let fence_info = vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED);
-            let fence = vk.device.create_fence(&fence_info, None).context("vkCreateFence")?;
-            Ok(Commands { pool, buffer, fence })
+            commands.fence = vk.device.create_fence(&fence_info, None).context("vkCreateFence")?;
         }
+        Ok(commands)
     }
 
+    // ANCHOR: begin
     /// Waits until the previous submission is done (the buffer and what it uses are free
-    /// again), then starts recording.
+    /// again), then starts recording. The fence is reset later, by `submit`.
     pub fn begin(&self, vk: &VulkanContext) -> Result<vk::CommandBuffer> {
         unsafe {
-            vk.device.wait_for_fences(&[self.fence], true, u64::MAX).context("vkWaitForFences")?;
-            vk.device.reset_fences(&[self.fence])?;
+            if self.in_flight.get() {
+                vk.device.wait_for_fences(&[self.fence], true, u64::MAX).context("vkWaitForFences")?;
+                self.in_flight.set(false);
+            }
             vk.device.reset_command_buffer(self.buffer, vk::CommandBufferResetFlags::empty())?;
             let begin =
                 vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
@@ -64,9 +81,16 @@ impl Commands {
             .signal_semaphores(&signals);
         unsafe {
             vk.device.end_command_buffer(self.buffer)?;
-            vk.device.queue_submit(vk.queue, &[submit], self.fence).context("vkQueueSubmit")
+            crate::fail::at("submit")?; // `VKGL_FAIL_AT=submit`: as if the submission were refused
+            // Reset only now, with nothing left to fail before the submission: a fence reset
+            // earlier, then not submitted, would never signal, and the next wait would hang.
+            vk.device.reset_fences(&[self.fence]).context("vkResetFences")?;
+            vk.device.queue_submit(vk.queue, &[submit], self.fence).context("vkQueueSubmit")?;
         }
+        self.in_flight.set(true);
+        Ok(())
     }
+    // ANCHOR_END: begin
 
     /// Records with `record`, submits, and waits for the GPU: for set-up work, not for frames.
     pub fn run_once(&self, vk: &VulkanContext, record: impl FnOnce(vk::CommandBuffer)) -> Result<()> {
@@ -77,13 +101,28 @@ impl Commands {
     }
 
     /// Waits for the last submission, then destroys the fence and the pool (and its buffer).
-    pub fn destroy(self, vk: &VulkanContext) {
+    pub fn destroy(self, _vk: &VulkanContext) {
+        drop(self); // what Drop does is what an explicit destroy does
+    }
+}
+
+impl Drop for Commands {
+    fn drop(&mut self) {
         unsafe {
-            let _ = vk.device.wait_for_fences(&[self.fence], true, u64::MAX);
-            vk.device.destroy_fence(self.fence, None);
-            vk.device.destroy_command_pool(self.pool, None);
+            if self.in_flight.get() {
+                let _ = self.device.wait_for_fences(&[self.fence], true, u64::MAX);
+            }
+            self.device.destroy_fence(self.fence, None);
+            self.device.destroy_command_pool(self.pool, None);
         }
     }
+}
+
+/// What a guard from `common` does first when it is dropped: wait until the device is idle.
+/// After an early return the work that failed may still be running; on the success path the
+/// chapter has already waited, and this returns at once.
+pub(crate) fn wait_idle(device: &ash::Device) {
+    let _ = unsafe { device.device_wait_idle() };
 }
 
 // ANCHOR: image_barrier
@@ -134,43 +173,43 @@ pub const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
 };
 
 /// A plain (not shared) buffer in host-visible, host-coherent memory, mapped for its lifetime:
-/// staging data in, reading results out.
+/// staging data in, reading results out. Destroyed when dropped, like every guard in `common`.
 pub struct HostBuffer {
     pub buffer: vk::Buffer,
     pub memory: vk::DeviceMemory,
     pub mapped: *mut u8,
     pub size: u64,
+    device: ash::Device,
 }
 
 impl HostBuffer {
     pub fn new(vk: &VulkanContext, size: u64, usage: vk::BufferUsageFlags) -> Result<Self> {
+        let mut host = HostBuffer {
+            buffer: vk::Buffer::null(),
+            memory: vk::DeviceMemory::null(),
+            mapped: std::ptr::null_mut(),
+            size,
+            device: vk.device.clone(),
+        };
         unsafe {
             let info = vk::BufferCreateInfo::default().size(size).usage(usage);
-            let buffer = vk.device.create_buffer(&info, None).context("vkCreateBuffer")?;
-            let requirements = vk.device.get_buffer_memory_requirements(buffer);
+            host.buffer = vk.device.create_buffer(&info, None).context("vkCreateBuffer")?;
+            let requirements = vk.device.get_buffer_memory_requirements(host.buffer);
             let flags = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-            let memory_type = match vk.find_memory_type(requirements.memory_type_bits, flags) {
-                Ok(t) => t,
-                Err(error) => {
-                    vk.device.destroy_buffer(buffer, None);
-                    return Err(error);
-                }
-            };
+            let memory_type = vk.find_memory_type(requirements.memory_type_bits, flags)?;
             let allocate = vk::MemoryAllocateInfo::default()
                 .allocation_size(requirements.size)
                 .memory_type_index(memory_type);
-            let memory = match vk.device.allocate_memory(&allocate, None) {
-                Ok(memory) => memory,
-                Err(error) => {
-                    vk.device.destroy_buffer(buffer, None);
-                    return Err(error).context("vkAllocateMemory");
-                }
-            };
+            host.memory = vk.device.allocate_memory(&allocate, None).context("vkAllocateMemory")?;
             crate::resources::created("vk_memory_host", requirements.size);
-            vk.device.bind_buffer_memory(buffer, memory, 0)?;
-            let mapped = vk.device.map_memory(memory, 0, size, vk::MemoryMapFlags::empty())?.cast();
-            Ok(HostBuffer { buffer, memory, mapped, size })
+            vk.device.bind_buffer_memory(host.buffer, host.memory, 0).context("vkBindBufferMemory")?;
+            host.mapped = vk
+                .device
+                .map_memory(host.memory, 0, size, vk::MemoryMapFlags::empty())
+                .context("vkMapMemory")?
+                .cast();
         }
+        Ok(host)
     }
 
     /// The mapped bytes. The GPU must not be writing them (wait for the fence first).
@@ -194,11 +233,24 @@ impl HostBuffer {
         unsafe { std::slice::from_raw_parts_mut(self.mapped, self.size as usize) }
     }
 
-    pub fn destroy(self, vk: &VulkanContext) {
+    pub fn destroy(self, _vk: &VulkanContext) {
+        drop(self);
+    }
+}
+
+impl Drop for HostBuffer {
+    /// Unmaps, frees and destroys what exists (Vulkan ignores null handles), once the device is idle.
+    fn drop(&mut self) {
+        wait_idle(&self.device);
         unsafe {
-            vk.device.unmap_memory(self.memory);
-            vk.device.free_memory(self.memory, None);
-            vk.device.destroy_buffer(self.buffer, None);
+            if !self.mapped.is_null() {
+                self.device.unmap_memory(self.memory);
+            }
+            if self.memory != vk::DeviceMemory::null() {
+                self.device.free_memory(self.memory, None);
+                crate::resources::destroyed("vk_memory_host");
+            }
+            self.device.destroy_buffer(self.buffer, None);
         }
     }
 }
@@ -240,6 +292,7 @@ pub struct Timestamps {
     /// The bits of a timestamp that count (`timestampValidBits`); the rest are undefined, and a
     /// counter this narrow wraps.
     valid_mask: u64,
+    device: ash::Device,
 }
 
 impl Timestamps {
@@ -261,7 +314,8 @@ impl Timestamps {
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
         let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
         crate::resources::created("vk_query_pool: timestamps", 0);
-        Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask }))
+        let device = vk.device.clone();
+        Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask, device }))
     }
 
     /// Resets the queries; record before anything else in the command buffer.
@@ -314,12 +368,25 @@ impl Timestamps {
     /// Milliseconds from tick `start` to tick `end`, counting only the valid bits (so a counter
     /// that wrapped between them still gives the right difference).
     fn ms(&self, start: u64, end: u64) -> f64 {
-        let ticks = (end & self.valid_mask).wrapping_sub(start & self.valid_mask) & self.valid_mask;
-        ticks as f64 * self.period_ns / 1e6
+        ticks_to_ms(start, end, self.valid_mask, self.period_ns)
     }
 
-    pub fn destroy(self, vk: &VulkanContext) {
-        unsafe { vk.device.destroy_query_pool(self.pool, None) };
+    pub fn destroy(self, _vk: &VulkanContext) {
+        drop(self);
+    }
+}
+
+/// Milliseconds from tick `start` to tick `end` of a counter with `valid_mask`'s bits, each tick
+/// `period_ns` long.
+fn ticks_to_ms(start: u64, end: u64, valid_mask: u64, period_ns: f64) -> f64 {
+    let ticks = (end & valid_mask).wrapping_sub(start & valid_mask) & valid_mask;
+    ticks as f64 * period_ns / 1e6
+}
+
+impl Drop for Timestamps {
+    fn drop(&mut self) {
+        wait_idle(&self.device);
+        unsafe { self.device.destroy_query_pool(self.pool, None) };
     }
 }
 
@@ -341,12 +408,11 @@ mod tests {
     /// Only `timestampValidBits` count: the bits above are undefined, and a narrow counter wraps.
     #[test]
     fn timestamps_count_only_their_valid_bits() {
-        let t =
-            Timestamps { pool: vk::QueryPool::null(), count: 2, period_ns: 1.0, valid_mask: (1 << 36) - 1 };
-        assert_eq!(t.ms(1_000_000, 3_000_000), 2.0);
+        let ms = |start, end| ticks_to_ms(start, end, (1 << 36) - 1, 1.0);
+        assert_eq!(ms(1_000_000, 3_000_000), 2.0);
         // Garbage above bit 36 is ignored.
-        assert_eq!(t.ms(0xABC0_0000_0000_0000 | 1_000_000, 0x1230_0000_0000_0000 | 3_000_000), 2.0);
+        assert_eq!(ms(0xABC0_0000_0000_0000 | 1_000_000, 0x1230_0000_0000_0000 | 3_000_000), 2.0);
         // The counter wrapped from near 2^36 past 0.
-        assert_eq!(t.ms((1 << 36) - 1_000_000, 1_000_000), 2.0);
+        assert_eq!(ms((1 << 36) - 1_000_000, 1_000_000), 2.0);
     }
 }

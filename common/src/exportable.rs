@@ -33,7 +33,7 @@ pub enum Dedicated {
 // ANCHOR_END: dedicated
 
 /// One exportable allocation.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct ExportableMemory {
     pub memory: vk::DeviceMemory,
     /// `allocationSize`: what the importer must be told the memory object's size is.
@@ -177,13 +177,14 @@ pub fn export_fd(loader: &ash::khr::external_memory_fd::Device, memory: vk::Devi
 // ANCHOR_END: export_fd
 
 /// A buffer in exportable, host-visible memory, mapped for its lifetime (taught in chapters 01
-/// and 02): Vulkan's side of every buffer GL imports.
+/// and 02): Vulkan's side of every buffer GL imports. Destroyed when dropped.
 pub struct ExportedBuffer {
     pub buffer: vk::Buffer,
     pub memory: ExportableMemory,
     /// Vulkan's view of the bytes, coherent with the GPU's.
     pub mapped: *mut u8,
     pub bytes: u64,
+    device: ash::Device,
 }
 
 impl ExportedBuffer {
@@ -210,6 +211,15 @@ impl ExportedBuffer {
         );
         let buffer = unsafe { ctx.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
         crate::resources::created("vk_buffer_exportable", 0);
+        // The guard exists from the first object on: a failed allocation, bind or map below
+        // destroys what was made before it.
+        let mut exported = ExportedBuffer {
+            buffer,
+            memory: ExportableMemory::default(),
+            mapped: std::ptr::null_mut(),
+            bytes,
+            device: ctx.device.clone(),
+        };
         let requirements = unsafe { ctx.device.get_buffer_memory_requirements(buffer) };
         let host = buffer_memory_properties(ctx, requirements.memory_type_bits);
         let dedicated = if features.contains(vk::ExternalMemoryFeatureFlags::DEDICATED_ONLY) {
@@ -217,16 +227,16 @@ impl ExportedBuffer {
         } else {
             Dedicated::No
         };
-        let memory = allocate(ctx, &requirements, host, dedicated).inspect_err(|_| unsafe {
-            ctx.device.destroy_buffer(buffer, None);
-        })?;
-        let mapped = unsafe {
-            ctx.device.bind_buffer_memory(buffer, memory.memory, 0)?;
-            ctx.device.map_memory(memory.memory, 0, bytes, vk::MemoryMapFlags::empty())?.cast::<u8>()
-        };
+        exported.memory = allocate(ctx, &requirements, host, dedicated)?;
+        let memory = exported.memory.memory;
+        unsafe { ctx.device.bind_buffer_memory(buffer, memory, 0) }.context("vkBindBufferMemory")?;
+        crate::fail::at("map")?; // `VKGL_FAIL_AT=map`: as if vkMapMemory had failed
+        exported.mapped = unsafe { ctx.device.map_memory(memory, 0, bytes, vk::MemoryMapFlags::empty()) }
+            .context("vkMapMemory")?
+            .cast::<u8>();
         // SAFETY: `mapped` is `bytes` long, coherent, and nothing else uses it yet.
-        unsafe { std::ptr::copy_nonoverlapping(data.as_ptr(), mapped, data.len()) };
-        Ok(ExportedBuffer { buffer, memory, mapped, bytes })
+        unsafe { std::ptr::copy_nonoverlapping(data.as_ptr(), exported.mapped, data.len()) };
+        Ok(exported)
     }
 
     /// The buffer's GPU address (needs SHADER_DEVICE_ADDRESS usage and a context with
@@ -236,12 +246,24 @@ impl ExportedBuffer {
         unsafe { ctx.device.get_buffer_device_address(&info) }
     }
 
-    pub fn destroy(self, ctx: &VulkanContext) {
+    /// Unmaps, frees the memory, destroys the buffer: what dropping it does.
+    pub fn destroy(self, _ctx: &VulkanContext) {
+        drop(self);
+    }
+}
+
+impl Drop for ExportedBuffer {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
         unsafe {
-            ctx.device.unmap_memory(self.memory.memory);
-            ctx.device.free_memory(self.memory.memory, None);
-            crate::resources::destroyed("vk_memory_exportable");
-            ctx.device.destroy_buffer(self.buffer, None);
+            if !self.mapped.is_null() {
+                self.device.unmap_memory(self.memory.memory);
+            }
+            if self.memory.memory != vk::DeviceMemory::null() {
+                self.device.free_memory(self.memory.memory, None);
+                crate::resources::destroyed("vk_memory_exportable");
+            }
+            self.device.destroy_buffer(self.buffer, None);
         }
     }
 }

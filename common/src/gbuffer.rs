@@ -79,6 +79,8 @@ pub struct GBuffers {
     pub depth: glow::Renderbuffer,
     program: glow::Program,
     vertex_arrays: Vec<glow::VertexArray>,
+    /// For dropping: GL's objects go when the G-buffers do, on an early return too.
+    gl: std::rc::Rc<glow::Context>,
 }
 
 impl GBuffers {
@@ -98,6 +100,8 @@ impl GBuffers {
         for (_, format, gl_format, _) in GBUFFERS {
             images.push(SharedImage::new(vk, gl, format, gl_format, usage, extent)?);
         }
+        // GL draws into them first: Vulkan hands them over, in GENERAL, before it does.
+        crate::interop::hand_new_images_to_gl(vk, &images.iter().collect::<Vec<_>>())?;
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
@@ -108,7 +112,7 @@ impl GBuffers {
             .iter()
             .map(|[v, i]| unsafe { vertex_array(gl_, &v.1, &i.1, instances) })
             .collect::<Result<_>>()?;
-        Ok(GBuffers { images, extent, framebuffer, depth, program, vertex_arrays })
+        Ok(GBuffers { images, extent, framebuffer, depth, program, vertex_arrays, gl: gl.gl.clone() })
     }
 
     /// GL's textures, in `GBUFFERS` order, for the hand-overs.
@@ -194,16 +198,23 @@ impl GBuffers {
         }
     }
 
-    /// GL's objects, then the images (each GL side first).
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
+    /// GL's objects, then the images (each GL side first): what dropping them does.
+    pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {
+        drop(self);
+    }
+}
+
+impl Drop for GBuffers {
+    fn drop(&mut self) {
+        let gl = &self.gl;
         unsafe {
-            self.vertex_arrays.into_iter().for_each(|v| gl.gl.delete_vertex_array(v));
-            gl.gl.delete_program(self.program);
-            gl.gl.delete_framebuffer(self.framebuffer);
-            gl.gl.delete_renderbuffer(self.depth);
+            self.vertex_arrays.drain(..).for_each(|v| gl.delete_vertex_array(v));
+            gl.delete_program(self.program);
+            gl.delete_framebuffer(self.framebuffer);
+            gl.delete_renderbuffer(self.depth);
             crate::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
         }
-        self.images.into_iter().for_each(|i| i.destroy(vk, gl));
+        // `images` are dropped next, each GL side first.
     }
 }
 

@@ -35,6 +35,31 @@ pub mod layout {
     pub const SHADER_READ_ONLY: u32 = 0x9591;
     pub const TRANSFER_SRC: u32 = 0x9592;
     pub const TRANSFER_DST: u32 = 0x9593;
+
+    /// The enum's name, for messages.
+    pub fn name(layout: u32) -> &'static str {
+        match layout {
+            GENERAL => "GL_LAYOUT_GENERAL_EXT",
+            COLOR_ATTACHMENT => "GL_LAYOUT_COLOR_ATTACHMENT_EXT",
+            SHADER_READ_ONLY => "GL_LAYOUT_SHADER_READ_ONLY_EXT",
+            TRANSFER_SRC => "GL_LAYOUT_TRANSFER_SRC_EXT",
+            TRANSFER_DST => "GL_LAYOUT_TRANSFER_DST_EXT",
+            _ => "a layout this tutorial does not use",
+        }
+    }
+
+    /// GL's name for a Vulkan layout; `None` for one GL has no name for.
+    pub fn of(layout: ash::vk::ImageLayout) -> Option<u32> {
+        use ash::vk::ImageLayout as L;
+        Some(match layout {
+            L::GENERAL => GENERAL,
+            L::COLOR_ATTACHMENT_OPTIMAL => COLOR_ATTACHMENT,
+            L::SHADER_READ_ONLY_OPTIMAL => SHADER_READ_ONLY,
+            L::TRANSFER_SRC_OPTIMAL => TRANSFER_SRC,
+            L::TRANSFER_DST_OPTIMAL => TRANSFER_DST,
+            _ => return None,
+        })
+    }
 }
 
 /// Declares a struct of GL function pointers and a loader that refuses null ones.
@@ -42,6 +67,7 @@ macro_rules! gl_functions {
     ($(#[$meta:meta])* $struct:ident { $($name:ident: fn($($ty:ty),*) $(-> $ret:ty)?;)* }) => {
         $(#[$meta])*
         #[allow(non_snake_case)]
+        #[derive(Clone, Copy)]
         pub struct $struct {
             $(pub $name: unsafe extern "system" fn($($ty),*) $(-> $ret)?,)*
         }
@@ -74,6 +100,7 @@ gl_functions! {
         TextureStorageMem2DEXT: fn(u32, i32, u32, i32, i32, u32, u64);
         GetUnsignedBytevEXT: fn(u32, *mut u8);
         GetUnsignedBytei_vEXT: fn(u32, u32, *mut u8);
+        IsMemoryObjectEXT: fn(u32) -> u8;
     }
 }
 
@@ -85,12 +112,31 @@ gl_functions! {
         ImportSemaphoreFdEXT: fn(u32, u32, i32);
         SignalSemaphoreEXT: fn(u32, u32, *const u32, u32, *const u32, *const u32);
         WaitSemaphoreEXT: fn(u32, u32, *const u32, u32, *const u32, *const u32);
+        IsSemaphoreEXT: fn(u32) -> u8;
     }
 }
 
+gl_functions! {
+    /// GL 4.5 core's `glIs*` queries (glow lacks some), to count the objects that exist.
+    IsFns {
+        IsTexture: fn(u32) -> u8;
+        IsBuffer: fn(u32) -> u8;
+        IsFramebuffer: fn(u32) -> u8;
+        IsRenderbuffer: fn(u32) -> u8;
+        IsVertexArray: fn(u32) -> u8;
+        IsProgram: fn(u32) -> u8;
+        IsQuery: fn(u32) -> u8;
+    }
+}
+
+/// Names up to this are always probed by [`GlContext::live_objects`]: a driver that reuses
+/// freed names may hand out a low one while higher ones are still alive.
+const PROBED_NAMES: u32 = 4096;
+
 /// A current GL context and what the chapters need to know about it.
 pub struct GlContext {
-    pub gl: glow::Context,
+    /// Shared (`Rc`) with the guards in `common` that delete their GL objects when dropped.
+    pub gl: std::rc::Rc<glow::Context>,
     /// Present when the chapter asked for [`MEMORY_EXTENSIONS`].
     pub memory: Option<MemoryObjectFns>,
     /// Present when the driver has [`SEMAPHORE_EXTENSIONS`] (and they are not hidden).
@@ -102,6 +148,7 @@ pub struct GlContext {
     /// The required extensions, for the report.
     pub required: Vec<String>,
     extensions: HashSet<String>,
+    is: IsFns,
     context: PossiblyCurrentContext,
 }
 
@@ -218,7 +265,7 @@ impl GlContext {
             }
         }
         Ok(GlContext {
-            gl,
+            gl: std::rc::Rc::new(gl),
             memory,
             semaphores,
             renderer,
@@ -227,9 +274,68 @@ impl GlContext {
             driver_uuid,
             required: required.iter().map(|e| e.to_string()).collect(),
             extensions,
+            is: IsFns::load(loader)?,
             context,
         })
     }
+
+    // ANCHOR: live_objects
+    /// How many GL objects of each kind exist now, as the driver sees them: `glIs*` over every
+    /// name up to the highest in use (found by making, then deleting, one more of each kind).
+    /// The leak soak compares this before and after, with no bookkeeping of ours in between.
+    pub fn live_objects(&self) -> std::collections::BTreeMap<&'static str, usize> {
+        let gl = &*self.gl;
+        let count = |next: u32, is: &dyn Fn(u32) -> u8| {
+            (1..next.max(PROBED_NAMES)).filter(|&name| is(name) == glow::TRUE).count()
+        };
+        let mut live = std::collections::BTreeMap::new();
+        unsafe {
+            // The name a new object gets: one past the highest in use, or a freed one.
+            let next = |made: Result<std::num::NonZeroU32, String>| made.map_or(0, |n| n.get());
+            let t = gl.create_named_texture(glow::TEXTURE_2D);
+            let n = next(t.as_ref().map(|t| t.0).map_err(Clone::clone));
+            t.into_iter().for_each(|t| gl.delete_texture(t));
+            live.insert("gl_textures", count(n, &|name| (self.is.IsTexture)(name)));
+            let b = gl.create_named_buffer();
+            let n = next(b.as_ref().map(|b| b.0).map_err(Clone::clone));
+            b.into_iter().for_each(|b| gl.delete_buffer(b));
+            live.insert("gl_buffers", count(n, &|name| (self.is.IsBuffer)(name)));
+            let f = gl.create_named_framebuffer();
+            let n = next(f.as_ref().map(|f| f.0).map_err(Clone::clone));
+            f.into_iter().for_each(|f| gl.delete_framebuffer(f));
+            live.insert("gl_framebuffers", count(n, &|name| (self.is.IsFramebuffer)(name)));
+            let r = gl.create_renderbuffer();
+            let n = next(r.as_ref().map(|r| r.0).map_err(Clone::clone));
+            r.into_iter().for_each(|r| gl.delete_renderbuffer(r));
+            live.insert("gl_renderbuffers", count(n, &|name| (self.is.IsRenderbuffer)(name)));
+            let v = gl.create_named_vertex_array();
+            let n = next(v.as_ref().map(|v| v.0).map_err(Clone::clone));
+            v.into_iter().for_each(|v| gl.delete_vertex_array(v));
+            live.insert("gl_vertex_arrays", count(n, &|name| (self.is.IsVertexArray)(name)));
+            let p = gl.create_program();
+            let n = next(p.as_ref().map(|p| p.0).map_err(Clone::clone));
+            p.into_iter().for_each(|p| gl.delete_program(p));
+            live.insert("gl_programs", count(n, &|name| (self.is.IsProgram)(name)));
+            let q = gl.create_query();
+            let n = next(q.as_ref().map(|q| q.0).map_err(Clone::clone));
+            q.into_iter().for_each(|q| gl.delete_query(q));
+            live.insert("gl_queries", count(n, &|name| (self.is.IsQuery)(name)));
+            if let Some(ext) = &self.memory {
+                let mut n = 0;
+                (ext.CreateMemoryObjectsEXT)(1, &mut n);
+                (ext.DeleteMemoryObjectsEXT)(1, &n);
+                live.insert("gl_memory_objects", count(n, &|name| (ext.IsMemoryObjectEXT)(name)));
+            }
+            if let Some(ext) = &self.semaphores {
+                let mut n = 0;
+                (ext.GenSemaphoresEXT)(1, &mut n);
+                (ext.DeleteSemaphoresEXT)(1, &n);
+                live.insert("gl_semaphores", count(n, &|name| (ext.IsSemaphoreEXT)(name)));
+            }
+        }
+        live
+    }
+    // ANCHOR_END: live_objects
 
     pub fn has_extension(&self, name: &str) -> bool {
         self.extensions.contains(name)
@@ -421,15 +527,17 @@ fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow
 }
 
 /// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::output`].
+/// Deleted when dropped.
 pub struct RenderTarget {
     pub framebuffer: glow::Framebuffer,
     pub colour: glow::Renderbuffer,
     pub width: u32,
     pub height: u32,
+    gl: std::rc::Rc<glow::Context>,
 }
 
 impl RenderTarget {
-    pub fn new(gl: &glow::Context, width: u32, height: u32) -> Result<Self> {
+    pub fn new(gl: &std::rc::Rc<glow::Context>, width: u32, height: u32) -> Result<Self> {
         unsafe {
             let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
             gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
@@ -450,7 +558,7 @@ impl RenderTarget {
                 crate::resources::destroyed("gl_renderbuffer: RGBA8");
                 bail!("offscreen framebuffer incomplete: {status:#x}");
             }
-            Ok(RenderTarget { framebuffer, colour, width, height })
+            Ok(RenderTarget { framebuffer, colour, width, height, gl: gl.clone() })
         }
     }
 
@@ -462,11 +570,18 @@ impl RenderTarget {
         }
     }
 
-    pub fn delete(self, gl: &glow::Context) {
+    /// What dropping it does, where the reader sees it.
+    pub fn delete(self, _gl: &glow::Context) {
+        drop(self);
+    }
+}
+
+impl Drop for RenderTarget {
+    fn drop(&mut self) {
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
-            gl.delete_framebuffer(self.framebuffer);
-            gl.delete_renderbuffer(self.colour);
+            self.gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+            self.gl.delete_framebuffer(self.framebuffer);
+            self.gl.delete_renderbuffer(self.colour);
             crate::resources::destroyed("gl_renderbuffer: RGBA8");
         }
     }

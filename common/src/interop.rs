@@ -4,46 +4,66 @@
 use crate::commands::image_barrier;
 use crate::exportable::{self, Dedicated, ExportableMemory};
 use crate::gl::{
-    DEDICATED_MEMORY_OBJECT_EXT, HANDLE_TYPE_OPAQUE_FD_EXT, OPTIMAL_TILING_EXT, TEXTURE_TILING_EXT,
+    DEDICATED_MEMORY_OBJECT_EXT, HANDLE_TYPE_OPAQUE_FD_EXT, MemoryObjectFns, OPTIMAL_TILING_EXT,
+    TEXTURE_TILING_EXT,
 };
 use crate::{GlContext, VulkanContext};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
+use std::mem::ManuallyDrop;
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
+use std::rc::Rc;
 
-/// A GL buffer whose storage is Vulkan memory.
+/// A GL buffer whose storage is Vulkan memory. Deleted (buffer, then memory object) when
+/// dropped, so an early return leaks nothing; [`SharedBuffer::delete`] says so in the open.
 pub struct SharedBuffer {
     pub buffer: glow::Buffer,
-    pub memory_object: u32,
+    pub memory_object: MemoryObject,
+    gl: Rc<glow::Context>,
 }
 
-/// A GL texture whose storage is a Vulkan image's dedicated memory.
+/// A GL texture whose storage is a Vulkan image's dedicated memory; deleted when dropped.
 pub struct SharedTexture {
     pub texture: glow::Texture,
-    pub memory_object: u32,
+    pub memory_object: MemoryObject,
+    gl: Rc<glow::Context>,
+}
+
+/// A GL memory object, which holds an imported fd's memory; deleted when dropped.
+pub struct MemoryObject {
+    pub name: u32,
+    fns: MemoryObjectFns,
+}
+
+impl Drop for MemoryObject {
+    fn drop(&mut self) {
+        unsafe { (self.fns.DeleteMemoryObjectsEXT)(1, &self.name) };
+        crate::resources::destroyed("gl_memory_object");
+    }
 }
 
 // ANCHOR: import_memory
 /// Imports an exported fd as a GL memory object of `size` bytes (the Vulkan `allocationSize`).
-/// On success GL owns the fd; on failure it is closed here.
-pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) -> Result<u32> {
+/// On success GL owns the fd; on failure it is closed here, and the memory object deleted.
+pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) -> Result<MemoryObject> {
     let ext = gl.memory_fns()?;
-    let mut memory_object = 0;
-    unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut memory_object) };
+    let mut name = 0;
+    unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
     crate::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
+    // From here on the guard deletes the memory object on every early return.
+    let memory_object = MemoryObject { name, fns: *ext };
     if dedicated {
         // Must match how Vulkan allocated it, and must be said before the import.
         let yes = glow::TRUE as i32;
-        unsafe { (ext.MemoryObjectParameterivEXT)(memory_object, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
+        unsafe { (ext.MemoryObjectParameterivEXT)(name, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
     }
-    unsafe { (ext.ImportMemoryFdEXT)(memory_object, size, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
-    // Some drivers list the extension yet fail the import: always look.
-    if let Err(error) = gl.check_error("glImportMemoryFdEXT") {
-        unsafe { (ext.DeleteMemoryObjectsEXT)(1, &memory_object) };
-        crate::resources::destroyed("gl_memory_object");
-        return Err(error); // `fd` is dropped, and so closed: the failed import did not take it.
-    }
+    // (`VKGL_FAIL_AT=import` fails here, as a driver that refuses the import would.)
+    crate::fail::at("import")?;
+    unsafe { (ext.ImportMemoryFdEXT)(name, size, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+    // Some drivers list the extension yet fail the import: always look. On failure `fd` is
+    // dropped, and so closed: the failed import did not take it.
+    gl.check_error("glImportMemoryFdEXT")?;
     // SAFETY: the import succeeded, so the fd is GL's now; closing it too would be a double close.
     let _ = fd.into_raw_fd();
     Ok(memory_object)
@@ -59,17 +79,15 @@ pub fn import_buffer(
     bytes: u64,
 ) -> Result<SharedBuffer> {
     let memory_object = import_memory(gl, fd, memory.size, false)?;
+    // A failure from here on drops `memory_object`, which deletes it.
     let buffer =
         unsafe { gl.gl.create_named_buffer() }.map_err(anyhow::Error::msg).context("glCreateBuffers")?;
     crate::resources::created("gl_buffer_imported", 0);
+    let shared = SharedBuffer { buffer, memory_object, gl: gl.gl.clone() };
     // Like glNamedBufferStorage, but the storage already exists: it is the memory object.
     let ext = gl.memory_fns()?;
-    unsafe { (ext.NamedBufferStorageMemEXT)(buffer.0.get(), bytes as isize, memory_object, 0) };
-    let shared = SharedBuffer { buffer, memory_object };
-    if let Err(error) = gl.check_error("glNamedBufferStorageMemEXT") {
-        shared.delete(gl);
-        return Err(error);
-    }
+    unsafe { (ext.NamedBufferStorageMemEXT)(buffer.0.get(), bytes as isize, shared.memory_object.name, 0) };
+    gl.check_error("glNamedBufferStorageMemEXT")?; // on failure `shared` deletes both
     Ok(shared)
 }
 // ANCHOR_END: import_buffer
@@ -84,15 +102,10 @@ pub fn share_buffer(
 ) -> Result<(exportable::ExportedBuffer, SharedBuffer)> {
     let exported = exportable::ExportedBuffer::new(vk, data, usage)?;
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-    let shared = exportable::export_fd(&fd_loader, exported.memory.memory)
-        .and_then(|fd| import_buffer(gl, &exported.memory, fd, exported.bytes));
-    match shared {
-        Ok(shared) => Ok((exported, shared)),
-        Err(error) => {
-            exported.destroy(vk);
-            Err(error)
-        }
-    }
+    let fd = exportable::export_fd(&fd_loader, exported.memory.memory)?;
+    // On failure `exported` is dropped, which destroys it.
+    let shared = import_buffer(gl, &exported.memory, fd, exported.bytes)?;
+    Ok((exported, shared))
 }
 
 // ANCHOR: import_texture_2d
@@ -107,10 +120,14 @@ pub fn import_texture_2d(
     height: u32,
 ) -> Result<SharedTexture> {
     let memory_object = import_memory(gl, fd, memory.size, true)?;
+    // The import succeeded: a failure from here on must still delete the memory object, and
+    // does, by dropping it. (`VKGL_FAIL_AT=texture` fails here.)
+    crate::fail::at("texture")?;
     let texture = unsafe { gl.gl.create_named_texture(glow::TEXTURE_2D) }
         .map_err(anyhow::Error::msg)
         .context("glCreateTextures")?;
     crate::resources::created("gl_texture_imported", 0);
+    let shared = SharedTexture { texture, memory_object, gl: gl.gl.clone() };
     let ext = gl.memory_fns()?;
     unsafe {
         // The Vulkan image was created with VK_IMAGE_TILING_OPTIMAL: the driver's private layout.
@@ -121,55 +138,95 @@ pub fn import_texture_2d(
             internal_format,
             width as i32,
             height as i32,
-            memory_object,
+            shared.memory_object.name,
             0,
         );
     }
-    let shared = SharedTexture { texture, memory_object };
-    if let Err(error) = gl.check_error("glTextureStorageMem2DEXT") {
-        shared.delete(gl);
-        return Err(error);
-    }
+    gl.check_error("glTextureStorageMem2DEXT")?; // on failure `shared` deletes both
     Ok(shared)
 }
 // ANCHOR_END: import_texture_2d
 
 impl SharedBuffer {
-    /// Deletes the buffer, then the memory object (which releases GL's hold on the memory).
-    pub fn delete(self, gl: &GlContext) {
-        unsafe {
-            gl.gl.delete_buffer(self.buffer);
-            crate::resources::destroyed("gl_buffer_imported");
-            if let Some(ext) = &gl.memory {
-                (ext.DeleteMemoryObjectsEXT)(1, &self.memory_object);
-                crate::resources::destroyed("gl_memory_object");
-            }
-        }
+    /// Deletes the buffer, then the memory object (which releases GL's hold on the memory):
+    /// what dropping it does, written where the reader sees the order.
+    pub fn delete(self, _gl: &GlContext) {
+        drop(self);
+    }
+}
+
+impl Drop for SharedBuffer {
+    fn drop(&mut self) {
+        unsafe { self.gl.delete_buffer(self.buffer) };
+        crate::resources::destroyed("gl_buffer_imported");
+        // `memory_object` is dropped next (fields drop after this), which deletes it.
     }
 }
 
 impl SharedTexture {
     /// Deletes the texture, then the memory object.
-    pub fn delete(self, gl: &GlContext) {
-        unsafe {
-            gl.gl.delete_texture(self.texture);
-            crate::resources::destroyed("gl_texture_imported");
-            if let Some(ext) = &gl.memory {
-                (ext.DeleteMemoryObjectsEXT)(1, &self.memory_object);
-                crate::resources::destroyed("gl_memory_object");
-            }
-        }
+    pub fn delete(self, _gl: &GlContext) {
+        drop(self);
+    }
+}
+
+impl Drop for SharedTexture {
+    fn drop(&mut self) {
+        crate::sync::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
+        unsafe { self.gl.delete_texture(self.texture) };
+        crate::resources::destroyed("gl_texture_imported");
     }
 }
 
 /// A Vulkan image with its own exported memory and a view, and the GL texture that is the same
-/// memory (taught in chapter 03). Resizing means destroying it and making a new one.
+/// memory (taught in chapter 03). Resizing means destroying it and making a new one. Dropped
+/// without [`SharedImage::destroy`] (an early return), it destroys itself the same way.
 pub struct SharedImage {
     pub image: vk::Image,
     pub memory: ExportableMemory,
     pub view: vk::ImageView,
-    pub texture: SharedTexture,
+    /// Dropped by hand, first: GL's side goes before Vulkan's.
+    pub texture: ManuallyDrop<SharedTexture>,
     pub extent: vk::Extent2D,
+    device: ash::Device,
+}
+
+/// The Vulkan half of a [`SharedImage`] while it is being made: destroyed if a later step fails.
+struct VulkanHalf {
+    device: ash::Device,
+    image: vk::Image,
+    memory: vk::DeviceMemory,
+    view: vk::ImageView,
+}
+
+impl Drop for VulkanHalf {
+    fn drop(&mut self) {
+        destroy_vulkan_half(&self.device, self.image, self.memory, self.view);
+    }
+}
+
+/// View, memory, image: what exists of them (null handles are skipped).
+fn destroy_vulkan_half(
+    device: &ash::Device,
+    image: vk::Image,
+    memory: vk::DeviceMemory,
+    view: vk::ImageView,
+) {
+    if image == vk::Image::null() {
+        return; // nothing was made (or it has been handed on)
+    }
+    crate::commands::wait_idle(device);
+    unsafe {
+        device.destroy_image_view(view, None);
+        if memory != vk::DeviceMemory::null() {
+            device.free_memory(memory, None);
+            crate::resources::destroyed("vk_memory_exportable");
+        }
+        if image != vk::Image::null() {
+            device.destroy_image(image, None);
+            crate::resources::destroyed("vk_image_exportable");
+        }
+    }
 }
 
 impl SharedImage {
@@ -183,70 +240,76 @@ impl SharedImage {
         extent: vk::Extent2D,
     ) -> Result<Self> {
         let image = exportable::create_image(vk, format, usage, extent)?;
+        let null = (vk::DeviceMemory::null(), vk::ImageView::null());
+        let mut half = VulkanHalf { device: vk.device.clone(), image, memory: null.0, view: null.1 };
         let requirements = unsafe { vk.device.get_image_memory_requirements(image) };
-        let memory = match exportable::allocate(
+        let memory = exportable::allocate(
             vk,
             &requirements,
             vk::MemoryPropertyFlags::DEVICE_LOCAL,
             Dedicated::Image(image),
-        ) {
-            Ok(memory) => memory,
-            Err(error) => {
-                unsafe { vk.device.destroy_image(image, None) };
-                crate::resources::destroyed("vk_image_exportable");
-                return Err(error);
-            }
-        };
-        let destroy_vulkan = |view: Option<vk::ImageView>| unsafe {
-            if let Some(view) = view {
-                vk.device.destroy_image_view(view, None);
-            }
-            vk.device.free_memory(memory.memory, None);
-            vk.device.destroy_image(image, None);
-            crate::resources::destroyed("vk_memory_exportable");
-            crate::resources::destroyed("vk_image_exportable");
-        };
-        if let Err(error) = unsafe { vk.device.bind_image_memory(image, memory.memory, 0) } {
-            destroy_vulkan(None);
-            return Err(error).context("vkBindImageMemory");
-        }
+        )?;
+        half.memory = memory.memory;
+        unsafe { vk.device.bind_image_memory(image, memory.memory, 0) }.context("vkBindImageMemory")?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
             .subresource_range(crate::commands::COLOR_RANGE);
-        let view = match unsafe { vk.device.create_image_view(&view_info, None) } {
-            Ok(view) => view,
-            Err(error) => {
-                destroy_vulkan(None);
-                return Err(error).context("vkCreateImageView");
-            }
-        };
+        half.view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
         let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-        let texture = exportable::export_fd(&fd_loader, memory.memory)
-            .and_then(|fd| import_texture_2d(gl, &memory, fd, gl_format, extent.width, extent.height));
-        match texture {
-            Ok(texture) => Ok(SharedImage { image, memory, view, texture, extent }),
-            Err(error) => {
-                destroy_vulkan(Some(view));
-                Err(error)
-            }
-        }
+        let fd = exportable::export_fd(&fd_loader, memory.memory)?;
+        let texture = import_texture_2d(gl, &memory, fd, gl_format, extent.width, extent.height)?;
+        // Everything exists: the SharedImage owns it now, and the half-made guard lets go.
+        let view = std::mem::replace(&mut half.view, vk::ImageView::null());
+        half.memory = vk::DeviceMemory::null();
+        half.image = vk::Image::null();
+        let device = vk.device.clone();
+        Ok(SharedImage { image, memory, view, texture: ManuallyDrop::new(texture), extent, device })
     }
 
     /// GL's side first (texture, memory object), then Vulkan's (view, memory, image). Vulkan must
     /// be idle with respect to the image.
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
-        self.texture.delete(gl);
-        unsafe {
-            vk.device.destroy_image_view(self.view, None);
-            vk.device.free_memory(self.memory.memory, None);
-            vk.device.destroy_image(self.image, None);
-            crate::resources::destroyed("vk_memory_exportable");
-            crate::resources::destroyed("vk_image_exportable");
-        }
+    pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {
+        drop(self); // Drop below, in that order
     }
 }
+
+impl Drop for SharedImage {
+    fn drop(&mut self) {
+        // SAFETY: dropped once, here, and never used again.
+        unsafe { ManuallyDrop::drop(&mut self.texture) };
+        destroy_vulkan_half(&self.device, self.image, self.memory.memory, self.view);
+    }
+}
+
+// ANCHOR: hand_new_images_to_gl
+/// Hands images nobody has used yet to GL, in `GENERAL`, before GL's first use: Vulkan moves
+/// them out of `UNDEFINED` (which may initialise what the driver keeps beside the pixels) and
+/// releases them to `VK_QUEUE_FAMILY_EXTERNAL`. For images GL uses first (chapter 03's, the
+/// G-buffers): from here on each is in a layout both sides know, the one the host path hands it
+/// over in (`Sync::hand_over`). Set-up work: the CPU waits for it.
+pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Result<()> {
+    let general = vk::ImageLayout::GENERAL;
+    let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
+    let none = vk::AccessFlags::NONE; // nothing written yet, nothing to make available
+    let barriers: Vec<_> = images
+        .iter()
+        .map(|image| {
+            image_barrier(image.image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
+        })
+        .collect();
+    let commands = crate::commands::Commands::new(vk)?;
+    commands.run_once(vk, |cb| unsafe {
+        let (top, bottom) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
+        vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
+    })?;
+    for image in images {
+        crate::sync::vulkan_left(image.texture.texture.0.get(), crate::gl::layout::of(general));
+    }
+    Ok(())
+}
+// ANCHOR_END: hand_new_images_to_gl
 
 // ANCHOR: ownership
 /// The barrier that takes `image` over from GL: ownership moves from outside Vulkan

@@ -8,6 +8,7 @@ pub mod ao;
 pub mod cli;
 pub mod commands;
 pub mod exportable;
+pub mod fail;
 pub mod gbuffer;
 pub mod gl;
 pub mod interop;
@@ -42,7 +43,24 @@ pub fn run_chapter<A: clap::Parser>(
     let args = A::parse();
     let common = common(&args);
     let mut report = Report::new(chapter);
-    if let Err(error) = run(&args, &mut report) {
+    if let Err(error) = fail::check_armed() {
+        eprintln!("error: {error:#}");
+        return ExitCode::from(2);
+    }
+    // With an injected failure, the fds open before anything ran, to compare at exit.
+    let fds_before = fail::armed().map(|_| fail::open_fds());
+    let result = run(&args, &mut report);
+    if let Some(before) = fds_before {
+        // Everything `run` made is gone by now (destroyed, or dropped on the way out of an
+        // early return): so must its fds be. Drivers may keep a few of their own.
+        let left: Vec<_> = fail::open_fds().into_iter().filter(|fd| !before.contains(fd)).collect();
+        eprintln!("fds: left open after the chapter ran: {left:?}");
+        // And the objects whose destruction is counted (exportable memory and images, GL memory
+        // objects, imported textures and buffers, renderbuffers): none may be alive.
+        let alive: Vec<_> = resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
+        eprintln!("resources: alive after the chapter ran: {alive:?}");
+    }
+    if let Err(error) = result {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }

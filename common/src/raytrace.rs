@@ -16,9 +16,10 @@ pub struct RayPipeline {
     pub set_layout: vk::DescriptorSetLayout,
     pool: vk::DescriptorPool,
     pub set: vk::DescriptorSet,
-    sbt: DeviceBuffer,
+    sbt: Option<DeviceBuffer>,
     /// Where the shader binding table's ray generation, miss, hit and callable records are.
     pub regions: [vk::StridedDeviceAddressRegionKHR; 4],
+    device: ash::Device,
 }
 
 fn shader_module(vk: &VulkanContext, spirv: &[u8]) -> Result<vk::ShaderModule> {
@@ -39,12 +40,25 @@ impl RayPipeline {
     ) -> Result<Self> {
         let loader = ash::khr::ray_tracing_pipeline::Device::new(&vk.instance, &vk.device);
         let device = &vk.device;
+        // The guard holds each object as it is made: an early return destroys those that exist.
+        let mut this = RayPipeline {
+            loader: loader.clone(),
+            pipeline: vk::Pipeline::null(),
+            layout: vk::PipelineLayout::null(),
+            set_layout: vk::DescriptorSetLayout::null(),
+            pool: vk::DescriptorPool::null(),
+            set: vk::DescriptorSet::null(),
+            sbt: None,
+            regions: Default::default(),
+            device: device.clone(),
+        };
         let set_layout = unsafe {
             device.create_descriptor_set_layout(
                 &vk::DescriptorSetLayoutCreateInfo::default().bindings(bindings),
                 None,
             )
         }?;
+        this.set_layout = set_layout;
         let push = [vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR)
             .size(push_bytes)];
@@ -52,9 +66,13 @@ impl RayPipeline {
         let layout_info =
             vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&push);
         let layout = unsafe { device.create_pipeline_layout(&layout_info, None) }?;
+        this.layout = layout;
 
         // ANCHOR: pipeline
-        let modules = [shader_module(vk, raygen)?, shader_module(vk, miss)?];
+        let raygen = shader_module(vk, raygen)?;
+        let miss =
+            shader_module(vk, miss).inspect_err(|_| unsafe { device.destroy_shader_module(raygen, None) })?;
+        let modules = [raygen, miss];
         let stages = [
             vk::PipelineShaderStageCreateInfo::default()
                 .stage(vk::ShaderStageFlags::RAYGEN_KHR)
@@ -91,10 +109,12 @@ impl RayPipeline {
         };
         unsafe { modules.iter().for_each(|m| device.destroy_shader_module(*m, None)) };
         let pipeline = pipeline.map_err(|(_, e)| e).context("vkCreateRayTracingPipelinesKHR")?[0];
+        this.pipeline = pipeline;
         crate::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
 
         let (sbt, regions) = shader_binding_table(vk, &loader, allocator, pipeline, groups.len() as u32)?;
+        (this.sbt, this.regions) = (Some(sbt), regions);
 
         let mut sizes: Vec<vk::DescriptorPoolSize> = Vec::new();
         for binding in bindings {
@@ -103,16 +123,16 @@ impl RayPipeline {
                 descriptor_count: binding.descriptor_count,
             });
         }
-        let pool = unsafe {
+        this.pool = unsafe {
             device.create_descriptor_pool(
                 &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes),
                 None,
             )
         }?;
         let allocate =
-            vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&set_layouts);
-        let set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
-        Ok(RayPipeline { loader, pipeline, layout, set_layout, pool, set, sbt, regions })
+            vk::DescriptorSetAllocateInfo::default().descriptor_pool(this.pool).set_layouts(&set_layouts);
+        this.set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
+        Ok(this)
     }
 
     /// Points binding `binding` at the TLAS.
@@ -156,14 +176,26 @@ impl RayPipeline {
     }
     // ANCHOR_END: trace
 
-    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
-        unsafe {
-            vk.device.destroy_descriptor_pool(self.pool, None);
-            vk.device.destroy_pipeline(self.pipeline, None);
-            vk.device.destroy_pipeline_layout(self.layout, None);
-            vk.device.destroy_descriptor_set_layout(self.set_layout, None);
+    /// Newest first: the descriptor pool (and its set), the pipeline, its layouts, the SBT.
+    pub fn destroy(mut self, vk: &VulkanContext, allocator: &mut Allocator) {
+        let sbt = self.sbt.take();
+        drop(self); // Drop below
+        if let Some(sbt) = sbt {
+            sbt.destroy(vk, allocator);
         }
-        self.sbt.destroy(vk, allocator);
+    }
+}
+
+impl Drop for RayPipeline {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
+        unsafe {
+            self.device.destroy_descriptor_pool(self.pool, None);
+            self.device.destroy_pipeline(self.pipeline, None);
+            self.device.destroy_pipeline_layout(self.layout, None);
+            self.device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+        // `sbt`, if still here (an early return), is dropped next: it destroys its buffer.
     }
 }
 
@@ -219,11 +251,14 @@ fn shader_binding_table(
 // ANCHOR_END: sbt
 
 /// An image only Vulkan uses (a ray tracer's output), in memory from gpu-allocator, with a view.
+/// Dropped without `destroy`, it destroys the view and image and leaves the memory to the
+/// allocator (as [`DeviceBuffer`] does).
 pub struct StorageImage {
     pub image: vk::Image,
     pub allocation: Allocation,
     pub view: vk::ImageView,
     pub extent: vk::Extent2D,
+    device: ash::Device,
 }
 
 impl StorageImage {
@@ -236,6 +271,13 @@ impl StorageImage {
     ) -> Result<Self> {
         let info = crate::exportable::image_info(format, usage | vk::ImageUsageFlags::STORAGE, extent);
         let image = unsafe { vk.device.create_image(&info, None) }.context("vkCreateImage")?;
+        let mut this = StorageImage {
+            image,
+            allocation: Allocation::default(),
+            view: vk::ImageView::null(),
+            extent,
+            device: vk.device.clone(),
+        };
         let requirements = unsafe { vk.device.get_image_memory_requirements(image) };
         let description = AllocationCreateDesc {
             name: "storage image",
@@ -244,9 +286,8 @@ impl StorageImage {
             linear: false,
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
-        let allocation = allocator
-            .allocate(&description)
-            .inspect_err(|_| unsafe { vk.device.destroy_image(image, None) })?;
+        this.allocation = allocator.allocate(&description)?;
+        let allocation = &this.allocation;
         crate::resources::created("vk_image: storage", allocation.size());
         unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }?;
         let view_info = vk::ImageViewCreateInfo::default()
@@ -254,16 +295,25 @@ impl StorageImage {
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
             .subresource_range(crate::commands::COLOR_RANGE);
-        let view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
-        Ok(StorageImage { image, allocation, view, extent })
+        this.view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
+        Ok(this)
     }
 
-    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+    /// The view, the image, then its memory.
+    pub fn destroy(mut self, _vk: &VulkanContext, allocator: &mut Allocator) {
+        let allocation = std::mem::take(&mut self.allocation);
+        drop(self);
+        let _ = allocator.free(allocation);
+    }
+}
+
+impl Drop for StorageImage {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
         unsafe {
-            vk.device.destroy_image_view(self.view, None);
-            vk.device.destroy_image(self.image, None);
+            self.device.destroy_image_view(self.view, None);
+            self.device.destroy_image(self.image, None);
         }
-        let _ = allocator.free(self.allocation);
     }
 }
 

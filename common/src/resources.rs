@@ -37,7 +37,8 @@ pub fn destroyed(kind: &str) {
 }
 
 /// How many of each kind exist now, for the kinds whose destruction is counted: exportable
-/// memory and images, GL's memory objects, imported textures and buffers, renderbuffers.
+/// and host-visible memory, exportable images, GL's memory objects, imported textures and
+/// buffers, renderbuffers. (GL's own view of every kind: `GlContext::live_objects`.)
 pub fn live() -> BTreeMap<String, i64> {
     let live = LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     live.iter()
@@ -46,8 +47,9 @@ pub fn live() -> BTreeMap<String, i64> {
         .collect()
 }
 
-const COUNTED_WHEN_DESTROYED: [&str; 6] = [
+const COUNTED_WHEN_DESTROYED: [&str; 7] = [
     "vk_memory_exportable",
+    "vk_memory_host",
     "vk_image_exportable",
     "gl_memory_object",
     "gl_texture_imported",

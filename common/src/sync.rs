@@ -5,15 +5,21 @@ use crate::{GlContext, VulkanContext};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
+use std::cell::Cell;
+use std::collections::BTreeMap;
 use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
+use std::sync::Mutex;
 
 /// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Sync::Host`].
 pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
 
-/// One semaphore, seen by both APIs.
+/// One semaphore, seen by both APIs. Deleted on both sides when dropped (GL's first).
 pub struct SharedSemaphore {
     pub vk: vk::Semaphore,
+    /// GL's name for it; 0 until the import succeeded.
     pub gl: u32,
+    device: ash::Device,
+    gl_fns: Option<crate::gl::SemaphoreFns>,
 }
 
 /// The two hand-overs of every frame, and how they are made.
@@ -27,8 +33,49 @@ pub enum Sync {
     },
     /// The driver cannot share semaphores (lavapipe, llvmpipe): the CPU waits for GL to finish
     /// (`glFinish`) before submitting Vulkan's work, and for Vulkan's fence before GL goes on.
-    /// Correct, but each API sits idle while the other works, and the CPU blocks twice a frame.
-    Host,
+    /// Each API sits idle while the other works, and the CPU blocks twice a frame. Nothing tells
+    /// GL a layout, so GL changes none: a shared image stays in the layout Vulkan last left it
+    /// in, which is why [`Sync::hand_over`] keeps it in `GENERAL` both ways on this path.
+    Host {
+        /// Hand-overs to Vulkan that named another layout than the one Vulkan had left.
+        disagreements: Cell<u32>,
+    },
+}
+
+/// The layout (GL's name) each shared texture, by GL name, was in when Vulkan last handed it to
+/// GL: written by [`Sync::gl_acquire`] and `interop::hand_new_images_to_gl`, forgotten when the
+/// texture is deleted. On the host path GL moves no layout, so this is the layout Vulkan's next
+/// acquire must name.
+static LEFT_BY_VULKAN: Mutex<BTreeMap<u32, u32>> = Mutex::new(BTreeMap::new());
+
+/// Records that Vulkan left `texture` in `layout` for GL (`None`: the texture is gone).
+pub(crate) fn vulkan_left(texture: u32, layout: Option<u32>) {
+    let mut left = LEFT_BY_VULKAN.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    match layout {
+        Some(layout) => left.insert(texture, layout),
+        None => left.remove(&texture),
+    };
+}
+
+// ANCHOR: hand_over
+/// The layouts of one shared image at the two hand-overs of a frame. Vulkan's acquire barrier
+/// starts from `to_vulkan` and its release barrier ends in `to_gl`; GL's signal and wait name the
+/// same two (`common::gl::layout::of`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HandOver {
+    /// Where GL leaves the image for Vulkan.
+    pub to_vulkan: vk::ImageLayout,
+    /// Where Vulkan leaves the image for GL.
+    pub to_gl: vk::ImageLayout,
+}
+// ANCHOR_END: hand_over
+
+impl HandOver {
+    /// GL's names for the two layouts, for [`Sync::gl_release`] and [`Sync::gl_acquire`].
+    pub fn gl(self) -> (u32, u32) {
+        let name = |layout| crate::gl::layout::of(layout).expect("a layout GL can name");
+        (name(self.to_vulkan), name(self.to_gl))
+    }
 }
 
 impl Sync {
@@ -44,16 +91,11 @@ impl Sync {
                 _ => "GL cannot import semaphores (no GL_EXT_semaphore_fd)",
             };
             eprintln!("sync: host ({missing}): the CPU waits for each API in turn");
-            return Ok(Sync::Host);
+            return Ok(Sync::Host { disagreements: Cell::new(0) });
         };
         let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
-        let vulkan_done = match SharedSemaphore::new(vk, gl) {
-            Ok(s) => s,
-            Err(error) => {
-                gl_done.destroy(vk, gl);
-                return Err(error.context("sharing the vulkan_done semaphore"));
-            }
-        };
+        // Should this one fail, `gl_done` is dropped on the way out, which deletes it.
+        let vulkan_done = SharedSemaphore::new(vk, gl).context("sharing the vulkan_done semaphore")?;
         eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
         Ok(Sync::Semaphores { gl_done, vulkan_done })
     }
@@ -63,7 +105,37 @@ impl Sync {
     pub fn name(&self) -> &'static str {
         match self {
             Sync::Semaphores { .. } => "semaphores",
-            Sync::Host => "host",
+            Sync::Host { .. } => "host",
+        }
+    }
+
+    // ANCHOR: hand_over_layouts
+    /// The layouts to hand a shared image over in, on this path. `to_vulkan` is the layout
+    /// Vulkan's work wants first, `to_gl` the one GL's work wants.
+    ///
+    /// - Semaphores: those two. GL's signal moves the image to `to_vulkan`, and GL's wait is
+    ///   told Vulkan left it in `to_gl`: each side finds the layout it asked for.
+    /// - Host: `GENERAL` both ways. `glFinish` and a fence carry no layout, so GL moves the image
+    ///   nowhere and Vulkan's next acquire finds it where Vulkan's last release left it. With two
+    ///   different layouts, Vulkan would acquire from a layout the image is not in. `GENERAL` is
+    ///   the one layout valid for every use on both sides (attachment, sampling, storage, copies).
+    pub fn hand_over(&self, to_vulkan: vk::ImageLayout, to_gl: vk::ImageLayout) -> HandOver {
+        match self {
+            Sync::Semaphores { .. } => HandOver { to_vulkan, to_gl },
+            Sync::Host { .. } => {
+                HandOver { to_vulkan: vk::ImageLayout::GENERAL, to_gl: vk::ImageLayout::GENERAL }
+            }
+        }
+    }
+    // ANCHOR_END: hand_over_layouts
+
+    /// On the host path: did every hand-over to Vulkan name the layout Vulkan itself had left
+    /// the image in (GL changes none there)? With semaphores GL makes the transitions, and any
+    /// pair of layouts agrees.
+    pub fn layouts_agreed(&self) -> bool {
+        match self {
+            Sync::Semaphores { .. } => true,
+            Sync::Host { disagreements, .. } => disagreements.get() == 0,
         }
     }
 
@@ -91,7 +163,12 @@ impl Sync {
                     gl.gl.flush();
                 }
             }
-            Sync::Host => unsafe { gl.gl.finish() },
+            Sync::Host { disagreements } => {
+                // No layout travels with glFinish: the textures are in the layouts Vulkan's own
+                // releases left. Count every one that `layouts` misnames (for the chapter's check).
+                disagreements.set(disagreements.get() + misnamed_layouts(textures, layouts));
+                unsafe { gl.gl.finish() }
+            }
         }
     }
     // ANCHOR_END: gl_release
@@ -101,7 +178,7 @@ impl Sync {
     pub fn vulkan_waits_on(&self) -> Option<vk::Semaphore> {
         match self {
             Sync::Semaphores { gl_done, .. } => Some(gl_done.vk),
-            Sync::Host => None,
+            Sync::Host { .. } => None,
         }
     }
 
@@ -109,7 +186,7 @@ impl Sync {
     pub fn vulkan_signals(&self) -> Option<vk::Semaphore> {
         match self {
             Sync::Semaphores { vulkan_done, .. } => Some(vulkan_done.vk),
-            Sync::Host => None,
+            Sync::Host { .. } => None,
         }
     }
 
@@ -126,6 +203,7 @@ impl Sync {
         layouts: &[u32],
     ) -> Result<()> {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
+        crate::fail::at("gl_acquire")?; // `VKGL_FAIL_AT=gl_acquire`, for the error-path tests
         match self {
             Sync::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -142,8 +220,12 @@ impl Sync {
                 };
                 Ok(())
             }
-            Sync::Host => unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
-                .context("waiting for Vulkan's work on the CPU"),
+            Sync::Host { .. } => {
+                // Where Vulkan left them, GL will not move them: the next gl_release checks it.
+                textures.iter().zip(layouts).for_each(|(t, &layout)| vulkan_left(t.0.get(), Some(layout)));
+                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
+                    .context("waiting for Vulkan's work on the CPU")
+            }
         }
     }
     // ANCHOR_END: gl_acquire
@@ -155,6 +237,30 @@ impl Sync {
             gl_done.destroy(vk, gl);
         }
     }
+}
+
+/// On the host path: how many of `textures` are not in the layout `layouts` names for them,
+/// that is not where Vulkan last left them (or Vulkan never handed them to GL). Each is named on
+/// stderr.
+fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
+    let left = LEFT_BY_VULKAN.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mut misnamed = 0;
+    for (texture, layout) in textures.iter().zip(layouts) {
+        let actual = left.get(&texture.0.get());
+        if actual != Some(layout) {
+            misnamed += 1;
+            let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
+                format!("{} (Vulkan's last release)", crate::gl::layout::name(*l))
+            });
+            eprintln!(
+                "sync: host path: texture {} handed to Vulkan as {}, but GL moves no layout here \
+                 and it is in {actual}",
+                texture.0.get(),
+                crate::gl::layout::name(*layout)
+            );
+        }
+    }
+    misnamed
 }
 
 /// Can this device export binary semaphores as opaque fds?
@@ -176,44 +282,46 @@ impl SharedSemaphore {
     // ANCHOR: share_semaphore
     /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd.
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Self> {
+        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
         let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
         crate::resources::created("vk_semaphore_exportable", 0);
+        // From here on the guard destroys what exists on every early return.
+        let mut shared =
+            SharedSemaphore { vk: semaphore, gl: 0, device: vk.device.clone(), gl_fns: Some(*ext) };
         let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
         let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
-        let fd = match unsafe { loader.get_semaphore_fd(&get) } {
-            // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns.
-            Ok(fd) => unsafe { OwnedFd::from_raw_fd(fd) },
-            Err(error) => {
-                unsafe { vk.device.destroy_semaphore(semaphore, None) };
-                return Err(error).context("vkGetSemaphoreFdKHR");
-            }
-        };
-        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
-        let mut name = 0;
+        let fd = unsafe { loader.get_semaphore_fd(&get) }.context("vkGetSemaphoreFdKHR")?;
+        // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns. Until the import
+        // succeeds, `fd` closes it on every way out.
+        let fd = unsafe { OwnedFd::from_raw_fd(fd) };
+        unsafe { (ext.GenSemaphoresEXT)(1, &mut shared.gl) };
         unsafe {
-            (ext.GenSemaphoresEXT)(1, &mut name);
-            (ext.ImportSemaphoreFdEXT)(name, crate::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd());
-        }
-        if let Err(error) = gl.check_error("glImportSemaphoreFdEXT") {
-            unsafe {
-                (ext.DeleteSemaphoresEXT)(1, &name);
-                vk.device.destroy_semaphore(semaphore, None);
-            }
-            return Err(error); // `fd` is dropped, and so closed: the failed import did not take it.
-        }
+            (ext.ImportSemaphoreFdEXT)(shared.gl, crate::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
+        };
+        // On failure `fd` is dropped, and so closed (the failed import did not take it), and
+        // `shared` deletes GL's semaphore and Vulkan's.
+        gl.check_error("glImportSemaphoreFdEXT")?;
         // SAFETY: the import succeeded; the fd is GL's now.
         let _ = fd.into_raw_fd();
-        Ok(SharedSemaphore { vk: semaphore, gl: name })
+        Ok(shared)
     }
     // ANCHOR_END: share_semaphore
 
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
-        if let Some(ext) = &gl.semaphores {
+    /// GL's semaphore, then Vulkan's: what dropping it does.
+    pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {
+        drop(self);
+    }
+}
+
+impl Drop for SharedSemaphore {
+    fn drop(&mut self) {
+        crate::commands::wait_idle(&self.device);
+        if let (Some(ext), true) = (&self.gl_fns, self.gl != 0) {
             unsafe { (ext.DeleteSemaphoresEXT)(1, &self.gl) };
         }
-        unsafe { vk.device.destroy_semaphore(self.vk, None) };
+        unsafe { self.device.destroy_semaphore(self.vk, None) };
     }
 }

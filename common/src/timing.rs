@@ -9,22 +9,44 @@
 use crate::commands::{Timestamps, median_p95};
 use crate::report::Report;
 use crate::vulkan::VulkanContext;
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext as _;
 use std::collections::VecDeque;
 
-/// Every pass's GPU times, in the order the passes first ran.
-#[derive(Default, Debug)]
+/// Every pass's GPU times, in the order the passes first ran, and the frames' wall-clock times.
+#[derive(Debug)]
 pub struct PassTimes {
     passes: Vec<(&'static str, Vec<f64>)>,
+    /// When the current frame started (for `frame_wall`).
+    frame_started: std::time::Instant,
 }
 
 impl PassTimes {
+    pub fn new() -> Self {
+        PassTimes { passes: Vec::new(), frame_started: std::time::Instant::now() }
+    }
+
+    /// Ends a frame: adds `frame_wall`, the wall-clock time since the last frame ended (or since
+    /// `new`), which is the whole frame as the CPU sees it, waits included.
+    pub fn frame_done(&mut self) {
+        let now = std::time::Instant::now();
+        self.add("frame_wall", (now - self.frame_started).as_secs_f64() * 1e3);
+        self.frame_started = now;
+    }
+
+    /// The most samples kept per pass: a window that runs for hours forgets the oldest half.
+    const KEEP: usize = 1 << 16;
+
     /// Adds one frame's time for `pass`.
     pub fn add(&mut self, pass: &'static str, ms: f64) {
         match self.passes.iter_mut().find(|(name, _)| *name == pass) {
-            Some((_, samples)) => samples.push(ms),
+            Some((_, samples)) => {
+                if samples.len() == Self::KEEP {
+                    samples.drain(..Self::KEEP / 2);
+                }
+                samples.push(ms)
+            }
             None => self.passes.push((pass, vec![ms])),
         }
     }
@@ -53,16 +75,42 @@ impl PassTimes {
         }
     }
 
-    /// One line for a window's title bar or the terminal: "raster 1.20 · ao 3.10 ms (GPU)".
+    /// One line for a window's title bar or the terminal, the medians of the last 60 frames:
+    /// "raster 1.20 · ao 3.10 ms (GPU)".
     pub fn line(&self) -> String {
+        let recent = |s: &[f64]| median_p95(&s[s.len().saturating_sub(60)..]).0;
         let parts: Vec<String> =
-            self.summary().iter().map(|(name, median, _)| format!("{name} {median:.2}")).collect();
+            self.passes.iter().map(|(name, samples)| format!("{name} {:.2}", recent(samples))).collect();
         if parts.is_empty() { "no GPU times yet".into() } else { format!("{} ms (GPU)", parts.join(" · ")) }
     }
 }
 
+impl Default for PassTimes {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Adds the GPU time `stamps` measured (between its first two timestamps) to `pass`, once
+/// `fence` has signalled. Call it just before the next submission that waits for `fence` anyway
+/// (or after the last frame), so that reading adds no wait.
+pub fn read_after(
+    vk: &VulkanContext,
+    fence: vk::Fence,
+    stamps: Option<&Timestamps>,
+    pass: &'static str,
+    times: &mut PassTimes,
+) -> Result<()> {
+    if let Some(stamps) = stamps {
+        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+        times.add(pass, stamps.read_ms(vk)?);
+    }
+    Ok(())
+}
+
 /// GL passes timed with `GL_TIME_ELAPSED` queries. A frame's queries are read when their
-/// results are available (a frame or two later), never waited for while frames still run.
+/// results are available (a frame or two later), never waited for while frames still run; the
+/// queries are made once, up front, so that a long run makes no more GL objects as it goes.
 pub struct GlPassTimer {
     /// Queries whose results are not read yet, oldest frame first.
     pending: VecDeque<Vec<(&'static str, glow::Query)>>,
@@ -72,23 +120,62 @@ pub struct GlPassTimer {
     free: Vec<glow::Query>,
     /// Every query made, to delete them all at the end.
     all: Vec<glow::Query>,
+    /// Times read early (to free queries), handed over at the next `end_frame`.
+    early: Vec<(&'static str, f64)>,
 }
 
 impl GlPassTimer {
-    pub fn new() -> Self {
-        GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free: Vec::new(), all: Vec::new() }
+    /// Queries made up front: 8 passes a frame for 4 frames in flight. When all are in use, the
+    /// oldest frame's are read, waiting for them: the GPU is then 4 frames behind anyway.
+    const QUERIES: usize = 32;
+
+    pub fn new(gl: &glow::Context) -> Result<Self> {
+        let mut all = Vec::with_capacity(Self::QUERIES);
+        for _ in 0..Self::QUERIES {
+            all.push(unsafe { gl.create_query() }.map_err(|e| anyhow::anyhow!("glGenQueries: {e}"))?);
+        }
+        let free = all.clone();
+        let mut timer =
+            GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free, all, early: Vec::new() };
+        // llvmpipe answers the first GL_TIME_ELAPSED query around a context's first drawing with
+        // a time since boot: time a clear of a 1x1 target, and throw the answers away.
+        unsafe {
+            let target = gl.create_renderbuffer().map_err(|e| anyhow::anyhow!("glGenRenderbuffers: {e}"))?;
+            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(target));
+            gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, 1, 1);
+            let framebuffer =
+                gl.create_framebuffer().map_err(|e| anyhow::anyhow!("glGenFramebuffers: {e}"))?;
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.framebuffer_renderbuffer(
+                glow::FRAMEBUFFER,
+                glow::COLOR_ATTACHMENT0,
+                glow::RENDERBUFFER,
+                Some(target),
+            );
+            // Every query once: a name from glGenQueries becomes a query object at its first
+            // use, and a leak check counting GL's objects would see them appear one by one.
+            for _ in 0..Self::QUERIES {
+                timer.time(gl, "warm-up", || gl.clear(glow::COLOR_BUFFER_BIT))?;
+            }
+            timer.finish(gl, &mut PassTimes::new());
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+            gl.delete_framebuffer(framebuffer);
+            gl.delete_renderbuffer(target);
+        }
+        Ok(timer)
     }
 
     /// Starts timing `pass`. GL time queries do not nest: end one pass before the next.
     pub fn begin(&mut self, gl: &glow::Context, pass: &'static str) -> Result<()> {
-        let query = match self.free.pop() {
-            Some(query) => query,
-            None => {
-                let query = unsafe { gl.create_query() }.map_err(|e| anyhow::anyhow!("glGenQueries: {e}"))?;
-                self.all.push(query);
-                query
-            }
-        };
+        if self.free.is_empty() {
+            let oldest = self
+                .pending
+                .pop_front()
+                .context("more GL passes in one frame than GlPassTimer has queries")?;
+            let early = self.read(gl, oldest);
+            self.early.extend(early);
+        }
+        let query = self.free.pop().expect("a query was freed above");
         unsafe { gl.begin_query(glow::TIME_ELAPSED, query) };
         self.current.push((pass, query));
         Ok(())
@@ -99,9 +186,20 @@ impl GlPassTimer {
         unsafe { gl.end_query(glow::TIME_ELAPSED) };
     }
 
+    /// Times the GL commands `pass` issues: `begin`, `pass()`, `end`.
+    pub fn time<R>(&mut self, gl: &glow::Context, name: &'static str, pass: impl FnOnce() -> R) -> Result<R> {
+        self.begin(gl, name)?;
+        let result = pass();
+        self.end(gl);
+        Ok(result)
+    }
+
     /// Ends the frame: reads every earlier frame whose results have arrived, without waiting.
     pub fn end_frame(&mut self, gl: &glow::Context, times: &mut PassTimes) {
         self.pending.push_back(std::mem::take(&mut self.current));
+        for (pass, ms) in self.early.drain(..) {
+            times.add(pass, ms);
+        }
         while let Some(frame) = self.pending.front() {
             // A frame's queries finish in order: when its last one is available, all are.
             let available = frame.last().is_none_or(|&(_, query)| unsafe {
@@ -111,7 +209,9 @@ impl GlPassTimer {
                 break;
             }
             let frame = self.pending.pop_front().expect("front exists");
-            self.read(gl, frame, times);
+            for (pass, ms) in self.read(gl, frame) {
+                times.add(pass, ms);
+            }
         }
     }
 
@@ -120,30 +220,36 @@ impl GlPassTimer {
         if !self.current.is_empty() {
             self.pending.push_back(std::mem::take(&mut self.current));
         }
+        for (pass, ms) in self.early.drain(..) {
+            times.add(pass, ms);
+        }
         while let Some(frame) = self.pending.pop_front() {
-            self.read(gl, frame, times);
+            for (pass, ms) in self.read(gl, frame) {
+                times.add(pass, ms);
+            }
         }
     }
 
-    fn read(&mut self, gl: &glow::Context, frame: Vec<(&'static str, glow::Query)>, times: &mut PassTimes) {
+    /// Reads a frame's queries (waiting for them if need be) and frees them.
+    fn read(
+        &mut self,
+        gl: &glow::Context,
+        frame: Vec<(&'static str, glow::Query)>,
+    ) -> Vec<(&'static str, f64)> {
+        let mut read = Vec::with_capacity(frame.len());
         for (pass, query) in frame {
             // GL_QUERY_RESULT of a GL_TIME_ELAPSED query: nanoseconds, 64 bits.
             let ns = unsafe { gl.get_query_parameter_u64(query, glow::QUERY_RESULT) };
-            times.add(pass, ns as f64 / 1e6);
+            read.push((pass, ns as f64 / 1e6));
             self.free.push(query);
         }
+        read
     }
 
     pub fn delete(self, gl: &glow::Context) {
         for query in self.all {
             unsafe { gl.delete_query(query) };
         }
-    }
-}
-
-impl Default for GlPassTimer {
-    fn default() -> Self {
-        Self::new()
     }
 }
 
@@ -218,7 +324,13 @@ mod tests {
         assert_eq!(summary[0].1, 11.0);
         assert_eq!(summary[0].2, 19.0);
         assert_eq!(summary[1].1, 10.0);
+        // The line shows the last 60 frames only: all 20 here.
         assert_eq!(times.line(), "raster 11.00 · ao 10.00 ms (GPU)");
+        for _ in 0..PassTimes::KEEP {
+            times.add("ao", 2.0);
+        }
+        assert_eq!(times.samples("ao").len(), PassTimes::KEEP / 2 + 20, "the oldest half forgotten");
+        assert_eq!(times.line(), "raster 11.00 · ao 2.00 ms (GPU)");
         assert!(times.samples("blur").is_empty());
     }
 }

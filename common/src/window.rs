@@ -37,6 +37,8 @@ pub fn display_available() -> bool {
 pub struct Window {
     event_loop: EventLoop<()>,
     app: App,
+    /// When the title last showed the frame times.
+    titled: Option<std::time::Instant>,
 }
 
 #[derive(Default)]
@@ -95,7 +97,7 @@ impl Window {
             opened.window.inner_size().height,
             gl.renderer
         );
-        Ok((Window { event_loop, app }, gl))
+        Ok((Window { event_loop, app, titled: None }, gl))
     }
 
     // ANCHOR: poll
@@ -127,6 +129,18 @@ impl Window {
     /// The size of the window's drawable area, in pixels (0 when minimised).
     pub fn size(&self) -> (u32, u32) {
         self.app.opened.as_ref().map_or((0, 0), |o| o.window.inner_size().into())
+    }
+
+    /// Shows the GPU time of each pass in the title bar, at most twice a second (a title changed
+    /// every frame keeps the window manager busy).
+    pub fn show_times(&mut self, times: &crate::timing::PassTimes) {
+        if self.titled.is_some_and(|t| t.elapsed() < Duration::from_millis(500)) {
+            return;
+        }
+        if let Some(opened) = &self.app.opened {
+            opened.window.set_title(&format!("{} · {}", self.app.title, times.line()));
+            self.titled = Some(std::time::Instant::now());
+        }
     }
 
     /// Shows the back buffer.
