@@ -107,6 +107,7 @@ impl Mode {
     const ALL: [Mode; 3] = [Mode::ZeroCopy, Mode::HostSync, Mode::CpuRoundTrip];
 }
 
+// ANCHOR: row
 /// One line of the results: exactly the fields issue 10 asks for.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Row {
@@ -127,6 +128,7 @@ pub struct Row {
     /// AO rays per second of trace time (every pixel casts `spp` rays), in billions.
     pub grays_per_s: f64,
 }
+// ANCHOR_END: row
 
 fn main() -> ExitCode {
     let args: Args = clap::Parser::parse();

@@ -61,8 +61,9 @@ impl RoundTrip {
         Ok(RoundTrip { commands, upload, gbuffers, ao, readback, texture, extent })
     }
 
+    // ANCHOR: copies
     /// GL -> CPU -> Vulkan: positions and normals read into mapped Vulkan memory (GL finishes its
-    /// drawing first: `glGetTextureImage` waits), then copied to device-local memory.
+    /// drawing first: `glGetTexImage` waits for it), then copied to device-local memory.
     pub fn gbuffers_to_vulkan(
         &mut self,
         vk: &VulkanContext,
@@ -112,6 +113,7 @@ impl RoundTrip {
         }
         gl.check_error("uploading the AO to GL").context("cpu-round-trip")
     }
+    // ANCHOR_END: copies
 
     /// GL's texture, then Vulkan's buffers (the GPU must be idle).
     pub fn destroy(self, vk: &VulkanContext, gl: &GlContext, allocator: &mut Allocator) {

@@ -279,6 +279,7 @@ pub fn prefer_device_local_buffers(on: bool) {
     PREFER_DEVICE_LOCAL.store(on, std::sync::atomic::Ordering::Relaxed);
 }
 
+// ANCHOR: scene_memory
 /// Host-visible and coherent (the CPU writes the data in place), and device-local too when
 /// preferred and some allowed type has all three.
 fn buffer_memory_properties(ctx: &VulkanContext, type_bits: u32) -> vk::MemoryPropertyFlags {
@@ -287,3 +288,4 @@ fn buffer_memory_properties(ctx: &VulkanContext, type_bits: u32) -> vk::MemoryPr
     let prefer = PREFER_DEVICE_LOCAL.load(std::sync::atomic::Ordering::Relaxed);
     if prefer && ctx.find_memory_type(type_bits, both).is_ok() { both } else { host }
 }
+// ANCHOR_END: scene_memory

@@ -174,6 +174,7 @@ impl GBuffers {
     }
     // ANCHOR_END: draw
 
+    // ANCHOR: depth_first
     /// The same pictures as [`GBuffers::draw`], drawn depth first (`bench --depth-prepass`): a
     /// first pass writes only depth, a second writes the three colour targets only where its
     /// depth equals the nearest (the same program and inputs give the same depth, bit for bit).
@@ -197,6 +198,7 @@ impl GBuffers {
             gl.bind_framebuffer(glow::FRAMEBUFFER, None);
         }
     }
+    // ANCHOR_END: depth_first
 
     /// GL's objects, then the images (each GL side first): what dropping them does.
     pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {

@@ -421,6 +421,7 @@ pub fn gl_error_count() -> u32 {
     GL_ERRORS.load(Ordering::Relaxed)
 }
 
+// ANCHOR: debug_output
 /// How GL reports problems (`bench --gl-debug`). Every context starts `Synchronous`: a message
 /// arrives inside the call that caused it, which is what one wants while learning and testing,
 /// and what costs most (the driver may serialise its work to do it). Timed runs can choose less.
@@ -450,6 +451,7 @@ impl GlContext {
         }
     }
 }
+// ANCHOR_END: debug_output
 
 fn enable_debug_output(gl: &mut glow::Context) {
     unsafe {
