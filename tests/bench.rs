@@ -3,7 +3,7 @@
 
 mod harness;
 
-use harness::run_chapter_with;
+use harness::{assert_report_snapshot, run_chapter_with};
 use serde_json::Value;
 
 #[test]
@@ -66,4 +66,22 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
         serde_json::from_str(&std::fs::read_to_string(run.out_dir.path().join("bench.json")).unwrap())
             .unwrap();
     assert_eq!(json["rows"].as_array().unwrap().len(), rows.len());
+
+    // The rest of the report, snapshotted: which rows (not their times), the checks, the settings,
+    // the large scene's sizes (lavapipe builds the same structures every run), what was created.
+    let mut snapshot = report.clone();
+    snapshot["rows"] = rows
+        .iter()
+        .map(|r| {
+            Value::from(format!("{} {} {}x{} {}", r["mode"], r["scene"], r["width"], r["height"], r["spp"]))
+        })
+        .collect::<Vec<Value>>()
+        .into();
+    for field in ["device", "driver"] {
+        snapshot[field] = Value::from("[device]");
+    }
+    for field in ["blas_build_ms", "compaction_ms", "tlas_build_ms"] {
+        snapshot["large_scene"][field] = Value::from("[ms]");
+    }
+    assert_report_snapshot("bench-quick", &snapshot);
 }

@@ -183,6 +183,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     ensure!(stamps.is_some(), "{}: the queue writes no timestamps, which bench measures with", vk.info.name);
     let stamps = stamps.expect("checked");
 
+    let open_fds_before = common::open_fd_count()?;
+
     // 3. Every scene, size and ray count, the modes interleaved
     let mut rows = Vec::new();
     let scenes_count = scenes.len();
@@ -231,6 +233,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     stamps.destroy(&vk);
     report.check("hand_over_layouts_agreed", zero_copy.layouts_agreed() && host.layouts_agreed());
+    // Every scene's buffers, images and memory objects were made and destroyed since the count:
+    // none may be left holding an fd.
+    report.check("no_fd_leaked", common::open_fd_count()? == open_fds_before);
     host.destroy(&vk, &gl);
     zero_copy.destroy(&vk, &gl);
     gl.check_error("the bench")?;
