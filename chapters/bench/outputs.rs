@@ -38,7 +38,7 @@ pub fn table(rows: &[Row]) -> String {
             .map_or(String::new(), |c| format!("{:.0}%", 100.0 * r.grays_per_s / c.grays_per_s));
         let _ = writeln!(
             table,
-            "| {} | {} | {}x{} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.3} | {fraction} |",
+            "| {} | {} | {}x{} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {fraction} |",
             mode_name(r.mode),
             r.scene,
             r.width,
@@ -50,10 +50,19 @@ pub fn table(rows: &[Row]) -> String {
             r.handoff_ms,
             r.ao_ms,
             r.composite_ms,
-            r.grays_per_s
+            three_figures(r.grays_per_s)
         );
     }
     table
+}
+
+/// A rate to three significant figures: a CPU's 0.000123 Grays/s and a GPU's 12.3 alike.
+fn three_figures(value: f64) -> String {
+    if value <= 0.0 || !value.is_finite() {
+        return format!("{value}");
+    }
+    let decimals = (2 - value.log10().floor() as i32).max(0) as usize;
+    format!("{value:.decimals$}")
 }
 
 fn mode_name(mode: Mode) -> &'static str {
