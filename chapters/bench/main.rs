@@ -125,7 +125,8 @@ pub struct Row {
     pub handoff_ms: f64,
     pub ao_ms: f64,
     pub composite_ms: f64,
-    /// AO rays per second of trace time (every pixel casts `spp` rays), in billions.
+    /// AO rays per second of trace time, in billions: `spp` rays from every covered pixel
+    /// (background pixels cast none).
     pub grays_per_s: f64,
 }
 // ANCHOR_END: row
@@ -189,6 +190,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut rows = Vec::new();
     let scenes_count = scenes.len();
     let mut same_depth_first = true;
+    let mut covered_everywhere = true;
     for kind in scenes {
         let scene = kind.build(args.quick)?;
         let mut shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
@@ -209,6 +211,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if args.depth_prepass {
                 same_depth_first &= frames[0].depth_first_draws_the_same(&gl.gl);
             }
+            let covered = frames[0].covered_pixels(&gl.gl);
+            covered_everywhere &= covered > 0;
             for &spp in &spps {
                 let mut samples: Vec<Samples> = Mode::ALL.iter().map(|_| Samples::default()).collect();
                 // Two rounds of every mode in turn: a clock or thermal drift touches all alike.
@@ -221,7 +225,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                     }
                 }
                 for (mode, samples) in Mode::ALL.iter().zip(&samples) {
-                    rows.push(samples.row(*mode, kind.name(), size, spp));
+                    rows.push(samples.row(*mode, kind.name(), size, spp, covered));
                 }
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
@@ -232,6 +236,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         shared.destroy(&vk, &gl);
     }
     stamps.destroy(&vk);
+    report.check("every_scene_covers_pixels", covered_everywhere);
     report.check("hand_over_layouts_agreed", zero_copy.layouts_agreed() && host.layouts_agreed());
     // Every scene's buffers, images and memory objects were made and destroyed since the count:
     // none may be left holding an fd.
@@ -292,12 +297,12 @@ struct Samples {
 }
 
 impl Samples {
-    fn row(&self, mode: Mode, scene: &'static str, size: Size, spp: u32) -> Row {
+    fn row(&self, mode: Mode, scene: &'static str, size: Size, spp: u32, covered: u64) -> Row {
         let (frame_ms, p95_ms) = median_p95(&self.frame_ms);
         let median = |pass| median_p95(self.passes.samples(pass)).0;
         let (raster_ms, composite_ms) = (median("raster"), median("composite"));
         let ao_ms = median_p95(&self.ao_ms).0;
-        let rays = spp as f64 * size.width as f64 * size.height as f64;
+        let rays = spp as f64 * covered as f64;
         Row {
             mode,
             scene,
@@ -465,6 +470,15 @@ impl<'s> Frame<'s> {
             }
         }
         Ok(())
+    }
+
+    /// The pixels the scene covers (position w, the view depth, is 0 where nothing was drawn):
+    /// the ones that cast AO rays. The camera stands still, so this holds for every frame.
+    fn covered_pixels(&self, gl: &glow::Context) -> u64 {
+        let (w, h) = (self.gbuffers.extent.width, self.gbuffers.extent.height);
+        self.gbuffers.draw(gl, self.scene, &self.camera);
+        let positions = common::output::read_texture_f32(gl, self.gbuffers.textures()[0], w, h, 4);
+        positions.chunks_exact(4).filter(|p| p[3] != 0.0).count() as u64
     }
 
     /// Does `GBuffers::draw_depth_first` draw exactly what `draw` does? Every G-buffer's pixels,
