@@ -396,6 +396,7 @@ impl<'s> Frame<'s> {
 
     /// `setting.frames` measured frames after two to warm up, into `samples`. Nothing waits
     /// inside a frame that the mode itself does not make wait.
+    #[allow(clippy::too_many_arguments)] // the two contexts, the scene's, the two ways to time
     fn run(
         &mut self,
         vk: &VulkanContext,

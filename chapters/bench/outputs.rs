@@ -104,7 +104,7 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
             .x_desc("rays per pixel")
             .y_desc("frame, ms")
             .x_label_formatter(&|v| format!("{v:.0}"))
-            .y_label_formatter(&|v| format!("{v:.2}"))
+            .y_label_formatter(&|v| three_figures(*v))
             .draw()?;
         for (m, mode) in Mode::ALL.iter().enumerate() {
             let colour = colours[m];

@@ -45,7 +45,8 @@ impl SceneKind {
                     vertices: vec![corner(-10.0, 10.0), corner(10.0, 10.0), corner(0.0, -10.0)],
                     indices: vec![0, 1, 2],
                 };
-                Scene::new(vec![mesh], vec![Instance::new(Mat4::IDENTITY, [200, 200, 200])], vec![0..1])
+                let instance = Instance::new(Mat4::IDENTITY, [200, 200, 200]);
+                Scene::new(vec![mesh], vec![instance], std::iter::once(0..1).collect())
             }
         }
     }
