@@ -177,6 +177,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("settings", settings);
     report.set("device", &vk.info.name);
     report.set("driver", &vk.info.driver);
+    // Every memory type the device offers, so that a run says which `--scene-memory` could choose.
+    let types = &vk.memory_properties.memory_types[..vk.memory_properties.memory_type_count as usize];
+    let offered: Vec<String> = types.iter().map(|t| format!("{:?}", t.property_flags)).collect();
+    report.set("memory_types", offered);
     let zero_copy = Sync::new(&vk, &gl)?;
     report.set("zero_copy_sync", zero_copy.name());
     let host = Sync::Host { disagreements: std::cell::Cell::new(0) };
@@ -189,14 +193,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 3. Every scene, size and ray count, the modes interleaved
     let mut rows = Vec::new();
     let scenes_count = scenes.len();
-    let mut same_depth_first = true;
+    let (mut depth_first_differences, mut pixels_compared) = (0, 0);
     let mut covered_everywhere = true;
     for kind in scenes {
         let scene = kind.build(args.quick)?;
         let mut shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         // What the scene's memory turned out to be (`--scene-memory device` is a preference).
-        let flags = shared.buffers.instances.0.memory.property_flags;
-        report.set("scene_memory_flags", format!("{flags:?}"));
+        let memory = &shared.buffers.instances.0.memory;
+        report.set("scene_memory_flags", format!("{:?}", memory.property_flags));
+        report.set("scene_memory_type", memory.memory_type_index);
         if kind == SceneKind::Large {
             report.set("large_scene", acceleration_report(&scene, &shared));
         }
@@ -209,9 +214,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 frames.push(Frame::new(&vk, &gl, &mut shared, &scene, extent, mode)?);
             }
             if args.depth_prepass {
-                same_depth_first &= frames[0].depth_first_draws_the_same(&gl.gl);
+                depth_first_differences += frames[0].depth_first_differences(&gl.gl);
             }
             let covered = frames[0].covered_pixels(&gl.gl);
+            pixels_compared += covered;
             covered_everywhere &= covered > 0;
             for &spp in &spps {
                 let mut samples: Vec<Samples> = Mode::ALL.iter().map(|_| Samples::default()).collect();
@@ -247,7 +253,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. What the rows say, in every form
     if args.depth_prepass {
-        report.check("depth_prepass_draws_the_same_gbuffers", same_depth_first);
+        // Ties in depth are rare: a few pixels in a thousand would mean the two passes disagree
+        // on depth itself (NVIDIA's first H100 run differed; this counts by how much).
+        report.set("depth_prepass_pixels_differing", depth_first_differences);
+        report.set("depth_prepass_pixels_compared", pixels_compared);
+        let fraction = depth_first_differences as f64 / pixels_compared.max(1) as f64;
+        report.check("depth_prepass_draws_the_same_gbuffers_but_for_ties", fraction <= 1e-3);
     }
     checks(report, &rows, Mode::ALL.len() * scenes_count * sizes.len() * spps.len());
     outputs::write(&args.out, &rows, &vk.info.name, &vk.info.driver)?;
@@ -482,9 +493,11 @@ impl<'s> Frame<'s> {
         positions.chunks_exact(4).filter(|p| p[3] != 0.0).count() as u64
     }
 
-    /// Does `GBuffers::draw_depth_first` draw exactly what `draw` does? Every G-buffer's pixels,
-    /// bit for bit, before any frame (GL has the images).
-    fn depth_first_draws_the_same(&self, gl: &glow::Context) -> bool {
+    /// How many pixels `GBuffers::draw_depth_first` draws otherwise than `draw`, in any of the
+    /// three G-buffers, bit for bit, before any frame (GL has the images). Where two triangles
+    /// reach a pixel at exactly the same depth, one pass keeps the first (`GL_LESS`) and depth
+    /// first keeps the last (`GL_EQUAL` passes both): those pixels may differ, no others should.
+    fn depth_first_differences(&self, gl: &glow::Context) -> u64 {
         let (w, h) = (self.gbuffers.extent.width, self.gbuffers.extent.height);
         let read = || {
             let textures = self.gbuffers.textures();
@@ -493,8 +506,13 @@ impl<'s> Frame<'s> {
         self.gbuffers.draw(gl, self.scene, &self.camera);
         let one_pass = read();
         self.gbuffers.draw_depth_first(gl, self.scene, &self.camera);
-        let bits = |images: &[Vec<f32>]| images.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
-        bits(&one_pass) == bits(&read())
+        let depth_first = read();
+        let pixel_differs = |i: usize| {
+            one_pass.iter().zip(&depth_first).any(|(a, b)| {
+                a[4 * i..4 * i + 4].iter().zip(&b[4 * i..4 * i + 4]).any(|(x, y)| x.to_bits() != y.to_bits())
+            })
+        };
+        (0..(w * h) as usize).filter(|&i| pixel_differs(i)).count() as u64
     }
 
     /// Newest first, once both APIs are idle.
