@@ -46,13 +46,15 @@ pub fn live() -> BTreeMap<String, i64> {
         .collect()
 }
 
-const COUNTED_WHEN_DESTROYED: [&str; 6] = [
+const COUNTED_WHEN_DESTROYED: [&str; 8] = [
     "vk_memory_exportable",
     "vk_image_exportable",
     "gl_memory_object",
     "gl_texture_imported",
     "gl_buffer_imported",
     "gl_renderbuffer",
+    "cuda_graphics_resource",
+    "cuda_external_memory",
 ];
 
 /// Everything counted so far, sorted by kind.
