@@ -149,9 +149,6 @@ impl Composite {
             axes.push((centre, centre + axis * 2.5, colour));
             axes.push((centre, centre - axis * 2.5, colour.map(|c| c / 2)));
         }
-        for &(a, b, colour) in &axes {
-            line(a, b, colour);
-        }
         // Each sphere's bounding box: the sphere hides the box's far edges.
         for s in spheres {
             let (c, r) = (Vec3::from(s.centre), s.radius);
@@ -177,6 +174,10 @@ impl Composite {
             let v = i as f32 + 0.5;
             line(Vec3::new(v, lift, -GROUND_HALF), Vec3::new(v, lift, GROUND_HALF), [0, 170, 170]);
             line(Vec3::new(-GROUND_HALF, lift, v), Vec3::new(GROUND_HALF, lift, v), [0, 170, 170]);
+        }
+        // The gizmo last, so that no other line is drawn over it where the checks look.
+        for &(a, b, colour) in &axes {
+            line(a, b, colour);
         }
         // ANCHOR_END: lines
         let line_vertices = vertices.len() as i32;

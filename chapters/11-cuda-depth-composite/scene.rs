@@ -264,7 +264,7 @@ mod tests {
                 compared += 1;
             }
         }
-        assert!(compared > 600, "most pixels hit something");
+        assert!(compared > 300, "the scene covers much of the picture: {compared} of 1200 pixels");
         // The ends of the range: the near plane is depth 0, the far plane 1.
         let on_axis = |t| window_depth(t, 0.0, 0.0, tan_half, camera.near, camera.far);
         assert!(on_axis(camera.near).abs() < 1e-6 && (on_axis(camera.far) - 1.0).abs() < 1e-6);
