@@ -27,17 +27,36 @@ impl CudaTracer {
     pub fn new(device: CudaDevice) -> Result<Self> {
         let ptx = CString::new(PTX)?;
         // SAFETY: `ptx` is NUL-terminated PTX text; CUDA copies what it needs.
-        let module = unsafe { cu::module::load_data(ptx.as_ptr().cast()) }.context(
-            "cuModuleLoadData: the driver cannot compile the PTX (it came from NVRTC 12.9: drivers older \
-             than CUDA 12.9 refuse it; fix: update the NVIDIA driver)",
-        )?;
-        let function = unsafe { cu::module::get_function(module, CString::new("trace")?) }
-            .context("cuModuleGetFunction(trace)")?;
-        // Non-blocking: this stream never waits for work on the legacy default stream.
-        let stream = cu::stream::create(cu::stream::StreamKind::NonBlocking).context("cuStreamCreate")?;
-        let event = || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT).context("cuEventCreate");
-        let (started, finished) = (event()?, event()?);
-        Ok(CudaTracer { device, module, function, stream, started, finished })
+        let module = match unsafe { cu::module::load_data(ptx.as_ptr().cast()) } {
+            Ok(module) => module,
+            Err(error) => {
+                device.destroy()?;
+                return Err(error).context(
+                    "cuModuleLoadData: the driver cannot compile the PTX (it came from NVRTC 12.9: drivers \
+                     older than CUDA 12.9 refuse it; fix: update the NVIDIA driver)",
+                );
+            }
+        };
+        let rest = || -> Result<_> {
+            let function = unsafe { cu::module::get_function(module, CString::new("trace")?) }
+                .context("cuModuleGetFunction(trace)")?;
+            // Non-blocking: this stream never waits for work on the legacy default stream.
+            let stream = cu::stream::create(cu::stream::StreamKind::NonBlocking).context("cuStreamCreate")?;
+            let event = || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT).context("cuEventCreate");
+            Ok((function, stream, event()?, event()?))
+        };
+        match rest() {
+            Ok((function, stream, started, finished)) => {
+                Ok(CudaTracer { device, module, function, stream, started, finished })
+            }
+            // Rare enough (out of resources) that a stream or event made before the failure is
+            // left to the context's release, which frees everything made in it.
+            Err(error) => {
+                unsafe { cu::module::unload(module) }.ok();
+                device.destroy()?;
+                Err(error)
+            }
+        }
     }
     // ANCHOR_END: load
 

@@ -10,13 +10,14 @@
 //!
 //! Run: `cargo run --release --bin 11-cuda-depth-composite -- --tracer auto --path both`
 
-use anyhow::{Context as _, Result, bail};
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::cuda::CudaDevice;
-use common::exportable::{self, Dedicated, HANDLE_TYPE};
+use common::exportable::{self, Dedicated, ExportableMemory, HANDLE_TYPE};
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::interop::{self, SharedBuffer};
 use common::scene::Camera;
-use common::{CommonArgs, Report, Requirements, VulkanContext, interop, ms_since, open_fd_count};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -125,164 +126,194 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(t) = &tracer {
         let (major, minor) = t.device.compute_capability;
         eprintln!("cuda: {} (compute capability {major}.{minor})", t.device.name);
+        report.set("cuda_compute_capability", format!("{major}.{minor}"));
     }
 
-    // 4. Path 1: a GL pixel buffer object, registered with CUDA
-    // ANCHOR: path1
-    let pbo = PixelBuffer::new(gl, width, height)?;
-    let mut registered = tracer.as_ref().map(|t| RegisteredPbo::new(t, pbo.pbo)).transpose()?;
-    // ANCHOR_END: path1
-
-    // 5. Path 2: Vulkan memory, imported by CUDA and by GL
-    // ANCHOR: path2
-    let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
-    let buffer_info = vk::BufferCreateInfo::default()
-        .size(bytes)
-        .usage(vk::BufferUsageFlags::STORAGE_BUFFER)
-        .push_next(&mut external);
-    let buffer = unsafe { vk.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
-    let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
-    // CUDA writes it from the GPU: device-local. The CPU tracer writes it through a mapping.
-    let properties = match tracer {
-        Some(_) => vk::MemoryPropertyFlags::DEVICE_LOCAL,
-        None => vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
-    };
-    let memory = exportable::allocate(&vk, &requirements, properties, Dedicated::No)?;
-    unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
-    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-    // One fd per importer: each import takes ownership of the fd it is given.
-    let imported = match &tracer {
-        Some(_) => {
-            Some(ImportedMemory::new(exportable::export_fd(&fd_loader, memory.memory)?, memory.size, bytes)?)
+    // Steps 4 to 7 put what they make in `made`; step 8 frees whatever is there, after success
+    // or failure alike (CUDA must let go of GL's and Vulkan's memory before they free it).
+    let mut made = Made::default();
+    let outcome = (|| -> Result<()> {
+        // 4. Path 1: a GL pixel buffer object, registered with CUDA
+        // ANCHOR: path1
+        let pbo = made.pbo.insert(PixelBuffer::new(gl, width, height)?);
+        if let Some(t) = &tracer {
+            made.registered = Some(RegisteredPbo::new(t, pbo.pbo)?);
         }
-        None => None,
-    };
-    let shared = interop::import_buffer(
-        &gl_context,
-        &memory,
-        exportable::export_fd(&fd_loader, memory.memory)?,
-        bytes,
-    )?;
-    let mapped = match tracer {
-        Some(_) => None,
-        None => Some(unsafe { vk.device.map_memory(memory.memory, 0, bytes, vk::MemoryMapFlags::empty()) }?),
-    };
-    // ANCHOR_END: path2
+        // ANCHOR_END: path1
 
-    // 6. Every frame: trace, hand the pixels to GL, composite, draw the lines
-    let composite = Composite::new(gl, width, height, &spheres)?;
-    let mut pictures = Vec::new();
-    for &path in &paths {
-        let mut times: [Vec<f64>; 3] = Default::default(); // trace, upload, composite
-        for _ in 0..args.common.frame_count(false) {
-            // ANCHOR: frame
-            let started = Instant::now();
-            match (path, &tracer) {
-                (Path::Pbo, Some(t)) => {
-                    registered.as_mut().unwrap().trace(t, &params, bytes)?;
-                    times[0].push(t.kernel_ms()?);
+        // 5. Path 2: Vulkan memory, imported by CUDA and by GL
+        // ANCHOR: path2
+        let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
+        let buffer_info = vk::BufferCreateInfo::default()
+            .size(bytes)
+            .usage(vk::BufferUsageFlags::STORAGE_BUFFER)
+            .push_next(&mut external);
+        let buffer = *made.buffer.insert(unsafe { vk.device.create_buffer(&buffer_info, None) }?);
+        let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
+        // CUDA writes it from the GPU: device-local. The CPU tracer writes it through a mapping.
+        let properties = match tracer {
+            Some(_) => vk::MemoryPropertyFlags::DEVICE_LOCAL,
+            None => vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
+        };
+        let memory = made.memory.insert(exportable::allocate(&vk, &requirements, properties, Dedicated::No)?);
+        unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
+        let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
+        // One fd per importer: each import takes ownership of the fd it is given.
+        if tracer.is_some() {
+            let fd = exportable::export_fd(&fd_loader, memory.memory)?;
+            made.imported = Some(ImportedMemory::new(fd, memory.size, bytes)?);
+        }
+        let fd = exportable::export_fd(&fd_loader, memory.memory)?;
+        let shared = made.shared.insert(interop::import_buffer(&gl_context, memory, fd, bytes)?);
+        if tracer.is_none() {
+            let flags = vk::MemoryMapFlags::empty();
+            made.mapped = Some(unsafe { vk.device.map_memory(memory.memory, 0, bytes, flags) }?);
+        }
+        // ANCHOR_END: path2
+
+        // 6. Every frame: trace, hand the pixels to GL, composite, draw the lines
+        let composite = made.composite.insert(Composite::new(gl, width, height, &spheres)?);
+        let mut pictures = Vec::new();
+        for &path in &paths {
+            let mut times: [Vec<f64>; 3] = Default::default(); // trace, upload, composite
+            for _ in 0..args.common.frame_count(false) {
+                // ANCHOR: frame
+                let started = Instant::now();
+                match (path, &tracer) {
+                    (Path::Pbo, Some(t)) => {
+                        made.registered.as_mut().unwrap().trace(t, &params, bytes)?;
+                        times[0].push(t.kernel_ms()?);
+                    }
+                    (Path::Pbo, None) => {
+                        pbo.write_with(gl, |traced| drop(scene::trace(&params, traced)));
+                        times[0].push(ms_since(started));
+                    }
+                    (Path::ZeroCopy, Some(t)) => {
+                        // No semaphores here: GL has finished reading the last frame before
+                        // CUDA writes, and CUDA has finished writing before GL reads.
+                        unsafe { gl.finish() };
+                        t.launch(made.imported.as_ref().unwrap().pointer, &params)?;
+                        times[0].push(t.kernel_ms()?);
+                        t.synchronize()?;
+                    }
+                    (Path::ZeroCopy, None) => {
+                        unsafe { gl.finish() };
+                        let words = bytes as usize / 4;
+                        // SAFETY: `mapped` is `bytes` bytes of host-coherent memory GL is not using now.
+                        let traced =
+                            unsafe { std::slice::from_raw_parts_mut(made.mapped.unwrap().cast(), words) };
+                        scene::trace(&params, traced);
+                        times[0].push(ms_since(started));
+                    }
                 }
-                (Path::Pbo, None) => {
-                    pbo.write_with(gl, |traced| drop(scene::trace(&params, traced)));
-                    times[0].push(ms_since(started));
-                }
-                (Path::ZeroCopy, Some(t)) => {
-                    // No semaphores here: GL has finished reading the last frame before CUDA
-                    // writes, and CUDA has finished writing before GL reads.
-                    unsafe { gl.finish() };
-                    t.launch(imported.as_ref().unwrap().pointer, &params)?;
-                    times[0].push(t.kernel_ms()?);
-                    t.synchronize()?;
-                }
-                (Path::ZeroCopy, None) => {
-                    unsafe { gl.finish() };
-                    let words = bytes as usize / 4;
-                    // SAFETY: `mapped` is `bytes` bytes of host-coherent memory GL is not using now.
-                    let traced = unsafe { std::slice::from_raw_parts_mut(mapped.unwrap().cast(), words) };
-                    scene::trace(&params, traced);
-                    times[0].push(ms_since(started));
-                }
+                let source = match path {
+                    Path::Pbo => {
+                        times[1].push(gl_time_ms(gl, || pbo.upload(gl))?);
+                        Source::Textures(pbo)
+                    }
+                    Path::ZeroCopy => Source::Buffer(shared.buffer),
+                };
+                times[2].push(gl_time_ms(gl, || {
+                    composite.draw_traced(gl, source, &depth);
+                    composite.draw_lines(gl, view_projection);
+                })?);
+                // ANCHOR_END: frame
             }
-            let source = match path {
-                Path::Pbo => {
-                    times[1].push(gl_time_ms(gl, || pbo.upload(gl))?);
-                    Source::Textures(&pbo)
-                }
-                Path::ZeroCopy => Source::Buffer(shared.buffer),
-            };
-            times[2].push(gl_time_ms(gl, || {
-                composite.draw_traced(gl, source, &depth);
-                composite.draw_lines(gl, view_projection);
-            })?);
-            // ANCHOR_END: frame
-        }
-        check::report_times(report, path, tracer.is_some(), &times);
-        // 7. Check what this path drew
-        let traced = match path {
-            Path::Pbo => check::read_buffer(gl, pbo.pbo, bytes),
-            Path::ZeroCopy => check::read_buffer(gl, shared.buffer, bytes),
-        };
-        let source = match path {
-            Path::Pbo => Source::Textures(&pbo),
-            Path::ZeroCopy => Source::Buffer(shared.buffer),
-        };
-        let frame = check::Frame {
-            gl,
-            composite: &composite,
-            source,
-            depth: &depth,
-            view_projection,
-            camera: &camera,
-        };
-        pictures.push((path, frame.check(report, path, &params, &traced, tracer.is_some())?));
-    }
-    if let [(_, a), (_, b)] = &pictures[..] {
-        report.check("both_paths_show_the_same_picture", a == b);
-    }
-    let out_dir = args.common.out_dir(CHAPTER);
-    for (path, picture) in &pictures {
-        let name = match path {
-            Path::Pbo => CHAPTER.to_owned(),
-            Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
-        };
-        let upright = common::output::flip_rows(picture, width, height);
-        common::output::save_rgba8(report, &out_dir, &name, width, height, &upright)?;
-    }
-    gl_context.check_error("the frames")?;
+            check::report_times(report, path, tracer.is_some(), &times);
 
-    // 8. Clean up, newest first: CUDA lets go of GL's and Vulkan's memory before they free it
+            // 7. Check what this path drew
+            let (source, buffer) = match path {
+                Path::Pbo => (Source::Textures(pbo), pbo.pbo),
+                Path::ZeroCopy => (Source::Buffer(shared.buffer), shared.buffer),
+            };
+            let traced = check::read_buffer(gl, buffer, bytes);
+            let frame =
+                check::Frame { gl, composite, source, depth: &depth, view_projection, camera: &camera };
+            pictures.push((path, frame.check(report, path, &params, &traced, tracer.is_some())?));
+        }
+        if let [(_, a), (_, b)] = &pictures[..] {
+            report.check("both_paths_show_the_same_picture", a == b);
+        }
+        let out_dir = args.common.out_dir(CHAPTER);
+        for (path, picture) in &pictures {
+            let name = match path {
+                Path::Pbo => CHAPTER.to_owned(),
+                Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
+            };
+            let upright = common::output::flip_rows(picture, width, height);
+            common::output::save_rgba8(report, &out_dir, &name, width, height, &upright)?;
+        }
+        gl_context.check_error("the frames")
+    })();
+
+    // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    if let Some(t) = &tracer {
-        t.synchronize()?;
-    }
-    composite.destroy(gl);
-    if mapped.is_some() {
-        unsafe { vk.device.unmap_memory(memory.memory) };
-    }
-    shared.delete(&gl_context);
-    if let Some(imported) = imported {
-        imported.destroy()?;
-    }
-    unsafe {
-        vk.device.destroy_buffer(buffer, None);
-        vk.device.free_memory(memory.memory, None);
-    }
-    common::resources::destroyed("vk_memory_exportable");
-    if let Some(registered) = registered.take() {
-        registered.destroy()?; // before GL deletes the buffer it names
-    }
-    pbo.destroy(gl);
-    if let Some(tracer) = tracer {
-        tracer.destroy()?;
-    }
+    let cleaned = made.destroy(&vk, &gl_context, tracer.as_ref());
+    let released = tracer.map_or(Ok(()), CudaTracer::destroy);
     // ANCHOR_END: cleanup
+    outcome?;
+    cleaned?;
+    released?;
     gl_context.check_error("cleaning up")?;
     let live = common::resources::live();
     report.check("cuda_and_shared_resources_released", live.values().all(|&n| n == 0));
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
-    if paths.is_empty() {
-        bail!("no path to run");
-    }
     Ok(())
 }
+
+// ANCHOR: made
+/// What steps 4 to 7 made, each `None` until made.
+#[derive(Default)]
+struct Made {
+    pbo: Option<PixelBuffer>,
+    registered: Option<RegisteredPbo>,
+    buffer: Option<vk::Buffer>,
+    memory: Option<ExportableMemory>,
+    imported: Option<ImportedMemory>,
+    shared: Option<SharedBuffer>,
+    mapped: Option<*mut std::ffi::c_void>,
+    composite: Option<Composite>,
+}
+
+impl Made {
+    /// Frees what exists, newest first, once CUDA and GL are idle; every step runs even after
+    /// one fails, and the first failure is returned.
+    fn destroy(self, vk: &VulkanContext, gl: &GlContext, tracer: Option<&CudaTracer>) -> Result<()> {
+        let mut first_error = tracer.map_or(Ok(()), CudaTracer::synchronize);
+        let mut keep = |result: Result<()>| {
+            if let (Ok(()), Err(error)) = (&first_error, result) {
+                first_error = Err(error);
+            }
+        };
+        if let Some(composite) = self.composite {
+            composite.destroy(&gl.gl);
+        }
+        if let (Some(memory), Some(_)) = (&self.memory, self.mapped) {
+            unsafe { vk.device.unmap_memory(memory.memory) };
+        }
+        // GL's import and CUDA's, before Vulkan frees the memory under them.
+        if let Some(shared) = self.shared {
+            shared.delete(gl);
+        }
+        if let Some(imported) = self.imported {
+            keep(imported.destroy());
+        }
+        if let Some(buffer) = self.buffer {
+            unsafe { vk.device.destroy_buffer(buffer, None) };
+        }
+        if let Some(memory) = self.memory {
+            unsafe { vk.device.free_memory(memory.memory, None) };
+            common::resources::destroyed("vk_memory_exportable");
+        }
+        // CUDA's registration, before GL deletes the buffer it names.
+        if let Some(registered) = self.registered {
+            keep(registered.destroy());
+        }
+        if let Some(pbo) = self.pbo {
+            pbo.destroy(&gl.gl);
+        }
+        first_error
+    }
+}
+// ANCHOR_END: made
