@@ -299,9 +299,8 @@ impl Composite {
             gl.clear_named_framebuffer_f32_slice(Some(self.framebuffer), glow::DEPTH, 0, &[1.0]);
             gl.enable(glow::DEPTH_TEST);
             gl.depth_func(glow::LESS);
-            gl.color_mask(false, false, false, false);
+            // Its colour lands in the picture too, which was read before and is drawn anew after.
             self.draw_vertices(gl, view_projection, glow::TRIANGLES, self.line_vertices, 6);
-            gl.color_mask(true, true, true, true);
         }
     }
 

@@ -17,7 +17,7 @@ use common::exportable::{self, Dedicated, ExportableMemory, HANDLE_TYPE};
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::interop::{self, SharedBuffer};
 use common::scene::Camera;
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -104,7 +104,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     report.sync = Some("host");
-    let open_fds_before = open_fd_count()?;
 
     // 3. CUDA on that device, or the CPU
     // ANCHOR: choose
@@ -128,6 +127,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         eprintln!("cuda: {} (compute capability {major}.{minor})", t.device.name);
         report.set("cuda_compute_capability", format!("{major}.{minor}"));
     }
+    // After CUDA started: its driver keeps files of its own open (/dev/nvidia*) until the
+    // process exits. The fds this chapter shares must all be closed again by step 8.
+    let fds_before = open_fds()?;
 
     // Steps 4 to 7 put what they make in `made`; step 8 frees whatever is there, after success
     // or failure alike (CUDA must let go of GL's and Vulkan's memory before they free it).
@@ -250,6 +252,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: cleanup
     unsafe { gl.finish() };
     let cleaned = made.destroy(&vk, &gl_context, tracer.as_ref());
+    let fds_after = open_fds()?;
     let released = tracer.map_or(Ok(()), CudaTracer::destroy);
     // ANCHOR_END: cleanup
     outcome?;
@@ -258,8 +261,26 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_context.check_error("cleaning up")?;
     let live = common::resources::live();
     report.check("cuda_and_shared_resources_released", live.values().all(|&n| n == 0));
-    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    let leaked: Vec<_> = fds_after.iter().filter(|fd| !fds_before.contains(fd)).collect();
+    if !leaked.is_empty() {
+        eprintln!("fds open after cleaning up that were not before step 4: {leaked:?}");
+    }
+    report.check("no_fd_leaked", leaked.is_empty() && fds_after.len() == fds_before.len());
     Ok(())
+}
+
+/// This process's open fds, each as "number -> what it is" (from /proc/self/fd), so that a
+/// leak names its file.
+fn open_fds() -> Result<Vec<String>> {
+    let mut fds = Vec::new();
+    for entry in std::fs::read_dir("/proc/self/fd").context("listing /proc/self/fd")? {
+        let path = entry?.path();
+        // The directory listing's own fd is gone by the time it is read: skip what vanished.
+        if let Ok(target) = std::fs::read_link(&path) {
+            fds.push(format!("{} -> {}", path.file_name().unwrap().to_string_lossy(), target.display()));
+        }
+    }
+    Ok(fds)
 }
 
 // ANCHOR: made
