@@ -87,6 +87,7 @@ __device__ unsigned int to_byte(float value) {
     return (unsigned int)(fminf(fmaxf(value, 0.0f), 1.0f) * 255.0f + 0.5f);
 }
 
+// ANCHOR: kernel
 extern "C" __global__ void trace(unsigned int* traced, Params p) {
     unsigned int x = blockIdx.x * blockDim.x + threadIdx.x;
     unsigned int y = blockIdx.y * blockDim.y + threadIdx.y;
@@ -121,3 +122,4 @@ extern "C" __global__ void trace(unsigned int* traced, Params p) {
     traced[i] = to_byte(rgb[0]) | to_byte(rgb[1]) << 8 | to_byte(rgb[2]) << 16 | 255u << 24;
     traced[p.width * p.height + i] = __float_as_uint(hit.t);
 }
+// ANCHOR_END: kernel
