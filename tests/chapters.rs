@@ -427,6 +427,44 @@ fn ch10_rebuilds_only_when_asked() {
 }
 
 #[test]
+fn ch11_cuda_depth_composite_cpu_tracer() {
+    // --tracer cpu, so a machine with CUDA takes the same snapshot (both paths, one after the other).
+    let args = ["--size", "160x120", "--tracer", "cpu"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_11-cuda-depth-composite"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), ["VK_KHR_external_memory_fd"], "11 needs only 01's extension");
+    assert_eq!(report["tracer"], "cpu");
+    for path in ["pbo", "zero_copy"] {
+        assert_eq!(report["checks"][format!("{path}_traced_depth_matches_rasterised_depth")], true);
+        assert_eq!(report["checks"][format!("{path}_overlay_hidden_behind_a_traced_surface")], true);
+        assert_eq!(report["checks"][format!("{path}_overlay_shown_where_nothing_is_in_front")], true);
+    }
+    assert_eq!(report["checks"]["both_paths_show_the_same_picture"], true);
+    assert_report_snapshot("11-cuda-depth-composite", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch11_missing_cuda_is_named() {
+    let bin = env!("CARGO_BIN_EXE_11-cuda-depth-composite");
+    let hide = [("VKGL_HIDE_CUDA", "1")];
+    let insisted = run_chapter(bin, &["--size", "32x24", "--tracer", "cuda"], &hide);
+    assert_eq!(insisted.output.status.code(), Some(2), "--tracer cuda without CUDA:\n{}", insisted.stderr);
+    assert!(insisted.report.is_none(), "no report when the chapter could not run");
+    let error = insisted.stderr.split_once("error: ").map(|(_, e)| e).unwrap_or_default();
+    assert!(error.contains("libcuda.so.1"), "names what is missing:\n{}", insisted.stderr);
+    assert!(!insisted.stderr.contains("panicked"), "no panic:\n{}", insisted.stderr);
+    // auto says what is missing, and traces on the CPU.
+    let auto = run_chapter(bin, &["--size", "32x24", "--tracer", "auto", "--path", "pbo"], &hide);
+    assert_eq!(auto.succeeded()["tracer"], "cpu");
+    assert!(
+        auto.stderr.contains("libcuda.so.1") && auto.stderr.contains("tracing on the CPU"),
+        "{}",
+        auto.stderr
+    );
+}
+
+#[test]
 fn bad_flags_are_rejected_with_a_reason() {
     let run = run_chapter(env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "800"], &[]);
     assert_eq!(run.output.status.code(), Some(2));

@@ -119,3 +119,29 @@ fn lock_check_reports_edits_after_locking() {
     std::fs::remove_file(dir.join("a.comp.spv")).unwrap();
     assert_eq!(stale(dir).unwrap(), vec!["a.comp: a.comp.spv is missing".to_owned()]);
 }
+
+/// The committed PTX still matches its CUDA source (`cargo run -p xtask -- cuda` rebuilds it).
+#[test]
+fn ptx_is_locked_to_its_cuda_source() {
+    let dir = shaders_dir().join("cuda");
+    let lock = std::fs::read_to_string(dir.join("ptx.lock")).unwrap();
+    let lock: std::collections::BTreeMap<&str, &str> =
+        lock.lines().filter_map(|l| l.split_once(' ')).map(|(h, n)| (n, h)).collect();
+    let mut kernels = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let name = entry.unwrap().file_name().into_string().unwrap();
+        let Some(stem) = name.strip_suffix(".cu") else { continue };
+        kernels += 1;
+        let hash = spirv_lock::source_hash(&dir, &name).unwrap();
+        assert_eq!(
+            lock.get(name.as_str()),
+            Some(&hash.as_str()),
+            "shaders/cuda/{name} changed since its PTX was built: run `cargo run -p xtask -- cuda`"
+        );
+        let ptx = std::fs::read_to_string(dir.join(format!("{stem}.ptx"))).unwrap();
+        // compute_75: what CUDA 13 drivers still JIT (and every GPU since Turing runs).
+        assert!(ptx.contains(".target sm_75"), "shaders/cuda/{stem}.ptx targets compute_75");
+        assert!(ptx.contains(".visible .entry"), "shaders/cuda/{stem}.ptx has a kernel");
+    }
+    assert!(kernels > 0 && lock.len() == kernels, "one lock line per kernel");
+}

@@ -7,6 +7,7 @@ pub mod accel;
 pub mod ao;
 pub mod cli;
 pub mod commands;
+pub mod cuda;
 pub mod exportable;
 pub mod fail;
 pub mod gbuffer;

@@ -47,7 +47,7 @@ pub fn live() -> BTreeMap<String, i64> {
         .collect()
 }
 
-const COUNTED_WHEN_DESTROYED: [&str; 7] = [
+const COUNTED_WHEN_DESTROYED: [&str; 9] = [
     "vk_memory_exportable",
     "vk_memory_host",
     "vk_image_exportable",
@@ -55,6 +55,8 @@ const COUNTED_WHEN_DESTROYED: [&str; 7] = [
     "gl_texture_imported",
     "gl_buffer_imported",
     "gl_renderbuffer",
+    "cuda_graphics_resource",
+    "cuda_external_memory",
 ];
 
 /// Everything counted so far, sorted by kind.

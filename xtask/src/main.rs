@@ -1,7 +1,10 @@
 //! `cargo run -p xtask -- shaders`: compile each Vulkan shader in `shaders/` to the `.spv` committed
 //! beside it (so `cargo build` needs no glslc) and rewrite `shaders/spirv.lock`.
 //! `-- shaders --check` writes nothing: it lists stale shaders and exits 1 if there are any.
+//! `cargo run -p xtask -- cuda`: compile the CUDA kernels in `shaders/cuda/` to PTX with NVRTC and
+//! rewrite `shaders/cuda/ptx.lock` (see ptx.rs).
 
+mod ptx;
 mod spirv_lock;
 
 use std::path::Path;
@@ -16,7 +19,8 @@ fn main() -> Result<ExitCode> {
     match args.iter().map(String::as_str).collect::<Vec<_>>()[..] {
         ["shaders"] => build(&shaders).map(|()| ExitCode::SUCCESS),
         ["shaders", "--check"] => check(&shaders),
-        _ => bail!("usage: cargo run -p xtask -- shaders [--check] (got {args:?})"),
+        ["cuda"] => ptx::build(&shaders.join("cuda")).map(|()| ExitCode::SUCCESS),
+        _ => bail!("usage: cargo run -p xtask -- shaders [--check] | cuda (got {args:?})"),
     }
 }
 

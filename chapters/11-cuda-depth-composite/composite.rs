@@ -1,0 +1,382 @@
+//! Chapter 11's GL side: the pixel buffer object and its textures (path 1), the composite pass
+//! that turns hit distances into depth, and the lines drawn over it with the depth test on.
+
+use crate::scene::{GROUND_HALF, Sphere};
+use anyhow::Result;
+use glam::{Mat4, Vec3};
+use glow::HasContext;
+
+const FULLSCREEN: &str = include_str!("../../shaders/gl/fullscreen.vert");
+const RAYTRACED: &str = include_str!("../../shaders/gl/raytraced.frag");
+const LINES_VERTEX: &str = include_str!("../../shaders/gl/lines.vert");
+const LINES_FRAGMENT: &str = include_str!("../../shaders/gl/lines.frag");
+
+/// Bytes the tracer writes per frame: an RGBA8 colour and an f32 distance per pixel.
+pub fn traced_bytes(width: u32, height: u32) -> u64 {
+    8 * width as u64 * height as u64
+}
+
+// ANCHOR: pbo
+/// Path 1, as published: a GL pixel buffer object the tracer writes, and the two textures GL
+/// copies it into.
+pub struct PixelBuffer {
+    pub pbo: glow::Buffer,
+    pub colour: glow::Texture,
+    pub distance: glow::Texture,
+    width: u32,
+    height: u32,
+}
+
+impl PixelBuffer {
+    pub fn new(gl: &glow::Context, width: u32, height: u32) -> Result<Self> {
+        unsafe {
+            let pbo = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
+            // Written by the tracer every frame, read by GL's copies: STREAM_DRAW.
+            gl.named_buffer_data_size(pbo, traced_bytes(width, height) as i32, glow::STREAM_DRAW);
+            common::resources::created("gl_buffer: PBO", traced_bytes(width, height));
+            let texture = |format| -> Result<glow::Texture> {
+                let texture = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
+                gl.texture_storage_2d(texture, 1, format, width as i32, height as i32);
+                common::resources::created(&format!("gl_texture: {format:#x}"), 4 * (width * height) as u64);
+                Ok(texture)
+            };
+            Ok(PixelBuffer {
+                pbo,
+                colour: texture(glow::RGBA8)?,
+                distance: texture(glow::R32F)?,
+                width,
+                height,
+            })
+        }
+    }
+
+    /// GL copies the buffer into the textures: from the bound unpack buffer, the "pixels"
+    /// argument is an offset into it. No bytes cross to the CPU.
+    pub fn upload(&self, gl: &glow::Context) {
+        let (w, h) = (self.width as i32, self.height as i32);
+        unsafe {
+            gl.bind_buffer(glow::PIXEL_UNPACK_BUFFER, Some(self.pbo));
+            gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 4);
+            let colour = glow::PixelUnpackData::BufferOffset(0);
+            gl.texture_sub_image_2d(self.colour, 0, 0, 0, w, h, glow::RGBA, glow::UNSIGNED_BYTE, colour);
+            let distance = glow::PixelUnpackData::BufferOffset(4 * self.width * self.height);
+            gl.texture_sub_image_2d(self.distance, 0, 0, 0, w, h, glow::RED, glow::FLOAT, distance);
+            gl.bind_buffer(glow::PIXEL_UNPACK_BUFFER, None);
+        }
+    }
+    // ANCHOR_END: pbo
+
+    /// The CPU tracer's way in: map the buffer for writing, discarding what it held (as CUDA's
+    /// WRITE_DISCARD registration does), fill it, unmap.
+    pub fn write_with(&self, gl: &glow::Context, fill: impl FnOnce(&mut [u32])) {
+        let bytes = traced_bytes(self.width, self.height);
+        unsafe {
+            gl.bind_buffer(glow::PIXEL_UNPACK_BUFFER, Some(self.pbo));
+            let access = glow::MAP_WRITE_BIT | glow::MAP_INVALIDATE_BUFFER_BIT;
+            let mapped = gl.map_buffer_range(glow::PIXEL_UNPACK_BUFFER, 0, bytes as i32, access);
+            // SAFETY: GL mapped `bytes` bytes for writing, 4-byte aligned (buffers map at least 64-aligned).
+            fill(std::slice::from_raw_parts_mut(mapped.cast::<u32>(), bytes as usize / 4));
+            gl.unmap_buffer(glow::PIXEL_UNPACK_BUFFER);
+            gl.bind_buffer(glow::PIXEL_UNPACK_BUFFER, None);
+        }
+    }
+
+    pub fn destroy(self, gl: &glow::Context) {
+        unsafe {
+            gl.delete_texture(self.distance);
+            gl.delete_texture(self.colour);
+            gl.delete_buffer(self.pbo);
+        }
+    }
+}
+
+/// Where the composite pass reads the traced pixels from.
+#[derive(Clone, Copy)]
+pub enum Source<'a> {
+    Textures(&'a PixelBuffer),
+    /// Path 2: a GL buffer whose storage is the memory the tracer wrote.
+    Buffer(glow::Buffer),
+}
+
+/// One vertex of a line (or of the ground, for the depth check): position and colour.
+#[repr(C)]
+#[derive(Clone, Copy)]
+struct LineVertex {
+    position: [f32; 3],
+    colour: [f32; 3],
+}
+
+/// The offscreen target (RGBA8 colour, 24-bit depth), the composite pass and the lines.
+pub struct Composite {
+    traced_program: glow::Program,
+    lines_program: glow::Program,
+    empty: glow::VertexArray,
+    vertex_array: glow::VertexArray,
+    vertices: glow::Buffer,
+    line_vertices: i32,
+    framebuffer: glow::Framebuffer,
+    colour: glow::Renderbuffer,
+    depth: glow::Renderbuffer,
+    pub width: u32,
+    pub height: u32,
+    /// The gizmo's half-axes (start, end, colour), for the checks.
+    pub axes: Vec<(Vec3, Vec3, [u8; 3])>,
+}
+
+/// The camera as the composite shader needs it.
+pub struct DepthUniforms {
+    pub tan_half: (f32, f32),
+    pub near: f32,
+    pub far: f32,
+}
+
+impl Composite {
+    pub fn new(gl: &glow::Context, width: u32, height: u32, spheres: &[Sphere]) -> Result<Self> {
+        let traced_program = common::gl::program(gl, FULLSCREEN, RAYTRACED)?;
+        let lines_program = common::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
+        // ANCHOR: lines
+        let mut vertices = Vec::new();
+        let mut line = |a: Vec3, b: Vec3, colour: [u8; 3]| {
+            let colour = colour.map(|c| c as f32 / 255.0);
+            vertices.push(LineVertex { position: a.into(), colour });
+            vertices.push(LineVertex { position: b.into(), colour });
+        };
+        // An axis gizmo from the first sphere's centre: each half-axis starts inside the sphere
+        // (hidden) and leaves it (shown); -y goes into the ground.
+        let centre = Vec3::from(spheres[0].centre);
+        let mut axes = Vec::new();
+        for (axis, colour) in [(Vec3::X, [255, 0, 0]), (Vec3::Y, [0, 255, 0]), (Vec3::Z, [0, 0, 255])] {
+            axes.push((centre, centre + axis * 2.5, colour));
+            axes.push((centre, centre - axis * 2.5, colour.map(|c| c / 2)));
+        }
+        // Each sphere's bounding box: the sphere hides the box's far edges.
+        for s in spheres {
+            let (c, r) = (Vec3::from(s.centre), s.radius);
+            let corner = |i: u32| {
+                c + r * Vec3::new(
+                    [-1.0, 1.0][i as usize & 1],
+                    [-1.0, 1.0][(i as usize >> 1) & 1],
+                    [-1.0, 1.0][i as usize >> 2],
+                )
+            };
+            for i in 0..8u32 {
+                for bit in [1, 2, 4] {
+                    if i & bit == 0 {
+                        line(corner(i), corner(i | bit), [255, 0, 255]);
+                    }
+                }
+            }
+        }
+        // A wireframe grid through the middle of the ground's squares, a little above it (on it
+        // exactly, the two depths would tie and the line would flicker in and out).
+        let lift = 0.01;
+        for i in -4..4 {
+            let v = i as f32 + 0.5;
+            line(Vec3::new(v, lift, -GROUND_HALF), Vec3::new(v, lift, GROUND_HALF), [0, 170, 170]);
+            line(Vec3::new(-GROUND_HALF, lift, v), Vec3::new(GROUND_HALF, lift, v), [0, 170, 170]);
+        }
+        // The gizmo last, so that no other line is drawn over it where the checks look.
+        for &(a, b, colour) in &axes {
+            line(a, b, colour);
+        }
+        // ANCHOR_END: lines
+        let line_vertices = vertices.len() as i32;
+        // Then the ground square as two triangles, for the depth check only.
+        let g = GROUND_HALF;
+        for [x, z] in [[-g, -g], [g, -g], [g, g], [-g, -g], [g, g], [-g, g]] {
+            vertices.push(LineVertex { position: [x, 0.0, z], colour: [1.0; 3] });
+        }
+        unsafe {
+            let empty = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
+            let bytes = common::gbuffer::as_bytes(&vertices);
+            let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
+            gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
+            common::resources::created("gl_buffer", bytes.len() as u64);
+            let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
+            gl.vertex_array_vertex_buffer(vao, 0, Some(buffer), 0, size_of::<LineVertex>() as i32);
+            for (location, offset) in [(0, 0), (1, 12)] {
+                gl.enable_vertex_array_attrib(vao, location);
+                gl.vertex_array_attrib_format_f32(vao, location, 3, glow::FLOAT, false, offset);
+                gl.vertex_array_attrib_binding_f32(vao, location, 0);
+            }
+            let renderbuffer = |format, bytes_per_pixel: u32| -> Result<glow::Renderbuffer> {
+                let rb = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
+                gl.bind_renderbuffer(glow::RENDERBUFFER, Some(rb));
+                gl.renderbuffer_storage(glow::RENDERBUFFER, format, width as i32, height as i32);
+                gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+                common::resources::created(
+                    &format!("gl_renderbuffer: {format:#x}"),
+                    (bytes_per_pixel * width * height) as u64,
+                );
+                Ok(rb)
+            };
+            let colour = renderbuffer(glow::RGBA8, 4)?;
+            // 24 bits: the depth precision most GL programs draw with; the check counts its steps.
+            let depth = renderbuffer(glow::DEPTH_COMPONENT24, 4)?;
+            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+            let attach = |point, rb| {
+                gl.named_framebuffer_renderbuffer(Some(framebuffer), point, glow::RENDERBUFFER, Some(rb))
+            };
+            attach(glow::COLOR_ATTACHMENT0, colour);
+            attach(glow::DEPTH_ATTACHMENT, depth);
+            let status = gl.check_named_framebuffer_status(Some(framebuffer), glow::FRAMEBUFFER);
+            anyhow::ensure!(
+                status == glow::FRAMEBUFFER_COMPLETE,
+                "composite framebuffer incomplete: {status:#x}"
+            );
+            Ok(Composite {
+                traced_program,
+                lines_program,
+                empty,
+                vertex_array: vao,
+                vertices: buffer,
+                line_vertices,
+                framebuffer,
+                colour,
+                depth,
+                width,
+                height,
+                axes,
+            })
+        }
+    }
+
+    // ANCHOR: composite
+    /// The traced colour, and its depth in gl_FragDepth: afterwards the depth buffer holds what
+    /// rasterising the ray-traced scene would have left there.
+    pub fn draw_traced(&self, gl: &glow::Context, source: Source, u: &DepthUniforms) {
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.viewport(0, 0, self.width as i32, self.height as i32);
+            // Every pixel is written, colour and depth: no clear, and no depth *test* (ALWAYS),
+            // but depth *writes* on.
+            gl.enable(glow::DEPTH_TEST);
+            gl.depth_func(glow::ALWAYS);
+            gl.depth_mask(true);
+            gl.use_program(Some(self.traced_program));
+            match source {
+                Source::Textures(pbo) => {
+                    gl.bind_texture_unit(0, Some(pbo.colour));
+                    gl.bind_texture_unit(1, Some(pbo.distance));
+                }
+                Source::Buffer(buffer) => gl.bind_buffer_base(glow::SHADER_STORAGE_BUFFER, 0, Some(buffer)),
+            }
+            let at = |name| gl.get_uniform_location(self.traced_program, name);
+            gl.uniform_1_i32(at("from_buffer").as_ref(), matches!(source, Source::Buffer(_)) as i32);
+            gl.uniform_2_i32(at("size").as_ref(), self.width as i32, self.height as i32);
+            gl.uniform_2_f32(at("tan_half").as_ref(), u.tan_half.0, u.tan_half.1);
+            gl.uniform_1_f32(at("near_plane").as_ref(), u.near);
+            gl.uniform_1_f32(at("far_plane").as_ref(), u.far);
+            gl.bind_vertex_array(Some(self.empty));
+            gl.draw_arrays(glow::TRIANGLES, 0, 3);
+            gl.bind_vertex_array(None);
+            gl.bind_buffer_base(glow::SHADER_STORAGE_BUFFER, 0, None);
+            gl.depth_func(glow::LESS);
+        }
+    }
+    // ANCHOR_END: composite
+
+    // ANCHOR: draw_lines
+    /// The lines, tested against the ray-traced depth (LESS: hidden behind any surface nearer
+    /// than them), without writing depth.
+    pub fn draw_lines(&self, gl: &glow::Context, view_projection: Mat4) {
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.enable(glow::DEPTH_TEST);
+            gl.depth_func(glow::LESS);
+            gl.depth_mask(false);
+            self.draw_vertices(gl, view_projection, glow::LINES, 0, self.line_vertices);
+            gl.depth_mask(true);
+        }
+    }
+    // ANCHOR_END: draw_lines
+
+    /// For the depth check: clears the depth and rasterises the ground square, as any GL
+    /// program would draw it.
+    pub fn rasterise_ground(&self, gl: &glow::Context, view_projection: Mat4) {
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.clear_named_framebuffer_f32_slice(Some(self.framebuffer), glow::DEPTH, 0, &[1.0]);
+            gl.enable(glow::DEPTH_TEST);
+            gl.depth_func(glow::LESS);
+            // Its colour lands in the picture too, which was read before and is drawn anew after.
+            self.draw_vertices(gl, view_projection, glow::TRIANGLES, self.line_vertices, 6);
+        }
+    }
+
+    unsafe fn draw_vertices(
+        &self,
+        gl: &glow::Context,
+        view_projection: Mat4,
+        mode: u32,
+        first: i32,
+        count: i32,
+    ) {
+        unsafe {
+            gl.viewport(0, 0, self.width as i32, self.height as i32);
+            gl.use_program(Some(self.lines_program));
+            let at = gl.get_uniform_location(self.lines_program, "view_projection");
+            gl.uniform_matrix_4_f32_slice(at.as_ref(), false, &view_projection.to_cols_array());
+            gl.bind_vertex_array(Some(self.vertex_array));
+            gl.draw_arrays(mode, first, count);
+            gl.bind_vertex_array(None);
+        }
+    }
+
+    /// The colour, RGBA8, bottom row first.
+    pub fn read_colour(&self, gl: &glow::Context) -> Vec<u8> {
+        let mut pixels = vec![0u8; (self.width * self.height * 4) as usize];
+        self.read(gl, glow::RGBA, glow::UNSIGNED_BYTE, &mut pixels);
+        pixels
+    }
+
+    /// The depth buffer in depth steps (0 ..= 2^24 - 1), bottom row first.
+    pub fn read_depth(&self, gl: &glow::Context) -> Vec<u32> {
+        let mut bytes = vec![0u8; (self.width * self.height * 4) as usize];
+        // As UNSIGNED_INT, GL scales depth to 0 ..= 2^32 - 1: the top 24 bits are the steps.
+        self.read(gl, glow::DEPTH_COMPONENT, glow::UNSIGNED_INT, &mut bytes);
+        bytes.chunks_exact(4).map(|b| u32::from_ne_bytes(b.try_into().unwrap()) >> 8).collect()
+    }
+
+    fn read(&self, gl: &glow::Context, format: u32, ty: u32, into: &mut [u8]) {
+        unsafe {
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(self.framebuffer));
+            gl.pixel_store_i32(glow::PACK_ALIGNMENT, 1);
+            let data = glow::PixelPackData::Slice(Some(into));
+            gl.read_pixels(0, 0, self.width as i32, self.height as i32, format, ty, data);
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, None);
+        }
+    }
+
+    pub fn destroy(self, gl: &glow::Context) {
+        unsafe {
+            gl.delete_framebuffer(self.framebuffer);
+            gl.delete_renderbuffer(self.depth);
+            common::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::DEPTH_COMPONENT24));
+            gl.delete_renderbuffer(self.colour);
+            common::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::RGBA8));
+            gl.delete_vertex_array(self.vertex_array);
+            gl.delete_buffer(self.vertices);
+            gl.delete_vertex_array(self.empty);
+            gl.delete_program(self.lines_program);
+            gl.delete_program(self.traced_program);
+        }
+    }
+}
+
+/// GPU time of GL commands, from two GL_TIMESTAMP queries read back at once (a measurement,
+/// not a way to run). (llvmpipe misreads a GL_TIME_ELAPSED query around a PBO upload.)
+pub fn gl_time_ms(gl: &glow::Context, commands: impl FnOnce()) -> Result<f64> {
+    unsafe {
+        let start = gl.create_query().map_err(anyhow::Error::msg)?;
+        let end = gl.create_query().map_err(anyhow::Error::msg)?;
+        gl.query_counter(start, glow::TIMESTAMP);
+        commands();
+        gl.query_counter(end, glow::TIMESTAMP);
+        let at = |query| gl.get_query_parameter_u64(query, glow::QUERY_RESULT);
+        let nanoseconds = at(end).saturating_sub(at(start));
+        gl.delete_query(end);
+        gl.delete_query(start);
+        Ok(nanoseconds as f64 / 1e6)
+    }
+}

@@ -1,0 +1,146 @@
+//! CUDA beside Vulkan and GL (taught in chapter 11): finding the NVIDIA driver and the CUDA
+//! device that GL and Vulkan run on, and the one `cudaGL.h` entry point that the `cudarc`
+//! bindings (which cover `cuda.h` only) lack: `cuGraphicsGLRegisterBuffer`.
+//!
+//! Everything is loaded at run time: a machine without CUDA builds and runs the chapters, and
+//! learns from [`Unavailable`] what is missing.
+
+use anyhow::{Context as _, Result};
+pub use cudarc::driver::{result as cu, sys};
+use std::fmt;
+
+/// The NVIDIA driver's CUDA library: the only CUDA file a CUDA program needs at run time (the
+/// driver JIT-compiles our PTX). `cudarc` opens it under the same name.
+pub const DRIVER_LIBRARY: &str = "libcuda.so.1";
+
+/// CUDA cannot run here, and why: no driver, no device, or no device that is GL's.
+#[derive(Debug)]
+pub struct Unavailable(pub String);
+
+impl fmt::Display for Unavailable {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Unavailable {}
+
+// ANCHOR: register_buffer_fn
+/// `cuGraphicsGLRegisterBuffer` (cudaGL.h): lets CUDA map a GL buffer object. `buffer` is the
+/// GL name (a GLuint); `flags` a `CUgraphicsRegisterFlags`.
+type RegisterBuffer =
+    unsafe extern "C" fn(resource: *mut sys::CUgraphicsResource, buffer: u32, flags: u32) -> sys::CUresult;
+
+/// The GL half of CUDA's graphics interop, loaded from the driver by hand.
+pub struct GlInterop {
+    register_buffer: RegisterBuffer,
+    // Keeps libcuda loaded for as long as the function pointer may be called.
+    _library: libloading::Library,
+}
+
+impl GlInterop {
+    fn load() -> Result<Self, Unavailable> {
+        // For tests on a machine that has CUDA: behave as if it had none.
+        if std::env::var_os("VKGL_HIDE_CUDA").is_some() {
+            return Err(Unavailable(format!("{DRIVER_LIBRARY} hidden by VKGL_HIDE_CUDA")));
+        }
+        // SAFETY: the driver's initialisers have no preconditions.
+        let library = unsafe { libloading::Library::new(DRIVER_LIBRARY) }.map_err(|error| {
+            Unavailable(format!(
+                "{DRIVER_LIBRARY} not found: no NVIDIA driver is installed ({error}); fix: install the \
+                 NVIDIA driver, or run with --tracer cpu"
+            ))
+        })?;
+        // SAFETY: the signature is cudaGL.h's.
+        let register_buffer = unsafe { library.get::<RegisterBuffer>(b"cuGraphicsGLRegisterBuffer\0") }
+            .map(|symbol| *symbol)
+            .map_err(|error| {
+                Unavailable(format!("{DRIVER_LIBRARY} lacks cuGraphicsGLRegisterBuffer: {error}"))
+            })?;
+        Ok(GlInterop { register_buffer, _library: library })
+    }
+
+    /// Registers a GL buffer with CUDA (with the CUDA context current, and GL's current on this
+    /// thread). Unregister it with `cuGraphicsUnregisterResource` before deleting the buffer.
+    pub fn register_buffer(
+        &self,
+        buffer: glow::Buffer,
+        flags: sys::CUgraphicsRegisterFlags,
+    ) -> Result<sys::CUgraphicsResource> {
+        let mut resource = std::ptr::null_mut();
+        // SAFETY: `buffer` is a live GL buffer of the current GL context.
+        unsafe { (self.register_buffer)(&mut resource, buffer.0.get(), flags as u32) }
+            .result()
+            .context("cuGraphicsGLRegisterBuffer")?;
+        crate::resources::created("cuda_graphics_resource", 0);
+        Ok(resource)
+    }
+}
+// ANCHOR_END: register_buffer_fn
+
+/// The CUDA device that is also Vulkan's and GL's, its primary context current on this thread.
+pub struct CudaDevice {
+    pub device: sys::CUdevice,
+    pub context: sys::CUcontext,
+    pub name: String,
+    pub compute_capability: (i32, i32),
+    pub gl: GlInterop,
+}
+
+impl CudaDevice {
+    // ANCHOR: open
+    /// Finds the CUDA device whose UUID is `device_uuid` (Vulkan's `deviceUUID`, which GL's
+    /// `GL_DEVICE_UUID_EXT` matched) and makes its primary context current. Fails with
+    /// [`Unavailable`] when there is no driver, no device, or none of them is that one.
+    pub fn open(device_uuid: &[u8; 16]) -> Result<Self> {
+        let gl = GlInterop::load()?;
+        cu::init().map_err(|error| {
+            Unavailable(format!("cuInit failed: {error} (the NVIDIA driver found no usable GPU)"))
+        })?;
+        let count = cu::device::get_count().context("cuDeviceGetCount")?;
+        let mut seen = Vec::new();
+        for ordinal in 0..count {
+            let device = cu::device::get(ordinal).context("cuDeviceGet")?;
+            let name = cu::device::get_name(device).context("cuDeviceGetName")?;
+            let uuid = cu::device::get_uuid(device).context("cuDeviceGetUuid")?.bytes.map(|b| b as u8);
+            if &uuid != device_uuid {
+                seen.push(format!("{name} ({})", crate::report::uuid_hex(&uuid)));
+                continue;
+            }
+            use sys::CUdevice_attribute::*;
+            let attribute = |a| unsafe { cu::device::get_attribute(device, a) };
+            let compute_capability = (
+                attribute(CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MAJOR)?,
+                attribute(CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MINOR)?,
+            );
+            // The primary context: the one the CUDA runtime would use too, shared per device.
+            let context = unsafe { cu::primary_ctx::retain(device) }.context("cuDevicePrimaryCtxRetain")?;
+            let current = unsafe { cu::ctx::set_current(context) }.context("cuCtxSetCurrent");
+            if let Err(error) = current {
+                unsafe { cu::primary_ctx::release(device) }.ok();
+                return Err(error);
+            }
+            return Ok(CudaDevice { device, context, name, compute_capability, gl });
+        }
+        Err(Unavailable(format!(
+            "none of the {count} CUDA device(s) is the Vulkan/GL device {}: {seen:?}",
+            crate::report::uuid_hex(device_uuid)
+        ))
+        .into())
+    }
+    // ANCHOR_END: open
+
+    /// Releases the primary context (everything made in it must be gone).
+    pub fn destroy(self) -> Result<()> {
+        unsafe {
+            cu::ctx::set_current(std::ptr::null_mut()).context("cuCtxSetCurrent(NULL)")?;
+            cu::primary_ctx::release(self.device).context("cuDevicePrimaryCtxRelease")?;
+        }
+        Ok(())
+    }
+}
+
+/// Is `error` (or anything in its chain) CUDA saying it cannot run here?
+pub fn unavailable(error: &anyhow::Error) -> Option<&Unavailable> {
+    error.chain().find_map(|e| e.downcast_ref::<Unavailable>())
+}
