@@ -202,6 +202,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let memory = &shared.buffers.instances.0.memory;
         report.set("scene_memory_flags", format!("{:?}", memory.property_flags));
         report.set("scene_memory_type", memory.memory_type_index);
+        // Which types an exportable buffer may live in at all: `--scene-memory device` can only
+        // choose among these.
+        let allowed: Vec<u32> = (0..32).filter(|i| memory.allowed_types & (1 << i) != 0).collect();
+        report.set("scene_memory_types_allowed", allowed);
         if kind == SceneKind::Large {
             report.set("large_scene", acceleration_report(&scene, &shared));
         }

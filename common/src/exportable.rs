@@ -40,6 +40,8 @@ pub struct ExportableMemory {
     pub size: u64,
     pub memory_type_index: u32,
     pub property_flags: vk::MemoryPropertyFlags,
+    /// The memory types the resource allowed (`memoryTypeBits`): bit i set, type i allowed.
+    pub allowed_types: u32,
 }
 
 // ANCHOR: allocate
@@ -83,7 +85,8 @@ pub fn allocate(
         .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
     crate::resources::created("vk_memory_exportable", size);
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
-    Ok(ExportableMemory { memory, size, memory_type_index, property_flags })
+    let allowed_types = requirements.memory_type_bits;
+    Ok(ExportableMemory { memory, size, memory_type_index, property_flags, allowed_types })
 }
 // ANCHOR_END: allocate_memory
 
