@@ -51,6 +51,15 @@ impl PassTimes {
         }
     }
 
+    /// Moves every sample of `other` into these (keeping `other`'s lists for reuse).
+    pub fn take_from(&mut self, other: &mut PassTimes) {
+        for (pass, samples) in &mut other.passes {
+            for ms in samples.drain(..) {
+                self.add(pass, ms);
+            }
+        }
+    }
+
     /// The samples of `pass` (empty when it never ran).
     pub fn samples(&self, pass: &str) -> &[f64] {
         self.passes.iter().find(|(name, _)| *name == pass).map_or(&[], |(_, s)| s)
@@ -121,7 +130,9 @@ pub struct GlPassTimer {
     /// Every query made, to delete them all at the end.
     all: Vec<glow::Query>,
     /// Times read early (to free queries), handed over at the next `end_frame`.
-    early: Vec<(&'static str, f64)>,
+    early: PassTimes,
+    /// Emptied frame lists, kept so that a frame allocates nothing once the first few have run.
+    spare: Vec<Vec<(&'static str, glow::Query)>>,
 }
 
 impl GlPassTimer {
@@ -135,8 +146,14 @@ impl GlPassTimer {
             all.push(unsafe { gl.create_query() }.map_err(|e| anyhow::anyhow!("glGenQueries: {e}"))?);
         }
         let free = all.clone();
-        let mut timer =
-            GlPassTimer { pending: VecDeque::new(), current: Vec::new(), free, all, early: Vec::new() };
+        let mut timer = GlPassTimer {
+            pending: VecDeque::new(),
+            current: Vec::new(),
+            free,
+            all,
+            early: PassTimes::new(),
+            spare: Vec::new(),
+        };
         // llvmpipe answers the first GL_TIME_ELAPSED query around a context's first drawing with
         // a time since boot: time a clear of a 1x1 target, and throw the answers away.
         unsafe {
@@ -172,8 +189,9 @@ impl GlPassTimer {
                 .pending
                 .pop_front()
                 .context("more GL passes in one frame than GlPassTimer has queries")?;
-            let early = self.read(gl, oldest);
-            self.early.extend(early);
+            let mut early = std::mem::take(&mut self.early);
+            self.read(gl, oldest, &mut early);
+            self.early = early;
         }
         let query = self.free.pop().expect("a query was freed above");
         unsafe { gl.begin_query(glow::TIME_ELAPSED, query) };
@@ -196,10 +214,9 @@ impl GlPassTimer {
 
     /// Ends the frame: reads every earlier frame whose results have arrived, without waiting.
     pub fn end_frame(&mut self, gl: &glow::Context, times: &mut PassTimes) {
-        self.pending.push_back(std::mem::take(&mut self.current));
-        for (pass, ms) in self.early.drain(..) {
-            times.add(pass, ms);
-        }
+        let next = self.spare.pop().unwrap_or_default();
+        self.pending.push_back(std::mem::replace(&mut self.current, next));
+        times.take_from(&mut self.early);
         while let Some(frame) = self.pending.front() {
             // A frame's queries finish in order: when its last one is available, all are.
             let available = frame.last().is_none_or(|&(_, query)| unsafe {
@@ -209,9 +226,7 @@ impl GlPassTimer {
                 break;
             }
             let frame = self.pending.pop_front().expect("front exists");
-            for (pass, ms) in self.read(gl, frame) {
-                times.add(pass, ms);
-            }
+            self.read(gl, frame, times);
         }
     }
 
@@ -220,30 +235,26 @@ impl GlPassTimer {
         if !self.current.is_empty() {
             self.pending.push_back(std::mem::take(&mut self.current));
         }
-        for (pass, ms) in self.early.drain(..) {
-            times.add(pass, ms);
-        }
+        times.take_from(&mut self.early);
         while let Some(frame) = self.pending.pop_front() {
-            for (pass, ms) in self.read(gl, frame) {
-                times.add(pass, ms);
-            }
+            self.read(gl, frame, times);
         }
     }
 
-    /// Reads a frame's queries (waiting for them if need be) and frees them.
+    /// Reads a frame's queries into `times` (waiting for them if need be) and frees them.
     fn read(
         &mut self,
         gl: &glow::Context,
-        frame: Vec<(&'static str, glow::Query)>,
-    ) -> Vec<(&'static str, f64)> {
-        let mut read = Vec::with_capacity(frame.len());
-        for (pass, query) in frame {
+        mut frame: Vec<(&'static str, glow::Query)>,
+        times: &mut PassTimes,
+    ) {
+        for (pass, query) in frame.drain(..) {
             // GL_QUERY_RESULT of a GL_TIME_ELAPSED query: nanoseconds, 64 bits.
             let ns = unsafe { gl.get_query_parameter_u64(query, glow::QUERY_RESULT) };
-            read.push((pass, ns as f64 / 1e6));
+            times.add(pass, ns as f64 / 1e6);
             self.free.push(query);
         }
-        read
+        self.spare.push(frame);
     }
 
     pub fn delete(self, gl: &glow::Context) {
