@@ -448,14 +448,14 @@ fn ch11_cuda_depth_composite_cpu_tracer() {
 fn ch11_missing_cuda_is_named() {
     let bin = env!("CARGO_BIN_EXE_11-cuda-depth-composite");
     let hide = [("VKGL_HIDE_CUDA", "1")];
-    let insisted = run_chapter(bin, &["--size", "32x24", "--tracer", "cuda"], &hide);
+    let insisted = run_chapter(bin, &["--size", "32x32", "--tracer", "cuda"], &hide);
     assert_eq!(insisted.output.status.code(), Some(2), "--tracer cuda without CUDA:\n{}", insisted.stderr);
     assert!(insisted.report.is_none(), "no report when the chapter could not run");
     let error = insisted.stderr.split_once("error: ").map(|(_, e)| e).unwrap_or_default();
     assert!(error.contains("libcuda.so.1"), "names what is missing:\n{}", insisted.stderr);
     assert!(!insisted.stderr.contains("panicked"), "no panic:\n{}", insisted.stderr);
     // auto says what is missing, and traces on the CPU.
-    let auto = run_chapter(bin, &["--size", "32x24", "--tracer", "auto", "--path", "pbo"], &hide);
+    let auto = run_chapter(bin, &["--size", "32x32", "--tracer", "auto", "--path", "pbo"], &hide);
     assert_eq!(auto.succeeded()["tracer"], "cpu");
     assert!(
         auto.stderr.contains("libcuda.so.1") && auto.stderr.contains("tracing on the CPU"),
@@ -557,4 +557,19 @@ fn images_from_elsewhere_match_the_references() {
     eprintln!("compared {compared} images");
     assert!(compared > 0, "no image there has a reference");
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn ch11_refuses_sizes_it_cannot_hold_or_check() {
+    let bin = env!("CARGO_BIN_EXE_11-cuda-depth-composite");
+    for (size, expected) in [
+        ("16384x16384", "need 2147483648 bytes"),
+        ("31x31", "at least 32x32"),
+        ("100x200", "at least as wide as it is tall"),
+    ] {
+        let run = run_chapter(bin, &["--size", size, "--tracer", "cpu"], &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{size}: exit 2\n{}", run.stderr);
+        assert!(run.stderr.contains(expected), "{size}: names the problem\n{}", run.stderr);
+        assert!(!run.stderr.contains("panicked"), "{size}: no panic\n{}", run.stderr);
+    }
 }

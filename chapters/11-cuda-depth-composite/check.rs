@@ -96,13 +96,21 @@ impl Frame<'_> {
         composite.draw_lines(gl, self.view_projection);
         let picture = composite.read_colour(gl);
         let probes = self.probe(&hits, params, w, h);
-        if let Some(hidden) = probes.0 {
-            report.check(&name("overlay_hidden_behind_a_traced_surface"), !shows_colour(&picture, w, hidden));
-        }
-        if let Some(visible) = probes.1 {
-            report
-                .check(&name("overlay_shown_where_nothing_is_in_front"), shows_colour(&picture, w, visible));
-        }
+        // A probe the picture offers no pixel for fails its check (and says so): a check that
+        // quietly went missing would prove nothing.
+        let probed = |probe: Option<(usize, usize, [u8; 3])>, what: &str, shown: bool| {
+            probe.map_or_else(
+                || {
+                    eprintln!("overlay: no pixel of the gizmo {what} at this size; the check fails");
+                    false
+                },
+                |p| shows_colour(&picture, w, p) == shown,
+            )
+        };
+        let hidden = probed(probes.0, "behind a sphere", false);
+        report.check(&name("overlay_hidden_behind_a_traced_surface"), hidden);
+        let visible = probed(probes.1, "in the open", true);
+        report.check(&name("overlay_shown_where_nothing_is_in_front"), visible);
 
         // ANCHOR: depth_check
         // The ground square rasterised by GL against the ground as the tracer hit it, at every

@@ -82,6 +82,24 @@ fn main() -> ExitCode {
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (width, height) = (args.common.size.width, args.common.size.height);
     let bytes = traced_bytes(width, height);
+    // The checks probe gizmo pixels with two pixels around them, and GL buffer sizes are 32-bit signed here
+    // (glow's glNamedBufferData): refuse what the chapter cannot check or hold, before anything exists.
+    anyhow::ensure!(
+        width >= 32 && height >= 32,
+        "--size {width}x{height}: chapter 11 needs at least 32x32 pixels for its overlay checks"
+    );
+    // Framed taller than wide, the gizmo's axis behind the red sphere leaves the picture, and the
+    // hidden-line check would have no pixel to look at.
+    anyhow::ensure!(
+        height <= width,
+        "--size {width}x{height}: chapter 11's overlay checks need a picture at least as wide as it is tall"
+    );
+    anyhow::ensure!(
+        bytes <= i32::MAX as u64,
+        "--size {width}x{height}: the traced colour and depth need {bytes} bytes; a GL buffer here holds \
+         at most {} bytes (16383x16383 fits)",
+        i32::MAX
+    );
     let paths = match args.path {
         PathChoice::Pbo => vec![Path::Pbo],
         PathChoice::ZeroCopy => vec![Path::ZeroCopy],

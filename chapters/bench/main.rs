@@ -75,7 +75,7 @@ struct Args {
     #[arg(long, value_enum, default_value = "per-mesh")]
     blas: BlasLayout,
     /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     frames: Option<u32>,
 }
 
@@ -154,7 +154,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     ensure!(spps.iter().all(|s| (1..=256).contains(s)), "--spp: each must be 1 to 256");
     // Half in each of two rounds.
-    let frames_per_run = args.frames.unwrap_or(if args.quick { 3 } else { 30 }).max(1).div_ceil(2);
+    let frames_per_run = args.frames.unwrap_or(if args.quick { 3 } else { 30 }).div_ceil(2);
 
     // 2. Vulkan, GL, and both ways to synchronise
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;

@@ -60,6 +60,9 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
     }
     // (`VKGL_FAIL_AT=import` fails here, as a driver that refuses the import would.)
     crate::fail::at("import")?;
+    // An error left by an earlier call would be read below as the import's own, and the fd then
+    // closed although GL took it: report it now, while the fd is still only ours.
+    gl.check_error("a GL call before glImportMemoryFdEXT")?;
     unsafe { (ext.ImportMemoryFdEXT)(name, size, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
     // Some drivers list the extension yet fail the import: always look. On failure `fd` is
     // dropped, and so closed: the failed import did not take it.
