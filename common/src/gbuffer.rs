@@ -269,7 +269,8 @@ pub fn check_size(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> R
 // ANCHOR: vertex_array
 /// How GL reads a mesh: per-vertex attributes from its vertex buffer (binding 0) and
 /// per-instance ones from the shared instance buffer (binding 1, advancing once per instance).
-unsafe fn vertex_array(
+/// Chapter 12's visibility pass reads the same buffers the same way.
+pub unsafe fn vertex_array(
     gl: &glow::Context,
     vertices: &SharedBuffer,
     indices: &SharedBuffer,

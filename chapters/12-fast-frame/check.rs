@@ -1,0 +1,234 @@
+//! Chapter 12's checks: the composite against its formula on the CPU, the overlays' depth test,
+//! and the lean frame against chapter 08's fat one on the same scene, camera and rays: the same
+//! pixels covered, the same hit points, the same occlusion.
+
+use crate::composite::{ComputeComposite, Uniforms, View};
+use crate::visibility::Targets;
+use anyhow::Result;
+use crate::frame_pending::{Overlays, shows_colour};
+use common::scene::Camera;
+use common::{Report, output};
+use glam::Vec3;
+use glow::HasContext;
+use std::path::Path;
+
+/// The surface Vulkan wrote, as GL holds it (memory order: GL's bottom row first).
+pub struct Surface {
+    pub width: usize,
+    pub height: usize,
+    /// RGBA per pixel: visibility, view depth (0: background), packed normal, packed albedo.
+    pub texels: Vec<f32>,
+}
+
+impl Surface {
+    pub fn read(gl: &glow::Context, targets: &Targets) -> Surface {
+        let (w, h) = (targets.extent.width, targets.extent.height);
+        let texels = output::read_texture_f32(gl, targets.surface.texture.texture, w, h, 4);
+        Surface { width: w as usize, height: h as usize, texels }
+    }
+
+    pub fn depth(&self, i: usize) -> f32 {
+        self.texels[i * 4 + 1]
+    }
+
+    pub fn covered(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.width * self.height).filter(|&i| self.depth(i) > 0.0)
+    }
+}
+
+/// The picture's RGBA8 pixels, bottom row first.
+pub fn read_picture(gl: &glow::Context, targets: &Targets) -> Vec<u8> {
+    let (w, h) = (targets.extent.width, targets.extent.height);
+    let mut pixels = vec![0u8; w as usize * h as usize * 4];
+    unsafe {
+        gl.pixel_store_i32(glow::PACK_ALIGNMENT, 1);
+        gl.bind_texture(glow::TEXTURE_2D, Some(targets.picture));
+        let data = glow::PixelPackData::Slice(Some(&mut pixels));
+        gl.get_tex_image(glow::TEXTURE_2D, 0, glow::RGBA, glow::UNSIGNED_BYTE, data);
+        gl.bind_texture(glow::TEXTURE_2D, None);
+    }
+    pixels
+}
+
+/// What the last frame drew with.
+pub struct LastFrame<'a> {
+    pub gl: &'a glow::Context,
+    pub targets: &'a Targets,
+    pub composite: &'a ComputeComposite,
+    pub overlays: &'a Overlays,
+    pub camera: &'a Camera,
+    pub uniforms: Uniforms,
+}
+
+impl LastFrame<'_> {
+    /// The composite against the CPU, then the overlays: hidden where the surface is in front.
+    pub fn check(&self, surface: &Surface) -> Vec<(&'static str, bool)> {
+        let LastFrame { gl, targets, composite, overlays, camera, .. } = *self;
+        let uniforms = Uniforms { view: View::Final, ..self.uniforms };
+        composite.draw(gl, targets, &uniforms);
+        let plain = read_picture(gl, targets);
+        let mut checks = vec![("composite_matches_cpu_reference", matches_reference(surface, &plain, &uniforms))];
+        let (w, h) = (targets.extent.width, targets.extent.height);
+        let view_projection = camera.view_projection(w as f32 / h as f32);
+        overlays.draw(gl, &targets.overlay_target(), view_projection);
+        let with_lines = read_picture(gl, targets);
+        let depth: Vec<f32> = (0..surface.width * surface.height).map(|i| surface.depth(i)).collect();
+        let forward = (camera.target - camera.eye).normalize();
+        let probes = overlays.probe(&depth, surface.width, surface.height, view_projection, camera.eye, forward);
+        // A size too small to find a probe fails the check rather than skip it.
+        let hidden = probes.hidden.is_some_and(|p| !shows_colour(&with_lines, surface.width, p));
+        let visible = probes.visible.is_some_and(|p| shows_colour(&with_lines, surface.width, p));
+        checks.push(("overlay_hidden_behind_a_surface", hidden));
+        checks.push(("overlay_shown_where_nothing_is_in_front", visible));
+        checks
+    }
+
+    /// The final picture (with overlays) and the blurred occlusion, as PNGs; the mean occlusion
+    /// over covered pixels, as chapter 08 reports it.
+    pub fn write_pictures(&self, report: &mut Report, surface: &Surface, out: &Path, prefix: &str) -> Result<()> {
+        let LastFrame { gl, targets, composite, overlays, camera, .. } = *self;
+        let (w, h) = (targets.extent.width, targets.extent.height);
+        composite.draw(gl, targets, &Uniforms { view: View::Ao, ..self.uniforms });
+        let ao = read_picture(gl, targets);
+        let covered: Vec<usize> = surface.covered().collect();
+        let mean = covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64;
+        report.set("ao_mean", (mean * 1e3).round() / 1e3);
+        output::save_rgba8(report, out, &format!("{prefix}-ao"), w, h, &output::flip_rows(&ao, w, h))?;
+        composite.draw(gl, targets, &Uniforms { view: View::Final, ..self.uniforms });
+        overlays.draw(gl, &targets.overlay_target(), camera.view_projection(w as f32 / h as f32));
+        let picture = output::flip_rows(&read_picture(gl, targets), w, h);
+        output::save_rgba8(report, out, prefix, w, h, &picture)?;
+        Ok(())
+    }
+}
+
+// ANCHOR: reference
+/// The compute shader's formula on the CPU, at a spread of covered pixels, against what GL
+/// drew (within 2/255 per channel).
+pub fn matches_reference(s: &Surface, drawn: &[u8], u: &Uniforms) -> bool {
+    let (w, h) = (s.width as i32, s.height as i32);
+    let at = |x: i32, y: i32| (y.clamp(0, h - 1) * w + x.clamp(0, w - 1)) as usize;
+    let covered: Vec<usize> = s.covered().collect();
+    let step = (covered.len() / 64).max(1);
+    let mut compared = 0;
+    for &i in covered.iter().step_by(step) {
+        let (x, y) = ((i % s.width) as i32, (i / s.width) as i32);
+        let (depth, normal) = (s.depth(i), unpack_normal(s.texels[i * 4 + 2]));
+        let (mut sum, mut count) = (0.0, 0.0);
+        for dy in -u.blur_radius..=u.blur_radius {
+            for dx in -u.blur_radius..=u.blur_radius {
+                let j = at(x + dx, y + dy);
+                let other = s.depth(j);
+                let same_depth = other > 0.0 && (other - depth).abs() <= u.depth_tolerance * depth;
+                let same_facing = unpack_normal(s.texels[j * 4 + 2]).dot(normal) >= u.normal_tolerance;
+                if same_depth && same_facing {
+                    sum += s.texels[j * 4];
+                    count += 1.0;
+                }
+            }
+        }
+        let occlusion = (sum / count).powf(u.power);
+        let albedo = s.texels[i * 4 + 3] as u32;
+        for c in 0..3 {
+            let expected = (((albedo >> (8 * c)) & 0xFF) as f32 / 255.0 * occlusion * 255.0).round();
+            if (drawn[i * 4 + c] as f32 - expected).abs() > 2.0 {
+                eprintln!("composite differs at ({x}, {y}): drew {}, expected {expected}", drawn[i * 4 + c]);
+                return false;
+            }
+        }
+        compared += 1;
+    }
+    compared > 0
+}
+// ANCHOR_END: reference
+
+/// ao.rgen's unpack_normal, on the CPU.
+pub fn unpack_normal(packed: f32) -> Vec3 {
+    let q = packed as u32;
+    let p = glam::Vec2::new((q >> 12) as f32, (q & 4095) as f32) / 4095.0 * 2.0 - 1.0;
+    let mut n = Vec3::new(p.x, p.y, 1.0 - p.x.abs() - p.y.abs());
+    if n.z < 0.0 {
+        let sign = |v: f32| if v >= 0.0 { 1.0 } else { -1.0 };
+        (n.x, n.y) = ((1.0 - p.y.abs()) * sign(p.x), (1.0 - p.x.abs()) * sign(p.y));
+    }
+    n.normalize()
+}
+
+// ANCHOR: against_08
+/// The lean frame against chapter 08's G-buffers and AO image, drawn and traced with the same
+/// camera and rays: `positions` (RGBA32F, w the view depth) and `visibility` (R32F) read back.
+pub struct Chapter08 {
+    pub positions: Vec<f32>,
+    pub visibility: Vec<f32>,
+}
+
+impl Chapter08 {
+    pub fn compare(&self, s: &Surface, report: &mut Report, same_rays: bool) {
+        let pixels = s.width * s.height;
+        let theirs = |i: usize| self.positions[i * 4 + 3];
+        // Coverage: the same triangles at the same pixels, but where two triangles tie in depth
+        // (one pass may keep either).
+        let differ = (0..pixels).filter(|&i| (theirs(i) > 0.0) != (s.depth(i) > 0.0)).count();
+        let both: Vec<usize> = (0..pixels).filter(|&i| theirs(i) > 0.0 && s.depth(i) > 0.0).collect();
+        report.set("coverage_pixels_differing", differ);
+        report.check("covers_the_pixels_chapter_08_covers", !both.is_empty() && differ * 1000 <= pixels);
+        // Hit points: the rebuilt point's view depth against GL's interpolated one. Both are
+        // the same point of the same triangle but for rounding, relative to the scene's size.
+        let worst = both.iter().map(|&i| ((s.depth(i) - theirs(i)) / theirs(i)).abs()).fold(0.0f32, f32::max);
+        report.set("hit_depth_worst_relative_difference", format!("{worst:.1e}"));
+        report.check("rebuilt_hits_match_the_rasterised_positions", worst <= 1e-4);
+        // Occlusion: the same rays from (nearly) the same points. Means within Monte Carlo noise;
+        // per pixel, with the same sample sequence, nearly every pixel the same.
+        let n = both.len().max(1) as f64;
+        let mean = |f: &dyn Fn(usize) -> f32| both.iter().map(|&i| f(i) as f64).sum::<f64>() / n;
+        let (ours, chapter_08) = (mean(&|i| s.texels[i * 4]), mean(&|i| self.visibility[i]));
+        report.set("visibility_mean", (ours * 1e4).round() / 1e4);
+        report.set("visibility_mean_chapter_08", (chapter_08 * 1e4).round() / 1e4);
+        report.check("ao_mean_agrees_with_chapter_08", (ours - chapter_08).abs() <= 0.005);
+        if same_rays {
+            let per_pixel = mean(&|i| (s.texels[i * 4] - self.visibility[i]).abs());
+            report.set("visibility_mean_abs_difference", (per_pixel * 1e4).round() / 1e4);
+            report.check("ao_per_pixel_agrees_with_chapter_08", per_pixel <= 0.01);
+        }
+    }
+}
+// ANCHOR_END: against_08
+
+/// Chapter 08's G-buffers drawn with `camera`, and its AO traced `per_frame` rays at a time to
+/// `total` rays per pixel, as the frames of this chapter traced them; read back, then destroyed.
+#[allow(clippy::too_many_arguments)] // the contexts, the scene's, and the frame to repeat
+pub fn trace_chapter_08(
+    vk: &common::VulkanContext,
+    gl: &common::GlContext,
+    sync: &common::sync::Sync,
+    shared: &mut common::accel::RayTracedScene,
+    scene: &common::scene::Scene,
+    camera: &Camera,
+    extent: ash::vk::Extent2D,
+    (per_frame, total, radius): (u32, u32, f32),
+) -> Result<Chapter08> {
+    use common::ao::AoTracer;
+    use common::gbuffer::GBuffers;
+    let storage = ash::vk::ImageUsageFlags::STORAGE;
+    let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, storage)?;
+    gbuffers.draw(&gl.gl, scene, camera);
+    let tlas = shared.structures.tlas.handle;
+    let mut tracer = AoTracer::new(vk, gl, &mut shared.allocator, tlas, &gbuffers)?;
+    let scene_scale = scene.size() / 2.0;
+    if per_frame == 0 || total == 0 || radius == 0.0 {
+        tracer.fill_unoccluded(vk, gl)?;
+    }
+    while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
+        let samples = per_frame.min(total - tracer.accumulated);
+        let rays = common::raytrace::AoRays { samples, accumulated: 0, radius, scene_scale };
+        tracer.trace(vk, gl, sync, &shared.commands, &gbuffers, rays, None)?;
+    }
+    let (w, h) = (extent.width, extent.height);
+    let positions = output::read_texture_f32(&gl.gl, gbuffers.textures()[0], w, h, 4);
+    let visibility = output::read_texture_f32(&gl.gl, tracer.image.texture.texture, w, h, 1);
+    unsafe { gl.gl.finish() };
+    unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
+    tracer.destroy(vk, gl, &mut shared.allocator);
+    drop(gbuffers);
+    Ok(Chapter08 { positions, visibility })
+}

@@ -1,0 +1,111 @@
+//! Chapter 12's composite: chapter 08's blur and albedo x occlusion, as a GL compute shader
+//! that reads the surface Vulkan wrote and writes the picture.
+
+use crate::visibility::Targets;
+use anyhow::{Context as _, Result};
+use glow::HasContext;
+use std::rc::Rc;
+
+const COMPUTE_SHADER: &str = include_str!("../../shaders/gl/fast_composite.comp");
+
+/// What the composite shows (its `view` uniform, in this order).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum View {
+    Final,
+    Ao,
+    Depth,
+    Normal,
+    Albedo,
+}
+
+impl View {
+    pub const ALL: [View; 5] = [View::Final, View::Ao, View::Depth, View::Normal, View::Albedo];
+}
+
+/// The composite shader's uniforms (chapter 08's, less what it showed of positions).
+#[derive(Clone, Copy)]
+pub struct Uniforms {
+    pub blur_radius: i32,
+    /// Relative: a neighbour is on the same surface if its view depth is within this fraction.
+    pub depth_tolerance: f32,
+    /// A neighbour is on the same surface if the dot product of the normals is at least this.
+    pub normal_tolerance: f32,
+    pub power: f32,
+    pub view: View,
+    pub far_depth: f32,
+}
+
+pub struct ComputeComposite {
+    program: glow::Program,
+    gl: Rc<glow::Context>,
+}
+
+impl ComputeComposite {
+    pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
+        let program = compute_program(gl, COMPUTE_SHADER).context("the composite's compute shader")?;
+        Ok(ComputeComposite { program, gl: gl.clone() })
+    }
+
+    // ANCHOR: dispatch
+    /// One thread per pixel, in 16x16 groups, then a barrier: the overlays are drawn into the
+    /// picture next, and it is read back or shown after that.
+    pub fn draw(&self, gl: &glow::Context, targets: &Targets, u: &Uniforms) {
+        let (width, height) = (targets.extent.width, targets.extent.height);
+        unsafe {
+            gl.use_program(Some(self.program));
+            gl.bind_texture_unit(0, Some(targets.surface.texture.texture));
+            gl.bind_image_texture(0, Some(targets.picture), 0, false, 0, glow::WRITE_ONLY, glow::RGBA8);
+            let at = |name| gl.get_uniform_location(self.program, name);
+            gl.uniform_1_i32(at("blur_radius").as_ref(), u.blur_radius);
+            gl.uniform_1_f32(at("depth_tolerance").as_ref(), u.depth_tolerance);
+            gl.uniform_1_f32(at("normal_tolerance").as_ref(), u.normal_tolerance);
+            gl.uniform_1_f32(at("power").as_ref(), u.power);
+            gl.uniform_1_i32(at("view").as_ref(), u.view as i32);
+            gl.uniform_1_f32(at("far_depth").as_ref(), u.far_depth);
+            gl.dispatch_compute(width.div_ceil(16), height.div_ceil(16), 1);
+            // Image stores are not ordered with what follows until a barrier names its use:
+            // drawing into the picture (the overlays), and reading or blitting it.
+            gl.memory_barrier(glow::FRAMEBUFFER_BARRIER_BIT | glow::TEXTURE_UPDATE_BARRIER_BIT);
+        }
+    }
+    // ANCHOR_END: dispatch
+}
+
+impl Drop for ComputeComposite {
+    fn drop(&mut self) {
+        unsafe { self.gl.delete_program(self.program) };
+    }
+}
+
+/// A program of one compute shader; a failure carries GL's info log and deletes what it made.
+fn compute_program(gl: &glow::Context, source: &str) -> Result<glow::Program> {
+    unsafe {
+        let shader = gl.create_shader(glow::COMPUTE_SHADER).map_err(anyhow::Error::msg)?;
+        gl.shader_source(shader, source);
+        gl.compile_shader(shader);
+        if !gl.get_shader_compile_status(shader) {
+            let log = gl.get_shader_info_log(shader);
+            gl.delete_shader(shader);
+            anyhow::bail!("the compute shader does not compile:\n{log}");
+        }
+        let program = match gl.create_program() {
+            Ok(program) => program,
+            Err(error) => {
+                gl.delete_shader(shader);
+                anyhow::bail!(error);
+            }
+        };
+        common::resources::created("gl_program", 0);
+        gl.attach_shader(program, shader);
+        gl.link_program(program);
+        gl.detach_shader(program, shader);
+        gl.delete_shader(shader);
+        if !gl.get_program_link_status(program) {
+            let log = gl.get_program_info_log(program);
+            gl.delete_program(program);
+            anyhow::bail!("the compute program does not link:\n{log}");
+        }
+        Ok(program)
+    }
+}

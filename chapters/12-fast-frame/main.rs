@@ -1,0 +1,302 @@
+//! Chapter 12: the fast frame.
+//!
+//! Chapter 08's picture, drawn for speed. GL writes one 32-bit id per pixel instead of 36 bytes
+//! of G-buffers; Vulkan's ray generation shader rebuilds the exact hit point and normal from the
+//! scene's shared buffers and traces the occlusion; a GL compute shader blurs and composites;
+//! the overlays are drawn over it, tested against the id pass's depth. Each choice is measured
+//! on the book's performance page.
+//!
+//! Run: `cargo run --release --bin 12-fast-frame` (keys: 1-5 views, +/- rays, [/] radius,
+//! B blur, P power, O overlays, T tile rotation, Esc quits; drag to orbit, wheel to zoom).
+
+use anyhow::{Result, ensure};
+use ash::vk;
+use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
+use common::ao::AoArgs;
+use common::cli::Size;
+use common::commands::Timestamps;
+use frame_pending::Overlays;
+mod frame_pending;
+use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::scene::{Camera, SceneArgs};
+use common::sync::Sync;
+use common::timing::{GlPassTimer, PassTimes};
+use common::window::{Key, NamedKey, Window};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use glow::HasContext;
+use std::process::ExitCode;
+
+mod check;
+mod composite;
+mod trace;
+mod visibility;
+use composite::{ComputeComposite, Uniforms, View};
+use trace::{Rays, SurfaceTracer};
+use visibility::{Targets, VisibilityPass};
+
+const CHAPTER: &str = "12-fast-frame";
+/// One compute group, and room around the overlay probes.
+const SMALLEST: u32 = 16;
+
+/// Chapter 12: chapter 08's frame from a visibility buffer, with a compute composite.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    ao: AoArgs,
+    /// Blur radius in pixels (0 skips the blur).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    blur: u32,
+    /// Which picture to show.
+    #[arg(long, value_enum, default_value = "final")]
+    view: View,
+    /// One rotation of the AO sample sequence per 8x8 tile, instead of one per pixel: coherent
+    /// rays (see the book for what it does to the error).
+    #[arg(long)]
+    tile_rotation: bool,
+    /// As chapter 08's `--blas`: one BLAS per mesh, or one flat BLAS of every instance.
+    #[arg(long, value_enum, default_value = "per-mesh")]
+    blas: BlasLayout,
+    /// Start this many times closer to the scene's centre than the framing puts the camera.
+    #[arg(long, default_value_t = 1.0)]
+    zoom: f32,
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+}
+
+/// What the keys change (chapter 08's, less its debug views of positions).
+#[derive(Clone, Copy, PartialEq)]
+struct Settings {
+    samples: u32,
+    radius: f32,
+    power: f32,
+    blur: u32,
+    view: View,
+    overlays: bool,
+    tile_rotation: bool,
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let mut size = args.common.size;
+    ensure!(
+        size.width >= SMALLEST && size.height >= SMALLEST,
+        "--size {}x{}: chapter 12 draws at least {SMALLEST}x{SMALLEST} (one compute group, and room \
+         around the overlays' test pixels)",
+        size.width,
+        size.height
+    );
+
+    // 1. Load the scene, and aim the camera at it
+    let scene = args.scene.load()?;
+    let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    ensure!(args.zoom.is_finite() && (1e-3..=1e6).contains(&args.zoom), "--zoom {}: choose 0.001 to 1000000", args.zoom);
+    camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
+    let radius = args.ao.radius(&scene)?;
+    let mut settings = Settings {
+        samples: args.ao.samples,
+        radius,
+        power: args.ao.power,
+        blur: args.blur,
+        view: args.view,
+        overlays: true,
+        tile_rotation: args.tile_rotation,
+    };
+
+    // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
+    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
+    let headless = args.common.headless || !common::window::display_available();
+    let (mut window, gl_context) = if headless {
+        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
+    } else {
+        let (window, gl) = Window::open("12 · fast frame", size, &MEMORY_EXTENSIONS)?;
+        (Some(window), gl)
+    };
+    let gl = &gl_context.gl;
+    common::connect(report, &vk, &gl_context)?;
+    report.set("window", window.is_some());
+    let sync = Sync::new(&vk, &gl_context)?;
+    report.sync = Some(sync.name());
+    let open_fds_before = open_fd_count()?;
+
+    // 3. The shared scene and its structures (chapters 05-06), every triangle numbered
+    let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
+    let ids = visibility::number_triangles(&vk, &scene, &shared.buffers)?;
+    let extent = |size: Size| vk::Extent2D { width: size.width, height: size.height };
+
+    // 4. The images of one size, and the three passes: ids (GL), rays (Vulkan), composite (GL)
+    // ANCHOR: setup
+    let mut targets = Targets::new(&vk, &gl_context, extent(size))?;
+    let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
+    let mut tracer = SurfaceTracer::new(&vk, &mut shared, &ids, &targets)?;
+    let composite = ComputeComposite::new(gl)?;
+    let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
+    // ANCHOR_END: setup
+
+    // 5. Every frame: input, ids, rays, composite, overlays
+    let frame_limit = args.common.frame_count(window.is_some());
+    let (mut frame, mut resizes) = (0, 0);
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
+    let timestamps = Timestamps::new(&vk)?;
+    let mut trace_pending = false;
+    let skipped = common::ao::nothing_to_trace(settings.samples, settings.radius);
+    if let Some(reason) = skipped {
+        eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
+    }
+    loop {
+        let mut new_size = None;
+        if let Some(window) = window.as_mut() {
+            let keys: Vec<Key> = window.poll(&gl_context).collect();
+            if keys.contains(&Key::Named(NamedKey::Escape)) || window.close_requested() {
+                break;
+            }
+            let before = (settings, camera.eye);
+            keys.iter().for_each(|key| apply_key(key, &mut settings));
+            let ((dx, dy), wheel) = window.take_mouse();
+            if dx != 0.0 || dy != 0.0 || wheel != 0.0 {
+                camera.orbit(-dx * 0.01, dy * 0.01, 1.1f32.powf(wheel), scene.bounds);
+            }
+            // A new camera, radius or sample pattern makes the running mean describe another thing.
+            let changed = (settings.radius, settings.tile_rotation) != (before.0.radius, before.0.tile_rotation);
+            if changed || camera.eye != before.1 {
+                tracer.accumulated = 0;
+            }
+            let (width, height) = window.size();
+            if (width, height) != (size.width, size.height) && width >= SMALLEST && height >= SMALLEST {
+                new_size = Some(Size { width, height });
+            }
+        }
+        if frame_limit > 0 && frame >= frame_limit {
+            break;
+        }
+        // ANCHOR: resize
+        if let Some(new) = new_size {
+            // Every image of the old size goes, once neither API uses it; the rest stays.
+            unsafe { gl.finish() };
+            unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
+            size = new;
+            drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, extent(size))?));
+            tracer.resized(&vk, &targets);
+            resizes += 1;
+        }
+        // ANCHOR_END: resize
+        // ANCHOR: frame
+        gl_timer.time(gl, "visibility", || visibility.draw(gl, &targets, &scene, &ids, &camera))?;
+        if tracer.accumulated < args.ao.max_samples || skipped.is_some() {
+            let samples = if skipped.is_some() { 0 } else { settings.samples.min(args.ao.max_samples - tracer.accumulated) };
+            let rays =
+                Rays { samples, radius: settings.radius, scene_scale: scene.size() / 2.0, tile_rotation: settings.tile_rotation };
+            if std::mem::take(&mut trace_pending) {
+                common::timing::read_after(&vk, shared.commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+            }
+            tracer.trace(&vk, &gl_context, &sync, &shared.commands, &targets, &camera, rays, timestamps.as_ref())?;
+            trace_pending = timestamps.is_some();
+        }
+        let uniforms = settings_uniforms(&settings, &camera);
+        gl_timer.time(gl, "composite", || composite.draw(gl, &targets, &uniforms))?;
+        if settings.overlays {
+            let view_projection = camera.view_projection(size.width as f32 / size.height as f32);
+            gl_timer.time(gl, "overlays", || overlays.draw(gl, &targets.overlay_target(), view_projection))?;
+        }
+        gl_timer.end_frame(gl, &mut times);
+        // ANCHOR_END: frame
+        if let Some(window) = &mut window {
+            window.show_times(&times);
+            targets.show(gl, window.size());
+            window.swap_buffers(&gl_context)?;
+        }
+        times.frame_done();
+        frame += 1;
+    }
+    if trace_pending {
+        common::timing::read_after(&vk, shared.commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+    }
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
+    gl_context.check_error("the frame loop")?;
+
+    // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
+    let surface = check::Surface::read(gl, &targets);
+    if frame > 0 {
+        let last = check::LastFrame {
+            gl,
+            targets: &targets,
+            composite: &composite,
+            overlays: &overlays,
+            camera: &camera,
+            uniforms: settings_uniforms(&settings, &camera),
+        };
+        for (name, ok) in last.check(&surface) {
+            report.check(name, ok);
+        }
+        if window.is_none() {
+            let prefix = args.scene.picture_name(CHAPTER);
+            last.write_pictures(report, &surface, &args.common.out_dir(CHAPTER), &prefix)?;
+        }
+    }
+    let covered = surface.covered().collect::<Vec<_>>();
+    report.check("ao_within_0_and_1", covered.iter().all(|&i| (0.0..=1.0).contains(&surface.texels[i * 4])));
+    let background = (0..surface.width * surface.height).filter(|&i| surface.depth(i) <= 0.0);
+    report.check("background_unoccluded", background.clone().all(|i| surface.texels[i * 4] == 1.0));
+    let rays = (if skipped.is_some() { 0 } else { settings.samples }, tracer.accumulated, settings.radius);
+    let chapter_08 =
+        check::trace_chapter_08(&vk, &gl_context, &sync, &mut shared, &scene, &camera, extent(size), rays)?;
+    chapter_08.compare(&surface, report, !settings.tile_rotation);
+    report.set("samples_per_pixel", tracer.accumulated);
+    report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());
+    report.set("frames", frame);
+    report.set("resizes", resizes);
+    report.set("tile_rotation", settings.tile_rotation);
+    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+
+    // 7. Clean up, newest first
+    // ANCHOR: cleanup
+    unsafe { gl.finish() };
+    unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
+    drop(timestamps);
+    drop(gl_timer);
+    drop(overlays);
+    drop(composite);
+    tracer.destroy(&vk, &mut shared.allocator);
+    drop(visibility);
+    drop(targets);
+    shared.destroy(&vk, &gl_context);
+    sync.destroy(&vk, &gl_context);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    drop(window);
+    Ok(())
+}
+
+fn apply_key(key: &Key, s: &mut Settings) {
+    if let Key::Character(c) = key.as_ref() {
+        match c {
+            "1" | "2" | "3" | "4" | "5" => s.view = View::ALL[c.parse::<usize>().unwrap() - 1],
+            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
+            "-" => s.samples = (s.samples / 2).max(1),
+            "]" => s.radius *= 1.25,
+            "[" => s.radius /= 1.25,
+            "b" | "B" => s.blur = (s.blur + 1) % 5,
+            "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0,
+            "o" | "O" => s.overlays = !s.overlays,
+            "t" | "T" => s.tile_rotation = !s.tile_rotation,
+            _ => {}
+        }
+    }
+}
+
+fn settings_uniforms(s: &Settings, camera: &Camera) -> Uniforms {
+    Uniforms {
+        blur_radius: s.blur as i32,
+        depth_tolerance: 0.02,
+        normal_tolerance: 0.9,
+        power: s.power,
+        view: s.view,
+        far_depth: camera.far,
+    }
+}

@@ -1,0 +1,243 @@
+//! Chapter 12's Vulkan side: the ray tracing pipeline that rebuilds each pixel's hit from its id
+//! and traces the occlusion, the table of mesh ids it reads, and one frame's hand-overs.
+
+use crate::visibility::{MeshIds, Targets};
+use anyhow::Result;
+use ash::vk;
+use common::accel::{DeviceBuffer, RayTracedScene};
+use common::commands::{Commands, Timestamps, first_use};
+use common::interop::{acquire_from_gl, release_to_gl};
+use common::raytrace::{RayPipeline, push_bytes};
+use common::scene::Camera;
+use common::sync::{HandOver, Sync};
+use common::{GlContext, VulkanContext};
+use gpu_allocator::MemoryLocation;
+use gpu_allocator::vulkan::Allocator;
+
+const RAYGEN: &[u8] = include_bytes!("../../shaders/visibility_ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+
+// ANCHOR: surface_rays
+/// The push constants of `shaders/visibility_ao.rgen` (std430, 128 bytes: the most every
+/// Vulkan device accepts).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceRays {
+    pub inverse_view_projection: [f32; 16],
+    pub eye: [f32; 3],
+    pub radius: f32,
+    pub forward: [f32; 3],
+    pub scene_scale: f32,
+    pub samples: u32,
+    pub accumulated: u32,
+    pub mesh_count: u32,
+    pub tile_rotation: u32,
+    pub meshes: u64,
+    pub instances: u64,
+}
+// ANCHOR_END: surface_rays
+
+/// What a frame's rays are asked to do, beside the camera.
+#[derive(Clone, Copy)]
+pub struct Rays {
+    pub samples: u32,
+    pub radius: f32,
+    pub scene_scale: f32,
+    pub tile_rotation: bool,
+}
+
+/// The pipeline, the mesh table it reads, and how far the running mean has got.
+pub struct SurfaceTracer {
+    pipeline: RayPipeline,
+    meshes: DeviceBuffer,
+    mesh_count: u32,
+    instances: u64,
+    /// Rays per pixel already in the running mean; 0 starts it again.
+    pub accumulated: u32,
+    /// Has GL had the surface image yet? A new one starts undefined, never handed over.
+    gl_has_surface: bool,
+}
+
+impl SurfaceTracer {
+    pub fn new(vk: &VulkanContext, shared: &mut RayTracedScene, ids: &[MeshIds], targets: &Targets) -> Result<Self> {
+        // ANCHOR: pipeline
+        let binding = |binding, ty| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(binding)
+                .descriptor_type(ty)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR)
+        };
+        let bindings = [
+            binding(0, vk::DescriptorType::ACCELERATION_STRUCTURE_KHR),
+            binding(1, vk::DescriptorType::STORAGE_IMAGE), // the ids, from GL
+            binding(2, vk::DescriptorType::STORAGE_IMAGE), // the surface, for GL
+        ];
+        let allocator = &mut shared.allocator;
+        let pipeline = RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<SurfaceRays>() as u32)?;
+        pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
+        // ANCHOR_END: pipeline
+        // The mesh table, written once: the ray generation shader reads it by its address.
+        let bytes = common::gbuffer::as_bytes(ids);
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
+        let mut meshes =
+            DeviceBuffer::new(vk, allocator, "mesh ids", bytes.len() as u64, usage, MemoryLocation::CpuToGpu)?;
+        let mapped = meshes.allocation.mapped_slice_mut().ok_or_else(|| anyhow::anyhow!("mesh ids unmapped"))?;
+        mapped[..bytes.len()].copy_from_slice(bytes);
+        let instances = shared.buffers.instances.0.device_address(vk);
+        let tracer = SurfaceTracer {
+            pipeline,
+            meshes,
+            mesh_count: ids.len() as u32,
+            instances,
+            accumulated: 0,
+            gl_has_surface: false,
+        };
+        tracer.point_at(vk, targets);
+        Ok(tracer)
+    }
+
+    /// The descriptors at one size's images (after a resize too: accumulation starts again).
+    pub fn point_at(&self, vk: &VulkanContext, targets: &Targets) {
+        self.pipeline.write_storage_image(vk, 1, targets.visibility.view);
+        self.pipeline.write_storage_image(vk, 2, targets.surface.view);
+    }
+
+    pub fn resized(&mut self, vk: &VulkanContext, targets: &Targets) {
+        self.point_at(vk, targets);
+        self.gl_has_surface = false;
+        self.accumulated = 0;
+    }
+
+    // ANCHOR: frame
+    /// One frame: GL hands over the ids it just drew (and the surface, once it has had it),
+    /// Vulkan rebuilds each hit, adds `rays.samples` rays to the running mean and hands both back;
+    /// GL is told to wait for that before it composites.
+    #[allow(clippy::too_many_arguments)] // the two contexts and their hand-over, the frame's inputs
+    pub fn trace(
+        &mut self,
+        vk: &VulkanContext,
+        gl: &GlContext,
+        sync: &Sync,
+        commands: &Commands,
+        targets: &Targets,
+        camera: &Camera,
+        rays: Rays,
+        timestamps: Option<&Timestamps>,
+    ) -> Result<()> {
+        // The ids come to Vulkan in GENERAL (storage images) and go back as GL's attachment; the
+        // surface is sampled by GL. On the host path both stay GENERAL (`Sync::hand_over`).
+        let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
+        let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
+        let layouts = (sync.hand_over(vk::ImageLayout::GENERAL, attachment), sync.hand_over(read_only, read_only));
+        let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) = (layouts.0.gl(), layouts.1.gl());
+        let textures = [targets.visibility.texture.texture, targets.surface.texture.texture];
+        let handed = if self.gl_has_surface { 2 } else { 1 };
+        sync.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
+        let cb = commands.begin(vk)?;
+        let aspect = targets.extent.width as f32 / targets.extent.height as f32;
+        let push = SurfaceRays {
+            inverse_view_projection: camera.view_projection(aspect).inverse().to_cols_array(),
+            eye: camera.eye.into(),
+            radius: rays.radius,
+            forward: (camera.target - camera.eye).normalize().into(),
+            scene_scale: rays.scene_scale,
+            samples: rays.samples,
+            accumulated: self.accumulated,
+            mesh_count: self.mesh_count,
+            tile_rotation: rays.tile_rotation as u32,
+            meshes: self.meshes.address,
+            instances: self.instances,
+        };
+        unsafe { self.record(vk, cb, targets, layouts, &push, timestamps) };
+        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+        commands.submit(vk, sync.vulkan_waits_on().map(|s| (s, stage)), sync.vulkan_signals())?;
+        sync.gl_acquire(vk, gl, commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
+        self.gl_has_surface = true;
+        self.accumulated += rays.samples;
+        Ok(())
+    }
+    // ANCHOR_END: frame
+
+    // ANCHOR: record
+    /// Take the ids and the surface from GL, trace, give them back: two images, where chapter
+    /// 08 hands over three and reads 32 bytes a pixel.
+    unsafe fn record(
+        &self,
+        vk: &VulkanContext,
+        cb: vk::CommandBuffer,
+        targets: &Targets,
+        (ids_layouts, surface_layouts): (HandOver, HandOver),
+        push: &SurfaceRays,
+        timestamps: Option<&Timestamps>,
+    ) {
+        let general = vk::ImageLayout::GENERAL;
+        let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
+        let surface = if self.gl_has_surface {
+            // The running mean so far: read and updated.
+            acquire_from_gl(vk, &targets.surface, surface_layouts.to_vulkan, general, read | write)
+        } else {
+            // Never GL's yet: undefined, and the first frame overwrites every pixel.
+            first_use(targets.surface.image, general, read | write)
+        };
+        let acquire = [acquire_from_gl(vk, &targets.visibility, ids_layouts.to_vulkan, general, read), surface];
+        // Back to GL: the ids for the next frame's draw (nothing written here), the surface to
+        // sample, its writes made available.
+        let release = [
+            release_to_gl(vk, &targets.visibility, general, ids_layouts.to_gl, vk::AccessFlags::NONE),
+            release_to_gl(vk, &targets.surface, general, surface_layouts.to_gl, write),
+        ];
+        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+        let none = vk::DependencyFlags::empty();
+        unsafe {
+            if let Some(t) = timestamps {
+                t.reset(vk, cb);
+            }
+            // From the stage the submission waits for GL at: the acquire must follow GL's signal.
+            vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
+            if let Some(t) = timestamps {
+                t.start(vk, cb, stage);
+            }
+            self.pipeline.trace(vk, cb, push_bytes(push), targets.extent);
+            if let Some(t) = timestamps {
+                t.end(vk, cb);
+            }
+            let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+            vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
+        }
+    }
+    // ANCHOR_END: record
+
+    /// The mesh table, then the pipeline (the GPU must be done with both).
+    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        self.meshes.destroy(vk, allocator);
+        self.pipeline.destroy(vk, allocator);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::offset_of;
+
+    #[test]
+    fn surface_rays_match_the_glsl_block() {
+        assert_eq!(offset_of!(SurfaceRays, eye), 64);
+        assert_eq!(offset_of!(SurfaceRays, radius), 76);
+        assert_eq!(offset_of!(SurfaceRays, forward), 80);
+        assert_eq!(offset_of!(SurfaceRays, scene_scale), 92);
+        assert_eq!(offset_of!(SurfaceRays, samples), 96);
+        assert_eq!(offset_of!(SurfaceRays, tile_rotation), 108);
+        assert_eq!(offset_of!(SurfaceRays, meshes), 112);
+        assert_eq!(offset_of!(SurfaceRays, instances), 120);
+        assert_eq!(size_of::<SurfaceRays>(), 128);
+    }
+
+    #[test]
+    fn mesh_ids_match_the_glsl_struct() {
+        assert_eq!(offset_of!(MeshIds, indices), 8);
+        assert_eq!(offset_of!(MeshIds, first_id), 16);
+        assert_eq!(offset_of!(MeshIds, instances), 28);
+        assert_eq!(size_of::<MeshIds>(), 32);
+    }
+}
