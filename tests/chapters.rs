@@ -299,6 +299,62 @@ fn ch08_flat_blas_traces_like_per_mesh() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+/// Chapter 12: the lean frame passes its own checks, among them that it covers the pixels,
+/// rebuilds the hit points and traces the occlusion chapter 08 does on the same rays.
+#[test]
+fn ch12_fast_frame_default_scene() {
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "4"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY);
+    for check in ["rebuilt_hits_match_the_rasterised_positions", "ao_per_pixel_agrees_with_chapter_08"] {
+        assert_eq!(report["checks"][check], true, "{check}");
+    }
+    assert_eq!(report["triangle_ids"], 40_002, "10,000 tetrahedra of 4 triangles and a ground of 2");
+    assert_report_snapshot("12-fast-frame", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+#[test]
+fn ch12_fast_frame_bunny_with_flat_blas_and_tile_rotation() {
+    let bunny = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/bunny.obj");
+    let args = ["--size", "96x72", "--frames", "2", "--samples", "8", "--scene", bunny, "--blas", "flat", "--tile-rotation"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["tile_rotation"], true);
+    // Another sample pattern than chapter 08's: the means agree, the pixels are not compared.
+    assert!(report["checks"].get("ao_per_pixel_agrees_with_chapter_08").is_none());
+    assert_eq!(report["checks"]["ao_mean_agrees_with_chapter_08"], true);
+    assert_report_snapshot("12-fast-frame-bunny", report);
+}
+
+/// `--error-against` measures the frame's error against a converged trace: with more rays per
+/// frame the error falls, and the blur lowers it.
+#[test]
+fn ch12_error_falls_with_rays_and_with_the_blur() {
+    let error = |samples: &str| {
+        let args = ["--size", "64x48", "--samples", samples, "--error-against", "256"];
+        let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
+        let e = &run.succeeded()["ao_rms_error"];
+        (e["raw"].as_f64().unwrap(), e["blurred"].as_f64().unwrap())
+    };
+    let (few, many) = (error("2"), error("32"));
+    assert!(many.0 < few.0 / 2.0, "16 times the rays, under half the error: {few:?} {many:?}");
+    assert!(few.1 < few.0 && many.1 < many.0, "the blur lowers the error: {few:?} {many:?}");
+}
+
+#[test]
+fn ch12_refuses_what_it_cannot_draw() {
+    for size in ["1x1", "15x64", "64x15"] {
+        let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &["--size", size], &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{size}: {}", run.stderr);
+        assert!(run.stderr.contains("at least 16x16"), "{size} names the smallest size: {}", run.stderr);
+        assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
+    }
+    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &["--size", "16x16", "--frames", "2"], &[]);
+    run.succeeded();
+}
+
 #[test]
 fn ch08_composite_without_blur() {
     let args = ["--size", "64x48", "--frames", "1", "--samples", "4", "--blur", "0"];

@@ -43,6 +43,12 @@ const CASES: &[(&str, &str, &[&str], &[&str])] = &[
         &["import", "submit", "gl_acquire"],
     ),
     (
+        "12-fast-frame",
+        env!("CARGO_BIN_EXE_12-fast-frame"),
+        &["--size", "64x48", "--frames", "2", "--samples", "2"],
+        &["map", "import", "texture", "submit", "gl_acquire"],
+    ),
+    (
         "10-vertex-animation",
         env!("CARGO_BIN_EXE_10-vertex-animation"),
         &["--size", "64x48", "--frames", "2", "--samples", "2", "--rings", "16"],

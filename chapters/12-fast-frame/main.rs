@@ -63,6 +63,10 @@ struct Args {
     /// Start this many times closer to the scene's centre than the framing puts the camera.
     #[arg(long, default_value_t = 1.0)]
     zoom: f32,
+    /// After the frames: trace this many rays per pixel more, and report how far the last
+    /// frame's occlusion was from that converged one, before and after the blur (0: don't).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 20))]
+    error_against: u32,
 }
 
 fn main() -> ExitCode {
@@ -220,6 +224,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_context.check_error("the frame loop")?;
 
     // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
+    let accumulated = tracer.accumulated;
     let surface = check::Surface::read(gl, &targets);
     if frame > 0 {
         let last = check::LastFrame {
@@ -237,16 +242,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let prefix = args.scene.picture_name(CHAPTER);
             last.write_pictures(report, &surface, &args.common.out_dir(CHAPTER), &prefix)?;
         }
+        if args.error_against > 0 && skipped.is_none() {
+            let rays = Rays { samples: 0, radius: settings.radius, scene_scale: scene.size() / 2.0, tile_rotation: false };
+            let commands = &shared.commands;
+            let against = check::ErrorAgainst { last: &last, tracer: &mut tracer, commands, rays, reference: args.error_against };
+            let (raw, blurred) = against.measure(&vk, &gl_context, &sync)?;
+            report.set("ao_rms_error", serde_json::json!({ "rays": args.error_against, "raw": raw, "blurred": blurred }));
+        }
     }
     let covered = surface.covered().collect::<Vec<_>>();
     report.check("ao_within_0_and_1", covered.iter().all(|&i| (0.0..=1.0).contains(&surface.texels[i * 4])));
     let background = (0..surface.width * surface.height).filter(|&i| surface.depth(i) <= 0.0);
     report.check("background_unoccluded", background.clone().all(|i| surface.texels[i * 4] == 1.0));
-    let rays = (if skipped.is_some() { 0 } else { settings.samples }, tracer.accumulated, settings.radius);
+    let rays = (if skipped.is_some() { 0 } else { settings.samples }, accumulated, settings.radius);
     let chapter_08 =
-        check::trace_chapter_08(&vk, &gl_context, &sync, &mut shared, &scene, &camera, extent(size), rays)?;
+        check::trace_chapter_08(&vk, &gl_context, &sync, &mut shared, &scene, &camera, &targets, rays)?;
     chapter_08.compare(&surface, report, !settings.tile_rotation);
-    report.set("samples_per_pixel", tracer.accumulated);
+    report.set("samples_per_pixel", accumulated);
     report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());
     report.set("frames", frame);
     report.set("resizes", resizes);
