@@ -316,12 +316,12 @@ fn ch12_fast_frame_default_scene() {
 }
 
 #[test]
-fn ch12_fast_frame_bunny_with_flat_blas_and_tile_rotation() {
+fn ch12_fast_frame_bunny_with_flat_blas_and_a_tile_pattern() {
     let bunny = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/bunny.obj");
-    let args = ["--size", "96x72", "--frames", "2", "--samples", "8", "--scene", bunny, "--blas", "flat", "--tile-rotation"];
+    let args = ["--size", "96x72", "--frames", "2", "--samples", "8", "--scene", bunny, "--blas", "flat", "--pattern", "tile2x2"];
     let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
     let report = run.succeeded();
-    assert_eq!(report["tile_rotation"], true);
+    assert_eq!(report["pattern"], "tile2x2");
     // Another sample pattern than chapter 08's: the means agree, the pixels are not compared.
     assert!(report["checks"].get("ao_per_pixel_agrees_with_chapter_08").is_none());
     assert_eq!(report["checks"]["ao_mean_agrees_with_chapter_08"], true);

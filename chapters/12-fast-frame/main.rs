@@ -7,7 +7,7 @@
 //! on the book's performance page.
 //!
 //! Run: `cargo run --release --bin 12-fast-frame` (keys: 1-5 views, +/- rays, [/] radius,
-//! B blur, P power, O overlays, T tile rotation, Esc quits; drag to orbit, wheel to zoom).
+//! B blur, P power, O overlays, T sample pattern, Esc quits; drag to orbit, wheel to zoom).
 
 use anyhow::{Result, ensure};
 use ash::vk;
@@ -31,7 +31,7 @@ mod composite;
 mod trace;
 mod visibility;
 use composite::{ComputeComposite, Uniforms, View};
-use trace::{Rays, SurfaceTracer};
+use trace::{Pattern, Rays, SurfaceTracer};
 use visibility::{Targets, VisibilityPass};
 
 const CHAPTER: &str = "12-fast-frame";
@@ -53,10 +53,10 @@ struct Args {
     /// Which picture to show.
     #[arg(long, value_enum, default_value = "final")]
     view: View,
-    /// One rotation of the AO sample sequence per 8x8 tile, instead of one per pixel: coherent
-    /// rays (see the book for what it does to the error).
-    #[arg(long)]
-    tile_rotation: bool,
+    /// Which points of the AO sample sequence each pixel takes: per pixel (chapter 07's), or
+    /// shared by 8x8 tiles for coherent rays (see the book for what each does to the error).
+    #[arg(long, value_enum, default_value = "per-pixel")]
+    pattern: Pattern,
     /// As chapter 08's `--blas`: one BLAS per mesh, or one flat BLAS of every instance.
     #[arg(long, value_enum, default_value = "per-mesh")]
     blas: BlasLayout,
@@ -82,7 +82,7 @@ struct Settings {
     blur: u32,
     view: View,
     overlays: bool,
-    tile_rotation: bool,
+    pattern: Pattern,
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
@@ -108,7 +108,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         blur: args.blur,
         view: args.view,
         overlays: true,
-        tile_rotation: args.tile_rotation,
+        pattern: args.pattern,
     };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
@@ -165,7 +165,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 camera.orbit(-dx * 0.01, dy * 0.01, 1.1f32.powf(wheel), scene.bounds);
             }
             // A new camera, radius or sample pattern makes the running mean describe another thing.
-            let changed = (settings.radius, settings.tile_rotation) != (before.0.radius, before.0.tile_rotation);
+            let changed = (settings.radius, settings.pattern) != (before.0.radius, before.0.pattern);
             if changed || camera.eye != before.1 {
                 tracer.accumulated = 0;
             }
@@ -193,7 +193,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if tracer.accumulated < args.ao.max_samples || skipped.is_some() {
             let samples = if skipped.is_some() { 0 } else { settings.samples.min(args.ao.max_samples - tracer.accumulated) };
             let rays =
-                Rays { samples, radius: settings.radius, scene_scale: scene.size() / 2.0, tile_rotation: settings.tile_rotation };
+                Rays { samples, radius: settings.radius, scene_scale: scene.size() / 2.0, pattern: settings.pattern, salt: 0 };
             if std::mem::take(&mut trace_pending) {
                 common::timing::read_after(&vk, shared.commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
             }
@@ -243,7 +243,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             last.write_pictures(report, &surface, &args.common.out_dir(CHAPTER), &prefix)?;
         }
         if args.error_against > 0 && skipped.is_none() {
-            let rays = Rays { samples: 0, radius: settings.radius, scene_scale: scene.size() / 2.0, tile_rotation: false };
+            let rays = Rays { samples: settings.samples, radius: settings.radius, scene_scale: scene.size() / 2.0, pattern: settings.pattern, salt: 0 };
             let commands = &shared.commands;
             let against = check::ErrorAgainst { last: &last, tracer: &mut tracer, commands, rays, reference: args.error_against };
             let (raw, blurred) = against.measure(&vk, &gl_context, &sync)?;
@@ -257,12 +257,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let rays = (if skipped.is_some() { 0 } else { settings.samples }, accumulated, settings.radius);
     let chapter_08 =
         check::trace_chapter_08(&vk, &gl_context, &sync, &mut shared, &scene, &camera, &targets, rays)?;
-    chapter_08.compare(&surface, report, !settings.tile_rotation);
+    chapter_08.compare(&surface, report, settings.pattern == Pattern::PerPixel);
     report.set("samples_per_pixel", accumulated);
     report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());
     report.set("frames", frame);
     report.set("resizes", resizes);
-    report.set("tile_rotation", settings.tile_rotation);
+    report.set("pattern", settings.pattern);
     report.check("hand_over_layouts_agree", sync.layouts_agreed());
 
     // 7. Clean up, newest first
@@ -296,7 +296,7 @@ fn apply_key(key: &Key, s: &mut Settings) {
             "b" | "B" => s.blur = (s.blur + 1) % 5,
             "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0,
             "o" | "O" => s.overlays = !s.overlays,
-            "t" | "T" => s.tile_rotation = !s.tile_rotation,
+            "t" | "T" => s.pattern = Pattern::ALL[(s.pattern as usize + 1) % Pattern::ALL.len()],
             _ => {}
         }
     }

@@ -31,7 +31,7 @@ pub struct SurfaceRays {
     pub samples: u32,
     pub accumulated: u32,
     pub mesh_count: u32,
-    pub tile_rotation: u32,
+    pub pattern: u32,
     pub meshes: u64,
     pub instances: u64,
 }
@@ -43,8 +43,41 @@ pub struct Rays {
     pub samples: u32,
     pub radius: f32,
     pub scene_scale: f32,
-    pub tile_rotation: bool,
+    pub pattern: Pattern,
+    /// 0 for the frame; another number draws other rotations of the sequence (a reference
+    /// whose errors are independent of the frame's).
+    pub salt: u32,
 }
+
+// ANCHOR: pattern
+/// Which points of the sample sequence each pixel's rays take (`--pattern`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Pattern {
+    /// Chapter 07's: each pixel its own rotation of the sequence.
+    PerPixel,
+    /// One rotation per 8x8 tile: every pixel of a tile shoots the same directions.
+    Tile,
+    /// One rotation per tile, and each pixel of a 2x2 block its own run of the sequence.
+    Tile2x2,
+    /// The same with 4x4 blocks.
+    Tile4x4,
+}
+
+impl Pattern {
+    pub const ALL: [Pattern; 4] = [Pattern::PerPixel, Pattern::Tile, Pattern::Tile2x2, Pattern::Tile4x4];
+
+    /// The shader's `pattern`: 0 per pixel, else the side of the interleaved block.
+    fn side(self) -> u32 {
+        match self {
+            Pattern::PerPixel => 0,
+            Pattern::Tile => 1,
+            Pattern::Tile2x2 => 2,
+            Pattern::Tile4x4 => 4,
+        }
+    }
+}
+// ANCHOR_END: pattern
 
 /// The pipeline, the mesh table it reads, and how far the running mean has got.
 pub struct SurfaceTracer {
@@ -145,7 +178,7 @@ impl SurfaceTracer {
             samples: rays.samples,
             accumulated: self.accumulated,
             mesh_count: self.mesh_count,
-            tile_rotation: rays.tile_rotation as u32,
+            pattern: rays.pattern.side() | rays.salt << 8,
             meshes: self.meshes.address,
             instances: self.instances,
         };
@@ -227,7 +260,7 @@ mod tests {
         assert_eq!(offset_of!(SurfaceRays, forward), 80);
         assert_eq!(offset_of!(SurfaceRays, scene_scale), 92);
         assert_eq!(offset_of!(SurfaceRays, samples), 96);
-        assert_eq!(offset_of!(SurfaceRays, tile_rotation), 108);
+        assert_eq!(offset_of!(SurfaceRays, pattern), 108);
         assert_eq!(offset_of!(SurfaceRays, meshes), 112);
         assert_eq!(offset_of!(SurfaceRays, instances), 120);
         assert_eq!(size_of::<SurfaceRays>(), 128);
