@@ -62,18 +62,32 @@ pub enum Pattern {
     Tile2x2,
     /// The same with 4x4 blocks.
     Tile4x4,
+    /// One point per step for the whole tile, each pixel of a 4x4 block moved from it across
+    /// the gap between the steps' points.
+    Jitter4x4,
+    /// The same with the whole 8x8 tile as the block.
+    Jitter8x8,
 }
 
 impl Pattern {
-    pub const ALL: [Pattern; 4] = [Pattern::PerPixel, Pattern::Tile, Pattern::Tile2x2, Pattern::Tile4x4];
+    pub const ALL: [Pattern; 6] = [
+        Pattern::PerPixel,
+        Pattern::Tile,
+        Pattern::Tile2x2,
+        Pattern::Tile4x4,
+        Pattern::Jitter4x4,
+        Pattern::Jitter8x8,
+    ];
 
-    /// The shader's `pattern`: 0 per pixel, else the side of the interleaved block.
+    /// The shader's `pattern`: 0 per pixel, else the side of the block (+ 128: jittered).
     fn side(self) -> u32 {
         match self {
             Pattern::PerPixel => 0,
             Pattern::Tile => 1,
             Pattern::Tile2x2 => 2,
             Pattern::Tile4x4 => 4,
+            Pattern::Jitter4x4 => 4 | 128,
+            Pattern::Jitter8x8 => 8 | 128,
         }
     }
 }
