@@ -1,7 +1,8 @@
 //! Chapter 08's checks and pictures: the last frame's composite against the same formula on the
 //! CPU, the overlays' depth test against the G-buffers, the trace's timings, and the PNGs.
 
-use crate::overlay::{Composite, Overlays, Uniforms, View};
+use crate::overlay::{Composite, Uniforms, View};
+use common::frame::{Overlays, shows_colour};
 use anyhow::Result;
 use common::ao::AoTracer;
 use common::gbuffer::GBuffers;
@@ -44,10 +45,10 @@ impl LastFrame<'_> {
             vec![("composite_matches_cpu_reference", matches_reference(&gbuffer, &plain, &uniforms))];
         // Then with the overlays: hidden where the G-buffers say a surface is in front, shown elsewhere.
         let view_projection = camera.view_projection(w as f32 / h as f32);
-        overlays.draw(gl, composite, view_projection);
+        overlays.draw(gl, &composite.target(), view_projection);
         let with_lines = composite.read(gl);
-        let forward = (camera.target - camera.eye).normalize();
-        let probes = overlays.probe(&gbuffer, view_projection, camera.eye, forward);
+        let depth: Vec<f32> = gbuffer.positions.chunks_exact(4).map(|p| p[3]).collect();
+        let probes = overlays.probe(&depth, (gbuffer.width, gbuffer.height), camera);
         if let Some(hidden) = probes.hidden {
             checks.push(("overlay_hidden_behind_a_surface", !shows_colour(&with_lines, w as usize, hidden)));
         }
@@ -84,7 +85,7 @@ impl LastFrame<'_> {
         for view in views {
             composite.draw(gl, gbuffers, tracer, &Uniforms { view, ..self.uniforms });
             if let (View::Final, Some(overlays)) = (view, self.overlays) {
-                overlays.draw(gl, composite, view_projection);
+                overlays.draw(gl, &composite.target(), view_projection);
             }
             let name = match view {
                 View::Final => prefix.to_owned(),
@@ -105,17 +106,6 @@ pub fn report_trace_times(report: &mut Report, trace_ms: &[f64], rays_launched: 
     let total: f64 = trace_ms.iter().sum();
     // Every pixel launches its rays (background pixels return at once): launched rays.
     report.set("mrays_per_s_launched", (rays_launched as f64 / (total / 1e3) / 1e6 * 10.0).round() / 10.0);
-}
-
-/// Does the line's colour appear within a pixel of (x, y)? (A 1-pixel line may be rasterised on
-/// a neighbour of the point's own pixel.)
-pub fn shows_colour(pixels: &[u8], width: usize, (x, y, colour): (usize, usize, [u8; 3])) -> bool {
-    (y - 1..=y + 1).any(|v| {
-        (x - 1..=x + 1).any(|u| {
-            let p = &pixels[(v * width + u) * 4..][..3];
-            p.iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 3)
-        })
-    })
 }
 
 /// The G-buffers and the AO as GL read them back (memory order).

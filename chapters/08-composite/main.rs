@@ -28,7 +28,8 @@ use std::process::ExitCode;
 mod check;
 mod overlay;
 use check::LastFrame;
-use overlay::{Composite, Overlays, View};
+use common::frame::Overlays;
+use overlay::{Composite, View};
 
 const CHAPTER: &str = "08-composite";
 
@@ -241,7 +242,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(aspect);
-            gl_timer.time(gl, "overlays", || overlays.draw(gl, &composite, view_projection))?;
+            gl_timer.time(gl, "overlays", || overlays.draw(gl, &composite.target(), view_projection))?;
         }
         gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
@@ -314,7 +315,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         t.destroy(&vk);
     }
     gl_timer.delete(gl);
-    overlays.destroy(gl);
+    drop(overlays);
     composite.destroy(gl);
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);

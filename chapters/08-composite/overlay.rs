@@ -1,18 +1,15 @@
-//! Chapter 08's GL side: the composite pass, the overlay lines, and the CPU references its
-//! checks compare them with.
+//! Chapter 08's GL side: the composite pass (the overlay lines it draws over are in
+//! `common::frame`, which chapters 11 and 12 draw too).
 
-use crate::check::Pixels;
 use anyhow::Result;
 use common::ao::AoTracer;
+use common::frame::Target;
 use common::gbuffer::GBuffers;
-use common::scene::Scene;
-use glam::{Mat4, Vec3, Vec4};
+use glam::Vec3;
 use glow::HasContext;
 
 const FULLSCREEN: &str = include_str!("../../shaders/gl/fullscreen.vert");
 const COMPOSITE: &str = include_str!("../../shaders/gl/composite.frag");
-const LINES_VERTEX: &str = include_str!("../../shaders/gl/lines.vert");
-const LINES_FRAGMENT: &str = include_str!("../../shaders/gl/lines.frag");
 
 /// The pictures the composite shader can show (its `view` uniform, in this order).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -85,6 +82,11 @@ impl Composite {
         }
         (self.width, self.height) = (gbuffers.extent.width, gbuffers.extent.height);
         Ok(())
+    }
+
+    /// Where the overlays are drawn: this target, whose depth is the scene's.
+    pub fn target(&self) -> Target {
+        Target { framebuffer: self.framebuffer, width: self.width, height: self.height }
     }
 
     // ANCHOR: composite
@@ -214,151 +216,3 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
     }
 }
 // ANCHOR_END: target
-
-/// One vertex of an overlay line: world position and colour (24 bytes).
-#[repr(C)]
-#[derive(Clone, Copy)]
-struct LineVertex {
-    position: [f32; 3],
-    colour: [f32; 3],
-}
-
-/// The overlay lines: an axis gizmo through the scene's centre, and the selected instance's
-/// oriented bounding box. GL's own buffer: Vulkan never sees these.
-pub struct Overlays {
-    program: glow::Program,
-    vertex_array: glow::VertexArray,
-    buffer: glow::Buffer,
-    count: i32,
-    /// The gizmo's half-axes (start, end, colour), for the checks.
-    axes: Vec<(Vec3, Vec3, [u8; 3])>,
-}
-
-/// Pixels (x, y in memory order) the checks look at.
-pub struct Probes {
-    pub hidden: Option<(usize, usize, [u8; 3])>,
-    pub visible: Option<(usize, usize, [u8; 3])>,
-}
-
-impl Overlays {
-    pub fn new(gl: &glow::Context, scene: &Scene, select: usize) -> Result<Self> {
-        // ANCHOR: lines
-        let centre = (scene.bounds.0 + scene.bounds.1) / 2.0;
-        let length = 0.3 * scene.size();
-        let mut axes = Vec::new();
-        for (axis, colour) in [(Vec3::X, [255, 0, 0]), (Vec3::Y, [0, 255, 0]), (Vec3::Z, [0, 0, 255])] {
-            axes.push((centre, centre + axis * length, colour));
-            // The negative half, darker: below the ground or behind the bunny, often hidden.
-            axes.push((centre, centre - axis * length, colour.map(|c| c / 2)));
-        }
-        let mut vertices: Vec<LineVertex> = Vec::new();
-        let mut line = |a: Vec3, b: Vec3, colour: [u8; 3]| {
-            let colour = colour.map(|c| c as f32 / 255.0);
-            vertices.push(LineVertex { position: a.into(), colour });
-            vertices.push(LineVertex { position: b.into(), colour });
-        };
-        for &(a, b, colour) in &axes {
-            line(a, b, colour);
-        }
-        // The selected instance's box: its mesh's bounds, carried by its transform.
-        let mesh = scene.mesh_instances.iter().position(|r| r.contains(&(select as u32))).unwrap_or(0);
-        let (low, high) = scene.meshes[mesh].vertices.iter().fold((Vec3::MAX, Vec3::MIN), |(l, h), v| {
-            (l.min(Vec3::from(v.position)), h.max(Vec3::from(v.position)))
-        });
-        let to_world = scene.instances[select].object_to_world();
-        let corner = |i: u32| {
-            to_world.transform_point3(Vec3::new(
-                if i & 1 == 0 { low.x } else { high.x },
-                if i & 2 == 0 { low.y } else { high.y },
-                if i & 4 == 0 { low.z } else { high.z },
-            ))
-        };
-        for i in 0..8u32 {
-            for bit in [1, 2, 4] {
-                if i & bit == 0 {
-                    line(corner(i), corner(i | bit), [255, 0, 255]);
-                }
-            }
-        }
-        // ANCHOR_END: lines
-        let program = common::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
-        let bytes = common::gbuffer::as_bytes(&vertices);
-        let (vertex_array, buffer) = unsafe {
-            let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
-            gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
-            common::resources::created("gl_buffer", bytes.len() as u64);
-            let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
-            gl.vertex_array_vertex_buffer(vao, 0, Some(buffer), 0, size_of::<LineVertex>() as i32);
-            for (location, offset) in [(0, 0), (1, 12)] {
-                gl.enable_vertex_array_attrib(vao, location);
-                gl.vertex_array_attrib_format_f32(vao, location, 3, glow::FLOAT, false, offset);
-                gl.vertex_array_attrib_binding_f32(vao, location, 0);
-            }
-            (vao, buffer)
-        };
-        Ok(Overlays { program, vertex_array, buffer, count: vertices.len() as i32, axes })
-    }
-
-    // ANCHOR: draw_lines
-    /// Lines over the composite, depth-tested against the scene's depth but not writing it.
-    pub fn draw(&self, gl: &glow::Context, composite: &Composite, view_projection: Mat4) {
-        unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(composite.framebuffer));
-            gl.viewport(0, 0, composite.width as i32, composite.height as i32);
-            gl.enable(glow::DEPTH_TEST);
-            // LEQUAL: a line lying on a surface (an edge of the selected box) stays visible.
-            gl.depth_func(glow::LEQUAL);
-            gl.depth_mask(false);
-            gl.use_program(Some(self.program));
-            let at = gl.get_uniform_location(self.program, "view_projection");
-            gl.uniform_matrix_4_f32_slice(at.as_ref(), false, &view_projection.to_cols_array());
-            gl.bind_vertex_array(Some(self.vertex_array));
-            gl.draw_arrays(glow::LINES, 0, self.count);
-            gl.bind_vertex_array(None);
-            gl.depth_mask(true);
-            gl.depth_func(glow::LESS);
-        }
-    }
-    // ANCHOR_END: draw_lines
-
-    /// Points along the gizmo that are certainly hidden (a surface clearly in front, all around)
-    /// or certainly visible (nothing at all in front, all around), by the G-buffers' view depth.
-    pub fn probe(&self, g: &Pixels, view_projection: Mat4, eye: Vec3, forward: Vec3) -> Probes {
-        let mut probes = Probes { hidden: None, visible: None };
-        for &(start, end, colour) in &self.axes {
-            for step in 4..=18 {
-                let point = start.lerp(end, step as f32 / 20.0);
-                let clip = view_projection * Vec4::from((point, 1.0));
-                let ndc = clip.truncate() / clip.w;
-                if clip.w <= 0.0 || ndc.x.abs() > 0.9 || ndc.y.abs() > 0.9 {
-                    continue;
-                }
-                let x = ((ndc.x + 1.0) / 2.0 * g.width as f32) as usize;
-                let y = ((ndc.y + 1.0) / 2.0 * g.height as f32) as usize;
-                if x < 2 || y < 2 || x + 2 >= g.width || y + 2 >= g.height {
-                    continue;
-                }
-                let depth = forward.dot(point - eye);
-                let around = |test: &dyn Fn(f32) -> bool| {
-                    (y - 2..=y + 2)
-                        .all(|v| (x - 2..=x + 2).all(|u| test(g.positions[(v * g.width + u) * 4 + 3])))
-                };
-                if probes.hidden.is_none() && around(&|w| w > 0.0 && w < 0.9 * depth) {
-                    probes.hidden = Some((x, y, colour));
-                }
-                if probes.visible.is_none() && around(&|w| w <= 0.0 || w > 1.1 * depth) {
-                    probes.visible = Some((x, y, colour));
-                }
-            }
-        }
-        probes
-    }
-
-    pub fn destroy(self, gl: &glow::Context) {
-        unsafe {
-            gl.delete_vertex_array(self.vertex_array);
-            gl.delete_buffer(self.buffer);
-            gl.delete_program(self.program);
-        }
-    }
-}

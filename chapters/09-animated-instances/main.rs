@@ -23,10 +23,7 @@ use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_coun
 use glow::HasContext;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
-#[path = "../08-composite/check.rs"]
-#[allow(dead_code)]
-mod check;
+// Chapter 08's composite pass, as it is.
 #[path = "../08-composite/overlay.rs"]
 #[allow(dead_code)]
 mod overlay;

@@ -25,10 +25,7 @@ use glow::HasContext;
 use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
-#[path = "../08-composite/check.rs"]
-#[allow(dead_code)]
-mod check;
+// Chapter 08's composite pass, as it is.
 #[path = "../08-composite/overlay.rs"]
 #[allow(dead_code)]
 mod overlay;

@@ -5,7 +5,7 @@
 use crate::composite::{ComputeComposite, Uniforms, View};
 use crate::visibility::Targets;
 use anyhow::Result;
-use crate::frame_pending::{Overlays, shows_colour};
+use common::frame::{Overlays, shows_colour};
 use common::scene::Camera;
 use common::{Report, output};
 use glam::Vec3;
@@ -87,8 +87,7 @@ impl LastFrame<'_> {
         overlays.draw(gl, &targets.overlay_target(), view_projection);
         let with_lines = read_picture(gl, targets);
         let depth: Vec<f32> = (0..surface.width * surface.height).map(|i| surface.depth(i)).collect();
-        let forward = (camera.target - camera.eye).normalize();
-        let probes = overlays.probe(&depth, surface.width, surface.height, view_projection, camera.eye, forward);
+        let probes = overlays.probe(&depth, (surface.width, surface.height), camera);
         // A size too small to find a probe fails the check rather than skip it.
         let hidden = probes.hidden.is_some_and(|p| !shows_colour(&with_lines, surface.width, p));
         let visible = probes.visible.is_some_and(|p| shows_colour(&with_lines, surface.width, p));

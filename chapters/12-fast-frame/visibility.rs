@@ -137,8 +137,8 @@ impl Targets {
         }
     }
 
-    pub fn overlay_target(&self) -> crate::frame_pending::Target {
-        crate::frame_pending::Target {
+    pub fn overlay_target(&self) -> common::frame::Target {
+        common::frame::Target {
             framebuffer: self.picture_framebuffer,
             width: self.extent.width,
             height: self.extent.height,

@@ -1,7 +1,8 @@
 //! One mode's frames at one setting: chapter 08's frame drawn, handed over, traced and
 //! composited `count` times, each pass timed on the GPU, into [`Samples`].
 
-use crate::overlay::{Composite, Overlays, Uniforms, View};
+use crate::overlay::{Composite, Uniforms, View};
+use common::frame::Overlays;
 use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
 use anyhow::Result;
@@ -169,7 +170,7 @@ impl<'s> Frame<'s> {
             }
             self.gl_timer.begin(g, "composite")?;
             self.composite.draw(g, &self.gbuffers, &self.tracer, &self.uniforms);
-            self.overlays.draw(g, &self.composite, self.camera.view_projection(aspect));
+            self.overlays.draw(g, &self.composite.target(), self.camera.view_projection(aspect));
             self.gl_timer.end(g);
             if measured {
                 self.gl_timer.end_frame(g, &mut times);
@@ -238,7 +239,7 @@ impl<'s> Frame<'s> {
         if let Some(round_trip) = self.round_trip {
             round_trip.destroy(vk, gl, &mut shared.allocator);
         }
-        self.overlays.destroy(&gl.gl);
+        drop(self.overlays);
         self.composite.destroy(&gl.gl);
         self.tracer.destroy(vk, gl, &mut shared.allocator);
         self.gbuffers.destroy(vk, gl);

@@ -23,21 +23,18 @@ use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass and overlays, used as they are (not copied): bench measures
-// exactly the frame the chapter draws. `check` comes along because `overlay` uses its `Pixels`.
-#[allow(dead_code)]
-#[path = "../08-composite/check.rs"]
-mod check;
+// Chapter 08's composite pass, used as it is (not copied), and the overlays from `common`:
+// bench measures exactly the frame the chapter draws.
+mod fast;
 mod frame;
 mod outputs;
 #[allow(dead_code)]
 #[path = "../08-composite/overlay.rs"]
 mod overlay;
 mod round_trip;
-mod scenes;
 
 use frame::{Frame, Samples, Setting};
-use scenes::SceneKind;
+use common::builtin_scenes::SceneKind;
 
 /// Chapter 08's frame, zero-copy against host-synchronised against a CPU round trip.
 #[derive(clap::Parser)]
@@ -77,6 +74,9 @@ struct Args {
     /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     frames: Option<u32>,
+    /// The ablation's converged reference, in rays per pixel [default: 1024; --quick: 64].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(16..=1 << 20))]
+    reference_rays: Option<u32>,
 }
 
 fn parse_size(text: &str) -> Result<Size, String> {
@@ -95,9 +95,12 @@ pub enum Mode {
     ZeroCopy,
     HostSync,
     CpuRoundTrip,
+    /// Chapter 12's frame, run as its own program (`fast.rs`).
+    FastFrame,
 }
 
 impl Mode {
+    /// Chapter 08's frame, the three ways this program draws it itself.
     const ALL: [Mode; 3] = [Mode::ZeroCopy, Mode::HostSync, Mode::CpuRoundTrip];
 }
 
@@ -231,6 +234,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 for (mode, samples) in Mode::ALL.iter().zip(&samples) {
                     rows.push(samples.row(*mode, kind.name(), size, spp, covered));
                 }
+                // Chapter 12's frame at the same setting, as many frames as each mode ran.
+                let out = args.out.join("fast-frame");
+                rows.push(fast::row(kind, size, spp, 2 * frames_per_run, covered, &out)?);
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
             for frame in frames.into_iter().rev() {
@@ -258,10 +264,21 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let fraction = depth_first_differences as f64 / pixels_compared.max(1) as f64;
         report.check("depth_prepass_draws_the_same_gbuffers_but_for_ties", fraction <= 1e-3);
     }
-    checks(report, &rows, Mode::ALL.len() * scenes_count * sizes.len() * spps.len());
-    outputs::write(&args.out, &rows, &vk.info.name, &vk.info.driver)?;
+    checks(report, &rows, (Mode::ALL.len() + 1) * scenes_count * sizes.len() * spps.len());
+    // The ablation: chapter 12 with its choices undone one at a time, on the default scene at
+    // the largest size, at 16 rays (or the most asked for, if fewer).
+    let size = *sizes.iter().max_by_key(|s| s.width as u64 * s.height as u64).expect("a size");
+    let spp = if spps.contains(&16) { 16 } else { *spps.iter().max().expect("a ray count") };
+    let reference = args.reference_rays.unwrap_or(if args.quick { 64 } else { 1024 });
+    let steps = fast::ablation(size, spp, 2 * frames_per_run, reference, &args.out.join("fast-frame"))?;
+    let chapter_08 = rows.iter().find(|r| {
+        (r.mode, r.scene, r.width, r.height, r.spp) == (Mode::ZeroCopy, "default", size.width, size.height, spp)
+    });
+    let ablation = fast::table(chapter_08, &steps);
+    report.set("ablation", serde_json::json!({ "size": format!("{}x{}", size.width, size.height), "spp": spp, "reference_rays": reference, "steps": steps }));
+    outputs::write(&args.out, &rows, &vk.info.name, &vk.info.driver, &ablation)?;
     if !args.json {
-        eprintln!("{}", outputs::table(&rows));
+        eprintln!("{}\n{ablation}", outputs::table(&rows));
     }
     report.set("rows", &rows);
     Ok(())

@@ -7,14 +7,14 @@ use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
 
-pub fn write(dir: &Path, rows: &[Row], device: &str, driver: &str) -> Result<()> {
+pub fn write(dir: &Path, rows: &[Row], device: &str, driver: &str, ablation: &str) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let json = serde_json::json!({ "device": device, "driver": driver, "rows": rows });
     let path = dir.join("bench.json");
     std::fs::write(&path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("writing {}", path.display()))?;
     let path = dir.join("bench.md");
-    let text = format!("Measured on {device} ({driver}).\n\n{}", table(rows));
+    let text = format!("Measured on {device} ({driver}).\n\n{}\nChapter 12, one choice at a time:\n\n{ablation}", table(rows));
     std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
     let path = dir.join("bench.svg");
     plot(&path, rows, device).with_context(|| format!("drawing {}", path.display()))?;
@@ -70,6 +70,7 @@ fn mode_name(mode: Mode) -> &'static str {
         Mode::ZeroCopy => "zero-copy",
         Mode::HostSync => "host-sync",
         Mode::CpuRoundTrip => "cpu-round-trip",
+        Mode::FastFrame => "fast-frame (12)",
     }
 }
 
@@ -88,7 +89,7 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
     let root = SVGBackend::new(path, (360 * scenes.len().max(1) as u32, 420)).into_drawing_area();
     root.fill(&WHITE)?;
     let root = root.titled(&format!("Frame time by mode and size ({device})"), ("sans-serif", 18))?;
-    let colours = [RED, BLUE, BLACK];
+    let colours = [RED, BLUE, BLACK, GREEN];
     for (panel, scene) in root.split_evenly((1, scenes.len().max(1))).iter().zip(&scenes) {
         let mut chart = ChartBuilder::on(panel)
             .caption(format!("{scene} scene"), ("sans-serif", 15))
@@ -106,7 +107,7 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
             .x_label_formatter(&|v| format!("{v:.0}"))
             .y_label_formatter(&|v| three_figures(*v))
             .draw()?;
-        for (m, mode) in Mode::ALL.iter().enumerate() {
+        for (m, mode) in Mode::ALL.iter().chain([&Mode::FastFrame]).enumerate() {
             let colour = colours[m];
             for (s, size) in sizes.iter().enumerate() {
                 let points: Vec<(f64, f64)> = rows

@@ -5,11 +5,13 @@
 
 pub mod accel;
 pub mod ao;
+pub mod builtin_scenes;
 pub mod cli;
 pub mod commands;
 pub mod cuda;
 pub mod exportable;
 pub mod fail;
+pub mod frame;
 pub mod gbuffer;
 pub mod gl;
 pub mod interop;

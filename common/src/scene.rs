@@ -241,22 +241,28 @@ pub struct SceneArgs {
     /// Tetrahedra in the default scene (0 to a million).
     #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
     pub instances: u32,
+    /// One of the scenes `bench` measures instead: `large` (the default scene's tetrahedra over a
+    /// million-triangle rippled ground) or `ceiling` (one triangle every ray misses).
+    #[arg(long, value_enum, conflicts_with = "scene")]
+    pub builtin: Option<crate::builtin_scenes::SceneKind>,
 }
 
 impl SceneArgs {
     /// The OBJ file's scene, or the default one (seeded: the same on every run).
     pub fn load(&self) -> Result<Scene> {
-        match &self.scene {
-            Some(path) => load_obj(path, self.normals),
-            None => Ok(default_scene(self.instances, 1)),
+        match (&self.scene, self.builtin) {
+            (Some(path), _) => load_obj(path, self.normals),
+            (None, Some(kind)) => kind.build(false),
+            (None, None) => Ok(default_scene(self.instances, 1)),
         }
     }
 
     /// Picture names: `<chapter>` for the default scene, `<chapter>-<file stem>` for a model.
     pub fn picture_name(&self, chapter: &str) -> String {
-        match self.scene.as_ref().and_then(|p| p.file_stem()) {
-            Some(stem) => format!("{chapter}-{}", stem.to_string_lossy()),
-            None => chapter.to_owned(),
+        match (self.scene.as_ref().and_then(|p| p.file_stem()), self.builtin) {
+            (Some(stem), _) => format!("{chapter}-{}", stem.to_string_lossy()),
+            (None, Some(kind)) => format!("{chapter}-{}", kind.name()),
+            (None, None) => chapter.to_owned(),
         }
     }
 }

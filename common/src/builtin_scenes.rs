@@ -1,9 +1,9 @@
-//! The bench's three scenes: chapter 08's default scene, a large one (over a million triangles),
-//! and a one-triangle "ceiling" whose rays all miss, which measures the best the GPU's traversal
-//! can do.
+//! The scenes `bench` measures, which chapter 12 loads too (`--builtin`): chapter 08's default
+//! scene, a large one (over a million triangles), and a one-triangle "ceiling" whose rays all
+//! miss, which measures the best the GPU's traversal can do.
 
+use crate::scene::{Instance, Mesh, Scene, Vertex, default_scene};
 use anyhow::Result;
-use common::scene::{Instance, Mesh, Scene, Vertex, default_scene};
 use glam::{Mat4, Vec3};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]

@@ -1,0 +1,155 @@
+//! Chapter 12's frame in the bench: the chapter's own program, run headless with `--json` at each
+//! scene, size and ray count, its GPU pass times read from its report into one more row
+//! (`fast-frame`). Its own program, not its code copied in: the row measures exactly the frame
+//! chapter 12 draws, with its checks passed. And the ablation: chapter 12 with its choices
+//! undone one at a time, each with its time and its error after the blur.
+
+use crate::{Mode, Row};
+use anyhow::{Context as _, Result, bail, ensure};
+use common::builtin_scenes::SceneKind;
+use common::cli::Size;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// Chapter 12's binary, built beside this one (`cargo build --release` builds both).
+fn program() -> Result<PathBuf> {
+    let exe = std::env::current_exe().context("finding the bench's own path")?;
+    let fast = exe.with_file_name("12-fast-frame");
+    ensure!(
+        fast.exists(),
+        "bench runs chapter 12's program, {}, which is not built: cargo build --release --bin 12-fast-frame",
+        fast.display()
+    );
+    Ok(fast)
+}
+
+/// Runs chapter 12 with `args` and returns its report; a failed run (a check included) is an error.
+fn run(args: &[String], out: &Path) -> Result<Value> {
+    let fast = program()?;
+    let output = Command::new(&fast)
+        .args(["--headless", "--json", "--out"])
+        .arg(out)
+        .args(args)
+        .output()
+        .with_context(|| format!("running {}", fast.display()))?;
+    if !output.status.success() {
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        let tail: Vec<&str> = stderr.lines().rev().take(12).collect();
+        bail!(
+            "12-fast-frame {} exited with {}:\n{}",
+            args.join(" "),
+            output.status,
+            tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+        );
+    }
+    serde_json::from_slice(&output.stdout).context("reading 12-fast-frame's JSON report")
+}
+
+/// The arguments that put chapter 12 at a bench setting.
+fn setting(scene: SceneKind, size: Size, spp: u32, frames: u32) -> Vec<String> {
+    let mut args = vec!["--size".into(), format!("{}x{}", size.width, size.height)];
+    args.extend(["--samples".into(), spp.to_string(), "--frames".into(), frames.to_string()]);
+    if scene != SceneKind::Default {
+        args.extend(["--builtin".into(), scene.name().into()]);
+    }
+    args
+}
+
+/// A pass's median GPU time from a chapter report (0 if the pass never ran).
+fn median(report: &Value, pass: &str) -> f64 {
+    report["timings_ms"][format!("{pass}_median")].as_f64().unwrap_or(0.0)
+}
+
+/// One `fast-frame` row: chapter 12's defaults at one setting. `covered`: the pixels that cast
+/// rays, counted by the bench from chapter 08's G-buffers with the same camera.
+pub fn row(scene: SceneKind, size: Size, spp: u32, frames: u32, covered: u64, out: &Path) -> Result<Row> {
+    let report = run(&setting(scene, size, spp, frames), out)?;
+    let frame_ms = median(&report, "frame_wall");
+    let (raster_ms, ao_ms) = (median(&report, "visibility"), median(&report, "ao_trace"));
+    let composite_ms = median(&report, "composite") + median(&report, "overlays");
+    let rays = spp as f64 * covered as f64;
+    Ok(Row {
+        mode: Mode::FastFrame,
+        scene: scene.name(),
+        width: size.width,
+        height: size.height,
+        spp,
+        frame_ms,
+        p95_ms: report["timings_ms"]["frame_wall_p95"].as_f64().unwrap_or(0.0),
+        raster_ms,
+        handoff_ms: (frame_ms - raster_ms - ao_ms - composite_ms).max(0.0),
+        ao_ms,
+        composite_ms,
+        grays_per_s: if ao_ms > 0.0 { rays / (ao_ms * 1e-3) / 1e9 } else { 0.0 },
+    })
+}
+
+// ANCHOR: ablation
+/// Chapter 12's choices, undone one at a time (the flags that undo them).
+pub const STEPS: [(&str, &[&str]); 4] = [
+    ("lean buffer + compute composite", &["--pattern", "per-pixel", "--blas", "per-mesh"]),
+    ("+ one flat BLAS", &["--pattern", "per-pixel", "--blas", "flat"]),
+    ("+ 4x4 blocks of one run (chapter 12)", &["--pattern", "tile4x4", "--blas", "flat"]),
+    ("(8x8 tiles of one rotation instead)", &["--pattern", "tile", "--blas", "flat"]),
+];
+
+/// One line of the ablation: a step's times (GPU medians) and its error after the blur.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Step {
+    pub step: &'static str,
+    pub flags: String,
+    pub frame_ms: f64,
+    pub raster_ms: f64,
+    pub ao_ms: f64,
+    pub composite_ms: f64,
+    /// RMS error of one frame's occlusion against `reference_rays`, before and after the blur.
+    pub error_raw: f64,
+    pub error_blurred: f64,
+}
+
+/// Every step at one setting of the default scene, each with `--error-against reference`.
+pub fn ablation(size: Size, spp: u32, frames: u32, reference: u32, out: &Path) -> Result<Vec<Step>> {
+    let mut steps = Vec::new();
+    for (step, flags) in STEPS {
+        let mut args = setting(SceneKind::Default, size, spp, frames);
+        args.extend(flags.iter().map(|f| f.to_string()));
+        args.extend(["--error-against".into(), reference.to_string()]);
+        let report = run(&args, out)?;
+        let error = &report["ao_rms_error"];
+        steps.push(Step {
+            step,
+            flags: flags.join(" "),
+            frame_ms: median(&report, "frame_wall"),
+            raster_ms: median(&report, "visibility"),
+            ao_ms: median(&report, "ao_trace"),
+            composite_ms: median(&report, "composite") + median(&report, "overlays"),
+            error_raw: error["raw"].as_f64().unwrap_or(f64::NAN),
+            error_blurred: error["blurred"].as_f64().unwrap_or(f64::NAN),
+        });
+        eprintln!("bench: ablation '{step}' done");
+    }
+    Ok(steps)
+}
+// ANCHOR_END: ablation
+
+/// The ablation as a markdown table, chapter 08's zero-copy row first.
+pub fn table(chapter_08: Option<&Row>, steps: &[Step]) -> String {
+    let mut table = String::from(
+        "| step | frame ms | raster ms | AO ms | composite ms | error | after blur |\n|---|---:|---:|---:|---:|---:|---:|\n",
+    );
+    if let Some(r) = chapter_08 {
+        let line = format!(
+            "| chapter 08 (zero-copy) | {:.2} | {:.2} | {:.2} | {:.2} | as the next | as the next |\n",
+            r.frame_ms, r.raster_ms, r.ao_ms, r.composite_ms
+        );
+        table.push_str(&line);
+    }
+    for s in steps {
+        table.push_str(&format!(
+            "| {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.4} | {:.4} |\n",
+            s.step, s.frame_ms, s.raster_ms, s.ao_ms, s.composite_ms, s.error_raw, s.error_blurred
+        ));
+    }
+    table
+}
