@@ -1,5 +1,6 @@
-//! The `bench` binary on the software stack: `--quick --json` runs, and its report has the shape
-//! issue 10 asks for (no timing asserts: lavapipe's speed says nothing about a GPU's).
+//! The `bench` binary on the software stack: `--quick --json` runs, and its report has every
+//! row, pass time and ablation step (no timing asserts: lavapipe's speed says nothing about a
+//! GPU's).
 
 mod harness;
 
@@ -13,8 +14,8 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     assert!(report["device"].as_str().is_some_and(|d| !d.is_empty()));
     assert!(report["driver"].as_str().is_some_and(|d| !d.is_empty()));
     let rows = report["rows"].as_array().expect("rows");
-    // 3 modes x 3 scenes x 2 sizes x 2 ray counts.
-    assert_eq!(rows.len(), 36);
+    // 3 modes of chapter 08's frame and chapter 12's, x 3 scenes x 2 sizes x 2 ray counts.
+    assert_eq!(rows.len(), 48);
     let fields = [
         "mode",
         "scene",
@@ -35,7 +36,7 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
         expected.sort();
         let mut keys_sorted = keys.clone();
         keys_sorted.sort();
-        assert_eq!(keys_sorted, expected, "exactly the issue's fields: {row}");
+        assert_eq!(keys_sorted, expected, "exactly the row's fields: {row}");
         for field in &fields[2..] {
             assert!(row[field].as_f64().is_some_and(|v| v.is_finite() && v >= 0.0), "{field} in {row}");
         }
@@ -46,7 +47,7 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
         values.dedup();
         values
     };
-    assert_eq!(set("mode"), [r#""cpu-round-trip""#, r#""host-sync""#, r#""zero-copy""#]);
+    assert_eq!(set("mode"), [r#""cpu-round-trip""#, r#""fast-frame""#, r#""host-sync""#, r#""zero-copy""#]);
     assert_eq!(set("scene"), [r#""ceiling""#, r#""default""#, r#""large""#]);
     assert_eq!(set("spp"), ["1", "4"]);
     // The large scene's acceleration structures: sizes and GPU build times.
@@ -83,5 +84,18 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     for field in ["blas_build_ms", "compaction_ms", "tlas_build_ms"] {
         snapshot["large_scene"][field] = Value::from("[ms]");
     }
+    // The ablation: chapter 12 with each choice undone, at the largest size and the most rays,
+    // every step timed and its error after the blur measured.
+    let ablation = &report["ablation"];
+    assert_eq!((ablation["size"].as_str(), ablation["spp"].as_u64()), (Some("96x64"), Some(4)));
+    let steps = ablation["steps"].as_array().expect("ablation steps");
+    assert_eq!(steps.len(), 4);
+    for step in steps {
+        for field in ["frame_ms", "raster_ms", "ao_ms", "composite_ms", "error_raw", "error_blurred"] {
+            assert!(step[field].as_f64().is_some_and(|v| v.is_finite() && v > 0.0), "{field} in {step}");
+        }
+        assert!(step["error_blurred"].as_f64() < step["error_raw"].as_f64(), "the blur lowers the error: {step}");
+    }
+    snapshot["ablation"]["steps"] = steps.iter().map(|s| s["flags"].clone()).collect::<Vec<Value>>().into();
     assert_report_snapshot("bench-quick", &snapshot);
 }
