@@ -698,3 +698,32 @@ fn the_introduction_counts_the_chapters() {
         "the introduction counts {stated} programs; chapters/ has {chapters} chapters"
     );
 }
+
+/// The README's run command installs only what a chapter needs (`bash .ci/deps`, no mdBook); its
+/// test command installs what the tests need too (`--tests`), and CI (`.ci/run`) runs that test
+/// command verbatim.
+#[test]
+fn the_readme_run_command_installs_only_what_chapters_need() {
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    let deps = std::fs::read_to_string(root().join(".ci/deps")).unwrap();
+    let ci = std::fs::read_to_string(root().join(".ci/run")).unwrap();
+    let commands: Vec<&str> = readme.lines().filter(|l| l.starts_with("bash .ci/deps")).collect();
+    let run = commands.iter().find(|l| l.contains("cargo run")).expect("the README's run command");
+    let test = commands.iter().find(|l| l.contains("cargo test")).expect("the README's test command");
+    assert!(run.starts_with("bash .ci/deps && "), "the run command installs more than chapters need: {run}");
+    assert!(
+        test.starts_with("bash .ci/deps --tests && "),
+        "the test command must install mdBook and g++: {test}"
+    );
+    assert!(
+        ci.lines().any(|l| l.starts_with(*test)),
+        ".ci/run does not run the README's test command `{test}`"
+    );
+    assert!(deps.contains("--tests)"), ".ci/deps takes no --tests");
+    // mdBook only with --tests: every call to install it is guarded.
+    let unguarded: Vec<&str> = deps
+        .lines()
+        .filter(|l| l.contains("install_mdbook") && !l.contains("install_mdbook()") && !l.contains("$tests"))
+        .collect();
+    assert!(unguarded.is_empty(), ".ci/deps installs mdBook without --tests: {unguarded:?}");
+}
