@@ -727,3 +727,59 @@ fn the_readme_run_command_installs_only_what_chapters_need() {
         .collect();
     assert!(unguarded.is_empty(), ".ci/deps installs mdBook without --tests: {unguarded:?}");
 }
+
+/// snake_case names a page quotes that are neither in the sources nor in a report, rightly: other
+/// projects' and crates' names, and names a page quotes as history.
+const SNAKE_NAMES_FROM_ELSEWHERE: &[&str] = &[
+    "memfd_create",           // Linux
+    "gl_vk_raytrace_interop", // NVIDIA's sample
+    "gl_vk_simple_interop",   // NVIDIA's sample
+    "create_vertex_array",    // glow's, the call chapter 02 warns against
+    "look_at",                // glam's family of functions
+    "sm_90",                  // CUDA's architecture name
+    "raster_gpu",             // 05: the timing's name before `GlPassTimer`
+    "offset_ray",             // 07: Ray Tracing Gems' function, the shader's before the fix
+];
+
+/// Every snake_case name a page quotes in prose (`hand_over_layouts_agree`, `memory_row_0`,
+/// `timings_ms`) is an identifier of the sources or shaders, or a key of a report.
+#[test]
+fn snake_case_names_the_pages_quote_exist() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let mut known = sources.words.clone();
+    for (_, report) in &snapshots {
+        all_keys(report, &mut known);
+    }
+    let mut shaders = Vec::new();
+    for entry in std::fs::read_dir(root().join("shaders")).unwrap().flatten() {
+        let path = entry.path();
+        let files: Vec<PathBuf> = if path.is_dir() {
+            std::fs::read_dir(&path).unwrap().flatten().map(|e| e.path()).collect()
+        } else {
+            vec![path]
+        };
+        shaders.extend(files.into_iter().filter(|f| f.extension().is_none_or(|e| e != "spv")));
+    }
+    for shader in shaders {
+        if let Ok(text) = std::fs::read_to_string(&shader) {
+            known.extend(identifiers(&text));
+        }
+    }
+    let mut errors = Vec::new();
+    for page in pages() {
+        for (number, line) in &page.prose {
+            for span in code_spans(line) {
+                // A prefix (`pbo_`, `zero_copy_`: chapter 11's checks) is not a name.
+                if is_check_name(span)
+                    && !span.ends_with('_')
+                    && !known.contains(span)
+                    && !SNAKE_NAMES_FROM_ELSEWHERE.contains(&span)
+                {
+                    errors
+                        .push(format!("{}:{number}: `{span}` is in no source, shader or report", page.name));
+                }
+            }
+        }
+    }
+    assert!(errors.is_empty(), "names the book quotes that nothing has:\n{}", errors.join("\n"));
+}
