@@ -133,7 +133,7 @@ fn the_checker_catches_what_mdbook_would_hide() {
     assert!(results[5].is_err(), "a line range past the end of the file");
 }
 
-/// mdBook as `.ci/deps` installs it (0.5.4): on the PATH, or where `cargo install` puts it.
+/// mdBook as `.ci/deps --tests` installs it (0.5.4): on the PATH, or where `cargo install` puts it.
 fn mdbook() -> PathBuf {
     let on_path = std::process::Command::new("mdbook").arg("--version").output().is_ok();
     let cargo_home = std::env::var_os("CARGO_HOME")
@@ -245,7 +245,7 @@ fn the_rendered_book_builds_without_warnings_and_its_links_resolve() {
         .arg(out.path())
         .output()
         .unwrap_or_else(|e| {
-            panic!("cannot run mdbook ({e}): install it with `bash .ci/deps` (cargo install mdbook --version 0.5.4 --locked)")
+            panic!("cannot run mdbook ({e}): install it with `bash .ci/deps --tests` (cargo install mdbook --version 0.5.4 --locked)")
         });
     let log = String::from_utf8_lossy(&built.stderr).into_owned() + &String::from_utf8_lossy(&built.stdout);
     assert!(built.status.success(), "mdbook build failed:\n{log}");

@@ -1,0 +1,785 @@
+//! The facts a page quotes from the code stay true: the checks a transcript or a "Checks" table
+//! names and the counts it states agree with the chapters' reports (`tests/snapshots/*.snap`,
+//! written by the chapter tests from real runs); the report keys, Rust names and command-line
+//! flags a page quotes exist; no page runs a `./bin/` that does not exist or cites a tracker's
+//! "issue N" that the reader cannot see. Pure text: no GPU, no chapter run, a fraction of a second.
+
+use serde_json::Value;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// One page of the book: its file name (`03-semaphores.md`), and its text split into prose lines
+/// and fenced blocks, each line with its number.
+struct Page {
+    name: String,
+    prose: Vec<(usize, String)>,
+    blocks: Vec<Block>,
+}
+
+struct Block {
+    /// The fence's info string: `sh`, `text`, `console`, `rust` ...
+    info: String,
+    lines: Vec<(usize, String)>,
+}
+
+impl Page {
+    fn parse(name: &str, text: &str) -> Page {
+        let (mut prose, mut blocks) = (Vec::new(), Vec::new());
+        let mut open: Option<Block> = None;
+        for (number, line) in text.lines().enumerate() {
+            let number = number + 1;
+            let fence = line.trim_start().starts_with("```");
+            match (&mut open, fence) {
+                (None, true) => {
+                    let info = line.trim_start().trim_start_matches('`').trim().to_owned();
+                    open = Some(Block { info, lines: Vec::new() });
+                }
+                (Some(_), true) => blocks.push(open.take().unwrap()),
+                (Some(block), false) => block.lines.push((number, line.to_owned())),
+                (None, false) => prose.push((number, line.to_owned())),
+            }
+        }
+        Page { name: name.to_owned(), prose, blocks }
+    }
+
+    /// `03-semaphores` for a chapter's page, `None` for the others.
+    fn chapter(&self) -> Option<&str> {
+        let stem = self.name.strip_suffix(".md")?;
+        stem.as_bytes().get(..2)?.iter().all(u8::is_ascii_digit).then_some(stem)
+    }
+
+    /// Blocks that show a program's output or a command to type (not code listings).
+    fn output_blocks(&self) -> impl Iterator<Item = &Block> {
+        self.blocks.iter().filter(|b| matches!(b.info.as_str(), "" | "text" | "console" | "sh" | "bash"))
+    }
+}
+
+/// Every page under `book/src`, by name; `chapters`, `common` and `shaders` there are links to
+/// the sources, not pages.
+fn pages() -> Vec<Page> {
+    fn walk(dir: &Path, found: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())).flatten() {
+            let path = entry.path();
+            if entry.file_type().is_ok_and(|t| t.is_symlink()) {
+                continue;
+            }
+            if path.is_dir() {
+                walk(&path, found);
+            } else if path.extension().is_some_and(|e| e == "md") {
+                found.push(path);
+            }
+        }
+    }
+    let mut files = Vec::new();
+    walk(&root().join("book/src"), &mut files);
+    files.sort();
+    assert!(files.len() > 10, "book/src has only {} pages: was it moved?", files.len());
+    files
+        .iter()
+        .map(|f| {
+            let name = f.strip_prefix(root().join("book/src")).unwrap().to_string_lossy().into_owned();
+            Page::parse(&name, &std::fs::read_to_string(f).unwrap())
+        })
+        .collect()
+}
+
+/// Every report snapshot (`tests/snapshots/*.snap`): the JSON after insta's header.
+fn snapshots() -> Vec<(String, Value)> {
+    let dir = root().join("tests/snapshots");
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir(&dir).unwrap().flatten() {
+        let path = entry.path();
+        if path.extension().is_none_or(|e| e != "snap") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let json =
+            text.splitn(3, "---\n").nth(2).unwrap_or_else(|| panic!("{}: no insta header", path.display()));
+        let report: Value =
+            serde_json::from_str(json).unwrap_or_else(|e| panic!("{}: not JSON: {e}", path.display()));
+        found.push((path.file_name().unwrap().to_string_lossy().into_owned(), report));
+    }
+    assert!(found.len() > 10, "only {} report snapshots in {}", found.len(), dir.display());
+    found
+}
+
+/// What the reports say about each chapter's checks.
+struct Checks {
+    /// Per chapter: the checks every one of its snapshots has (reported on every run).
+    always: BTreeMap<String, BTreeSet<String>>,
+    /// Per chapter: the number of checks each of its snapshots has.
+    counts: BTreeMap<String, BTreeSet<usize>>,
+    /// Every check name a report or the code knows (the conditional ones are string literals in
+    /// the sources, e.g. `no_fd_growth_across_resizes`).
+    known: BTreeSet<String>,
+}
+
+fn checks(snapshots: &[(String, Value)], sources: &Sources) -> Checks {
+    let mut always: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    let mut counts: BTreeMap<String, BTreeSet<usize>> = BTreeMap::new();
+    let mut known = sources.literals.clone();
+    for (_, report) in snapshots {
+        let Some(chapter) = report["chapter"].as_str() else { continue };
+        let names: BTreeSet<String> =
+            report["checks"].as_object().map(|c| c.keys().cloned().collect()).unwrap_or_default();
+        known.extend(names.iter().cloned());
+        counts.entry(chapter.to_owned()).or_default().insert(names.len());
+        always.entry(chapter.to_owned()).and_modify(|a| a.retain(|n| names.contains(n))).or_insert(names);
+    }
+    Checks { always, counts, known }
+}
+
+/// The Rust sources: every identifier, and every string literal that looks like a name.
+struct Sources {
+    words: BTreeSet<String>,
+    literals: BTreeSet<String>,
+    /// Per folder (`chapters/03-semaphores`, `common`): the text of its `.rs` files.
+    text: BTreeMap<String, String>,
+}
+
+fn sources() -> Sources {
+    fn walk(dir: &Path, found: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                walk(&path, found);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                found.push(path);
+            }
+        }
+    }
+    let mut files = Vec::new();
+    for dir in ["chapters", "common", "xtask", "tests"] {
+        walk(&root().join(dir), &mut files);
+    }
+    let (mut words, mut literals, mut text) =
+        (BTreeSet::new(), BTreeSet::new(), BTreeMap::<String, String>::new());
+    for file in files {
+        let source = std::fs::read_to_string(&file).unwrap();
+        let relative = file.strip_prefix(root()).unwrap();
+        let mut parts = relative.components().map(|c| c.as_os_str().to_string_lossy().into_owned());
+        let first = parts.next().unwrap();
+        let folder = if first == "chapters" { format!("chapters/{}", parts.next().unwrap()) } else { first };
+        words.extend(identifiers(&source));
+        for piece in source.split('"').skip(1).step_by(2) {
+            if !piece.is_empty()
+                && piece.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+            {
+                literals.insert(piece.to_owned());
+            }
+        }
+        let entry = text.entry(folder).or_default();
+        entry.push_str(&source);
+        entry.push('\n');
+    }
+    assert!(words.contains("HandOver") || words.len() > 1000, "the sources look empty");
+    Sources { words, literals, text }
+}
+
+fn identifiers(text: &str) -> impl Iterator<Item = String> + '_ {
+    text.split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+        .filter(|w| !w.is_empty())
+        .map(str::to_owned)
+}
+
+/// The inline code spans (`...`) of a prose line.
+fn code_spans(line: &str) -> Vec<&str> {
+    line.split('`').skip(1).step_by(2).collect()
+}
+
+fn is_check_name(s: &str) -> bool {
+    s.contains('_')
+        && s.starts_with(|c: char| c.is_ascii_lowercase())
+        && s.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+}
+
+/// `six` -> 6: the counts pages spell out.
+fn count_of(word: &str) -> Option<usize> {
+    const WORDS: [&str; 16] = [
+        "zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven",
+        "twelve", "thirteen", "fourteen", "fifteen",
+    ];
+    word.parse().ok().or_else(|| WORDS.iter().position(|w| w.eq_ignore_ascii_case(word)))
+}
+
+/// Where a page's output block disagrees with what the chapter reports. A block that ends a run
+/// (`NN-slug: all N checks passed`, or `error: K check(s) failed: ...`) lists every check the
+/// chapter reports on every run, and as many as it says; every check it names exists.
+fn transcript_errors(page: &Page, checks: &Checks) -> Vec<String> {
+    let mut errors = Vec::new();
+    for block in page.output_blocks() {
+        let mut listed = Vec::new();
+        let mut chapter = page.chapter().map(str::to_owned);
+        let mut ends_a_run = false;
+        for (line_number, line) in &block.lines {
+            let at = format!("{}:{line_number}", page.name);
+            let line = line.trim();
+            if let Some(name) = line.strip_prefix("[ ok ] ").or_else(|| line.strip_prefix("[FAIL] ")) {
+                listed.push(name.trim().to_owned());
+            } else if let Some((slug, rest)) = line.split_once(": all ")
+                && let Some(count) = rest.strip_suffix(" checks passed")
+            {
+                ends_a_run = true;
+                chapter = Some(slug.to_owned());
+                let count = count_of(count).unwrap_or(usize::MAX);
+                if count != listed.len() {
+                    errors
+                        .push(format!("{at}: says {count} checks passed, but lists {} above", listed.len()));
+                }
+                match checks.counts.get(slug) {
+                    Some(counts) if counts.iter().any(|c| count >= *c) => {}
+                    Some(counts) => {
+                        errors.push(format!("{at}: {slug} reports {counts:?} checks, not {count}"))
+                    }
+                    None => errors.push(format!("{at}: no report snapshot for {slug}")),
+                }
+            } else if let Some(rest) = line.strip_prefix("error: ")
+                && let Some((count, names)) = rest.split_once(" check(s) failed: ")
+            {
+                ends_a_run = true;
+                let names: Vec<&str> = names.split(", ").map(str::trim).collect();
+                if count_of(count) != Some(names.len()) {
+                    errors.push(format!("{at}: says {count} check(s) failed and names {}", names.len()));
+                }
+                for name in names {
+                    if !checks.known.contains(name) {
+                        errors.push(format!("{at}: `{name}` failed, but no report or source has that check"));
+                    }
+                }
+            }
+        }
+        let first = block.lines.first().map_or(0, |l| l.0);
+        for name in &listed {
+            if !checks.known.contains(name) {
+                errors.push(format!(
+                    "{}:{first}: the transcript shows `{name}`, which no report or source has",
+                    page.name
+                ));
+            }
+        }
+        if ends_a_run && let Some(always) = chapter.as_deref().and_then(|c| checks.always.get(c)) {
+            for name in always.iter().filter(|n| !listed.contains(n)) {
+                errors.push(format!(
+                    "{}:{first}: the run's transcript leaves out `{name}`, which {} reports on every run",
+                    page.name,
+                    chapter.as_deref().unwrap()
+                ));
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn transcripts_show_the_checks_the_chapters_report() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    let errors: Vec<String> = pages().iter().flat_map(|p| transcript_errors(p, &checks)).collect();
+    assert!(errors.is_empty(), "transcripts that no longer match the chapters:\n{}", errors.join("\n"));
+}
+
+/// A chapter page's "## Checks" table lists every check its report always has, and only checks
+/// that exist.
+fn checks_table_errors(page: &Page, checks: &Checks) -> Vec<String> {
+    let Some(chapter) = page.chapter() else { return Vec::new() };
+    let Some(start) = page.prose.iter().position(|(_, l)| l.trim() == "## Checks") else { return Vec::new() };
+    let mut listed = BTreeSet::new();
+    let mut errors = Vec::new();
+    for (number, line) in page.prose[start + 1..].iter().take_while(|(_, l)| !l.starts_with("## ")) {
+        let Some(first_cell) = line.strip_prefix('|').and_then(|l| l.split('|').next()) else { continue };
+        for name in code_spans(first_cell).into_iter().filter(|n| is_check_name(n)) {
+            if !checks.known.contains(name) {
+                errors.push(format!(
+                    "{}:{number}: `{name}` is in the Checks table, but no report or source has it",
+                    page.name
+                ));
+            }
+            listed.insert(name.to_owned());
+        }
+    }
+    for name in checks.always.get(chapter).into_iter().flatten().filter(|n| !listed.contains(*n)) {
+        errors.push(format!(
+            "{}: the Checks table leaves out `{name}`, which {chapter} reports on every run",
+            page.name
+        ));
+    }
+    errors
+}
+
+#[test]
+fn checks_tables_list_every_check_the_report_has() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    let pages = pages();
+    let tables =
+        pages.iter().filter(|p| p.chapter().is_some() && p.prose.iter().any(|(_, l)| l == "## Checks"));
+    assert!(tables.count() >= 8, "chapter pages 01-08 each have a ## Checks table");
+    let errors: Vec<String> = pages.iter().flat_map(|p| checks_table_errors(p, &checks)).collect();
+    assert!(errors.is_empty(), "Checks tables that disagree with the reports:\n{}", errors.join("\n"));
+}
+
+/// "all six checks pass" in a page's prose: the count its chapter reports. The chapter is the
+/// page's own, or on other pages the last `NN-slug` named before it in the paragraph.
+fn stated_count_errors(page: &Page, checks: &Checks) -> Vec<String> {
+    let mut errors = Vec::new();
+    let mut named: Option<String> = None;
+    for (number, line) in &page.prose {
+        if line.trim().is_empty() {
+            named = None;
+        }
+        let words: Vec<&str> = line
+            .split(|c: char| c.is_whitespace() || matches!(c, '`' | ',' | '.' | ':' | '(' | ')'))
+            .filter(|w| !w.is_empty())
+            .collect();
+        for (i, word) in words.iter().enumerate() {
+            if checks.counts.contains_key(*word) {
+                named = Some((*word).to_owned());
+            }
+            if word.eq_ignore_ascii_case("all")
+                && let (Some(count), Some(next)) =
+                    (words.get(i + 1).and_then(|w| count_of(w)), words.get(i + 2))
+                && next.starts_with("check")
+            {
+                let Some(chapter) = page.chapter().map(str::to_owned).or_else(|| named.clone()) else {
+                    continue;
+                };
+                let counts = &checks.counts[&chapter];
+                if !counts.contains(&count) {
+                    errors.push(format!(
+                        "{}:{number}: says {chapter} has {count} checks; its reports have {counts:?}",
+                        page.name
+                    ));
+                }
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn counts_of_checks_in_the_prose_match_the_reports() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    let errors: Vec<String> = pages().iter().flat_map(|p| stated_count_errors(p, &checks)).collect();
+    assert!(errors.is_empty(), "counts of checks that disagree with the reports:\n{}", errors.join("\n"));
+}
+
+/// Does `path` (`validation.layer`) lead somewhere in `report`? Arrays: in any element.
+fn has_path(value: &Value, path: &[&str]) -> bool {
+    match (path.split_first(), value) {
+        (None, _) => true,
+        (Some((first, rest)), Value::Object(map)) => map.get(*first).is_some_and(|v| has_path(v, rest)),
+        (Some(_), Value::Array(items)) => items.iter().any(|v| has_path(v, path)),
+        _ => false,
+    }
+}
+
+fn all_keys(value: &Value, into: &mut BTreeSet<String>) {
+    match value {
+        Value::Object(map) => {
+            for (key, value) in map {
+                into.insert(key.clone());
+                all_keys(value, into);
+            }
+        }
+        Value::Array(items) => items.iter().for_each(|v| all_keys(v, into)),
+        _ => {}
+    }
+}
+
+/// Report keys a page quotes: `validation.layer` (a path into an object of the report), `"sync":`
+/// (a key), `raster_median` (a timing): each exists in a report, or (for timings and keys only
+/// some runs have) in the code that writes it.
+fn report_key_errors(page: &Page, snapshots: &[(String, Value)], sources: &Sources) -> Vec<String> {
+    let mut keys = BTreeSet::new();
+    let mut timings = BTreeSet::new();
+    for (_, report) in snapshots {
+        all_keys(report, &mut keys);
+        if let Some(t) = report["timings_ms"].as_object() {
+            timings.extend(t.keys().map(|k| k.rsplit('.').next().unwrap().to_owned()));
+        }
+    }
+    // Top-level fields that hold objects: a dotted span starting with one is a path into it.
+    let objects: BTreeSet<&str> = snapshots
+        .iter()
+        .flat_map(|(_, r)| r.as_object().unwrap().iter())
+        .filter(|(_, v)| v.is_object() || v.is_array())
+        .map(|(k, _)| k.as_str())
+        .collect();
+    let mut errors = Vec::new();
+    for (number, line) in &page.prose {
+        for span in code_spans(line) {
+            let at = format!("{}:{number}", page.name);
+            let path: Vec<&str> = span.split('.').collect();
+            let file = ["rs", "md", "json", "png", "svg", "spv"].contains(path.last().unwrap());
+            if path.len() > 1
+                && !file
+                && objects.contains(path[0])
+                && path.iter().all(|p| {
+                    !p.is_empty()
+                        && p.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+                })
+                && !snapshots.iter().any(|(_, r)| has_path(r, &path))
+            {
+                errors.push(format!("{at}: `{span}` is not in any chapter's report"));
+            }
+            if let Some(key) = span.strip_prefix('"').and_then(|s| s.split_once("\":")).map(|(k, _)| k)
+                && !keys.contains(key)
+                && !sources.literals.contains(key)
+            {
+                errors.push(format!("{at}: `{span}`: no report has the key {key:?}"));
+            }
+            if is_check_name(span)
+                && (span.ends_with("_median") || span.ends_with("_p95"))
+                && !timings.contains(span)
+                && !sources.words.contains(span)
+            {
+                errors.push(format!("{at}: `{span}` is not a timing any report has"));
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn report_keys_the_pages_quote_exist() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let errors: Vec<String> =
+        pages().iter().flat_map(|p| report_key_errors(p, &snapshots, &sources)).collect();
+    assert!(errors.is_empty(), "report keys the book quotes that no report has:\n{}", errors.join("\n"));
+}
+
+/// Names the sources never spell that way, but that pages rightly quote: the specification's and
+/// other crates' spellings.
+const NAMES_FROM_ELSEWHERE: &[&str] = &[
+    // Vulkan's names for ash's `ACCELERATION_STRUCTURE_READ_KHR`, `BuildAccelerationStructureModeKHR::UPDATE` ...
+    "ACCELERATION_STRUCTURE_READ",
+    "ACCELERATION_STRUCTURE_WRITE",
+    "BUILD_MODE_UPDATE",
+    "COLOR_ATTACHMENT_OUTPUT",
+    "DMA_BUF",
+    "OPAQUE_WIN32",
+    // An environment variable of Mesa's.
+    "DRI_PRIME",
+    // GLSL's ray flag `gl_RayFlagsTerminateOnFirstHitEXT`.
+    "TerminateOnFirstHit",
+    // glow's own type names (the sources use its aliases `glow::Buffer`, `glow::Texture`).
+    "NativeBuffer",
+    "NativeTexture",
+];
+
+/// Rust names a page quotes: `common::sync::HandOver`, `Sync::hand_over`, `SharedImage`,
+/// `BUFFER_IMPORT_SLACK`. Each part must be an identifier the sources use (or a name from the
+/// specification, `Vk...`, or from the list above).
+fn rust_name_errors(page: &Page, sources: &Sources) -> Vec<String> {
+    let mut errors = Vec::new();
+    for (number, line) in &page.prose {
+        for span in code_spans(line) {
+            let span = span.trim().trim_end_matches("()");
+            if span.is_empty() || !span.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == ':') {
+                continue;
+            }
+            let parts: Vec<&str> = span.split("::").collect();
+            if parts.iter().any(|p| p.is_empty()) {
+                continue;
+            }
+            let camel = |p: &&str| {
+                p.starts_with(|c: char| c.is_ascii_uppercase()) && p.chars().any(|c| c.is_ascii_lowercase())
+            };
+            let screaming = |p: &&str| {
+                p.contains('_')
+                    && p.chars().all(|c| c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_')
+                    && !["GL_", "VK_", "EGL_"].iter().any(|prefix| p.starts_with(prefix))
+            };
+            let rust =
+                parts[0] == "common" || parts.iter().any(camel) || (parts.len() == 1 && screaming(&parts[0]));
+            // Spec names (`VkExportMemoryAllocateInfo`, `GL_EXT_external_objects`) are not Rust names.
+            let spec = |p: &&str| ["Vk", "GL_", "VK_", "EGL_"].iter().any(|prefix| p.starts_with(prefix));
+            if !rust || parts.iter().any(spec) {
+                continue;
+            }
+            for part in &parts {
+                // `glow::`, `ash::`, `std::` ... : crates the sources use by those names.
+                if !sources.words.contains(*part) && !NAMES_FROM_ELSEWHERE.contains(part) {
+                    errors.push(format!("{}:{number}: `{span}`: the sources have no `{part}`", page.name));
+                }
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn rust_names_the_pages_quote_exist() {
+    let sources = sources();
+    let errors: Vec<String> = pages().iter().flat_map(|p| rust_name_errors(p, &sources)).collect();
+    assert!(errors.is_empty(), "names the book quotes that the code does not have:\n{}", errors.join("\n"));
+}
+
+/// Every `cargo run` a page prints (in a block or inline) names a binary of the workspace, and
+/// every flag after its `--` is one that binary's folder or `common` declares (a clap field of
+/// that name, or `long = "..."`); `cargo test --test NAME` names a file in `tests/`. No page runs
+/// anything from a `bin/` folder, which does not exist.
+fn command_errors(page: &Page, bins: &BTreeSet<String>, sources: &Sources) -> Vec<String> {
+    let mut errors = Vec::new();
+    let mut commands: Vec<(usize, String)> = Vec::new();
+    for block in page.output_blocks() {
+        for (number, line) in &block.lines {
+            commands.push((*number, line.trim().trim_start_matches("$ ").to_owned()));
+        }
+    }
+    for (number, line) in &page.prose {
+        for span in code_spans(line) {
+            // A chapter page quoting its own flags alone (`--headless --size 320x240`): as if typed
+            // after its `cargo run --bin NN-slug --`.
+            match page.chapter() {
+                Some(bin) if span.starts_with("--") => {
+                    commands.push((*number, format!("cargo run --bin {bin} -- {span}")))
+                }
+                _ => commands.push((*number, span.to_owned())),
+            }
+        }
+    }
+    for (number, command) in commands {
+        let at = format!("{}:{number}", page.name);
+        if command.contains("./bin/") {
+            errors.push(format!(
+                "{at}: `{command}` runs from ./bin/, which does not exist: use cargo run --release --bin"
+            ));
+        }
+        let words: Vec<&str> = command.split_whitespace().collect();
+        for (i, pair) in words.windows(2).enumerate() {
+            if pair == ["cargo", "run"] || pair == ["cargo", "test"] {
+                let rest = &words[i + 2..];
+                let end = rest
+                    .iter()
+                    .position(|w| matches!(*w, "&&" | "||" | ";" | "|" | ">" | "2>" | "#"))
+                    .unwrap_or(rest.len());
+                let rest = &rest[..end];
+                let value =
+                    |flag: &str| rest.iter().position(|w| *w == flag).and_then(|p| rest.get(p + 1)).copied();
+                if let Some(bin) = value("--bin") {
+                    if !bin.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-') {
+                        continue; // a placeholder: `--bin NAME`, `--bin …`
+                    }
+                    if !bins.contains(bin) {
+                        errors.push(format!("{at}: `--bin {bin}`: the workspace has no such binary"));
+                        continue;
+                    }
+                    let Some(dashes) = rest.iter().position(|w| *w == "--") else { continue };
+                    let texts = sources_of(bin, sources);
+                    for flag in rest[dashes + 1..].iter().filter_map(|w| w.strip_prefix("--")) {
+                        let flag = flag.split('=').next().unwrap();
+                        if flag.is_empty()
+                            || !flag.chars().all(|c| c.is_ascii_lowercase() || c == '-')
+                            || FLAGS_OF_OTHER_TOOLS.contains(&flag)
+                        {
+                            continue;
+                        }
+                        let field = flag.replace('-', "_");
+                        let declared = texts.iter().any(|text| {
+                            text.contains(&format!("long = \"{flag}\"")) || declares_field(text, &field)
+                        });
+                        if !declared {
+                            errors.push(format!(
+                                "{at}: `--{flag}`: {bin} declares no such flag (chapters/{bin}/ or common/)"
+                            ));
+                        }
+                    }
+                }
+                if let Some(test) = value("--test")
+                    && !root().join("tests").join(format!("{test}.rs")).is_file()
+                {
+                    errors.push(format!("{at}: `--test {test}`: there is no tests/{test}.rs"));
+                }
+            }
+        }
+    }
+    errors
+}
+
+/// Options a chapter page quotes for another tool: NVRTC's (chapter 11 compiles its CUDA with them).
+const FLAGS_OF_OTHER_TOOLS: &[&str] = &["gpu-architecture", "fmad"];
+
+/// Does `text` declare `--name` as a clap flag: a field `name: ...` under an `#[arg(long ...)]`
+/// (between them only doc comments and other attributes)?
+fn declares_field(text: &str, name: &str) -> bool {
+    let lines: Vec<&str> = text.lines().map(str::trim).collect();
+    lines.iter().enumerate().any(|(i, line)| {
+        let field = line.strip_prefix("pub ").unwrap_or(line);
+        field.strip_prefix(name).is_some_and(|rest| rest.starts_with(':') && !rest.starts_with("::"))
+            && lines[..i]
+                .iter()
+                .rev()
+                .take_while(|l| l.starts_with("#[") || l.starts_with("//"))
+                .any(|l| l.starts_with("#[arg(") && l.contains("long"))
+    })
+}
+
+/// The sources a binary is built from: its folder, the files of other chapters it includes with
+/// `#[path = "../NN-slug/..."]`, and `common`.
+fn sources_of<'a>(bin: &str, sources: &'a Sources) -> Vec<&'a str> {
+    let own = sources.text.get(&format!("chapters/{bin}")).map_or("", String::as_str);
+    let mut found = vec![own, sources.text.get("common").map_or("", String::as_str)];
+    for piece in own.split("#[path = \"../").skip(1) {
+        if let Some(folder) = piece.split('/').next()
+            && let Some(text) = sources.text.get(&format!("chapters/{folder}"))
+        {
+            found.push(text);
+        }
+    }
+    found
+}
+
+#[test]
+fn printed_commands_name_real_binaries_and_flags() {
+    let manifest = std::fs::read_to_string(root().join("Cargo.toml")).unwrap();
+    let bins: BTreeSet<String> = manifest
+        .split("[[bin]]")
+        .skip(1)
+        .filter_map(|section| section.split("name = \"").nth(1)?.split('"').next().map(str::to_owned))
+        .collect();
+    assert!(bins.contains("01-exportable-memory") && bins.len() >= 11, "binaries in Cargo.toml: {bins:?}");
+    let sources = sources();
+    let errors: Vec<String> = pages().iter().flat_map(|p| command_errors(p, &bins, &sources)).collect();
+    assert!(errors.is_empty(), "commands the book prints that cannot run as printed:\n{}", errors.join("\n"));
+}
+
+/// "issue 10": the reader has no issue tracker; a page says what the goal or field is instead.
+fn issue_errors(page: &Page) -> Vec<String> {
+    let mut errors = Vec::new();
+    let lines = page.prose.iter().chain(page.blocks.iter().flat_map(|b| b.lines.iter()));
+    for (number, line) in lines {
+        let lower = line.to_ascii_lowercase();
+        let words: Vec<&str> =
+            lower.split(|c: char| !c.is_ascii_alphanumeric() && c != '#').filter(|w| !w.is_empty()).collect();
+        for pair in words.windows(2) {
+            let numbered = pair[1].trim_start_matches('#');
+            if (pair[0] == "issue" || pair[0] == "issues")
+                && !numbered.is_empty()
+                && numbered.chars().all(|c| c.is_ascii_digit())
+            {
+                errors.push(format!(
+                    "{}:{number}: cites \"{} {}\": say what it is instead",
+                    page.name, pair[0], pair[1]
+                ));
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn no_page_cites_an_issue_number() {
+    let errors: Vec<String> = pages().iter().flat_map(issue_errors).collect();
+    assert!(errors.is_empty(), "pages that cite an issue the reader cannot see:\n{}", errors.join("\n"));
+}
+
+/// The introduction's "eleven small programs": one for each chapter folder.
+#[test]
+fn the_introduction_counts_the_chapters() {
+    let chapters = std::fs::read_dir(root().join("chapters"))
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().as_bytes()[..2].iter().all(u8::is_ascii_digit))
+        .count();
+    let intro = std::fs::read_to_string(root().join("book/src/introduction.md")).unwrap();
+    let stated = intro
+        .split_once(" small programs")
+        .and_then(|(before, _)| before.split_whitespace().last())
+        .and_then(count_of)
+        .expect("the introduction says how many small programs the book builds");
+    assert_eq!(
+        stated, chapters,
+        "the introduction counts {stated} programs; chapters/ has {chapters} chapters"
+    );
+}
+
+/// The README's run command installs only what a chapter needs (`bash .ci/deps`, no mdBook); its
+/// test command installs what the tests need too (`--tests`), and CI (`.ci/run`) runs that test
+/// command verbatim.
+#[test]
+fn the_readme_run_command_installs_only_what_chapters_need() {
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    let deps = std::fs::read_to_string(root().join(".ci/deps")).unwrap();
+    let ci = std::fs::read_to_string(root().join(".ci/run")).unwrap();
+    let commands: Vec<&str> = readme.lines().filter(|l| l.starts_with("bash .ci/deps")).collect();
+    let run = commands.iter().find(|l| l.contains("cargo run")).expect("the README's run command");
+    let test = commands.iter().find(|l| l.contains("cargo test")).expect("the README's test command");
+    assert!(run.starts_with("bash .ci/deps && "), "the run command installs more than chapters need: {run}");
+    assert!(
+        test.starts_with("bash .ci/deps --tests && "),
+        "the test command must install mdBook and g++: {test}"
+    );
+    assert!(
+        ci.lines().any(|l| l.starts_with(*test)),
+        ".ci/run does not run the README's test command `{test}`"
+    );
+    assert!(deps.contains("--tests)"), ".ci/deps takes no --tests");
+    // mdBook only with --tests: every call to install it is guarded.
+    let unguarded: Vec<&str> = deps
+        .lines()
+        .filter(|l| l.contains("install_mdbook") && !l.contains("install_mdbook()") && !l.contains("$tests"))
+        .collect();
+    assert!(unguarded.is_empty(), ".ci/deps installs mdBook without --tests: {unguarded:?}");
+}
+
+/// snake_case names a page quotes that are neither in the sources nor in a report, rightly: other
+/// projects' and crates' names, and names a page quotes as history.
+const SNAKE_NAMES_FROM_ELSEWHERE: &[&str] = &[
+    "memfd_create",           // Linux
+    "gl_vk_raytrace_interop", // NVIDIA's sample
+    "gl_vk_simple_interop",   // NVIDIA's sample
+    "create_vertex_array",    // glow's, the call chapter 02 warns against
+    "look_at",                // glam's family of functions
+    "sm_90",                  // CUDA's architecture name
+    "raster_gpu",             // 05: the timing's name before `GlPassTimer`
+    "offset_ray",             // 07: Ray Tracing Gems' function, the shader's before the fix
+];
+
+/// Every snake_case name a page quotes in prose (`hand_over_layouts_agree`, `memory_row_0`,
+/// `timings_ms`) is an identifier of the sources or shaders, or a key of a report.
+#[test]
+fn snake_case_names_the_pages_quote_exist() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let mut known = sources.words.clone();
+    for (_, report) in &snapshots {
+        all_keys(report, &mut known);
+    }
+    let mut shaders = Vec::new();
+    for entry in std::fs::read_dir(root().join("shaders")).unwrap().flatten() {
+        let path = entry.path();
+        let files: Vec<PathBuf> = if path.is_dir() {
+            std::fs::read_dir(&path).unwrap().flatten().map(|e| e.path()).collect()
+        } else {
+            vec![path]
+        };
+        shaders.extend(files.into_iter().filter(|f| f.extension().is_none_or(|e| e != "spv")));
+    }
+    for shader in shaders {
+        if let Ok(text) = std::fs::read_to_string(&shader) {
+            known.extend(identifiers(&text));
+        }
+    }
+    let mut errors = Vec::new();
+    for page in pages() {
+        for (number, line) in &page.prose {
+            for span in code_spans(line) {
+                // A prefix (`pbo_`, `zero_copy_`: chapter 11's checks) is not a name.
+                if is_check_name(span)
+                    && !span.ends_with('_')
+                    && !known.contains(span)
+                    && !SNAKE_NAMES_FROM_ELSEWHERE.contains(&span)
+                {
+                    errors
+                        .push(format!("{}:{number}: `{span}` is in no source, shader or report", page.name));
+                }
+            }
+        }
+    }
+    assert!(errors.is_empty(), "names the book quotes that nothing has:\n{}", errors.join("\n"));
+}
