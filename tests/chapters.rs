@@ -419,6 +419,30 @@ fn ch08_in_a_window_under_xvfb() {
 }
 
 #[test]
+fn ch12_resizing_leaks_nothing() {
+    let args = ["--size", "96x72", "--frames", "8", "--samples", "2", "--resize-every", "2"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["resizes"], 3);
+    assert_eq!(report["checks"]["nothing_grows_across_resizes"], true);
+    assert_eq!(report["checks"]["rebuilt_hits_match_the_rasterised_positions"], true);
+}
+
+#[test]
+fn ch12_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch12_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "96x72", "--frames", "3", "--samples", "2"];
+    let run =
+        harness::run_chapter_with(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["frames"], 3);
+    assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+    assert_eq!(report["checks"]["rebuilt_hits_match_the_rasterised_positions"], true);
+}
+
+#[test]
 fn ch09_animated_instances() {
     let args = ["--size", "96x72", "--frames", "3", "--samples", "4", "--time", "1.5"];
     let run = run_chapter(env!("CARGO_BIN_EXE_09-animated-instances"), &args, &[]);

@@ -68,6 +68,9 @@ struct Args {
     /// frame's occlusion was from that converged one, before and after the blur (0: don't).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 20))]
     error_against: u32,
+    /// Headless: make the images of one size anew every K frames, as a window's resize does.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    resize_every: Option<u32>,
 }
 
 fn main() -> ExitCode {
@@ -144,7 +147,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Every frame: input, ids, rays, composite, overlays
     let frame_limit = args.common.frame_count(window.is_some());
-    let (mut frame, mut resizes) = (0, 0);
+    let (mut frame, mut resizes, mut after_first_resize) = (0, 0, None);
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let timestamps = Timestamps::new(&vk)?;
     let mut trace_pending = false;
@@ -178,6 +181,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if frame_limit > 0 && frame >= frame_limit {
             break;
         }
+        if let Some(every) = args.resize_every.filter(|&k| window.is_none() && frame > 0 && frame % k == 0) {
+            // Three quarters, whole, half, as chapter 08's `--resize-every`.
+            let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(SMALLEST);
+            new_size = Some(Size { width: scale(args.common.size.width), height: scale(args.common.size.height) });
+        }
         // ANCHOR: resize
         if let Some(new) = new_size {
             // Every image of the old size goes, once neither API uses it; the rest stays.
@@ -187,6 +195,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, extent(size))?));
             tracer.resized(&vk, &targets);
             resizes += 1;
+            // What exists after one resize must be what exists after every later one.
+            let live = (open_fd_count()?, common::resources::live(), gl_context.live_objects());
+            after_first_resize.get_or_insert(live);
         }
         // ANCHOR_END: resize
         // ANCHOR: frame
@@ -223,6 +234,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_timer.finish(gl, &mut times);
     times.record(report);
     gl_context.check_error("the frame loop")?;
+    if let Some(first) = after_first_resize {
+        let now = (open_fd_count()?, common::resources::live(), gl_context.live_objects());
+        report.check("nothing_grows_across_resizes", now == first);
+    }
 
     // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
     let accumulated = tracer.accumulated;
