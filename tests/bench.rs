@@ -94,7 +94,10 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
         for field in ["frame_ms", "raster_ms", "ao_ms", "composite_ms", "error_raw", "error_blurred"] {
             assert!(step[field].as_f64().is_some_and(|v| v.is_finite() && v > 0.0), "{field} in {step}");
         }
-        assert!(step["error_blurred"].as_f64() < step["error_raw"].as_f64(), "the blur lowers the error: {step}");
+        assert!(
+            step["error_blurred"].as_f64() < step["error_raw"].as_f64(),
+            "the blur lowers the error: {step}"
+        );
     }
     snapshot["ablation"]["steps"] = steps.iter().map(|s| s["flags"].clone()).collect::<Vec<Value>>().into();
     assert_report_snapshot("bench-quick", &snapshot);

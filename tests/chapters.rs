@@ -318,7 +318,20 @@ fn ch12_fast_frame_default_scene() {
 #[test]
 fn ch12_fast_frame_bunny_per_mesh_with_another_pattern() {
     let bunny = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/bunny.obj");
-    let args = ["--size", "96x72", "--frames", "2", "--samples", "8", "--scene", bunny, "--blas", "per-mesh", "--pattern", "tile2x2"];
+    let args = [
+        "--size",
+        "96x72",
+        "--frames",
+        "2",
+        "--samples",
+        "8",
+        "--scene",
+        bunny,
+        "--blas",
+        "per-mesh",
+        "--pattern",
+        "tile2x2",
+    ];
     let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(report["pattern"], "tile2x2");

@@ -82,15 +82,21 @@ fn ao_of_the_bunny_is_the_same_at_any_scale_and_distance() {
 fn the_fast_frame_is_the_same_at_any_scale_and_distance() {
     let dir = tempfile::tempdir().unwrap();
     let fast = env!("CARGO_BIN_EXE_12-fast-frame");
-    let args = |scene: &str| ["--size", "64x64", "--frames", "2", "--samples", "8", "--scene", scene].map(String::from);
+    let args = |scene: &str| {
+        ["--size", "64x64", "--frames", "2", "--samples", "8", "--scene", scene].map(String::from)
+    };
     let reference = run_chapter(fast, &args(BUNNY).each_ref().map(|a| a.as_str()), &[]).succeeded().clone();
     let mean = reference["visibility_mean"].as_f64().unwrap();
-    for (i, (scale, distance)) in [(1e-4, 0.0), (1e4, 0.0), (1.0, 2.5e3), (1e-3, 2.5)].into_iter().enumerate() {
+    for (i, (scale, distance)) in [(1e-4, 0.0), (1e4, 0.0), (1.0, 2.5e3), (1e-3, 2.5)].into_iter().enumerate()
+    {
         let offset = [distance, -0.7 * distance, 0.4 * distance];
         let scene = transformed(BUNNY, scale, offset, dir.path(), &format!("bunny{i}.obj"));
         let report = run_chapter(fast, &args(&scene).each_ref().map(|a| a.as_str()), &[]).succeeded().clone();
         let m = report["visibility_mean"].as_f64().unwrap();
-        assert!((m - mean).abs() <= 0.003, "scale {scale}, {distance} away: visibility {m}, {mean} at the origin");
+        assert!(
+            (m - mean).abs() <= 0.003,
+            "scale {scale}, {distance} away: visibility {m}, {mean} at the origin"
+        );
         assert_eq!(report["checks"]["rebuilt_hits_match_the_rasterised_positions"], true, "scale {scale}");
     }
 }

@@ -2,9 +2,9 @@
 //! CPU, the overlays' depth test against the G-buffers, the trace's timings, and the PNGs.
 
 use crate::overlay::{Composite, Uniforms, View};
-use common::frame::{Overlays, shows_colour};
 use anyhow::Result;
 use common::ao::AoTracer;
+use common::frame::{Overlays, shows_colour};
 use common::gbuffer::GBuffers;
 use common::scene::Camera;
 use common::{Report, output};

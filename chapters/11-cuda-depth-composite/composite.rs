@@ -3,8 +3,9 @@
 
 use crate::scene::{GROUND_HALF, Sphere};
 use anyhow::Result;
+use common::frame::LineVertex;
 use glam::{Mat4, Vec3};
-use glow::HasContext;
+use glow::HasContext; // a line's vertex (and the ground's, for the depth check)
 
 const FULLSCREEN: &str = include_str!("../../shaders/gl/fullscreen.vert");
 const RAYTRACED: &str = include_str!("../../shaders/gl/raytraced.frag");
@@ -96,14 +97,6 @@ pub enum Source<'a> {
     Textures(&'a PixelBuffer),
     /// Path 2: a GL buffer whose storage is the memory the tracer wrote.
     Buffer(glow::Buffer),
-}
-
-/// One vertex of a line (or of the ground, for the depth check): position and colour.
-#[repr(C)]
-#[derive(Clone, Copy)]
-struct LineVertex {
-    position: [f32; 3],
-    colour: [f32; 3],
 }
 
 /// The offscreen target (RGBA8 colour, 24-bit depth), the composite pass and the lines.

@@ -81,7 +81,8 @@ impl LastFrame<'_> {
         let uniforms = Uniforms { view: View::Final, ..self.uniforms };
         composite.draw(gl, targets, &uniforms);
         let plain = read_picture(gl, targets);
-        let mut checks = vec![("composite_matches_cpu_reference", matches_reference(surface, &plain, &uniforms))];
+        let mut checks =
+            vec![("composite_matches_cpu_reference", matches_reference(surface, &plain, &uniforms))];
         let (w, h) = (targets.extent.width, targets.extent.height);
         let view_projection = camera.view_projection(w as f32 / h as f32);
         overlays.draw(gl, &targets.overlay_target(), view_projection);
@@ -101,13 +102,20 @@ impl LastFrame<'_> {
 
     /// The final picture (with overlays) and the blurred occlusion, as PNGs; the mean occlusion
     /// over covered pixels, as chapter 08 reports it.
-    pub fn write_pictures(&self, report: &mut Report, surface: &Surface, out: &Path, prefix: &str) -> Result<()> {
+    pub fn write_pictures(
+        &self,
+        report: &mut Report,
+        surface: &Surface,
+        out: &Path,
+        prefix: &str,
+    ) -> Result<()> {
         let LastFrame { gl, targets, composite, overlays, camera, .. } = *self;
         let (w, h) = (targets.extent.width, targets.extent.height);
         composite.draw(gl, targets, &Uniforms { view: View::Ao, ..self.uniforms });
         let ao = read_picture(gl, targets);
         let covered: Vec<usize> = surface.covered().collect();
-        let mean = covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64;
+        let mean =
+            covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64;
         report.set("ao_mean", (mean * 1e3).round() / 1e3);
         output::save_rgba8(report, out, &format!("{prefix}-ao"), w, h, &output::flip_rows(&ao, w, h))?;
         composite.draw(gl, targets, &Uniforms { view: View::Final, ..self.uniforms });
@@ -313,7 +321,12 @@ pub struct ErrorAgainst<'a> {
 }
 
 impl ErrorAgainst<'_> {
-    pub fn measure(self, vk: &common::VulkanContext, gl: &common::GlContext, sync: &common::sync::Sync) -> Result<(f64, f64)> {
+    pub fn measure(
+        self,
+        vk: &common::VulkanContext,
+        gl: &common::GlContext,
+        sync: &common::sync::Sync,
+    ) -> Result<(f64, f64)> {
         let LastFrame { targets, composite, camera, .. } = *self.last;
         let shown = |blur| -> Vec<u8> {
             let uniforms = Uniforms { view: View::Ao, blur_radius: blur, ..self.last.uniforms };
@@ -335,7 +348,8 @@ impl ErrorAgainst<'_> {
         let (converged_blurred, converged_raw) = (shown(blur), shown(0));
         let covered: Vec<usize> = surface.covered().collect();
         let rms = |a: &[u8], b: &[u8]| {
-            let sum: f64 = covered.iter().map(|&i| ((a[i * 4] as f64 - b[i * 4] as f64) / 255.0).powi(2)).sum();
+            let sum: f64 =
+                covered.iter().map(|&i| ((a[i * 4] as f64 - b[i * 4] as f64) / 255.0).powi(2)).sum();
             (sum / covered.len().max(1) as f64).sqrt()
         };
         Ok((rms(&frame_raw, &converged_raw), rms(&frame_blurred, &converged_blurred)))

@@ -102,7 +102,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Load the scene, and aim the camera at it
     let scene = args.scene.load()?;
     let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
-    ensure!(args.zoom.is_finite() && (1e-3..=1e6).contains(&args.zoom), "--zoom {}: choose 0.001 to 1000000", args.zoom);
+    ensure!(
+        args.zoom.is_finite() && (1e-3..=1e6).contains(&args.zoom),
+        "--zoom {}: choose 0.001 to 1000000",
+        args.zoom
+    );
     camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
     let radius = args.ao.radius(&scene)?;
     let mut settings = Settings {
@@ -184,7 +188,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if let Some(every) = args.resize_every.filter(|&k| window.is_none() && frame > 0 && frame % k == 0) {
             // Three quarters, whole, half, as chapter 08's `--resize-every`.
             let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(SMALLEST);
-            new_size = Some(Size { width: scale(args.common.size.width), height: scale(args.common.size.height) });
+            new_size =
+                Some(Size { width: scale(args.common.size.width), height: scale(args.common.size.height) });
         }
         // ANCHOR: resize
         if let Some(new) = new_size {
@@ -203,20 +208,45 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         gl_timer.time(gl, "visibility", || visibility.draw(gl, &targets, &scene, &ids, &camera))?;
         if tracer.accumulated < args.ao.max_samples || skipped.is_some() {
-            let samples = if skipped.is_some() { 0 } else { settings.samples.min(args.ao.max_samples - tracer.accumulated) };
-            let rays =
-                Rays { samples, radius: settings.radius, scene_scale: scene.size() / 2.0, pattern: settings.pattern, salt: 0 };
+            let samples = if skipped.is_some() {
+                0
+            } else {
+                settings.samples.min(args.ao.max_samples - tracer.accumulated)
+            };
+            let rays = Rays {
+                samples,
+                radius: settings.radius,
+                scene_scale: scene.size() / 2.0,
+                pattern: settings.pattern,
+                salt: 0,
+            };
             if std::mem::take(&mut trace_pending) {
-                common::timing::read_after(&vk, shared.commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+                common::timing::read_after(
+                    &vk,
+                    shared.commands.fence,
+                    timestamps.as_ref(),
+                    "ao_trace",
+                    &mut times,
+                )?;
             }
-            tracer.trace(&vk, &gl_context, &sync, &shared.commands, &targets, &camera, rays, timestamps.as_ref())?;
+            tracer.trace(
+                &vk,
+                &gl_context,
+                &sync,
+                &shared.commands,
+                &targets,
+                &camera,
+                rays,
+                timestamps.as_ref(),
+            )?;
             trace_pending = timestamps.is_some();
         }
         let uniforms = settings_uniforms(&settings, &camera);
         gl_timer.time(gl, "composite", || composite.draw(gl, &targets, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(size.width as f32 / size.height as f32);
-            gl_timer.time(gl, "overlays", || overlays.draw(gl, &targets.overlay_target(), view_projection))?;
+            gl_timer
+                .time(gl, "overlays", || overlays.draw(gl, &targets.overlay_target(), view_projection))?;
         }
         gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
@@ -259,11 +289,26 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             last.write_pictures(report, &surface, &args.common.out_dir(CHAPTER), &prefix)?;
         }
         if args.error_against > 0 && skipped.is_none() {
-            let rays = Rays { samples: settings.samples, radius: settings.radius, scene_scale: scene.size() / 2.0, pattern: settings.pattern, salt: 0 };
+            let rays = Rays {
+                samples: settings.samples,
+                radius: settings.radius,
+                scene_scale: scene.size() / 2.0,
+                pattern: settings.pattern,
+                salt: 0,
+            };
             let commands = &shared.commands;
-            let against = check::ErrorAgainst { last: &last, tracer: &mut tracer, commands, rays, reference: args.error_against };
+            let against = check::ErrorAgainst {
+                last: &last,
+                tracer: &mut tracer,
+                commands,
+                rays,
+                reference: args.error_against,
+            };
             let (raw, blurred) = against.measure(&vk, &gl_context, &sync)?;
-            report.set("ao_rms_error", serde_json::json!({ "rays": args.error_against, "raw": raw, "blurred": blurred }));
+            report.set(
+                "ao_rms_error",
+                serde_json::json!({ "rays": args.error_against, "raw": raw, "blurred": blurred }),
+            );
         }
     }
     let covered = surface.covered().collect::<Vec<_>>();
@@ -276,7 +321,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let per_pixel = if settings.pattern == Pattern::PerPixel || skipped.is_some() {
         None
     } else {
-        let rays = Rays { samples: per_frame, radius: settings.radius, scene_scale: scene.size() / 2.0, pattern: Pattern::PerPixel, salt: 0 };
+        let rays = Rays {
+            samples: per_frame,
+            radius: settings.radius,
+            scene_scale: scene.size() / 2.0,
+            pattern: Pattern::PerPixel,
+            salt: 0,
+        };
         tracer.accumulated = 0;
         while tracer.accumulated < accumulated {
             let rays = Rays { samples: rays.samples.min(accumulated - tracer.accumulated), ..rays };

@@ -106,7 +106,12 @@ pub struct SurfaceTracer {
 }
 
 impl SurfaceTracer {
-    pub fn new(vk: &VulkanContext, shared: &mut RayTracedScene, ids: &[MeshIds], targets: &Targets) -> Result<Self> {
+    pub fn new(
+        vk: &VulkanContext,
+        shared: &mut RayTracedScene,
+        ids: &[MeshIds],
+        targets: &Targets,
+    ) -> Result<Self> {
         // ANCHOR: pipeline
         let binding = |binding, ty| {
             vk::DescriptorSetLayoutBinding::default()
@@ -121,15 +126,23 @@ impl SurfaceTracer {
             binding(2, vk::DescriptorType::STORAGE_IMAGE), // the surface, for GL
         ];
         let allocator = &mut shared.allocator;
-        let pipeline = RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<SurfaceRays>() as u32)?;
+        let pipeline =
+            RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<SurfaceRays>() as u32)?;
         pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
         // ANCHOR_END: pipeline
         // The mesh table, written once: the ray generation shader reads it by its address.
         let bytes = common::gbuffer::as_bytes(ids);
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
-        let mut meshes =
-            DeviceBuffer::new(vk, allocator, "mesh ids", bytes.len() as u64, usage, MemoryLocation::CpuToGpu)?;
-        let mapped = meshes.allocation.mapped_slice_mut().ok_or_else(|| anyhow::anyhow!("mesh ids unmapped"))?;
+        let mut meshes = DeviceBuffer::new(
+            vk,
+            allocator,
+            "mesh ids",
+            bytes.len() as u64,
+            usage,
+            MemoryLocation::CpuToGpu,
+        )?;
+        let mapped =
+            meshes.allocation.mapped_slice_mut().ok_or_else(|| anyhow::anyhow!("mesh ids unmapped"))?;
         mapped[..bytes.len()].copy_from_slice(bytes);
         let instances = shared.buffers.instances.0.device_address(vk);
         let tracer = SurfaceTracer {
@@ -176,8 +189,10 @@ impl SurfaceTracer {
         // surface is sampled by GL. On the host path both stay GENERAL (`Sync::hand_over`).
         let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
         let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-        let layouts = (sync.hand_over(vk::ImageLayout::GENERAL, attachment), sync.hand_over(read_only, read_only));
-        let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) = (layouts.0.gl(), layouts.1.gl());
+        let layouts =
+            (sync.hand_over(vk::ImageLayout::GENERAL, attachment), sync.hand_over(read_only, read_only));
+        let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) =
+            (layouts.0.gl(), layouts.1.gl());
         let textures = [targets.visibility.texture.texture, targets.surface.texture.texture];
         let handed = if self.gl_has_surface { 2 } else { 1 };
         sync.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
@@ -227,7 +242,8 @@ impl SurfaceTracer {
             // Never GL's yet: undefined, and the first frame overwrites every pixel.
             first_use(targets.surface.image, general, read | write)
         };
-        let acquire = [acquire_from_gl(vk, &targets.visibility, ids_layouts.to_vulkan, general, read), surface];
+        let acquire =
+            [acquire_from_gl(vk, &targets.visibility, ids_layouts.to_vulkan, general, read), surface];
         // Back to GL: the ids for the next frame's draw (nothing written here), the surface to
         // sample, its writes made available.
         let release = [

@@ -35,7 +35,9 @@ pub struct MeshIds {
 pub fn number_triangles(vk: &VulkanContext, scene: &Scene, buffers: &SceneBuffers) -> Result<Vec<MeshIds>> {
     let mut ids = Vec::new();
     let mut next = 0u64;
-    for ((mesh, instances), [vertices, indices]) in scene.meshes.iter().zip(&scene.mesh_instances).zip(&buffers.meshes) {
+    for ((mesh, instances), [vertices, indices]) in
+        scene.meshes.iter().zip(&scene.mesh_instances).zip(&buffers.meshes)
+    {
         let triangles = (mesh.indices.len() / 3) as u64;
         ids.push(MeshIds {
             vertices: vertices.0.device_address(vk),
@@ -87,7 +89,8 @@ impl Targets {
         let attachment = vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::STORAGE;
         let visibility = SharedImage::new(vk, gl, vk::Format::R32_UINT, glow::R32UI, attachment, extent)?;
         let sampled = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
-        let surface = SharedImage::new(vk, gl, vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, sampled, extent)?;
+        let surface =
+            SharedImage::new(vk, gl, vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, sampled, extent)?;
         // GL draws the ids first: Vulkan hands the image over, in GENERAL, before it does.
         common::interop::hand_new_images_to_gl(vk, &[&visibility])?;
         // ANCHOR_END: images
@@ -122,7 +125,12 @@ impl Targets {
             };
             // From here on, dropping `targets` deletes everything.
             let depth_attachment = |fb| {
-                g.named_framebuffer_renderbuffer(Some(fb), glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER, Some(depth))
+                g.named_framebuffer_renderbuffer(
+                    Some(fb),
+                    glow::DEPTH_ATTACHMENT,
+                    glow::RENDERBUFFER,
+                    Some(depth),
+                )
             };
             let ids = targets.visibility.texture.texture;
             g.named_framebuffer_texture(Some(visibility_framebuffer), glow::COLOR_ATTACHMENT0, Some(ids), 0);
@@ -131,7 +139,10 @@ impl Targets {
             depth_attachment(picture_framebuffer);
             for (name, fb) in [("visibility", visibility_framebuffer), ("picture", picture_framebuffer)] {
                 let status = g.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
-                ensure!(status == glow::FRAMEBUFFER_COMPLETE, "the {name} framebuffer is incomplete: {status:#x}");
+                ensure!(
+                    status == glow::FRAMEBUFFER_COMPLETE,
+                    "the {name} framebuffer is incomplete: {status:#x}"
+                );
             }
             Ok(targets)
         }
@@ -195,11 +206,13 @@ pub struct VisibilityPass {
 impl VisibilityPass {
     pub fn new(gl: &GlContext, buffers: &SceneBuffers) -> Result<Self> {
         let g = &gl.gl;
-        let program = common::gl::program(g, VERTEX_SHADER, FRAGMENT_SHADER).context("the visibility program")?;
+        let program =
+            common::gl::program(g, VERTEX_SHADER, FRAGMENT_SHADER).context("the visibility program")?;
         let mut pass = VisibilityPass { program, vertex_arrays: Vec::new(), gl: g.clone() };
         // Chapter 05's vertex arrays: the same buffers, read the same way.
         for [vertices, indices] in &buffers.meshes {
-            let vao = unsafe { common::gbuffer::vertex_array(g, &vertices.1, &indices.1, &buffers.instances.1) }?;
+            let vao =
+                unsafe { common::gbuffer::vertex_array(g, &vertices.1, &indices.1, &buffers.instances.1) }?;
             pass.vertex_arrays.push(vao);
         }
         Ok(pass)
@@ -208,7 +221,14 @@ impl VisibilityPass {
     // ANCHOR: draw
     /// Clears the ids to 0 (background) and the depth to 1, then one instanced draw per mesh,
     /// each told where its ids start.
-    pub fn draw(&self, gl: &glow::Context, targets: &Targets, scene: &Scene, ids: &[MeshIds], camera: &Camera) {
+    pub fn draw(
+        &self,
+        gl: &glow::Context,
+        targets: &Targets,
+        scene: &Scene,
+        ids: &[MeshIds],
+        camera: &Camera,
+    ) {
         let (width, height) = (targets.extent.width, targets.extent.height);
         unsafe {
             gl.bind_framebuffer(glow::FRAMEBUFFER, Some(targets.visibility_framebuffer));

@@ -2,7 +2,6 @@
 //! composited `count` times, each pass timed on the GPU, into [`Samples`].
 
 use crate::overlay::{Composite, Uniforms, View};
-use common::frame::Overlays;
 use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
 use anyhow::Result;
@@ -11,6 +10,7 @@ use common::accel::RayTracedScene;
 use common::ao::AoTracer;
 use common::cli::Size;
 use common::commands::{Timestamps, median_p95};
+use common::frame::Overlays;
 use common::gbuffer::GBuffers;
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene};

@@ -33,8 +33,8 @@ mod outputs;
 mod overlay;
 mod round_trip;
 
-use frame::{Frame, Samples, Setting};
 use common::builtin_scenes::SceneKind;
+use frame::{Frame, Samples, Setting};
 
 /// Chapter 08's frame, zero-copy against host-synchronised against a CPU round trip.
 #[derive(clap::Parser)]
@@ -272,7 +272,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let reference = args.reference_rays.unwrap_or(if args.quick { 64 } else { 1024 });
     let steps = fast::ablation(size, spp, 2 * frames_per_run, reference, &args.out.join("fast-frame"))?;
     let chapter_08 = rows.iter().find(|r| {
-        (r.mode, r.scene, r.width, r.height, r.spp) == (Mode::ZeroCopy, "default", size.width, size.height, spp)
+        (r.mode, r.scene, r.width, r.height, r.spp)
+            == (Mode::ZeroCopy, "default", size.width, size.height, spp)
     });
     let ablation = fast::table(chapter_08, &steps);
     report.set("ablation", serde_json::json!({ "size": format!("{}x{}", size.width, size.height), "spp": spp, "reference_rays": reference, "steps": steps }));

@@ -14,7 +14,10 @@ pub fn write(dir: &Path, rows: &[Row], device: &str, driver: &str, ablation: &st
     std::fs::write(&path, serde_json::to_string_pretty(&json)?)
         .with_context(|| format!("writing {}", path.display()))?;
     let path = dir.join("bench.md");
-    let text = format!("Measured on {device} ({driver}).\n\n{}\nChapter 12, one choice at a time:\n\n{ablation}", table(rows));
+    let text = format!(
+        "Measured on {device} ({driver}).\n\n{}\nChapter 12, one choice at a time:\n\n{ablation}",
+        table(rows)
+    );
     std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
     let path = dir.join("bench.svg");
     plot(&path, rows, device).with_context(|| format!("drawing {}", path.display()))?;

@@ -20,12 +20,12 @@ pub struct Target {
     pub height: u32,
 }
 
-/// One vertex of an overlay line: world position and colour (24 bytes).
+/// One vertex of an overlay line: world position and colour (24 bytes; `lines.vert`'s inputs).
 #[repr(C)]
 #[derive(Clone, Copy)]
-struct LineVertex {
-    position: [f32; 3],
-    colour: [f32; 3],
+pub struct LineVertex {
+    pub position: [f32; 3],
+    pub colour: [f32; 3],
 }
 
 /// The overlay lines: an axis gizmo through the scene's centre, and the selected instance's
@@ -87,7 +87,8 @@ impl Overlays {
             }
         }
         // ANCHOR_END: lines
-        let program = crate::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT).context("the overlay lines' program")?;
+        let program =
+            crate::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT).context("the overlay lines' program")?;
         let bytes = crate::gbuffer::as_bytes(&vertices);
         let (vertex_array, buffer) = unsafe {
             let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg);
@@ -166,7 +167,6 @@ impl Overlays {
         }
         probes
     }
-
 }
 
 impl Drop for Overlays {

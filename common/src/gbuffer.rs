@@ -270,6 +270,9 @@ pub fn check_size(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> R
 /// How GL reads a mesh: per-vertex attributes from its vertex buffer (binding 0) and
 /// per-instance ones from the shared instance buffer (binding 1, advancing once per instance).
 /// Chapter 12's visibility pass reads the same buffers the same way.
+///
+/// # Safety
+/// GL's context must be current, and the three buffers GL's names for live shared buffers.
 pub unsafe fn vertex_array(
     gl: &glow::Context,
     vertices: &SharedBuffer,
