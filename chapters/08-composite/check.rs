@@ -1,9 +1,9 @@
 //! Chapter 08's checks and pictures: the last frame's composite against the same formula on the
 //! CPU, the overlays' depth test against the G-buffers, the trace's timings, and the PNGs.
 
-use crate::overlay::{Composite, Uniforms, View};
 use anyhow::Result;
 use common::ao::AoTracer;
+use common::frame::{Composite, Uniforms, View};
 use common::frame::{Overlays, shows_colour};
 use common::gbuffer::GBuffers;
 use common::scene::Camera;

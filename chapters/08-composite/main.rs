@@ -26,10 +26,8 @@ use glow::HasContext;
 use std::process::ExitCode;
 
 mod check;
-mod overlay;
 use check::LastFrame;
-use common::frame::Overlays;
-use overlay::{Composite, View};
+use common::frame::{Composite, Overlays, Uniforms, View};
 
 const CHAPTER: &str = "08-composite";
 
@@ -347,8 +345,8 @@ fn apply_key(key: &Key, s: &mut Settings) {
 }
 // ANCHOR_END: keys
 
-fn settings_uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> overlay::Uniforms {
-    overlay::Uniforms {
+fn settings_uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> Uniforms {
+    Uniforms {
         blur_radius: s.blur as i32,
         depth_tolerance: 0.02,
         normal_tolerance: 0.9,

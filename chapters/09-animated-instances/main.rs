@@ -23,12 +23,8 @@ use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_coun
 use glow::HasContext;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass, as it is.
-#[path = "../08-composite/overlay.rs"]
-#[allow(dead_code)]
-mod overlay;
 mod ring;
-use overlay::{Composite, Uniforms, View};
+use common::frame::{Composite, Uniforms, View};
 
 const CHAPTER: &str = "09-animated-instances";
 

@@ -25,12 +25,8 @@ use glow::HasContext;
 use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass, as it is.
-#[path = "../08-composite/overlay.rs"]
-#[allow(dead_code)]
-mod overlay;
 mod sphere;
-use overlay::{Composite, Uniforms, View};
+use common::frame::{Composite, Uniforms, View};
 use sphere::{Animation, Wave, WavePipeline, record_animation};
 
 const CHAPTER: &str = "10-vertex-animation";

@@ -1,7 +1,6 @@
 //! One mode's frames at one setting: chapter 08's frame drawn, handed over, traced and
 //! composited `count` times, each pass timed on the GPU, into [`Samples`].
 
-use crate::overlay::{Composite, Uniforms, View};
 use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
 use anyhow::Result;
@@ -10,7 +9,7 @@ use common::accel::RayTracedScene;
 use common::ao::AoTracer;
 use common::cli::Size;
 use common::commands::{Timestamps, median_p95};
-use common::frame::Overlays;
+use common::frame::{Composite, Overlays, Uniforms, View};
 use common::gbuffer::GBuffers;
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene};

@@ -23,14 +23,11 @@ use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass, used as it is (not copied), and the overlays from `common`:
+// Chapter 08's composite pass and overlays come from `common::frame`, as chapter 08 draws them:
 // bench measures exactly the frame the chapter draws.
 mod fast;
 mod frame;
 mod outputs;
-#[allow(dead_code)]
-#[path = "../08-composite/overlay.rs"]
-mod overlay;
 mod round_trip;
 
 use common::builtin_scenes::SceneKind;

@@ -1,15 +1,15 @@
-//! Chapter 08's GL side: the composite pass (the overlay lines it draws over are in
-//! `common::frame`, which chapters 11 and 12 draw too).
+//! The composite pass (taught in chapter 08; chapters 09, 10 and `bench` draw it too): albedo x
+//! the blurred occlusion, from the G-buffers, into an offscreen target whose depth is the scene's.
 
+use super::Target;
+use crate::ao::AoTracer;
+use crate::gbuffer::GBuffers;
 use anyhow::Result;
-use common::ao::AoTracer;
-use common::frame::Target;
-use common::gbuffer::GBuffers;
 use glam::Vec3;
 use glow::HasContext;
 
-const FULLSCREEN: &str = include_str!("../../shaders/gl/fullscreen.vert");
-const COMPOSITE: &str = include_str!("../../shaders/gl/composite.frag");
+const FULLSCREEN: &str = include_str!("../../../shaders/gl/fullscreen.vert");
+const COMPOSITE: &str = include_str!("../../../shaders/gl/composite.frag");
 
 /// The pictures the composite shader can show (its `view` uniform, in this order).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -64,7 +64,7 @@ pub struct Composite {
 
 impl Composite {
     pub fn new(gl: &std::rc::Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
-        let program = common::gl::program(gl, FULLSCREEN, COMPOSITE)?;
+        let program = crate::gl::program(gl, FULLSCREEN, COMPOSITE)?;
         // Core profile draws need a vertex array bound, even one that feeds nothing.
         let empty = unsafe { gl.create_named_vertex_array() }.map_err(anyhow::Error::msg)?;
         let (framebuffer, colour) = unsafe { target(gl, gbuffers)? };
@@ -78,7 +78,7 @@ impl Composite {
         unsafe {
             gl.delete_framebuffer(std::mem::replace(&mut self.framebuffer, framebuffer));
             gl.delete_renderbuffer(std::mem::replace(&mut self.colour, colour));
-            common::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::resources::destroyed("gl_renderbuffer: RGBA8");
         }
         (self.width, self.height) = (gbuffers.extent.width, gbuffers.extent.height);
         Ok(())
@@ -174,7 +174,7 @@ impl Drop for Composite {
         unsafe {
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.colour);
-            common::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::resources::destroyed("gl_renderbuffer: RGBA8");
             gl.delete_vertex_array(self.empty);
             gl.delete_program(self.program);
         }
@@ -191,7 +191,7 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
         let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-        common::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
+        crate::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         gl.named_framebuffer_renderbuffer(
             Some(fb),
@@ -209,7 +209,7 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
         if status != glow::FRAMEBUFFER_COMPLETE {
             gl.delete_framebuffer(fb);
             gl.delete_renderbuffer(colour);
-            common::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::resources::destroyed("gl_renderbuffer: RGBA8");
             anyhow::bail!("composite framebuffer incomplete: {status:#x}");
         }
         Ok((fb, colour))

@@ -2,23 +2,15 @@
 //! gizmo and a selected instance's box, depth-tested against the scene's depth, and the pixels
 //! their checks look at.
 
+use super::Target;
 use crate::scene::{Camera, Scene};
 use anyhow::{Context as _, Result};
 use glam::{Mat4, Vec3, Vec4};
 use glow::HasContext;
 use std::rc::Rc;
 
-const LINES_VERTEX: &str = include_str!("../../shaders/gl/lines.vert");
-const LINES_FRAGMENT: &str = include_str!("../../shaders/gl/lines.frag");
-
-/// A framebuffer to draw the overlays into, whose depth attachment holds the scene's depth as GL
-/// rasterised it (chapter 08: the G-buffer pass's; chapter 12: the visibility pass's).
-#[derive(Clone, Copy)]
-pub struct Target {
-    pub framebuffer: glow::Framebuffer,
-    pub width: u32,
-    pub height: u32,
-}
+const LINES_VERTEX: &str = include_str!("../../../shaders/gl/lines.vert");
+const LINES_FRAGMENT: &str = include_str!("../../../shaders/gl/lines.frag");
 
 /// One vertex of an overlay line: world position and colour (24 bytes; `lines.vert`'s inputs).
 #[repr(C)]
