@@ -357,6 +357,23 @@ fn ch12_error_falls_with_rays_and_with_the_blur() {
     assert!(few.1 < few.0 && many.1 < many.0, "the blur lowers the error: {few:?} {many:?}");
 }
 
+/// `--overlap-rounds` times the same GL and Vulkan work in two orders (no timing asserts: on
+/// lavapipe the CPU waits at every hand-over), and the checks still hold on the frames' rays.
+#[test]
+fn ch12_overlap_probe_reports_both_orders() {
+    let args = ["--size", "64x48", "--frames", "2", "--samples", "2", "--overlap-rounds", "2"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
+    let report = run.succeeded();
+    for key in ["gl_during_vulkan", "gl_after_vulkan", "gl_pass_alone"] {
+        assert!(
+            report["overlap_ms"][key].as_f64().is_some_and(|ms| ms > 0.0),
+            "{key}: {}",
+            report["overlap_ms"]
+        );
+    }
+    assert_eq!(report["checks"]["ao_per_pixel_agrees_with_chapter_08"], true);
+}
+
 #[test]
 fn ch12_refuses_what_it_cannot_draw() {
     for size in ["1x1", "15x64", "64x15"] {

@@ -34,6 +34,14 @@ impl Surface {
     pub fn covered(&self) -> impl Iterator<Item = usize> + '_ {
         (0..self.width * self.height).filter(|&i| self.depth(i) > 0.0)
     }
+
+    /// Every visibility a fraction of rays, and exactly 1 where GL drew no id.
+    pub fn check_values(&self, report: &mut Report) {
+        let visibility = |i: usize| self.texels[i * 4];
+        report.check("ao_within_0_and_1", self.covered().all(|i| (0.0..=1.0).contains(&visibility(i))));
+        let mut background = (0..self.width * self.height).filter(|&i| self.depth(i) <= 0.0);
+        report.check("background_unoccluded", background.all(|i| visibility(i) == 1.0));
+    }
 }
 
 /// The picture's RGBA8 pixels, bottom row first.
@@ -266,25 +274,24 @@ impl Chapter08 {
 
 /// Chapter 08's G-buffers drawn with `camera`, and its AO traced `per_frame` rays at a time to
 /// `total` rays per pixel, as the frames of this chapter traced them; read back, then destroyed.
-#[allow(clippy::too_many_arguments)] // the contexts, the scene's, and the frame to repeat
+#[allow(clippy::too_many_arguments)] // the APIs, the scene's three parts, and the frame to repeat
 pub fn trace_chapter_08(
-    vk: &common::VulkanContext,
-    gl: &common::GlContext,
-    sync: &common::sync::Sync,
-    shared: &mut common::accel::RayTracedScene,
+    apis: crate::trace::Apis,
+    allocator: &mut gpu_allocator::vulkan::Allocator,
+    (buffers, tlas): (&common::gbuffer::SceneBuffers, ash::vk::AccelerationStructureKHR),
     scene: &common::scene::Scene,
     camera: &Camera,
     targets: &Targets,
     (per_frame, total, radius): (u32, u32, f32),
 ) -> Result<Chapter08> {
+    let crate::trace::Apis { vk, gl, sync, commands } = apis;
     let extent = targets.extent;
     use common::ao::AoTracer;
     use common::gbuffer::GBuffers;
     let storage = ash::vk::ImageUsageFlags::STORAGE;
-    let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, storage)?;
+    let gbuffers = GBuffers::new(vk, gl, buffers, extent, storage)?;
     gbuffers.draw(&gl.gl, scene, camera);
-    let tlas = shared.structures.tlas.handle;
-    let mut tracer = AoTracer::new(vk, gl, &mut shared.allocator, tlas, &gbuffers)?;
+    let mut tracer = AoTracer::new(vk, gl, allocator, tlas, &gbuffers)?;
     let scene_scale = scene.size() / 2.0;
     if per_frame == 0 || total == 0 || radius == 0.0 {
         tracer.fill_unoccluded(vk, gl)?;
@@ -292,7 +299,7 @@ pub fn trace_chapter_08(
     while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
         let samples = per_frame.min(total - tracer.accumulated);
         let rays = common::raytrace::AoRays { samples, accumulated: 0, radius, scene_scale };
-        tracer.trace(vk, gl, sync, &shared.commands, &gbuffers, rays, None)?;
+        tracer.trace(vk, gl, sync, commands, &gbuffers, rays, None)?;
     }
     let (w, h) = (extent.width, extent.height);
     let positions = output::read_texture_f32(&gl.gl, gbuffers.textures()[0], w, h, 4);
@@ -300,8 +307,8 @@ pub fn trace_chapter_08(
     let ids = read_ids(&gl.gl, targets);
     let subpixel_bits = unsafe { gl.gl.get_parameter_i32(glow::SUBPIXEL_BITS) }.clamp(1, 16) as u32;
     unsafe { gl.gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
-    tracer.destroy(vk, gl, &mut shared.allocator);
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    tracer.destroy(vk, gl, allocator);
     drop(gbuffers);
     Ok(Chapter08 { positions, visibility, ids, subpixel_bits })
 }
@@ -315,18 +322,13 @@ pub fn trace_chapter_08(
 pub struct ErrorAgainst<'a> {
     pub last: &'a LastFrame<'a>,
     pub tracer: &'a mut crate::trace::SurfaceTracer,
-    pub commands: &'a common::commands::Commands,
     pub rays: crate::trace::Rays,
     pub reference: u32,
 }
 
 impl ErrorAgainst<'_> {
-    pub fn measure(
-        self,
-        vk: &common::VulkanContext,
-        gl: &common::GlContext,
-        sync: &common::sync::Sync,
-    ) -> Result<(f64, f64)> {
+    pub fn measure(self, apis: crate::trace::Apis) -> Result<(f64, f64)> {
+        let gl = apis.gl;
         let LastFrame { targets, composite, camera, .. } = *self.last;
         let shown = |blur| -> Vec<u8> {
             let uniforms = Uniforms { view: View::Ao, blur_radius: blur, ..self.last.uniforms };
@@ -335,16 +337,12 @@ impl ErrorAgainst<'_> {
         };
         let blur = self.last.uniforms.blur_radius;
         self.tracer.accumulated = 0;
-        self.tracer.trace(vk, gl, sync, self.commands, targets, camera, self.rays, None)?;
+        self.tracer.trace(apis, targets, camera, self.rays, None)?;
         let (frame_blurred, frame_raw) = (shown(blur), shown(0));
         let surface = Surface::read(&gl.gl, targets);
-        self.tracer.accumulated = 0;
-        while self.tracer.accumulated < self.reference {
-            let samples = (self.reference - self.tracer.accumulated).min(256);
-            let pattern = crate::trace::Pattern::PerPixel;
-            let rays = crate::trace::Rays { samples, pattern, salt: 1, ..self.rays };
-            self.tracer.trace(vk, gl, sync, self.commands, targets, camera, rays, None)?;
-        }
+        let pattern = crate::trace::Pattern::PerPixel;
+        let rays = crate::trace::Rays { samples: 256, pattern, salt: 1, ..self.rays };
+        self.tracer.retrace(apis, targets, camera, rays, self.reference)?;
         let (converged_blurred, converged_raw) = (shown(blur), shown(0));
         let covered: Vec<usize> = surface.covered().collect();
         let rms = |a: &[u8], b: &[u8]| {

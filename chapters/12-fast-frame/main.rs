@@ -27,10 +27,13 @@ use std::process::ExitCode;
 
 mod check;
 mod composite;
+mod overlap;
+mod settings;
 mod trace;
 mod visibility;
-use composite::{ComputeComposite, Uniforms, View};
-use trace::{Pattern, Rays, SurfaceTracer};
+use composite::{ComputeComposite, View};
+use settings::Settings;
+use trace::{Apis, Pattern, Rays, SurfaceTracer};
 use visibility::{Targets, VisibilityPass};
 
 const CHAPTER: &str = "12-fast-frame";
@@ -68,6 +71,10 @@ struct Args {
     /// frame's occlusion was from that converged one, before and after the blur (0: don't).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 20))]
     error_against: u32,
+    /// After the frames: measure whether GL's work runs beside Vulkan's on this driver
+    /// (`overlap.rs`), over this many rounds of each order (0: don't).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
+    overlap_rounds: u32,
     /// Headless: make the images of one size anew every K frames, as a window's resize does.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     resize_every: Option<u32>,
@@ -75,18 +82,6 @@ struct Args {
 
 fn main() -> ExitCode {
     common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-/// What the keys change (chapter 08's, less its debug views of positions).
-#[derive(Clone, Copy, PartialEq)]
-struct Settings {
-    samples: u32,
-    radius: f32,
-    power: f32,
-    blur: u32,
-    view: View,
-    overlays: bool,
-    pattern: Pattern,
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
@@ -167,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 break;
             }
             let before = (settings, camera.eye);
-            keys.iter().for_each(|key| apply_key(key, &mut settings));
+            keys.iter().for_each(|key| settings::apply_key(key, &mut settings));
             let ((dx, dy), wheel) = window.take_mouse();
             if dx != 0.0 || dy != 0.0 || wheel != 0.0 {
                 camera.orbit(-dx * 0.01, dy * 0.01, 1.1f32.powf(wheel), scene.bounds);
@@ -213,13 +208,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             } else {
                 settings.samples.min(args.ao.max_samples - tracer.accumulated)
             };
-            let rays = Rays {
-                samples,
-                radius: settings.radius,
-                scene_scale: scene.size() / 2.0,
-                pattern: settings.pattern,
-                salt: 0,
-            };
+            let rays = settings.rays(samples, scene.size() / 2.0);
             if std::mem::take(&mut trace_pending) {
                 common::timing::read_after(
                     &vk,
@@ -229,19 +218,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                     &mut times,
                 )?;
             }
-            tracer.trace(
-                &vk,
-                &gl_context,
-                &sync,
-                &shared.commands,
-                &targets,
-                &camera,
-                rays,
-                timestamps.as_ref(),
-            )?;
+            let apis = Apis { vk: &vk, gl: &gl_context, sync: &sync, commands: &shared.commands };
+            tracer.trace(apis, &targets, &camera, rays, timestamps.as_ref())?;
             trace_pending = timestamps.is_some();
         }
-        let uniforms = settings_uniforms(&settings, &camera);
+        let uniforms = settings::uniforms(&settings, &camera);
         gl_timer.time(gl, "composite", || composite.draw(gl, &targets, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(size.width as f32 / size.height as f32);
@@ -270,16 +251,34 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
-    let accumulated = tracer.accumulated;
+    let (accumulated, scene_scale) = (tracer.accumulated, scene.size() / 2.0);
+    let rays = settings.rays(if skipped.is_some() { 0 } else { settings.samples }, scene_scale);
+    let apis = Apis { vk: &vk, gl: &gl_context, sync: &sync, commands: &shared.commands };
+    if args.overlap_rounds > 0 {
+        let probe = overlap::Probe {
+            visibility: &visibility,
+            targets: &targets,
+            scene: &scene,
+            ids: &ids,
+            camera: &camera,
+            rays,
+        };
+        let (during, after, alone) = overlap::measure(apis, &mut tracer, probe, args.overlap_rounds)?;
+        let overlap = serde_json::json!({ "gl_during_vulkan": during, "gl_after_vulkan": after, "gl_pass_alone": alone });
+        report.set("overlap_ms", overlap);
+        // The probe traced into the surface: the frames' rays again, for the checks.
+        tracer.retrace(apis, &targets, &camera, rays, accumulated)?;
+    }
     let surface = check::Surface::read(gl, &targets);
     if frame > 0 {
+        let uniforms = settings::uniforms(&settings, &camera);
         let last = check::LastFrame {
             gl,
             targets: &targets,
             composite: &composite,
             overlays: &overlays,
             camera: &camera,
-            uniforms: settings_uniforms(&settings, &camera),
+            uniforms,
         };
         for (name, ok) in last.check(&surface) {
             report.check(name, ok);
@@ -289,55 +288,28 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             last.write_pictures(report, &surface, &args.common.out_dir(CHAPTER), &prefix)?;
         }
         if args.error_against > 0 && skipped.is_none() {
-            let rays = Rays {
-                samples: settings.samples,
-                radius: settings.radius,
-                scene_scale: scene.size() / 2.0,
-                pattern: settings.pattern,
-                salt: 0,
-            };
-            let commands = &shared.commands;
-            let against = check::ErrorAgainst {
-                last: &last,
-                tracer: &mut tracer,
-                commands,
-                rays,
-                reference: args.error_against,
-            };
-            let (raw, blurred) = against.measure(&vk, &gl_context, &sync)?;
+            let against =
+                check::ErrorAgainst { last: &last, tracer: &mut tracer, rays, reference: args.error_against };
+            let (raw, blurred) = against.measure(apis)?;
             report.set(
                 "ao_rms_error",
                 serde_json::json!({ "rays": args.error_against, "raw": raw, "blurred": blurred }),
             );
         }
     }
-    let covered = surface.covered().collect::<Vec<_>>();
-    report.check("ao_within_0_and_1", covered.iter().all(|&i| (0.0..=1.0).contains(&surface.texels[i * 4])));
-    let background = (0..surface.width * surface.height).filter(|&i| surface.depth(i) <= 0.0);
-    report.check("background_unoccluded", background.clone().all(|i| surface.texels[i * 4] == 1.0));
+    surface.check_values(report);
     // Chapter 08 traces with its own pattern: where this frame used another, the same rays are
     // traced again per pixel, so that every pixel can be compared, not only the means.
-    let per_frame = if skipped.is_some() { 0 } else { settings.samples };
-    let per_pixel = if settings.pattern == Pattern::PerPixel || skipped.is_some() {
+    let per_pixel = if rays.pattern == Pattern::PerPixel || rays.samples == 0 {
         None
     } else {
-        let rays = Rays {
-            samples: per_frame,
-            radius: settings.radius,
-            scene_scale: scene.size() / 2.0,
-            pattern: Pattern::PerPixel,
-            salt: 0,
-        };
-        tracer.accumulated = 0;
-        while tracer.accumulated < accumulated {
-            let rays = Rays { samples: rays.samples.min(accumulated - tracer.accumulated), ..rays };
-            tracer.trace(&vk, &gl_context, &sync, &shared.commands, &targets, &camera, rays, None)?;
-        }
+        tracer.retrace(apis, &targets, &camera, Rays { pattern: Pattern::PerPixel, ..rays }, accumulated)?;
         Some(check::Surface::read(gl, &targets))
     };
-    let rays = (per_frame, accumulated, settings.radius);
+    let rays = (rays.samples, accumulated, settings.radius);
+    let parts = (&shared.buffers, shared.structures.tlas.handle);
     let chapter_08 =
-        check::trace_chapter_08(&vk, &gl_context, &sync, &mut shared, &scene, &camera, &targets, rays)?;
+        check::trace_chapter_08(apis, &mut shared.allocator, parts, &scene, &camera, &targets, rays)?;
     chapter_08.compare(&surface, per_pixel.as_ref(), report);
     report.set("samples_per_pixel", accumulated);
     report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());
@@ -364,32 +336,4 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
     drop(window);
     Ok(())
-}
-
-fn apply_key(key: &Key, s: &mut Settings) {
-    if let Key::Character(c) = key.as_ref() {
-        match c {
-            "1" | "2" | "3" | "4" | "5" => s.view = View::ALL[c.parse::<usize>().unwrap() - 1],
-            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
-            "-" => s.samples = (s.samples / 2).max(1),
-            "]" => s.radius *= 1.25,
-            "[" => s.radius /= 1.25,
-            "b" | "B" => s.blur = (s.blur + 1) % 5,
-            "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0,
-            "o" | "O" => s.overlays = !s.overlays,
-            "t" | "T" => s.pattern = Pattern::ALL[(s.pattern as usize + 1) % Pattern::ALL.len()],
-            _ => {}
-        }
-    }
-}
-
-fn settings_uniforms(s: &Settings, camera: &Camera) -> Uniforms {
-    Uniforms {
-        blur_radius: s.blur as i32,
-        depth_tolerance: 0.02,
-        normal_tolerance: 0.9,
-        power: s.power,
-        view: s.view,
-        far_depth: camera.far,
-    }
 }

@@ -37,6 +37,15 @@ pub struct SurfaceRays {
 }
 // ANCHOR_END: surface_rays
 
+/// The two APIs and how they hand over, as every trace needs them.
+#[derive(Clone, Copy)]
+pub struct Apis<'a> {
+    pub vk: &'a VulkanContext,
+    pub gl: &'a GlContext,
+    pub sync: &'a Sync,
+    pub commands: &'a Commands,
+}
+
 /// What a frame's rays are asked to do, beside the camera.
 #[derive(Clone, Copy)]
 pub struct Rays {
@@ -173,18 +182,30 @@ impl SurfaceTracer {
     /// One frame: GL hands over the ids it just drew (and the surface, once it has had it),
     /// Vulkan rebuilds each hit, adds `rays.samples` rays to the running mean and hands both back;
     /// GL is told to wait for that before it composites.
-    #[allow(clippy::too_many_arguments)] // the two contexts and their hand-over, the frame's inputs
     pub fn trace(
         &mut self,
-        vk: &VulkanContext,
-        gl: &GlContext,
-        sync: &Sync,
-        commands: &Commands,
+        apis: Apis,
         targets: &Targets,
         camera: &Camera,
         rays: Rays,
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
+        self.trace_around(apis, targets, camera, rays, timestamps, || {})
+    }
+    // ANCHOR_END: frame
+
+    /// [`SurfaceTracer::trace`], with `between` run once Vulkan's work is submitted and before GL
+    /// is told to wait for it: GL work there does not depend on Vulkan's (`overlap.rs`).
+    pub fn trace_around(
+        &mut self,
+        apis: Apis,
+        targets: &Targets,
+        camera: &Camera,
+        rays: Rays,
+        timestamps: Option<&Timestamps>,
+        between: impl FnOnce(),
+    ) -> Result<()> {
+        let Apis { vk, gl, sync, commands } = apis;
         // The ids come to Vulkan in GENERAL (storage images) and go back as GL's attachment; the
         // surface is sampled by GL. On the host path both stay GENERAL (`Sync::hand_over`).
         let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
@@ -214,12 +235,12 @@ impl SurfaceTracer {
         unsafe { self.record(vk, cb, targets, layouts, &push, timestamps) };
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         commands.submit(vk, sync.vulkan_waits_on().map(|s| (s, stage)), sync.vulkan_signals())?;
+        between();
         sync.gl_acquire(vk, gl, commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
         self.gl_has_surface = true;
         self.accumulated += rays.samples;
         Ok(())
     }
-    // ANCHOR_END: frame
 
     // ANCHOR: record
     /// Take the ids and the surface from GL, trace, give them back: two images, where chapter
@@ -270,6 +291,24 @@ impl SurfaceTracer {
         }
     }
     // ANCHOR_END: record
+
+    /// `total` rays per pixel from scratch, `rays.samples` at a time, as that many frames would
+    /// trace them (for the checks, after the frames).
+    pub fn retrace(
+        &mut self,
+        apis: Apis,
+        targets: &Targets,
+        camera: &Camera,
+        rays: Rays,
+        total: u32,
+    ) -> Result<()> {
+        self.accumulated = 0;
+        while self.accumulated < total && rays.samples > 0 {
+            let rays = Rays { samples: rays.samples.min(total - self.accumulated), ..rays };
+            self.trace(apis, targets, camera, rays, None)?;
+        }
+        Ok(())
+    }
 
     /// The mesh table, then the pipeline (the GPU must be done with both).
     pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {

@@ -1,0 +1,69 @@
+//! Do GL and Vulkan work run at the same time on this driver? Frames in flight (GL drawing the
+//! next frame's ids while Vulkan traces this one) pay only if they do. The same work in two
+//! orders, timed on the CPU from the first GL call to both APIs being done:
+//!
+//! - *during*: GL draws the ids, hands them over, Vulkan's trace is submitted, and GL draws a
+//!   second set of ids (other images, nothing Vulkan uses) before it is told to wait for Vulkan;
+//! - *after*: the same, with the second set drawn after GL's wait for Vulkan.
+//!
+//! If the driver runs GL's work beside Vulkan's, *during* is shorter by up to the second pass's
+//! time; if it runs one API's work at a time, the two take as long.
+
+use crate::trace::{Apis, Rays, SurfaceTracer};
+use crate::visibility::{MeshIds, Targets, VisibilityPass};
+use anyhow::Result;
+use common::commands::median_p95;
+use common::scene::{Camera, Scene};
+use glow::HasContext;
+use std::time::Instant;
+
+/// What one measurement needs: the frame's passes, its images and a second set for GL alone.
+pub struct Probe<'a> {
+    pub visibility: &'a VisibilityPass,
+    pub targets: &'a Targets,
+    pub scene: &'a Scene,
+    pub ids: &'a [MeshIds],
+    pub camera: &'a Camera,
+    pub rays: Rays,
+}
+
+/// Medians over `rounds` of each order, in milliseconds: (during, after, the second pass alone).
+pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: Probe, rounds: u32) -> Result<(f64, f64, f64)> {
+    let Apis { vk, gl, commands, .. } = apis;
+    let spare = Targets::new(vk, gl, p.targets.extent)?;
+    let g = &gl.gl;
+    let draw_spare = || p.visibility.draw(g, &spare, p.scene, p.ids, p.camera);
+    let done = || -> Result<()> {
+        unsafe { g.finish() };
+        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        Ok(())
+    };
+    let (mut during, mut after, mut alone) = (Vec::new(), Vec::new(), Vec::new());
+    done()?;
+    for round in 0..2 * rounds + 2 {
+        let gl_during = round % 2 == 0;
+        let start = Instant::now();
+        p.visibility.draw(g, p.targets, p.scene, p.ids, p.camera);
+        tracer.accumulated = 0;
+        let between = || {
+            if gl_during {
+                draw_spare()
+            }
+        };
+        tracer.trace_around(apis, p.targets, p.camera, p.rays, None, between)?;
+        if !gl_during {
+            draw_spare();
+        }
+        done()?;
+        // The first round of each order warms up.
+        if round >= 2 {
+            if gl_during { &mut during } else { &mut after }.push(common::ms_since(start));
+        }
+        let start = Instant::now();
+        draw_spare();
+        done()?;
+        alone.push(common::ms_since(start));
+    }
+    drop(spare);
+    Ok((median_p95(&during).0, median_p95(&after).0, median_p95(&alone).0))
+}
