@@ -45,6 +45,7 @@ pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: Probe, rounds: u32) ->
         let start = Instant::now();
         p.visibility.draw(g, p.targets, p.scene, p.ids, p.camera);
         tracer.accumulated = 0;
+        // ANCHOR: orders
         let between = || {
             if gl_during {
                 draw_spare()
@@ -55,6 +56,7 @@ pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: Probe, rounds: u32) ->
             draw_spare();
         }
         done()?;
+        // ANCHOR_END: orders
         // The first round of each order warms up.
         if round >= 2 {
             if gl_during { &mut during } else { &mut after }.push(common::ms_since(start));
