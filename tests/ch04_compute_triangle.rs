@@ -67,8 +67,10 @@ fn ch04_without_a_display_runs_headless() {
 #[test]
 fn ch04_in_a_window_under_xvfb() {
     let Some(xvfb) = Xvfb::start("ch04_in_a_window_under_xvfb") else { return };
-    // No --headless: a display exists, so the chapter opens a window there.
-    let args = ["--size", "160x120", "--frames", "5"];
+    // No --headless: a display exists, so the chapter opens a window there. `--time 0` steps the
+    // animation 1/60 s a frame: on real time, five frames drawn within a few milliseconds of
+    // each other (a fast machine) could barely move, and the check below would fail by chance.
+    let args = ["--size", "160x120", "--frames", "5", "--time", "0"];
     let run = run_chapter_with(BIN, &args, &[("DISPLAY", &xvfb.display)]);
     drop(xvfb);
     let report = run.succeeded();
