@@ -29,6 +29,7 @@ mod check;
 mod composite;
 mod overlap;
 mod settings;
+mod timeline;
 mod trace;
 mod visibility;
 use composite::{ComputeComposite, View};
@@ -75,6 +76,10 @@ struct Args {
     /// (`overlap.rs`), over this many rounds of each order (0: don't).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
     overlap_rounds: u32,
+    /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into
+    /// timeline.json and timeline.svg in --out (0: none).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
+    timeline: u32,
     /// Headless: make the images of one size anew every K frames, as a window's resize does.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     resize_every: Option<u32>,
@@ -149,7 +154,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (mut frame, mut resizes, mut after_first_resize) = (0, 0, None);
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let timestamps = Timestamps::new(&vk)?;
-    let mut trace_pending = false;
+    let mut trace_pending = None; // the traced frame's timeline slot, if any, once submitted
+    let mut timeline = match (args.timeline, &timestamps) {
+        (0, _) => None,
+        (_, Some(_)) => Some(timeline::Timeline::new(gl, args.timeline.min(frame_limit))?),
+        (_, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", vk.info.name),
+    };
     let skipped = common::ao::nothing_to_trace(settings.samples, settings.radius);
     if let Some(reason) = skipped {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
@@ -201,7 +211,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         // ANCHOR_END: resize
         // ANCHOR: frame
+        let slot = timeline.as_ref().and_then(|t| t.slot(frame, frame_limit));
+        timeline::stamp(&timeline, slot, 0);
         gl_timer.time(gl, "visibility", || visibility.draw(gl, &targets, &scene, &ids, &camera))?;
+        timeline::stamp(&timeline, slot, 1);
         if tracer.accumulated < args.ao.max_samples || skipped.is_some() {
             let samples = if skipped.is_some() {
                 0
@@ -209,26 +222,26 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 settings.samples.min(args.ao.max_samples - tracer.accumulated)
             };
             let rays = settings.rays(samples, scene.size() / 2.0);
-            if std::mem::take(&mut trace_pending) {
-                common::timing::read_after(
-                    &vk,
-                    shared.commands.fence,
-                    timestamps.as_ref(),
-                    "ao_trace",
-                    &mut times,
-                )?;
+            if let Some(traced) = trace_pending.take() {
+                let stamps = timestamps.as_ref();
+                common::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
+                if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
+                    t.trace_done(&vk, slot, stamps)?;
+                }
             }
             let apis = Apis { vk: &vk, gl: &gl_context, sync: &sync, commands: &shared.commands };
             tracer.trace(apis, &targets, &camera, rays, timestamps.as_ref())?;
-            trace_pending = timestamps.is_some();
+            trace_pending = timestamps.is_some().then_some(slot);
         }
         let uniforms = settings::uniforms(&settings, &camera);
+        timeline::stamp(&timeline, slot, 2);
         gl_timer.time(gl, "composite", || composite.draw(gl, &targets, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(size.width as f32 / size.height as f32);
             gl_timer
                 .time(gl, "overlays", || overlays.draw(gl, &targets.overlay_target(), view_projection))?;
         }
+        timeline::stamp(&timeline, slot, 3);
         gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
         if let Some(window) = &mut window {
@@ -239,10 +252,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         times.frame_done();
         frame += 1;
     }
-    if trace_pending {
-        common::timing::read_after(&vk, shared.commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+    if let Some(traced) = trace_pending {
+        let stamps = timestamps.as_ref();
+        common::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
+        if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
+            t.trace_done(&vk, slot, stamps)?;
+        }
     }
     gl_timer.finish(gl, &mut times);
+    if let (Some(t), Some(stamps)) = (timeline.take(), &timestamps) {
+        unsafe { gl.finish() };
+        t.finish(&vk, &shared.commands, stamps, report, &args.common.out_dir(CHAPTER))?;
+    }
     times.record(report);
     gl_context.check_error("the frame loop")?;
     if let Some(first) = after_first_resize {

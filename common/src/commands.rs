@@ -334,6 +334,15 @@ impl Timestamps {
         unsafe { vk.device.cmd_write_timestamp(cb, vk::PipelineStageFlags::BOTTOM_OF_PIPE, self.pool, 1) };
     }
 
+    /// Start and end of the last finished submission, in nanoseconds of the device's clock
+    /// (only the valid bits, scaled by the timestamp period): for a timeline.
+    pub fn read_ns(&self, vk: &VulkanContext) -> Result<[f64; 2]> {
+        let mut ticks = [0u64; 2];
+        unsafe { vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64) }
+            .context("vkGetQueryPoolResults")?;
+        Ok(ticks.map(|t| (t & self.valid_mask) as f64 * self.period_ns))
+    }
+
     /// Milliseconds between start and end of the last finished submission.
     pub fn read_ms(&self, vk: &VulkanContext) -> Result<f64> {
         let mut ticks = [0u64; 2];
