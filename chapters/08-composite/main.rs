@@ -14,6 +14,7 @@ use ash::vk;
 use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
 use common::ao::{AoArgs, AoTracer};
 use common::commands::Timestamps;
+use common::frame::{Composite, Overlays, Uniforms, View};
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
@@ -26,9 +27,7 @@ use glow::HasContext;
 use std::process::ExitCode;
 
 mod check;
-mod overlay;
 use check::LastFrame;
-use overlay::{Composite, Overlays, View};
 
 const CHAPTER: &str = "08-composite";
 
@@ -241,7 +240,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(aspect);
-            gl_timer.time(gl, "overlays", || overlays.draw(gl, &composite, view_projection))?;
+            gl_timer.time(gl, "overlays", || overlays.draw(gl, &composite.target(), view_projection))?;
         }
         gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
@@ -346,8 +345,8 @@ fn apply_key(key: &Key, s: &mut Settings) {
 }
 // ANCHOR_END: keys
 
-fn settings_uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> overlay::Uniforms {
-    overlay::Uniforms {
+fn settings_uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> Uniforms {
+    Uniforms {
         blur_radius: s.blur as i32,
         depth_tolerance: 0.02,
         normal_tolerance: 0.9,

@@ -13,6 +13,7 @@ use common::accel::{InPlace, RayTracedScene, Refresh, TlasFlags, instances_geome
 use common::ao::{AoArgs, AoTracer};
 use common::cli::AnimationArgs;
 use common::commands::{Commands, Timestamps};
+use common::frame::{Composite, Uniforms, View};
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
@@ -23,15 +24,7 @@ use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_coun
 use glow::HasContext;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
-#[path = "../08-composite/check.rs"]
-#[allow(dead_code)]
-mod check;
-#[path = "../08-composite/overlay.rs"]
-#[allow(dead_code)]
-mod overlay;
 mod ring;
-use overlay::{Composite, Uniforms, View};
 
 const CHAPTER: &str = "09-animated-instances";
 

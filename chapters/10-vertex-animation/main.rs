@@ -13,6 +13,7 @@ use common::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh}
 use common::ao::{AoArgs, AoTracer};
 use common::cli::AnimationArgs;
 use common::commands::{Commands, Timestamps};
+use common::frame::{Composite, Uniforms, View};
 use common::gbuffer::{GBuffers, SceneBuffers};
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::raytrace::AoRays;
@@ -25,15 +26,7 @@ use glow::HasContext;
 use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass, as it is (its overlay lines and their checks are not used here).
-#[path = "../08-composite/check.rs"]
-#[allow(dead_code)]
-mod check;
-#[path = "../08-composite/overlay.rs"]
-#[allow(dead_code)]
-mod overlay;
 mod sphere;
-use overlay::{Composite, Uniforms, View};
 use sphere::{Animation, Wave, WavePipeline, record_animation};
 
 const CHAPTER: &str = "10-vertex-animation";

@@ -6,6 +6,7 @@ use crate::composite::{Composite, DepthUniforms, Source};
 use crate::scene::{self, GROUND, TraceParams};
 use anyhow::Result;
 use common::Report;
+use common::frame::shows_colour;
 use common::scene::Camera;
 use glam::{Mat4, Vec3, Vec4};
 use glow::HasContext;
@@ -212,15 +213,4 @@ fn differing_pixels(a: &[u32], b: &[u32], pixels: usize) -> usize {
             colour || (ta - tb).abs() > 1e-5 * ta.max(tb)
         })
         .count()
-}
-
-/// Does the line's colour appear within a pixel of (x, y)? (A 1-pixel line may be rasterised on
-/// a neighbour of the point's own pixel.)
-fn shows_colour(pixels: &[u8], width: usize, (x, y, colour): (usize, usize, [u8; 3])) -> bool {
-    (y - 1..=y + 1).any(|v| {
-        (x - 1..=x + 1).any(|u| {
-            let p = &pixels[(v * width + u) * 4..][..3];
-            p.iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 3)
-        })
-    })
 }

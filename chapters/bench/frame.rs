@@ -1,7 +1,6 @@
 //! One mode's frames at one setting: chapter 08's frame drawn, handed over, traced and
 //! composited `count` times, each pass timed on the GPU, into [`Samples`].
 
-use crate::overlay::{Composite, Overlays, Uniforms, View};
 use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
 use anyhow::Result;
@@ -10,6 +9,7 @@ use common::accel::RayTracedScene;
 use common::ao::AoTracer;
 use common::cli::Size;
 use common::commands::{Timestamps, median_p95};
+use common::frame::{Composite, Overlays, Uniforms, View};
 use common::gbuffer::GBuffers;
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene};
@@ -169,7 +169,7 @@ impl<'s> Frame<'s> {
             }
             self.gl_timer.begin(g, "composite")?;
             self.composite.draw(g, &self.gbuffers, &self.tracer, &self.uniforms);
-            self.overlays.draw(g, &self.composite, self.camera.view_projection(aspect));
+            self.overlays.draw(g, &self.composite.target(), self.camera.view_projection(aspect));
             self.gl_timer.end(g);
             if measured {
                 self.gl_timer.end_frame(g, &mut times);

@@ -23,16 +23,8 @@ use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass and overlays, used as they are (not copied): bench measures
-// exactly the frame the chapter draws. `check` comes along because `overlay` uses its `Pixels`.
-#[allow(dead_code)]
-#[path = "../08-composite/check.rs"]
-mod check;
 mod frame;
 mod outputs;
-#[allow(dead_code)]
-#[path = "../08-composite/overlay.rs"]
-mod overlay;
 mod round_trip;
 mod scenes;
 

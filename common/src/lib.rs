@@ -10,6 +10,7 @@ pub mod commands;
 pub mod cuda;
 pub mod exportable;
 pub mod fail;
+pub mod frame;
 pub mod gbuffer;
 pub mod gl;
 pub mod interop;

@@ -1,0 +1,221 @@
+//! The composite pass: albedo x occlusion (or a debug view), blurred without crossing edges, into
+//! an offscreen colour buffer whose depth buffer is the G-buffer pass's.
+
+use super::overlay::Target;
+use crate::ao::AoTracer;
+use crate::gbuffer::GBuffers;
+use anyhow::Result;
+use glam::Vec3;
+use glow::HasContext;
+
+const FULLSCREEN: &str = include_str!("../../../shaders/gl/fullscreen.vert");
+const COMPOSITE: &str = include_str!("../../../shaders/gl/composite.frag");
+
+/// The pictures the composite shader can show (its `view` uniform, in this order).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum View {
+    Final,
+    Position,
+    Normal,
+    Depth,
+    Albedo,
+    Ao,
+}
+
+impl View {
+    pub const ALL: [View; 6] =
+        [View::Final, View::Position, View::Normal, View::Depth, View::Albedo, View::Ao];
+
+    pub fn from_index(i: u32) -> View {
+        View::ALL[i as usize % 6]
+    }
+
+    pub fn name(self) -> &'static str {
+        ["final", "position", "normal", "depth", "albedo", "ao"][self as usize]
+    }
+}
+
+/// The composite shader's uniforms.
+#[derive(Clone, Copy)]
+pub struct Uniforms {
+    pub blur_radius: i32,
+    /// Relative: a neighbour is on the same surface if its view depth is within this fraction.
+    pub depth_tolerance: f32,
+    /// A neighbour is on the same surface if the dot product of the normals is at least this.
+    pub normal_tolerance: f32,
+    pub power: f32,
+    pub view: View,
+    pub bounds: (Vec3, Vec3),
+    pub far_depth: f32,
+}
+
+/// The composite pass: a full-screen triangle into an offscreen colour buffer whose depth
+/// buffer is the G-buffer pass's, so that overlays drawn next are tested against the scene.
+/// Deleted when dropped too, so that an early return from `run` leaves nothing behind.
+pub struct Composite {
+    program: glow::Program,
+    empty: glow::VertexArray,
+    framebuffer: glow::Framebuffer,
+    colour: glow::Renderbuffer,
+    width: u32,
+    height: u32,
+    gl: std::rc::Rc<glow::Context>,
+}
+
+impl Composite {
+    pub fn new(gl: &std::rc::Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
+        let program = crate::gl::program(gl, FULLSCREEN, COMPOSITE)?;
+        // Core profile draws need a vertex array bound, even one that feeds nothing.
+        let empty = unsafe { gl.create_named_vertex_array() }.map_err(anyhow::Error::msg)?;
+        let (framebuffer, colour) = unsafe { new_target(gl, gbuffers)? };
+        let (width, height) = (gbuffers.extent.width, gbuffers.extent.height);
+        Ok(Composite { program, empty, framebuffer, colour, width, height, gl: gl.clone() })
+    }
+
+    /// After the G-buffers were made anew: a colour buffer of their size, their depth buffer.
+    pub fn resize(&mut self, gl: &glow::Context, gbuffers: &GBuffers) -> Result<()> {
+        let (framebuffer, colour) = unsafe { new_target(gl, gbuffers)? };
+        unsafe {
+            gl.delete_framebuffer(std::mem::replace(&mut self.framebuffer, framebuffer));
+            gl.delete_renderbuffer(std::mem::replace(&mut self.colour, colour));
+            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+        }
+        (self.width, self.height) = (gbuffers.extent.width, gbuffers.extent.height);
+        Ok(())
+    }
+
+    // ANCHOR: composite
+    /// Albedo x occlusion (or a debug view) into the offscreen target.
+    pub fn draw(&self, gl: &glow::Context, gbuffers: &GBuffers, tracer: &AoTracer, u: &Uniforms) {
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.viewport(0, 0, self.width as i32, self.height as i32);
+            // A full-screen pass: it must neither be hidden by the scene's depth nor change it.
+            gl.disable(glow::DEPTH_TEST);
+            gl.depth_mask(false);
+            gl.use_program(Some(self.program));
+            for (unit, texture) in
+                gbuffers.textures().into_iter().chain([tracer.image.texture.texture]).enumerate()
+            {
+                gl.bind_texture_unit(unit as u32, Some(texture));
+            }
+            let at = |name| gl.get_uniform_location(self.program, name);
+            gl.uniform_1_i32(at("blur_radius").as_ref(), u.blur_radius);
+            gl.uniform_1_f32(at("depth_tolerance").as_ref(), u.depth_tolerance);
+            gl.uniform_1_f32(at("normal_tolerance").as_ref(), u.normal_tolerance);
+            gl.uniform_1_f32(at("power").as_ref(), u.power);
+            gl.uniform_1_i32(at("view").as_ref(), u.view as i32);
+            let (low, high) = u.bounds;
+            gl.uniform_3_f32(at("bounds_low").as_ref(), low.x, low.y, low.z);
+            gl.uniform_3_f32(at("bounds_high").as_ref(), high.x, high.y, high.z);
+            gl.uniform_1_f32(at("far_depth").as_ref(), u.far_depth);
+            gl.bind_vertex_array(Some(self.empty));
+            gl.draw_arrays(glow::TRIANGLES, 0, 3);
+            gl.bind_vertex_array(None);
+            gl.depth_mask(true);
+        }
+    }
+    // ANCHOR_END: composite
+
+    /// Where overlays draw over the picture: this target, whose depth is the scene's.
+    pub fn target(&self) -> Target {
+        Target { framebuffer: self.framebuffer, width: self.width, height: self.height }
+    }
+
+    /// The target's RGBA8 pixels, bottom row first (memory order).
+    pub fn read(&self, gl: &glow::Context) -> Vec<u8> {
+        let mut pixels = vec![0u8; (self.width * self.height * 4) as usize];
+        unsafe {
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(self.framebuffer));
+            gl.pixel_store_i32(glow::PACK_ALIGNMENT, 1);
+            let data = glow::PixelPackData::Slice(Some(&mut pixels));
+            gl.read_pixels(
+                0,
+                0,
+                self.width as i32,
+                self.height as i32,
+                glow::RGBA,
+                glow::UNSIGNED_BYTE,
+                data,
+            );
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, None);
+        }
+        pixels
+    }
+
+    /// Copies the picture into the window's back buffer, scaled to fit.
+    pub fn show(&self, gl: &glow::Context, (width, height): (u32, u32)) {
+        unsafe {
+            gl.blit_named_framebuffer(
+                Some(self.framebuffer),
+                None,
+                0,
+                0,
+                self.width as i32,
+                self.height as i32,
+                0,
+                0,
+                width as i32,
+                height as i32,
+                glow::COLOR_BUFFER_BIT,
+                glow::LINEAR,
+            );
+        }
+    }
+
+    pub fn destroy(self, _gl: &glow::Context) {
+        drop(self); // Drop below
+    }
+}
+
+impl Drop for Composite {
+    fn drop(&mut self) {
+        let gl = &self.gl;
+        unsafe {
+            gl.delete_framebuffer(self.framebuffer);
+            gl.delete_renderbuffer(self.colour);
+            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            gl.delete_vertex_array(self.empty);
+            gl.delete_program(self.program);
+        }
+    }
+}
+
+// ANCHOR: target
+/// An RGBA8 colour buffer, with the G-buffer pass's depth buffer attached as this target's
+/// depth: the scene's depth, exactly as GL rasterised it.
+unsafe fn new_target(
+    gl: &glow::Context,
+    gbuffers: &GBuffers,
+) -> Result<(glow::Framebuffer, glow::Renderbuffer)> {
+    unsafe {
+        let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
+        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
+        let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
+        gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
+        gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+        crate::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
+        let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+        gl.named_framebuffer_renderbuffer(
+            Some(fb),
+            glow::COLOR_ATTACHMENT0,
+            glow::RENDERBUFFER,
+            Some(colour),
+        );
+        gl.named_framebuffer_renderbuffer(
+            Some(fb),
+            glow::DEPTH_ATTACHMENT,
+            glow::RENDERBUFFER,
+            Some(gbuffers.depth),
+        );
+        let status = gl.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
+        if status != glow::FRAMEBUFFER_COMPLETE {
+            gl.delete_framebuffer(fb);
+            gl.delete_renderbuffer(colour);
+            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            anyhow::bail!("composite framebuffer incomplete: {status:#x}");
+        }
+        Ok((fb, colour))
+    }
+}
+// ANCHOR_END: target

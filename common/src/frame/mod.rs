@@ -1,0 +1,12 @@
+//! The shared frame: what chapter 08 taught and chapters 09-11 and `bench` draw again. The
+//! composite pass (albedo x occlusion into an offscreen target over the G-buffer pass's depth),
+//! the overlay lines drawn into any target whose depth is the scene's, and the pixel probes and
+//! CPU reference the checks compare them with.
+
+pub mod composite;
+pub mod overlay;
+pub mod probe;
+
+pub use composite::{Composite, Uniforms, View};
+pub use overlay::{HalfAxis, LineBuffer, LineVertex, Lines, Overlays, Probes, Target, gizmo};
+pub use probe::{Pixels, matches_reference, shows_colour};
