@@ -14,9 +14,9 @@ use common::ao::{AoArgs, AoTracer};
 use common::commands::Timestamps;
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::handoff::Handoff;
 use common::raytrace::AoRays;
 use common::scene::{Camera, SceneArgs};
-use common::sync::Sync;
 use common::timing::{self, GlPassTimer, PassTimes};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use std::process::ExitCode;
@@ -54,8 +54,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
     let commands = &shared.commands;
@@ -93,7 +93,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if std::mem::take(&mut trace_pending) {
                 timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
             }
-            tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
+            tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, params, timestamps.as_ref())?;
             trace_pending = timestamps.is_some();
         }
         gl_timer.end_frame(gl, &mut times);
@@ -162,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     )?;
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 6. Clean up, newest first
     // ANCHOR: cleanup
     // Once the GPU is done with the last frame: its pipeline and images must outlive the
@@ -175,7 +175,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
     shared.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

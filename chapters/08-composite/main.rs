@@ -17,9 +17,9 @@ use common::commands::Timestamps;
 use common::frame::{Composite, Overlays, Uniforms, View};
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::handoff::Handoff;
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene, SceneArgs};
-use common::sync::Sync;
 use common::timing::{GlPassTimer, PassTimes};
 use common::window::{Key, NamedKey, Window};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
@@ -128,8 +128,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // A size the device cannot hold is refused here, before anything is allocated.
     common::gbuffer::check_size(&vk, &gl_context, vk::Extent2D { width: size.width, height: size.height })?;
     report.set("window", window.is_some());
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
@@ -162,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: input
         if let Some(window) = window.as_mut() {
             let keys: Vec<Key> = window.poll(&gl_context).collect();
-            if keys.iter().any(|k| *k == Key::Named(NamedKey::Escape)) {
+            if keys.contains(&Key::Named(NamedKey::Escape)) {
                 break;
             }
             let before = (settings, camera.eye);
@@ -232,7 +232,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if std::mem::take(&mut trace_pending) {
                 common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
             }
-            tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
+            tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
             trace_pending = timestamps.is_some();
         }
@@ -304,7 +304,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -318,7 +318,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
     shared.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
@@ -328,19 +328,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
 // ANCHOR: keys
 fn apply_key(key: &Key, s: &mut Settings) {
-    match key.as_ref() {
-        Key::Character(c) => match c {
-            "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
-            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
-            "-" => s.samples = (s.samples / 2).max(1),
-            "]" => s.radius *= 1.25,
-            "[" => s.radius /= 1.25,
-            "b" | "B" => s.blur = (s.blur + 1) % 5,
-            "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0, // 1, 2, 3, 1 ...
-            "o" | "O" => s.overlays = !s.overlays,
-            _ => {}
-        },
-        _ => {} // Esc ends the loop before keys get here
+    // Named keys do nothing here: Esc ends the loop before keys get here.
+    let Key::Character(c) = key.as_ref() else { return };
+    match c {
+        "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
+        "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
+        "-" => s.samples = (s.samples / 2).max(1),
+        "]" => s.radius *= 1.25,
+        "[" => s.radius /= 1.25,
+        "b" | "B" => s.blur = (s.blur + 1) % 5,
+        "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0, // 1, 2, 3, 1 ...
+        "o" | "O" => s.overlays = !s.overlays,
+        _ => {}
     }
 }
 // ANCHOR_END: keys

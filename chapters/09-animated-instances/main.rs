@@ -16,9 +16,9 @@ use common::commands::{Commands, Timestamps};
 use common::frame::{Composite, Uniforms, View};
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::handoff::Handoff;
 use common::raytrace::AoRays;
 use common::scene::Camera;
-use common::sync::Sync;
 use common::timing::{GlPassTimer, PassTimes};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use glow::HasContext;
@@ -72,8 +72,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     // ANCHOR: updatable
     // As chapter 06 built it, plus ALLOW_UPDATE. Then what updating it in place needs: the
@@ -144,7 +144,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if args.animation.step > 0.0 {
             tracer.reset();
         }
-        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, trace_timer.as_ref())?;
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
         times.frame_done();
@@ -191,7 +191,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // restarted, both traces cast exactly the same rays, and must find the same occluders.
     let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
         tracer.reset();
-        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
@@ -220,7 +220,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -235,7 +235,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     updates.destroy(&vk);
     tlas.destroy(&vk, &mut shared.allocator);
     shared.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -16,9 +16,9 @@ use common::commands::{Commands, Timestamps};
 use common::frame::{Composite, Uniforms, View};
 use common::gbuffer::{GBuffers, SceneBuffers};
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::handoff::{Handoff, SharedSemaphore};
 use common::raytrace::AoRays;
 use common::scene::{Camera, Instance, Scene, ground_plane};
-use common::sync::{SharedSemaphore, Sync};
 use common::timing::{self, GlPassTimer, PassTimes};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
 use glam::{Mat4, Vec3};
@@ -83,8 +83,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     // ANCHOR: share
     // STORAGE_BUFFER: the compute shader writes the vertices in place.
@@ -93,9 +93,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         | vk::BufferUsageFlags::STORAGE_BUFFER;
     let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
     // Signalled by Vulkan once the vertices have moved; GL waits on it before drawing them.
-    let vertices_moved = match &sync {
-        Sync::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
-        Sync::Host { .. } => None,
+    let vertices_moved = match &handoff {
+        Handoff::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
+        Handoff::Host { .. } => None,
     };
     // ANCHOR_END: share
 
@@ -222,7 +222,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if std::mem::take(&mut traced) {
             timing::read_after(&vk, commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
         }
-        tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, &commands, &gbuffers, rays, trace_timer.as_ref())?;
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
         times.frame_done();
@@ -272,7 +272,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         tracer.reset();
         let rays =
             AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-        tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, &commands, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
@@ -305,7 +305,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -332,7 +332,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         semaphore.destroy(&vk, &gl_context);
     }
     buffers.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

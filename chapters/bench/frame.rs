@@ -11,9 +11,9 @@ use common::cli::Size;
 use common::commands::{Timestamps, median_p95};
 use common::frame::{Composite, Overlays, Uniforms, View};
 use common::gbuffer::GBuffers;
+use common::handoff::Handoff;
 use common::raytrace::AoRays;
 use common::scene::{Camera, Scene};
-use common::sync::Sync;
 use common::timing::{GlPassTimer, PassTimes};
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
@@ -126,7 +126,7 @@ impl<'s> Frame<'s> {
         vk: &VulkanContext,
         gl: &GlContext,
         shared: &RayTracedScene,
-        sync: &Sync,
+        handoff: &Handoff,
         setting: Setting,
         stamps: &Timestamps,
         samples: &mut Samples,
@@ -163,7 +163,7 @@ impl<'s> Frame<'s> {
             }
             // Each frame a fresh estimate (weight 1), as when the camera moves every frame.
             self.tracer.reset();
-            self.tracer.trace(vk, gl, sync, &shared.commands, &self.gbuffers, rays, Some(stamps))?;
+            self.tracer.trace(vk, gl, handoff, &shared.commands, &self.gbuffers, rays, Some(stamps))?;
             if let Some(round_trip) = &mut self.round_trip {
                 round_trip.ao_to_gl(vk, gl)?;
             }

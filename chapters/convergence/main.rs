@@ -20,8 +20,8 @@ use common::ao::AoTracer;
 use common::commands::Timestamps;
 use common::gbuffer::GBuffers;
 use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::handoff::Handoff;
 use common::raytrace::AoRays;
-use common::sync::Sync;
 use common::{RAY_TRACED_INTEROP, Report, VulkanContext, output};
 use glam::DVec3;
 use serde::Serialize;
@@ -113,19 +113,19 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
     common::gbuffer::check_size(&vk, &gl, extent)?;
-    let sync = Sync::new(&vk, &gl)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl)?;
+    report.sync = Some(handoff.name());
     let timestamps = Timestamps::new(&vk)?;
     let mut results = Vec::new();
     for case in &cases {
         let measured =
-            measure(&vk, &gl, &sync, timestamps.as_ref(), case, extent, spps, frame_counts, args.quick);
+            measure(&vk, &gl, &handoff, timestamps.as_ref(), case, extent, spps, frame_counts, args.quick);
         results.push(measured?);
     }
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
-    sync.destroy(&vk, &gl);
+    handoff.destroy(&vk, &gl);
 
     for case in &results {
         let last = case.rows.last().expect("every case has rows");
@@ -162,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 fn measure(
     vk: &VulkanContext,
     gl: &GlContext,
-    sync: &Sync,
+    handoff: &Handoff,
     timestamps: Option<&Timestamps>,
     case: &Case,
     extent: vk::Extent2D,
@@ -182,7 +182,7 @@ fn measure(
         let mut gpu_ms = 0.0;
         for _ in 0..frames {
             gbuffers.draw(&gl.gl, &case.scene, &case.camera);
-            tracer.trace(vk, gl, sync, &shared.commands, &gbuffers, rays(spp), timestamps)?;
+            tracer.trace(vk, gl, handoff, &shared.commands, &gbuffers, rays(spp), timestamps)?;
             if let Some(t) = timestamps {
                 // A measurement: wait for this frame's rays to read their GPU time.
                 unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;

@@ -3,9 +3,9 @@
 
 use crate::commands::{Commands, Timestamps, first_use};
 use crate::gbuffer::GBuffers;
+use crate::handoff::{HandOver, Handoff};
 use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
 use crate::raytrace::{AoRays, RayPipeline, push_bytes};
-use crate::sync::{HandOver, Sync};
 use crate::{GlContext, VulkanContext};
 use anyhow::Result;
 use ash::vk;
@@ -197,7 +197,7 @@ impl AoTracer {
         &mut self,
         vk: &VulkanContext,
         gl: &GlContext,
-        sync: &Sync,
+        handoff: &Handoff,
         commands: &Commands,
         gbuffers: &GBuffers,
         mut rays: AoRays,
@@ -209,13 +209,15 @@ impl AoTracer {
         // `hand_over` makes all of them GENERAL both ways (GL moves no layout there).
         let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
         let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-        let layouts =
-            (sync.hand_over(vk::ImageLayout::GENERAL, attachment), sync.hand_over(read_only, read_only));
+        let layouts = (
+            handoff.hand_over(vk::ImageLayout::GENERAL, attachment),
+            handoff.hand_over(read_only, read_only),
+        );
         let ((gbuffer_to_vulkan, gbuffer_to_gl), (ao_to_vulkan, ao_to_gl)) = (layouts.0.gl(), layouts.1.gl());
         let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
         // The AO image only once GL has had it.
         let handed = if self.gl_has_image { 3 } else { 2 };
-        sync.gl_release(
+        handoff.gl_release(
             gl,
             &textures[..handed],
             &[gbuffer_to_vulkan, gbuffer_to_vulkan, ao_to_vulkan][..handed],
@@ -224,9 +226,9 @@ impl AoTracer {
         rays.accumulated = self.accumulated;
         unsafe { self.record(vk, cb, gbuffers, layouts, &rays, timestamps) };
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-        commands.submit(vk, sync.vulkan_waits_on().map(|s| (s, stage)), sync.vulkan_signals())?;
+        commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
         let layouts = [gbuffer_to_gl, gbuffer_to_gl, ao_to_gl];
-        sync.gl_acquire(vk, gl, commands.fence, &textures, &layouts)?;
+        handoff.gl_acquire(vk, gl, commands.fence, &textures, &layouts)?;
         self.gl_has_image = true;
         self.accumulated += rays.samples;
         Ok(())

@@ -175,7 +175,7 @@ impl SharedTexture {
 
 impl Drop for SharedTexture {
     fn drop(&mut self) {
-        crate::sync::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
+        crate::handoff::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
         unsafe { self.gl.delete_texture(self.texture) };
         crate::resources::destroyed("gl_texture_imported");
     }
@@ -291,7 +291,7 @@ impl Drop for SharedImage {
 /// them out of `UNDEFINED` (which may initialise what the driver keeps beside the pixels) and
 /// releases them to `VK_QUEUE_FAMILY_EXTERNAL`. For images GL uses first (chapter 03's, the
 /// G-buffers): from here on each is in a layout both sides know, the one the host path hands it
-/// over in (`Sync::hand_over`). Set-up work: the CPU waits for it.
+/// over in (`Handoff::hand_over`). Set-up work: the CPU waits for it.
 pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Result<()> {
     let general = vk::ImageLayout::GENERAL;
     let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
@@ -308,7 +308,7 @@ pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Res
         vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
     })?;
     for image in images {
-        crate::sync::vulkan_left(image.texture.texture.0.get(), crate::gl::layout::of(general));
+        crate::handoff::vulkan_left(image.texture.texture.0.get(), crate::gl::layout::of(general));
     }
     Ok(())
 }
