@@ -10,12 +10,13 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
+use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{self, SharedImage};
-use common::timing::{GlPassTimer, PassTimes};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::process::ExitCode;

@@ -14,12 +14,13 @@ mod compute;
 use anyhow::{Result, bail};
 use ash::vk;
 use check::Checks;
-use common::commands::{Commands, Timestamps};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
-use common::handoff::{Handoff, SEMAPHORE_EXTENSION};
+use common::base::commands::{Commands, Timestamps};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
+use common::base::output;
+use common::base::window::{self, Key, NamedKey, Window};
+use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{self, SharedImage};
-use common::window::{self, Key, NamedKey, Window};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use compute::ComputePipeline;
 use glow::HasContext;
 use std::f32::consts::{FRAC_PI_2, TAU};
@@ -165,7 +166,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let largest = compute::largest_image_side(&vk, gl); // where '+' stops
 
     // 5. Prepare GL's draw
-    let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
+    let program = common::base::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
     let vertex_array = unsafe {
         let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
         for (location, offset) in [(0, 0), (1, 8)] {
@@ -182,7 +183,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     let out_dir = args.common.out_dir(CHAPTER);
     let started = Instant::now();
-    let (mut checks, mut gl_timer) = (Checks::default(), common::timing::GlPassTimer::new(gl)?);
+    let (mut checks, mut gl_timer) = (Checks::default(), common::base::timing::GlPassTimer::new(gl)?);
     let mut resizes = 0;
     let mut frame = 0;
     while frames == 0 || frame < frames {

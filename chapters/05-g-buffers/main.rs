@@ -8,14 +8,15 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
-use common::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::handoff::{Handoff, SEMAPHORE_EXTENSION};
+use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
+use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
+use common::scene::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
-use common::timing::{GlPassTimer, PassTimes, VkPassTimer};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::process::ExitCode;
@@ -61,7 +62,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
@@ -81,7 +82,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Rasterise: one instanced draw per mesh
     let started = Instant::now();
-    // Each pass's GPU time (common::timing): GL's raster, Vulkan's copies.
+    // Each pass's GPU time (common::base::timing): GL's raster, Vulkan's copies.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     gl_timer.time(gl, "raster", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;

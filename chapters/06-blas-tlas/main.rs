@@ -9,20 +9,19 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::accel;
-use common::commands::{
+use common::base::commands::{
     Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
-use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
-use common::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
+use common::rt::accel;
+use common::rt::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
+use common::scene::gbuffer::{GBuffers, SceneBuffers};
 use common::scene::{Camera, SceneArgs};
-use common::timing::{GlPassTimer, PassTimes};
-use common::{
-    CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
-};
+use common::{CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
 use std::ffi::CStr;
 use std::process::ExitCode;
 
@@ -68,7 +67,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
@@ -107,7 +106,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. GL draws the G-buffers (chapter 05)
     let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
-    let mut gl_timer = GlPassTimer::new(gl)?; // common::timing, as in chapter 05
+    let mut gl_timer = GlPassTimer::new(gl)?; // common::base::timing, as in chapter 05
     gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;
 

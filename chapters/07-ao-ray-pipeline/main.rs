@@ -9,16 +9,16 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::accel::RayTracedScene;
-use common::ao::{AoArgs, AoTracer};
-use common::commands::Timestamps;
-use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::handoff::Handoff;
-use common::raytrace::AoRays;
+use common::base::commands::Timestamps;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{self, GlPassTimer, PassTimes};
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::scene::gbuffer::GBuffers;
 use common::scene::{Camera, SceneArgs};
-use common::timing::{self, GlPassTimer, PassTimes};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
@@ -53,7 +53,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
@@ -69,14 +69,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: tracer
 
     // 4. Every frame: GL draws, Vulkan traces and accumulates, GL reads
-    // Each pass's GPU time (common::timing): GL's read when they arrive, the trace's just before
+    // Each pass's GPU time (common::base::timing): GL's read when they arrive, the trace's just before
     // the next trace, which waits for the previous one's fence anyway.
     let (mut gl_timer, mut times, timestamps) =
         (GlPassTimer::new(gl)?, PassTimes::new(), Timestamps::new(&vk)?);
     let (mut trace_pending, mut rays) = (false, 0u64);
     let mut first_noise = None;
     let mut positions = Vec::new();
-    let nothing_to_trace = common::ao::nothing_to_trace(args.ao.samples, radius);
+    let nothing_to_trace = common::rt::ao::nothing_to_trace(args.ao.samples, radius);
     if let Some(reason) = nothing_to_trace {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
         report.set("ao_skipped", reason);

@@ -2,11 +2,12 @@
 //! CPU, the overlays' depth test against the G-buffers, the trace's timings, and the PNGs.
 
 use anyhow::Result;
-use common::ao::AoTracer;
+use common::Report;
+use common::base::output;
 use common::frame::{Composite, Overlays, Pixels, Uniforms, View, matches_reference, shows_colour};
-use common::gbuffer::GBuffers;
+use common::rt::ao::AoTracer;
 use common::scene::Camera;
-use common::{Report, output};
+use common::scene::gbuffer::GBuffers;
 use std::path::Path;
 
 /// What the last frame drew with, for checking it and writing it out.

@@ -11,17 +11,17 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
-use common::ao::{AoArgs, AoTracer};
-use common::commands::Timestamps;
+use common::base::commands::Timestamps;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::base::window::{Key, NamedKey, Window};
 use common::frame::{Composite, Overlays, Uniforms, View};
-use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::handoff::Handoff;
-use common::raytrace::AoRays;
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BlasLayout, TlasFlags};
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::scene::gbuffer::GBuffers;
 use common::scene::{Camera, Scene, SceneArgs};
-use common::timing::{GlPassTimer, PassTimes};
-use common::window::{Key, NamedKey, Window};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
@@ -113,7 +113,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let headless = args.common.headless || !common::window::display_available();
+    let headless = args.common.headless || !common::base::window::display_available();
     if !args.common.headless && headless {
         eprintln!("window: no display (DISPLAY / WAYLAND_DISPLAY unset): running headless");
     }
@@ -126,7 +126,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, vk::Extent2D { width: size.width, height: size.height })?;
+    common::scene::gbuffer::check_size(
+        &vk,
+        &gl_context,
+        vk::Extent2D { width: size.width, height: size.height },
+    )?;
     report.set("window", window.is_some());
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
@@ -135,7 +139,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
     let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let commands = &shared.commands;
-    let extent = |size: common::cli::Size| vk::Extent2D { width: size.width, height: size.height };
+    let extent = |size: common::base::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
     let mut gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
     let mut tracer =
@@ -183,7 +187,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             }
             let (width, height) = window.size();
             if (width, height) != (size.width, size.height) && width > 0 && height > 0 {
-                new_size = Some(common::cli::Size { width, height });
+                new_size = Some(common::base::cli::Size { width, height });
             }
         } else if frame >= frame_limit {
             break;
@@ -191,7 +195,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // Headless, the same path a window's resize takes: three quarters, whole, half.
             let quarters = [2, 3, 4][(frame / every) as usize % 3];
             let scale = |side: u32| (side * quarters / 4).max(8);
-            new_size = Some(common::cli::Size {
+            new_size = Some(common::base::cli::Size {
                 width: scale(args.common.size.width),
                 height: scale(args.common.size.height),
             });
@@ -212,7 +216,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             resizes += 1;
             if resizes == 1 {
                 // What exists after one resize must be what exists after every later one.
-                let live = (common::resources::live(), gl_context.live_objects());
+                let live = (common::base::resources::live(), gl_context.live_objects());
                 fds_after_first_resize = Some((open_fd_count()?, live));
             }
         }
@@ -220,7 +224,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
-        if let Some(reason) = common::ao::nothing_to_trace(settings.samples, settings.radius) {
+        if let Some(reason) = common::rt::ao::nothing_to_trace(settings.samples, settings.radius) {
             if skipped.replace(reason).is_none() {
                 eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
             }
@@ -230,7 +234,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let scene_scale = scene.size() / 2.0;
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
             if std::mem::take(&mut trace_pending) {
-                common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+                common::base::timing::read_after(
+                    &vk,
+                    commands.fence,
+                    timestamps.as_ref(),
+                    "ao_trace",
+                    &mut times,
+                )?;
             }
             tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
@@ -258,7 +268,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.check("no_fd_growth_across_resizes", open_fd_count()? == fds);
         // Exportable and host memory, exportable images, GL's memory objects, textures and
         // renderbuffers, as counted where they are made and destroyed...
-        let now = common::resources::live();
+        let now = common::base::resources::live();
         report.check("no_resource_growth_across_resizes", now == live);
         report.set("live_resources_after_resizes", now);
         // ... and every kind of GL object, as GL itself counts them.
@@ -267,7 +277,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("live_gl_objects_after_resizes", gl_now);
     }
     if trace_pending {
-        common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+        common::base::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
     }
     gl_timer.finish(gl, &mut times);
     times.record(report);

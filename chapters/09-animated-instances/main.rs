@@ -9,18 +9,19 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::accel::{InPlace, RayTracedScene, Refresh, TlasFlags, instances_geometry};
-use common::ao::{AoArgs, AoTracer};
-use common::cli::AnimationArgs;
-use common::commands::{Commands, Timestamps};
+use common::base::cli::AnimationArgs;
+use common::base::commands::{Commands, Timestamps};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms, View};
-use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::handoff::Handoff;
-use common::raytrace::AoRays;
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::accel::{InPlace, Refresh, TlasFlags, instances_geometry};
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::Camera;
-use common::timing::{GlPassTimer, PassTimes};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use common::scene::gbuffer::GBuffers;
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -60,7 +61,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (scene, ring) = ring::scene(&args.model, args.count, args.lap, args.animation.time)?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
-    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+    if let Some(reason) = common::rt::ao::nothing_to_trace(args.ao.samples, radius) {
         anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
     }
     report.set("runners", ring.count);
@@ -71,7 +72,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
@@ -118,7 +119,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
     let frames = args.common.frame_count(false);
     let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-    // Each pass's GPU time (common::timing): GL's read when they arrive, Vulkan's after the wait
+    // Each pass's GPU time (common::base::timing): GL's read when they arrive, Vulkan's after the wait
     // at the top of the next frame, which the frame makes anyway.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_refresh = None;
@@ -181,7 +182,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Check the last frame's occlusion, the motion, and write the frames
     let (w, h) = (extent.width, extent.height);
-    common::ao::check_occlusion(report, gl, &gbuffers, &tracer);
+    common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
     let moved = frames > 1 && args.animation.step > 0.0;
     output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 

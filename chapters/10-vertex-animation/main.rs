@@ -9,18 +9,18 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
-use common::ao::{AoArgs, AoTracer};
-use common::cli::AnimationArgs;
-use common::commands::{Commands, Timestamps};
+use common::base::cli::AnimationArgs;
+use common::base::commands::{Commands, Timestamps};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{self, GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms, View};
-use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::handoff::{Handoff, SharedSemaphore};
-use common::raytrace::AoRays;
+use common::interop::handoff::{Handoff, SharedSemaphore};
+use common::rt::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::scene::gbuffer::{GBuffers, SceneBuffers};
 use common::scene::{Camera, Instance, Scene, ground_plane};
-use common::timing::{self, GlPassTimer, PassTimes};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glam::{Mat4, Vec3};
 use glow::HasContext;
 use gpu_allocator::MemoryLocation;
@@ -71,7 +71,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let scene = Scene::new(vec![ground_plane(), mesh], instances, vec![0..1, 1..2])?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
-    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+    if let Some(reason) = common::rt::ao::nothing_to_trace(args.ao.samples, radius) {
         anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
     }
     report.set("vertices", count);
@@ -82,7 +82,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
@@ -145,7 +145,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         MemoryLocation::CpuToGpu,
     )?;
     let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
-    mapped[..rest_bytes as usize].copy_from_slice(common::gbuffer::as_bytes(&rest_directions));
+    mapped[..rest_bytes as usize].copy_from_slice(common::scene::gbuffer::as_bytes(&rest_directions));
     let mut wave = Wave {
         vertices: buffers.meshes[1][0].0.device_address(&vk),
         directions: rest.address,
@@ -174,7 +174,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Every frame: move the vertices, refit, update, draw, trace, composite
     let frames = args.common.frame_count(false);
-    // Each pass's GPU time (common::timing), read once its fence has signalled for the next
+    // Each pass's GPU time (common::base::timing), read once its fence has signalled for the next
     // frame's submission on it, which waits anyway: timing adds no wait.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let (mut animated, mut traced) = (None, false);
@@ -262,7 +262,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         unsafe { std::slice::from_raw_parts(moved.mapped.cast::<common::scene::Vertex>(), count as usize) };
     report.check("vertices_match_cpu_reference", sphere::vertices_match(&wave, &directions, gpu));
     let (w, h) = (extent.width, extent.height);
-    common::ao::check_occlusion(report, gl, &gbuffers, &tracer);
+    common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
     let moved = frames > 1 && args.animation.step > 0.0;
     output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 

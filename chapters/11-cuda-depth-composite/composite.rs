@@ -34,11 +34,14 @@ impl PixelBuffer {
             let pbo = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
             // Written by the tracer every frame, read by GL's copies: STREAM_DRAW.
             gl.named_buffer_data_size(pbo, traced_bytes(width, height) as i32, glow::STREAM_DRAW);
-            common::resources::created("gl_buffer: PBO", traced_bytes(width, height));
+            common::base::resources::created("gl_buffer: PBO", traced_bytes(width, height));
             let texture = |format| -> Result<glow::Texture> {
                 let texture = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
                 gl.texture_storage_2d(texture, 1, format, width as i32, height as i32);
-                common::resources::created(&format!("gl_texture: {format:#x}"), 4 * (width * height) as u64);
+                common::base::resources::created(
+                    &format!("gl_texture: {format:#x}"),
+                    4 * (width * height) as u64,
+                );
                 Ok(texture)
             };
             Ok(PixelBuffer {
@@ -125,8 +128,8 @@ pub struct DepthUniforms {
 
 impl Composite {
     pub fn new(gl: &glow::Context, width: u32, height: u32, spheres: &[Sphere]) -> Result<Self> {
-        let traced_program = common::gl::program(gl, FULLSCREEN, RAYTRACED)?;
-        let lines_program = common::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
+        let traced_program = common::base::gl::program(gl, FULLSCREEN, RAYTRACED)?;
+        let lines_program = common::base::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
         // ANCHOR: lines
         let mut lines = Lines::default();
         // An axis gizmo from the first sphere's centre: each half-axis starts inside the sphere
@@ -170,7 +173,7 @@ impl Composite {
                 gl.bind_renderbuffer(glow::RENDERBUFFER, Some(rb));
                 gl.renderbuffer_storage(glow::RENDERBUFFER, format, width as i32, height as i32);
                 gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-                common::resources::created(
+                common::base::resources::created(
                     &format!("gl_renderbuffer: {format:#x}"),
                     (bytes_per_pixel * width * height) as u64,
                 );
@@ -317,9 +320,9 @@ impl Composite {
         unsafe {
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.depth);
-            common::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::DEPTH_COMPONENT24));
+            common::base::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::DEPTH_COMPONENT24));
             gl.delete_renderbuffer(self.colour);
-            common::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::RGBA8));
+            common::base::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::RGBA8));
             self.vertices.delete(gl);
             gl.delete_vertex_array(self.empty);
             gl.delete_program(self.lines_program);

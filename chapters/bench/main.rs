@@ -13,11 +13,12 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
-use common::cli::Size;
-use common::commands::Timestamps;
-use common::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
-use common::handoff::Handoff;
+use common::base::cli::Size;
+use common::base::commands::Timestamps;
+use common::base::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BlasLayout, TlasFlags};
 use common::scene::Scene;
 use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
 use std::path::PathBuf;
@@ -153,7 +154,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
     gl.set_debug_output(args.gl_debug);
-    common::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);
+    common::interop::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);
     let settings = serde_json::json!({
         "gl_debug": args.gl_debug,
         "depth_prepass": args.depth_prepass,

@@ -2,8 +2,8 @@
 //! an offscreen colour buffer whose depth buffer is the G-buffer pass's.
 
 use super::overlay::Target;
-use crate::ao::AoTracer;
-use crate::gbuffer::GBuffers;
+use crate::rt::ao::AoTracer;
+use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
 use glam::Vec3;
 use glow::HasContext;
@@ -64,7 +64,7 @@ pub struct Composite {
 
 impl Composite {
     pub fn new(gl: &std::rc::Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
-        let program = crate::gl::program(gl, FULLSCREEN, COMPOSITE)?;
+        let program = crate::base::gl::program(gl, FULLSCREEN, COMPOSITE)?;
         // Core profile draws need a vertex array bound, even one that feeds nothing.
         let empty = unsafe { gl.create_named_vertex_array() }.map_err(anyhow::Error::msg)?;
         let (framebuffer, colour) = unsafe { new_target(gl, gbuffers)? };
@@ -78,7 +78,7 @@ impl Composite {
         unsafe {
             gl.delete_framebuffer(std::mem::replace(&mut self.framebuffer, framebuffer));
             gl.delete_renderbuffer(std::mem::replace(&mut self.colour, colour));
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
         }
         (self.width, self.height) = (gbuffers.extent.width, gbuffers.extent.height);
         Ok(())
@@ -174,7 +174,7 @@ impl Drop for Composite {
         unsafe {
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.colour);
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
             gl.delete_vertex_array(self.empty);
             gl.delete_program(self.program);
         }
@@ -194,7 +194,7 @@ unsafe fn new_target(
         let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-        crate::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
+        crate::base::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         gl.named_framebuffer_renderbuffer(
             Some(fb),
@@ -212,7 +212,7 @@ unsafe fn new_target(
         if status != glow::FRAMEBUFFER_COMPLETE {
             gl.delete_framebuffer(fb);
             gl.delete_renderbuffer(colour);
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
             anyhow::bail!("composite framebuffer incomplete: {status:#x}");
         }
         Ok((fb, colour))

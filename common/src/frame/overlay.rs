@@ -82,11 +82,11 @@ pub struct LineBuffer {
 
 impl LineBuffer {
     pub fn new(gl: &glow::Context, vertices: &[LineVertex]) -> Result<Self> {
-        let bytes = crate::gbuffer::as_bytes(vertices);
+        let bytes = crate::scene::gbuffer::as_bytes(vertices);
         unsafe {
             let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
             gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
-            crate::resources::created("gl_buffer", bytes.len() as u64);
+            crate::base::resources::created("gl_buffer", bytes.len() as u64);
             let vertex_array = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
             let stride = size_of::<LineVertex>() as i32;
             gl.vertex_array_vertex_buffer(vertex_array, 0, Some(buffer), 0, stride);
@@ -146,7 +146,7 @@ impl Overlays {
         };
         lines.box_edges(corner, [255, 0, 255]);
         // ANCHOR_END: lines
-        let program = crate::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
+        let program = crate::base::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
         let count = lines.vertices.len() as i32;
         let lines = LineBuffer::new(gl, &lines.vertices)?;
         Ok(Overlays { program, lines, count, axes })

@@ -2,9 +2,9 @@
 //! composite's formula on the CPU, and whether a line's colour shows at a pixel.
 
 use super::composite::Uniforms;
-use crate::ao::AoTracer;
-use crate::gbuffer::GBuffers;
-use crate::output;
+use crate::base::output;
+use crate::rt::ao::AoTracer;
+use crate::scene::gbuffer::GBuffers;
 use glam::Vec3;
 
 /// Does the line's colour appear within a pixel of (x, y)? (A 1-pixel line may be rasterised on

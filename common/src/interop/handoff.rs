@@ -1,7 +1,8 @@
 //! How GL and Vulkan take turns on shared memory (taught in chapter 03): two exported
 //! semaphores where both drivers can share them, or the CPU waiting for each side where not.
 
-use crate::{GlContext, VulkanContext};
+use crate::base::gl::GlContext;
+use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
@@ -19,7 +20,7 @@ pub struct SharedSemaphore {
     /// GL's name for it; 0 until the import succeeded.
     pub gl: u32,
     device: ash::Device,
-    gl_fns: Option<crate::gl::SemaphoreFns>,
+    gl_fns: Option<crate::base::gl::SemaphoreFns>,
 }
 
 /// The two hand-overs of every frame, and how they are made.
@@ -74,7 +75,7 @@ pub struct HandOver {
 impl HandOver {
     /// GL's names for the two layouts, for [`Handoff::gl_release`] and [`Handoff::gl_acquire`].
     pub fn gl(self) -> (u32, u32) {
-        let name = |layout| crate::gl::layout::of(layout).expect("a layout GL can name");
+        let name = |layout| crate::base::gl::layout::of(layout).expect("a layout GL can name");
         (name(self.to_vulkan), name(self.to_gl))
     }
 }
@@ -204,7 +205,7 @@ impl Handoff {
         layouts: &[u32],
     ) -> Result<()> {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
-        crate::fail::at("gl_acquire")?; // `VKGL_FAIL_AT=gl_acquire`, for the error-path tests
+        crate::base::fail::at("gl_acquire")?; // `VKGL_FAIL_AT=gl_acquire`, for the error-path tests
         match self {
             Handoff::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -251,13 +252,13 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
         if actual != Some(layout) {
             misnamed += 1;
             let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
-                format!("{} (Vulkan's last release)", crate::gl::layout::name(*l))
+                format!("{} (Vulkan's last release)", crate::base::gl::layout::name(*l))
             });
             eprintln!(
                 "sync: host path: texture {} handed to Vulkan as {}, but GL moves no layout here \
                  and it is in {actual}",
                 texture.0.get(),
-                crate::gl::layout::name(*layout)
+                crate::base::gl::layout::name(*layout)
             );
         }
     }
@@ -288,7 +289,7 @@ impl SharedSemaphore {
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
-        crate::resources::created("vk_semaphore_exportable", 0);
+        crate::base::resources::created("vk_semaphore_exportable", 0);
         // From here on the guard destroys what exists on every early return.
         let mut shared =
             SharedSemaphore { vk: semaphore, gl: 0, device: vk.device.clone(), gl_fns: Some(*ext) };
@@ -300,7 +301,7 @@ impl SharedSemaphore {
         let fd = unsafe { OwnedFd::from_raw_fd(fd) };
         unsafe { (ext.GenSemaphoresEXT)(1, &mut shared.gl) };
         unsafe {
-            (ext.ImportSemaphoreFdEXT)(shared.gl, crate::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
+            (ext.ImportSemaphoreFdEXT)(shared.gl, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
         };
         // On failure `fd` is dropped, and so closed (the failed import did not take it), and
         // `shared` deletes GL's semaphore and Vulkan's.
@@ -319,7 +320,7 @@ impl SharedSemaphore {
 
 impl Drop for SharedSemaphore {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.device);
+        crate::base::commands::wait_idle(&self.device);
         if let (Some(ext), true) = (&self.gl_fns, self.gl != 0) {
             unsafe { (ext.DeleteSemaphoresEXT)(1, &self.gl) };
         }

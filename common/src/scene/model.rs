@@ -172,8 +172,8 @@ pub fn default_scene(count: u32, seed: u64) -> Scene {
 }
 
 /// The default scene's meshes, kept as OBJ files in `assets/` and built into the binaries.
-const TETRAHEDRON_OBJ: &str = include_str!("../../assets/tetrahedron.obj");
-const GROUND_OBJ: &str = include_str!("../../assets/ground.obj");
+const TETRAHEDRON_OBJ: &str = include_str!("../../../assets/tetrahedron.obj");
+const GROUND_OBJ: &str = include_str!("../../../assets/ground.obj");
 
 /// A regular tetrahedron of circumradius 1 with one normal per face (12 vertices).
 pub fn tetrahedron() -> Mesh {

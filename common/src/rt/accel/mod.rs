@@ -3,10 +3,10 @@
 //!
 //! Nothing here is shared with GL, so it lives in ordinary memory from gpu-allocator.
 
-use crate::VulkanContext;
-use crate::commands::{Commands, Timestamps};
-use crate::exportable::ExportedBuffer;
-use crate::gbuffer::SceneBuffers;
+use crate::base::commands::{Commands, Timestamps};
+use crate::base::vulkan::VulkanContext;
+use crate::interop::exportable::ExportedBuffer;
+use crate::scene::gbuffer::SceneBuffers;
 use crate::scene::{Instance, Scene};
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -64,7 +64,7 @@ impl DeviceBuffer {
             .allocate(&description)
             .with_context(|| format!("allocating {size} bytes for {name}"))?;
         let allocation = &guarded.allocation;
-        crate::resources::created(&format!("vk_buffer: {name}"), allocation.size());
+        crate::base::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
         guarded.address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
@@ -82,7 +82,7 @@ impl DeviceBuffer {
 
 impl Drop for DeviceBuffer {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.device);
+        crate::base::commands::wait_idle(&self.device);
         unsafe { self.device.destroy_buffer(self.buffer, None) };
     }
 }
@@ -121,7 +121,7 @@ impl AccelerationStructure {
         let handle = unsafe { loader.create_acceleration_structure(&info, None) }
             .context("vkCreateAccelerationStructureKHR")?;
         // Its bytes are counted with its buffer; the kind says what was built, and how.
-        crate::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
+        crate::base::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
@@ -143,7 +143,7 @@ impl AccelerationStructure {
 
 impl Drop for AccelerationStructure {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.buffer.device);
+        crate::base::commands::wait_idle(&self.buffer.device);
         unsafe { self.loader.destroy_acceleration_structure(self.handle, None) };
     }
 }
@@ -493,7 +493,7 @@ fn one_instance(
     let mut instance = crate::scene::Instance::new(glam::Mat4::IDENTITY, [255, 255, 255]);
     instance.blas_address = blas;
     let mapped = buffer.allocation.mapped_slice_mut().context("the instance buffer is mapped")?;
-    mapped[..size as usize].copy_from_slice(crate::gbuffer::as_bytes(std::slice::from_ref(&instance)));
+    mapped[..size as usize].copy_from_slice(crate::scene::gbuffer::as_bytes(std::slice::from_ref(&instance)));
     Ok(buffer)
 }
 
@@ -584,7 +584,7 @@ struct QueryPool {
 
 impl Drop for QueryPool {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.device);
+        crate::base::commands::wait_idle(&self.device);
         unsafe { self.device.destroy_query_pool(self.pool, None) };
     }
 }
@@ -592,7 +592,7 @@ impl Drop for QueryPool {
 fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
     let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
-    crate::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
+    crate::base::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
     Ok(QueryPool { pool, device: vk.device.clone() })
 }
 
@@ -669,60 +669,6 @@ impl Scratch {
 
     fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
         self.buffer.destroy(vk, allocator);
-    }
-}
-
-/// Chapters 05 and 06 in one call, for the chapters after them: the scene's buffers shared with
-/// GL and readable by acceleration-structure builds, the structures built from them, and the
-/// allocator and command buffer that took.
-/// (Fields are dropped in this order on an early return: newest first, as in `destroy`.)
-pub struct RayTracedScene {
-    pub structures: SceneAccel,
-    pub commands: Commands,
-    pub allocator: Allocator,
-    pub buffers: SceneBuffers,
-}
-
-impl RayTracedScene {
-    pub fn new(vk: &VulkanContext, gl: &crate::GlContext, scene: &Scene) -> Result<Self> {
-        Self::with_tlas(vk, gl, scene, TlasFlags::STATIC)
-    }
-
-    /// [`RayTracedScene::new`], with the TLAS built with `tlas_flags`.
-    pub fn with_tlas(
-        vk: &VulkanContext,
-        gl: &crate::GlContext,
-        scene: &Scene,
-        tlas_flags: TlasFlags,
-    ) -> Result<Self> {
-        Self::with_layout(vk, gl, scene, tlas_flags, BlasLayout::PerMesh)
-    }
-
-    /// [`RayTracedScene::with_tlas`], with the BLASes laid out as `layout` says.
-    pub fn with_layout(
-        vk: &VulkanContext,
-        gl: &crate::GlContext,
-        scene: &Scene,
-        tlas_flags: TlasFlags,
-        layout: BlasLayout,
-    ) -> Result<Self> {
-        check_limits(vk, scene)?;
-        let mut allocator = allocator(vk)?;
-        let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
-            | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
-        let buffers = SceneBuffers::share(vk, gl, scene, usage)?;
-        let commands = Commands::new(vk)?;
-        let structures = build_with(vk, &mut allocator, &commands, scene, &buffers, tlas_flags, layout)?;
-        Ok(RayTracedScene { allocator, buffers, commands, structures })
-    }
-
-    /// Newest first: the structures, the command buffer (after its last submission), the
-    /// allocator's memory, then the shared buffers, GL's side first.
-    pub fn destroy(mut self, vk: &VulkanContext, gl: &crate::GlContext) {
-        self.structures.destroy(vk, &mut self.allocator);
-        self.commands.destroy(vk);
-        drop(self.allocator);
-        self.buffers.destroy(vk, gl);
     }
 }
 

@@ -4,7 +4,7 @@
 //! Support is decided from GL's extension list only: Mesa's `eglGetProcAddress` returns a
 //! non-null stub for any name at all, so a non-null pointer proves nothing.
 
-use crate::vulkan::{DeviceInfo, hidden_extensions};
+use crate::base::vulkan::{DeviceInfo, hidden_extensions};
 use anyhow::{Context as _, Result, bail};
 use glow::HasContext;
 use glutin::api::egl;
@@ -352,12 +352,12 @@ impl GlContext {
     }
 
     /// The `gl` section of the chapter report.
-    pub fn report(&self) -> crate::report::GlReport {
-        crate::report::GlReport {
+    pub fn report(&self) -> crate::base::report::GlReport {
+        crate::base::report::GlReport {
             renderer: self.renderer.clone(),
             version: self.version.clone(),
-            device_uuid: crate::report::uuid_hex(&self.device_uuid),
-            driver_uuid: crate::report::uuid_hex(&self.driver_uuid),
+            device_uuid: crate::base::report::uuid_hex(&self.device_uuid),
+            driver_uuid: crate::base::report::uuid_hex(&self.driver_uuid),
             extensions: self.required.clone(),
         }
     }
@@ -381,7 +381,7 @@ pub fn uuids_match(vulkan: &DeviceInfo, gl: &GlContext) -> bool {
 /// GL and Vulkan must run on the same device and driver: an OPAQUE_FD handle means something
 /// only to the driver that made it. On a laptop with two GPUs, GL may well run on the other one.
 pub fn ensure_same_device(vulkan: &DeviceInfo, gl: &GlContext) -> Result<()> {
-    let hex = crate::report::uuid_hex;
+    let hex = crate::base::report::uuid_hex;
     if !uuids_match(vulkan, gl) {
         bail!(
             "GL and Vulkan run on different devices or drivers, so they cannot share memory:\n  \
@@ -498,7 +498,7 @@ pub fn program_with_geometry(
 fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow::Program> {
     unsafe {
         let program = gl.create_program().map_err(anyhow::Error::msg)?;
-        crate::resources::created("gl_program", 0);
+        crate::base::resources::created("gl_program", 0);
         let mut shaders = Vec::new();
         for &(kind, source, name) in stages {
             let shader = gl.create_shader(kind).map_err(anyhow::Error::msg)?;
@@ -528,7 +528,7 @@ fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow
     }
 }
 
-/// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::output`].
+/// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::base::output`].
 /// Deleted when dropped.
 pub struct RenderTarget {
     pub framebuffer: glow::Framebuffer,
@@ -545,7 +545,7 @@ impl RenderTarget {
             gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
             gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, width as i32, height as i32);
             gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-            crate::resources::created("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
+            crate::base::resources::created("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
             let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
             gl.named_framebuffer_renderbuffer(
                 Some(framebuffer),
@@ -557,7 +557,7 @@ impl RenderTarget {
             if status != glow::FRAMEBUFFER_COMPLETE {
                 gl.delete_framebuffer(framebuffer);
                 gl.delete_renderbuffer(colour);
-                crate::resources::destroyed("gl_renderbuffer: RGBA8");
+                crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
                 bail!("offscreen framebuffer incomplete: {status:#x}");
             }
             Ok(RenderTarget { framebuffer, colour, width, height, gl: gl.clone() })
@@ -584,7 +584,7 @@ impl Drop for RenderTarget {
             self.gl.bind_framebuffer(glow::FRAMEBUFFER, None);
             self.gl.delete_framebuffer(self.framebuffer);
             self.gl.delete_renderbuffer(self.colour);
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
         }
     }
 }

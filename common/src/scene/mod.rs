@@ -1,0 +1,7 @@
+//! The scene layer: meshes, instances and the camera (plain CPU data), and the scene GL
+//! rasterises into G-buffers Vulkan can read (chapter 05).
+
+pub mod gbuffer;
+mod model;
+
+pub use model::*;
