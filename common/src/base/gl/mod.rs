@@ -86,7 +86,7 @@ macro_rules! gl_functions {
                             bail!("the GL driver lists the extension but has no {name:?}");
                         }
                         // SAFETY: a non-null GL entry point with this signature (from the extension spec).
-                        unsafe { std::mem::transmute::<*const c_void, _>(pointer) }
+                        unsafe { std::mem::transmute::<*const c_void, unsafe extern "system" fn($($ty),*) $(-> $ret)?>(pointer) }
                     },)*
                 })
             }
