@@ -1,9 +1,9 @@
 //! Error paths: chapters made to fail half-way, after both contexts and the shared resources
-//! exist, must still leave nothing behind. `VKGL_FAIL_AT=<point>` (common::fail) makes a named
+//! exist, must still leave nothing behind. `VKGL_FAIL_AT=<point>` (common::base::fail) makes a named
 //! step fail as a driver might; each run must exit 2 with an error naming the step, without a
 //! panic, without a single validation message (a Vulkan object still alive when the device is
 //! destroyed is one: "has not been destroyed"), with no counted resource alive at exit
-//! (`common::resources::live`), and with no file descriptor left open beyond those the driver
+//! (`common::base::resources::live`), and with no file descriptor left open beyond those the driver
 //! keeps after a successful run (`VKGL_FAIL_AT=none`, the baseline).
 
 mod harness;

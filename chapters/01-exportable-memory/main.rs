@@ -9,8 +9,8 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
-use common::exportable::{self, Dedicated, HANDLE_TYPE};
-use common::report::uuid_hex;
+use common::base::report::uuid_hex;
+use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use serde_json::json;
 use std::ffi::CStr;
@@ -134,7 +134,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .usage(buffer_usage)
         .push_next(&mut buffer_external);
     let buffer = unsafe { ctx.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
-    common::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
+    common::base::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
 
     // The image is made the same way, with ExternalMemoryImageCreateInfo (see exportable.rs).
     let extent = vk::Extent2D { width: size.width, height: size.height };

@@ -8,9 +8,11 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
-use common::exportable::{self, Dedicated, HANDLE_TYPE};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device};
-use common::{CommonArgs, Report, Requirements, VulkanContext, interop, ms_since, open_fd_count, output};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device};
+use common::base::output;
+use common::interop;
+use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::process::ExitCode;
@@ -59,7 +61,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Check that both run on the same device
     // ANCHOR: uuids
-    report.uuids_match = Some(common::gl::uuids_match(&vk.info, &gl_context));
+    report.uuids_match = Some(common::base::gl::uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     // ANCHOR_END: uuids
     let open_fds_before = open_fd_count()?;
@@ -72,7 +74,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
         .push_next(&mut external);
     let buffer = unsafe { vk.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
-    common::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
+    common::base::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
     let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
     let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
@@ -97,7 +99,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Draw from it
     // ANCHOR: draw_setup
-    let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
+    let program = common::base::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
     let vertex_array = unsafe {
         let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
         // The imported buffer is an ordinary GL buffer now: bind it like any other.
@@ -111,8 +113,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let target = RenderTarget::new(gl, width, height)?;
     // ANCHOR_END: draw_setup
-    // The draw's GPU time (common::timing; the read-back waits for it anyway).
-    let (mut gl_timer, mut times) = (common::timing::GlPassTimer::new(gl)?, common::timing::PassTimes::new());
+    // The draw's GPU time (common::base::timing; the read-back waits for it anyway).
+    let (mut gl_timer, mut times) =
+        (common::base::timing::GlPassTimer::new(gl)?, common::base::timing::PassTimes::new());
     let mut draw = |name: &str, report: &mut Report| -> Result<Vec<u8>> {
         gl_timer.time(gl, "gl_draw", || unsafe {
             target.bind(gl);

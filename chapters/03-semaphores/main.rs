@@ -10,12 +10,13 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{self, SharedImage};
-use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
-use common::timing::{GlPassTimer, PassTimes};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, output};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::process::ExitCode;
@@ -70,8 +71,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Share two semaphores, or fall back to the host
     // ANCHOR: sync
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(if args.unsynchronised { "none" } else { sync.name() });
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(if args.unsynchronised { "none" } else { handoff.name() });
     // ANCHOR_END: sync
     // ANCHOR: layouts
     // Where GL leaves the image for Vulkan: ready to be copied from. Where Vulkan leaves it for GL:
@@ -79,7 +80,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // the next frame. With semaphores, GL makes both transitions as part of its signal and wait;
     // on the host path GL makes none, and `hand_over` answers GENERAL for both.
     let layouts =
-        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+        handoff.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
     let (signal_layout, wait_layout) = layouts.gl(); // the same two, as GL's signal and wait name them
     // ANCHOR_END: layouts
 
@@ -109,7 +110,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gl_timer.time(gl, "gl_clear", || unsafe { gl.clear(glow::COLOR_BUFFER_BIT) })?;
         let handshake = Instant::now();
         if !args.unsynchronised {
-            sync.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
+            handoff.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
         }
         let mut handshake_cpu = ms_since(handshake);
         // ANCHOR_END: gl_turn
@@ -133,9 +134,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: submit
         // Wait for GL's signal before the copy (TRANSFER) stage; nothing earlier touches the image.
         let (wait, signal) = match args.unsynchronised {
-            false => {
-                (sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER)), sync.vulkan_signals())
-            }
+            false => (
+                handoff.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER)),
+                handoff.vulkan_signals(),
+            ),
             true => (None, None),
         };
         commands.submit(&vk, wait, signal)?;
@@ -145,7 +147,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: gl_reads
         if !args.unsynchronised {
             let texture = image.texture.texture;
-            sync.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[wait_layout])?;
+            handoff.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[wait_layout])?;
         }
         handshake_cpu += ms_since(handshake);
         let seen = output::read_gl_rgba8(gl, extent.width, extent.height);
@@ -188,11 +190,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     )?;
     times.record(report);
     let (median, _) = median_p95(times.samples("handshake_cpu"));
-    eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", sync.name());
+    eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", handoff.name());
     report.set("frames", frames);
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 6. Clean up, newest first (the GPU is idle: the last fence has signalled, GL has read)
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -203,7 +205,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     commands.destroy(&vk);
     gl_timer.delete(gl);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     unsafe { gl.delete_framebuffer(framebuffer) };
     image.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup

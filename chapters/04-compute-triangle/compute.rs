@@ -4,7 +4,7 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
-use common::commands::{Timestamps, first_use};
+use common::base::commands::{Timestamps, first_use};
 use common::interop::{SharedImage, acquire_from_gl, release_to_gl};
 
 const COMPUTE_SPIRV: &[u8] = include_bytes!("../../shaders/compute_triangle.comp.spv");
@@ -62,7 +62,7 @@ impl ComputePipeline {
             unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None) }
                 .map_err(|(_, e)| e)
                 .context("vkCreateComputePipelines")?[0];
-        common::resources::created("vk_pipeline: compute", 0); // for the report's list of resources
+        common::base::resources::created("vk_pipeline: compute", 0); // for the report's list of resources
         unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
         let pool_sizes =
             [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];

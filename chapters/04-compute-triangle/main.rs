@@ -3,7 +3,7 @@
 //! NVIDIA's gl_vk_simple_interop, in Rust. Every frame a Vulkan compute shader writes an animated
 //! image and OpenGL draws a triangle textured with it. Both the image and the triangle's vertex
 //! buffer are Vulkan memory that GL imported; the CPU moves the triangle by writing through
-//! Vulkan's mapping, and chapter 03's `Sync` orders the two APIs. In a window, `+` and `-` double
+//! Vulkan's mapping, and chapter 03's `Handoff` orders the two APIs. In a window, `+` and `-` double
 //! and halve the image, which recreates it (and leaks nothing); Esc quits.
 //!
 //! Run: `cargo run --bin 04-compute-triangle` (a window; `--headless` writes out/04-compute-triangle/*.png).
@@ -14,12 +14,13 @@ mod compute;
 use anyhow::{Result, bail};
 use ash::vk;
 use check::Checks;
-use common::commands::{Commands, Timestamps};
-use common::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
+use common::base::commands::{Commands, Timestamps};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
+use common::base::output;
+use common::base::window::{self, Key, NamedKey, Window};
+use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{self, SharedImage};
-use common::sync::{SEMAPHORE_EXTENSION, Sync};
-use common::window::{self, Key, NamedKey, Window};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use compute::ComputePipeline;
 use glow::HasContext;
 use std::f32::consts::{FRAC_PI_2, TAU};
@@ -139,8 +140,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     common::connect(report, &vk, &gl_context)?;
     report.set("window", windowed);
     let open_fds_before = open_fd_count()?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let commands = Commands::new(&vk)?;
     let timestamps = Timestamps::new(&vk)?;
 
@@ -165,7 +166,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let largest = compute::largest_image_side(&vk, gl); // where '+' stops
 
     // 5. Prepare GL's draw
-    let program = common::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
+    let program = common::base::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
     let vertex_array = unsafe {
         let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
         for (location, offset) in [(0, 0), (1, 8)] {
@@ -182,7 +183,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     let out_dir = args.common.out_dir(CHAPTER);
     let started = Instant::now();
-    let (mut checks, mut gl_timer) = (Checks::default(), common::timing::GlPassTimer::new(gl)?);
+    let (mut checks, mut gl_timer) = (Checks::default(), common::base::timing::GlPassTimer::new(gl)?);
     let mut resizes = 0;
     let mut frame = 0;
     while frames == 0 || frame < frames {
@@ -269,20 +270,20 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let texture = [image.texture.texture];
         // GL names the layout its release leaves the image in; Vulkan's barrier starts from the same.
         let handed = if image_is_new { 0 } else { 1 };
-        sync.gl_release(&gl_context, &texture[..handed], &[layout::SHADER_READ_ONLY][..handed]);
+        handoff.gl_release(&gl_context, &texture[..handed], &[layout::SHADER_READ_ONLY][..handed]);
         if let Some(t) = &timestamps {
             t.reset(&vk, cb);
         }
         compute.record(&vk, cb, &image, image_is_new, time, timestamps.as_ref());
         // Wait for GL at the compute stage: nothing before the dispatch touches the image.
-        let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::COMPUTE_SHADER));
-        commands.submit(&vk, wait, sync.vulkan_signals())?;
+        let wait = handoff.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::COMPUTE_SHADER));
+        commands.submit(&vk, wait, handoff.vulkan_signals())?;
         // ANCHOR_END: compute
 
         // 9. Vulkan hands the image back; GL draws
         // ANCHOR: draw
         // SHADER_READ_ONLY: where Vulkan's release barrier left it. GL must be told the same.
-        sync.gl_acquire(&vk, &gl_context, commands.fence, &texture, &[layout::SHADER_READ_ONLY])?;
+        handoff.gl_acquire(&vk, &gl_context, commands.fence, &texture, &[layout::SHADER_READ_ONLY])?;
         image_is_new = false;
         let (width, height) = window.as_ref().map_or((size.width, size.height), |w| w.size());
         gl_timer.time(gl, "gl_draw", || unsafe {
@@ -330,7 +331,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("compute_image", [extent.width, extent.height]);
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 11. Clean up, newest first, once both APIs are idle
     // ANCHOR: cleanup
     unsafe {
@@ -353,7 +354,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         t.destroy(&vk);
     }
     commands.destroy(&vk);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

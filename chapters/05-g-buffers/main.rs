@@ -8,14 +8,15 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
-use common::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
+use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
+use common::scene::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
-use common::sync::{SEMAPHORE_EXTENSION, Sync};
-use common::timing::{GlPassTimer, PassTimes, VkPassTimer};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count, output};
+use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::process::ExitCode;
@@ -61,9 +62,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. Share the scene's buffers
@@ -81,7 +82,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Rasterise: one instanced draw per mesh
     let started = Instant::now();
-    // Each pass's GPU time (common::timing): GL's raster, Vulkan's copies.
+    // Each pass's GPU time (common::base::timing): GL's raster, Vulkan's copies.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     gl_timer.time(gl, "raster", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;
@@ -98,9 +99,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // GL puts them in TRANSFER_SRC for Vulkan's copies; Vulkan gives them back as attachments
     // (GENERAL both ways on the host path, where GL moves no layout).
     let layouts =
-        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+        handoff.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
     let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
-    sync.gl_release(&gl_context, &textures, &[signal_layout; 3]);
+    handoff.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
     let mut vk_timer = VkPassTimer::new(&vk, 1)?;
     if let Some(t) = vk_timer.as_mut() {
@@ -135,9 +136,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         t.end(&vk, cb);
     }
     transfers_to_host(&vk, cb);
-    let wait = sync.vulkan_waits_on().map(|s| (s, transfer));
-    commands.submit(&vk, wait, sync.vulkan_signals())?;
-    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
+    let wait = handoff.vulkan_waits_on().map(|s| (s, transfer));
+    commands.submit(&vk, wait, handoff.vulkan_signals())?;
+    handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     // ANCHOR_END: handover
@@ -193,14 +194,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: resize
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 9. Clean up, newest first
     // ANCHOR: cleanup
     readbacks.into_iter().for_each(|b| b.destroy(&vk));
     commands.destroy(&vk);
     gbuffers.destroy(&vk, &gl_context);
     buffers.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -9,20 +9,19 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::accel;
-use common::commands::{
+use common::base::commands::{
     Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
-use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
-use common::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
+use common::rt::accel;
+use common::rt::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
+use common::scene::gbuffer::{GBuffers, SceneBuffers};
 use common::scene::{Camera, SceneArgs};
-use common::sync::{HandOver, SEMAPHORE_EXTENSION, Sync};
-use common::timing::{GlPassTimer, PassTimes};
-use common::{
-    CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count, output,
-};
+use common::{CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
 use std::ffi::CStr;
 use std::process::ExitCode;
 
@@ -68,9 +67,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     let mut allocator = accel::allocator(&vk)?;
 
@@ -107,7 +106,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. GL draws the G-buffers (chapter 05)
     let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
-    let mut gl_timer = GlPassTimer::new(gl)?; // common::timing, as in chapter 05
+    let mut gl_timer = GlPassTimer::new(gl)?; // common::base::timing, as in chapter 05
     gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;
 
@@ -146,9 +145,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let textures = gbuffers.textures();
     // As in chapter 05: copied from, then given back as attachments (GENERAL on the host path).
     let layouts =
-        sync.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
+        handoff.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
     let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
-    sync.gl_release(&gl_context, &textures, &[signal_layout; 3]);
+    handoff.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
     unsafe {
         let trace = Trace {
@@ -162,9 +161,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         };
         trace.record(&vk, cb, timestamps.as_ref())
     };
-    let wait = sync.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
-    commands.submit(&vk, wait, sync.vulkan_signals())?;
-    sync.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
+    let wait = handoff.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
+    commands.submit(&vk, wait, handoff.vulkan_signals())?;
+    handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
     if let Some(t) = &timestamps {
         report.time_ms("trace_gpu", t.read_ms(&vk)?);
@@ -228,7 +227,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     )?;
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     if let Some(t) = timestamps {
@@ -243,7 +242,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     commands.destroy(&vk);
     drop(allocator); // gpu-allocator frees its memory blocks: before the device goes
     buffers.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
@@ -254,7 +253,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 /// What one frame's trace reads and writes.
 struct Trace<'a> {
     gbuffers: &'a GBuffers,
-    /// The G-buffers' layouts at the hand-overs (`Sync::hand_over`).
+    /// The G-buffers' layouts at the hand-overs (`Handoff::hand_over`).
     layouts: HandOver,
     pipeline: &'a RayPipeline,
     /// Where the rays write what they hit, and the host buffer it is copied into.

@@ -9,16 +9,16 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::accel::RayTracedScene;
-use common::ao::{AoArgs, AoTracer};
-use common::commands::Timestamps;
-use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::raytrace::AoRays;
+use common::base::commands::Timestamps;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{self, GlPassTimer, PassTimes};
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::scene::gbuffer::GBuffers;
 use common::scene::{Camera, SceneArgs};
-use common::sync::Sync;
-use common::timing::{self, GlPassTimer, PassTimes};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
@@ -53,9 +53,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
     let commands = &shared.commands;
@@ -69,14 +69,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: tracer
 
     // 4. Every frame: GL draws, Vulkan traces and accumulates, GL reads
-    // Each pass's GPU time (common::timing): GL's read when they arrive, the trace's just before
+    // Each pass's GPU time (common::base::timing): GL's read when they arrive, the trace's just before
     // the next trace, which waits for the previous one's fence anyway.
     let (mut gl_timer, mut times, timestamps) =
         (GlPassTimer::new(gl)?, PassTimes::new(), Timestamps::new(&vk)?);
     let (mut trace_pending, mut rays) = (false, 0u64);
     let mut first_noise = None;
     let mut positions = Vec::new();
-    let nothing_to_trace = common::ao::nothing_to_trace(args.ao.samples, radius);
+    let nothing_to_trace = common::rt::ao::nothing_to_trace(args.ao.samples, radius);
     if let Some(reason) = nothing_to_trace {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
         report.set("ao_skipped", reason);
@@ -93,7 +93,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if std::mem::take(&mut trace_pending) {
                 timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
             }
-            tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, params, timestamps.as_ref())?;
+            tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, params, timestamps.as_ref())?;
             trace_pending = timestamps.is_some();
         }
         gl_timer.end_frame(gl, &mut times);
@@ -162,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     )?;
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 6. Clean up, newest first
     // ANCHOR: cleanup
     // Once the GPU is done with the last frame: its pipeline and images must outlive the
@@ -175,7 +175,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
     shared.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

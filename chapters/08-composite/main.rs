@@ -11,23 +11,23 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
-use common::ao::{AoArgs, AoTracer};
-use common::commands::Timestamps;
-use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::raytrace::AoRays;
+use common::base::commands::Timestamps;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::base::window::{Key, NamedKey, Window};
+use common::frame::{Composite, Overlays, Uniforms, View};
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BlasLayout, TlasFlags};
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::scene::gbuffer::GBuffers;
 use common::scene::{Camera, Scene, SceneArgs};
-use common::sync::Sync;
-use common::timing::{GlPassTimer, PassTimes};
-use common::window::{Key, NamedKey, Window};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
 mod check;
 use check::LastFrame;
-use common::frame::{Composite, Overlays, Uniforms, View};
 
 const CHAPTER: &str = "08-composite";
 
@@ -113,7 +113,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let headless = args.common.headless || !common::window::display_available();
+    let headless = args.common.headless || !common::base::window::display_available();
     if !args.common.headless && headless {
         eprintln!("window: no display (DISPLAY / WAYLAND_DISPLAY unset): running headless");
     }
@@ -126,16 +126,20 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::gbuffer::check_size(&vk, &gl_context, vk::Extent2D { width: size.width, height: size.height })?;
+    common::scene::gbuffer::check_size(
+        &vk,
+        &gl_context,
+        vk::Extent2D { width: size.width, height: size.height },
+    )?;
     report.set("window", window.is_some());
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
     let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let commands = &shared.commands;
-    let extent = |size: common::cli::Size| vk::Extent2D { width: size.width, height: size.height };
+    let extent = |size: common::base::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
     let mut gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
     let mut tracer =
@@ -162,7 +166,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: input
         if let Some(window) = window.as_mut() {
             let keys: Vec<Key> = window.poll(&gl_context).collect();
-            if keys.iter().any(|k| *k == Key::Named(NamedKey::Escape)) {
+            if keys.contains(&Key::Named(NamedKey::Escape)) {
                 break;
             }
             let before = (settings, camera.eye);
@@ -183,7 +187,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             }
             let (width, height) = window.size();
             if (width, height) != (size.width, size.height) && width > 0 && height > 0 {
-                new_size = Some(common::cli::Size { width, height });
+                new_size = Some(common::base::cli::Size { width, height });
             }
         } else if frame >= frame_limit {
             break;
@@ -191,7 +195,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // Headless, the same path a window's resize takes: three quarters, whole, half.
             let quarters = [2, 3, 4][(frame / every) as usize % 3];
             let scale = |side: u32| (side * quarters / 4).max(8);
-            new_size = Some(common::cli::Size {
+            new_size = Some(common::base::cli::Size {
                 width: scale(args.common.size.width),
                 height: scale(args.common.size.height),
             });
@@ -212,7 +216,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             resizes += 1;
             if resizes == 1 {
                 // What exists after one resize must be what exists after every later one.
-                let live = (common::resources::live(), gl_context.live_objects());
+                let live = (common::base::resources::live(), gl_context.live_objects());
                 fds_after_first_resize = Some((open_fd_count()?, live));
             }
         }
@@ -220,7 +224,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         let aspect = size.width as f32 / size.height as f32;
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
-        if let Some(reason) = common::ao::nothing_to_trace(settings.samples, settings.radius) {
+        if let Some(reason) = common::rt::ao::nothing_to_trace(settings.samples, settings.radius) {
             if skipped.replace(reason).is_none() {
                 eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
             }
@@ -230,9 +234,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let scene_scale = scene.size() / 2.0;
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
             if std::mem::take(&mut trace_pending) {
-                common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+                common::base::timing::read_after(
+                    &vk,
+                    commands.fence,
+                    timestamps.as_ref(),
+                    "ao_trace",
+                    &mut times,
+                )?;
             }
-            tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, timestamps.as_ref())?;
+            tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
             trace_pending = timestamps.is_some();
         }
@@ -258,7 +268,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.check("no_fd_growth_across_resizes", open_fd_count()? == fds);
         // Exportable and host memory, exportable images, GL's memory objects, textures and
         // renderbuffers, as counted where they are made and destroyed...
-        let now = common::resources::live();
+        let now = common::base::resources::live();
         report.check("no_resource_growth_across_resizes", now == live);
         report.set("live_resources_after_resizes", now);
         // ... and every kind of GL object, as GL itself counts them.
@@ -267,7 +277,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("live_gl_objects_after_resizes", gl_now);
     }
     if trace_pending {
-        common::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+        common::base::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
     }
     gl_timer.finish(gl, &mut times);
     times.record(report);
@@ -304,7 +314,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -313,12 +323,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         t.destroy(&vk);
     }
     gl_timer.delete(gl);
-    drop(overlays);
+    overlays.destroy(gl);
     composite.destroy(gl);
     tracer.destroy(&vk, &gl_context, &mut shared.allocator);
     gbuffers.destroy(&vk, &gl_context);
     shared.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
@@ -328,19 +338,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
 // ANCHOR: keys
 fn apply_key(key: &Key, s: &mut Settings) {
-    match key.as_ref() {
-        Key::Character(c) => match c {
-            "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
-            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
-            "-" => s.samples = (s.samples / 2).max(1),
-            "]" => s.radius *= 1.25,
-            "[" => s.radius /= 1.25,
-            "b" | "B" => s.blur = (s.blur + 1) % 5,
-            "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0, // 1, 2, 3, 1 ...
-            "o" | "O" => s.overlays = !s.overlays,
-            _ => {}
-        },
-        _ => {} // Esc ends the loop before keys get here
+    // Named keys do nothing here: Esc ends the loop before keys get here.
+    let Key::Character(c) = key.as_ref() else { return };
+    match c {
+        "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
+        "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
+        "-" => s.samples = (s.samples / 2).max(1),
+        "]" => s.radius *= 1.25,
+        "[" => s.radius /= 1.25,
+        "b" | "B" => s.blur = (s.blur + 1) % 5,
+        "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0, // 1, 2, 3, 1 ...
+        "o" | "O" => s.overlays = !s.overlays,
+        _ => {}
     }
 }
 // ANCHOR_END: keys

@@ -9,22 +9,23 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::accel::{InPlace, RayTracedScene, Refresh, TlasFlags, instances_geometry};
-use common::ao::{AoArgs, AoTracer};
-use common::cli::AnimationArgs;
-use common::commands::{Commands, Timestamps};
-use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::raytrace::AoRays;
+use common::base::cli::AnimationArgs;
+use common::base::commands::{Commands, Timestamps};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::frame::{Composite, Uniforms, View};
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::accel::{InPlace, Refresh, TlasFlags, instances_geometry};
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::Camera;
-use common::sync::Sync;
-use common::timing::{GlPassTimer, PassTimes};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use common::scene::gbuffer::GBuffers;
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
 mod ring;
-use common::frame::{Composite, Uniforms, View};
 
 const CHAPTER: &str = "09-animated-instances";
 
@@ -60,7 +61,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (scene, ring) = ring::scene(&args.model, args.count, args.lap, args.animation.time)?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
-    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+    if let Some(reason) = common::rt::ao::nothing_to_trace(args.ao.samples, radius) {
         anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
     }
     report.set("runners", ring.count);
@@ -71,9 +72,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     // ANCHOR: updatable
     // As chapter 06 built it, plus ALLOW_UPDATE. Then what updating it in place needs: the
@@ -118,7 +119,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
     let frames = args.common.frame_count(false);
     let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-    // Each pass's GPU time (common::timing): GL's read when they arrive, Vulkan's after the wait
+    // Each pass's GPU time (common::base::timing): GL's read when they arrive, Vulkan's after the wait
     // at the top of the next frame, which the frame makes anyway.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_refresh = None;
@@ -144,7 +145,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if args.animation.step > 0.0 {
             tracer.reset();
         }
-        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, trace_timer.as_ref())?;
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
         times.frame_done();
@@ -181,7 +182,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Check the last frame's occlusion, the motion, and write the frames
     let (w, h) = (extent.width, extent.height);
-    common::ao::check_occlusion(report, gl, &gbuffers, &tracer);
+    common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
     let moved = frames > 1 && args.animation.step > 0.0;
     output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
@@ -191,7 +192,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // restarted, both traces cast exactly the same rays, and must find the same occluders.
     let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
         tracer.reset();
-        tracer.trace(&vk, &gl_context, &sync, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
@@ -220,7 +221,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -235,7 +236,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     updates.destroy(&vk);
     tlas.destroy(&vk, &mut shared.allocator);
     shared.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -2,7 +2,7 @@
 //! one is at any moment.
 
 use anyhow::{Result, ensure};
-use common::exportable::ExportedBuffer;
+use common::interop::exportable::ExportedBuffer;
 use common::scene::{Instance, Mesh, Normals, Scene, ground_plane, load_obj};
 use glam::{Mat4, Quat, Vec3};
 use std::f32::consts::TAU;

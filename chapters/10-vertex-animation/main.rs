@@ -9,24 +9,24 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
-use common::ao::{AoArgs, AoTracer};
-use common::cli::AnimationArgs;
-use common::commands::{Commands, Timestamps};
-use common::gbuffer::{GBuffers, SceneBuffers};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::raytrace::AoRays;
+use common::base::cli::AnimationArgs;
+use common::base::commands::{Commands, Timestamps};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::base::timing::{self, GlPassTimer, PassTimes};
+use common::frame::{Composite, Uniforms, View};
+use common::interop::handoff::{Handoff, SharedSemaphore};
+use common::rt::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
+use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::scene::gbuffer::{GBuffers, SceneBuffers};
 use common::scene::{Camera, Instance, Scene, ground_plane};
-use common::sync::{SharedSemaphore, Sync};
-use common::timing::{self, GlPassTimer, PassTimes};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count, output};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glam::{Mat4, Vec3};
 use glow::HasContext;
 use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
 mod sphere;
-use common::frame::{Composite, Uniforms, View};
 use sphere::{Animation, Wave, WavePipeline, record_animation};
 
 const CHAPTER: &str = "10-vertex-animation";
@@ -71,7 +71,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let scene = Scene::new(vec![ground_plane(), mesh], instances, vec![0..1, 1..2])?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
-    if let Some(reason) = common::ao::nothing_to_trace(args.ao.samples, radius) {
+    if let Some(reason) = common::rt::ao::nothing_to_trace(args.ao.samples, radius) {
         anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
     }
     report.set("vertices", count);
@@ -82,9 +82,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
-    common::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     // ANCHOR: share
     // STORAGE_BUFFER: the compute shader writes the vertices in place.
@@ -93,9 +93,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         | vk::BufferUsageFlags::STORAGE_BUFFER;
     let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
     // Signalled by Vulkan once the vertices have moved; GL waits on it before drawing them.
-    let vertices_moved = match &sync {
-        Sync::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
-        Sync::Host { .. } => None,
+    let vertices_moved = match &handoff {
+        Handoff::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
+        Handoff::Host { .. } => None,
     };
     // ANCHOR_END: share
 
@@ -145,7 +145,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         MemoryLocation::CpuToGpu,
     )?;
     let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
-    mapped[..rest_bytes as usize].copy_from_slice(common::gbuffer::as_bytes(&rest_directions));
+    mapped[..rest_bytes as usize].copy_from_slice(common::scene::gbuffer::as_bytes(&rest_directions));
     let mut wave = Wave {
         vertices: buffers.meshes[1][0].0.device_address(&vk),
         directions: rest.address,
@@ -174,7 +174,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Every frame: move the vertices, refit, update, draw, trace, composite
     let frames = args.common.frame_count(false);
-    // Each pass's GPU time (common::timing), read once its fence has signalled for the next
+    // Each pass's GPU time (common::base::timing), read once its fence has signalled for the next
     // frame's submission on it, which waits anyway: timing adds no wait.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let (mut animated, mut traced) = (None, false);
@@ -222,7 +222,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if std::mem::take(&mut traced) {
             timing::read_after(&vk, commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
         }
-        tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, &commands, &gbuffers, rays, trace_timer.as_ref())?;
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
         times.frame_done();
@@ -262,7 +262,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         unsafe { std::slice::from_raw_parts(moved.mapped.cast::<common::scene::Vertex>(), count as usize) };
     report.check("vertices_match_cpu_reference", sphere::vertices_match(&wave, &directions, gpu));
     let (w, h) = (extent.width, extent.height);
-    common::ao::check_occlusion(report, gl, &gbuffers, &tracer);
+    common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
     let moved = frames > 1 && args.animation.step > 0.0;
     output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
@@ -272,7 +272,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         tracer.reset();
         let rays =
             AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-        tracer.trace(&vk, &gl_context, &sync, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(&vk, &gl_context, &handoff, &commands, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
@@ -305,7 +305,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
@@ -332,7 +332,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         semaphore.destroy(&vk, &gl_context);
     }
     buffers.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

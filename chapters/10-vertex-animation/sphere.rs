@@ -5,10 +5,10 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
-use common::accel::{AccelerationStructure, InPlace, Refresh};
-use common::commands::Timestamps;
+use common::base::commands::Timestamps;
+use common::base::timing::PassTimes;
+use common::rt::accel::{AccelerationStructure, InPlace, Refresh};
 use common::scene::{Mesh, Vertex};
-use common::timing::PassTimes;
 use glam::Vec3;
 use std::f32::consts::PI;
 
@@ -122,7 +122,7 @@ impl WavePipeline {
     pub fn record(&self, vk: &VulkanContext, cb: vk::CommandBuffer, wave: &Wave) {
         unsafe {
             vk.device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipeline);
-            let bytes = common::gbuffer::as_bytes(std::slice::from_ref(wave));
+            let bytes = common::scene::gbuffer::as_bytes(std::slice::from_ref(wave));
             vk.device.cmd_push_constants(cb, self.layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
             vk.device.cmd_dispatch(cb, wave.count.div_ceil(WORKGROUP), 1, 1);
         }

@@ -31,7 +31,7 @@ pub fn report_times(report: &mut Report, path: Path, cuda: bool, times: &[Vec<f6
         if samples.is_empty() {
             continue;
         }
-        let (median, _) = common::commands::median_p95(samples);
+        let (median, _) = common::base::commands::median_p95(samples);
         report.time_ms(&format!("{}.{what}_median", path.name()), median);
         line += &format!("  {what} {median:.3} ms");
     }

@@ -3,9 +3,9 @@
 
 use crate::scene::{GROUND_HALF, Sphere};
 use anyhow::Result;
-use common::frame::LineVertex;
+use common::frame::{HalfAxis, LineBuffer, LineVertex, Lines, gizmo};
 use glam::{Mat4, Vec3};
-use glow::HasContext; // a line's vertex (and the ground's, for the depth check)
+use glow::HasContext;
 
 const FULLSCREEN: &str = include_str!("../../shaders/gl/fullscreen.vert");
 const RAYTRACED: &str = include_str!("../../shaders/gl/raytraced.frag");
@@ -34,11 +34,14 @@ impl PixelBuffer {
             let pbo = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
             // Written by the tracer every frame, read by GL's copies: STREAM_DRAW.
             gl.named_buffer_data_size(pbo, traced_bytes(width, height) as i32, glow::STREAM_DRAW);
-            common::resources::created("gl_buffer: PBO", traced_bytes(width, height));
+            common::base::resources::created("gl_buffer: PBO", traced_bytes(width, height));
             let texture = |format| -> Result<glow::Texture> {
                 let texture = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
                 gl.texture_storage_2d(texture, 1, format, width as i32, height as i32);
-                common::resources::created(&format!("gl_texture: {format:#x}"), 4 * (width * height) as u64);
+                common::base::resources::created(
+                    &format!("gl_texture: {format:#x}"),
+                    4 * (width * height) as u64,
+                );
                 Ok(texture)
             };
             Ok(PixelBuffer {
@@ -104,16 +107,16 @@ pub struct Composite {
     traced_program: glow::Program,
     lines_program: glow::Program,
     empty: glow::VertexArray,
-    vertex_array: glow::VertexArray,
-    vertices: glow::Buffer,
+    /// The lines, then the ground square's two triangles.
+    vertices: LineBuffer,
     line_vertices: i32,
     framebuffer: glow::Framebuffer,
     colour: glow::Renderbuffer,
     depth: glow::Renderbuffer,
     pub width: u32,
     pub height: u32,
-    /// The gizmo's half-axes (start, end, colour), for the checks.
-    pub axes: Vec<(Vec3, Vec3, [u8; 3])>,
+    /// The gizmo's half-axes, for the checks.
+    pub axes: Vec<HalfAxis>,
 }
 
 /// The camera as the composite shader needs it.
@@ -125,23 +128,13 @@ pub struct DepthUniforms {
 
 impl Composite {
     pub fn new(gl: &glow::Context, width: u32, height: u32, spheres: &[Sphere]) -> Result<Self> {
-        let traced_program = common::gl::program(gl, FULLSCREEN, RAYTRACED)?;
-        let lines_program = common::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
+        let traced_program = common::base::gl::program(gl, FULLSCREEN, RAYTRACED)?;
+        let lines_program = common::base::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
         // ANCHOR: lines
-        let mut vertices = Vec::new();
-        let mut line = |a: Vec3, b: Vec3, colour: [u8; 3]| {
-            let colour = colour.map(|c| c as f32 / 255.0);
-            vertices.push(LineVertex { position: a.into(), colour });
-            vertices.push(LineVertex { position: b.into(), colour });
-        };
+        let mut lines = Lines::default();
         // An axis gizmo from the first sphere's centre: each half-axis starts inside the sphere
         // (hidden) and leaves it (shown); -y goes into the ground.
-        let centre = Vec3::from(spheres[0].centre);
-        let mut axes = Vec::new();
-        for (axis, colour) in [(Vec3::X, [255, 0, 0]), (Vec3::Y, [0, 255, 0]), (Vec3::Z, [0, 0, 255])] {
-            axes.push((centre, centre + axis * 2.5, colour));
-            axes.push((centre, centre - axis * 2.5, colour.map(|c| c / 2)));
-        }
+        let axes = gizmo(Vec3::from(spheres[0].centre), 2.5);
         // Each sphere's bounding box: the sphere hides the box's far edges.
         for s in spheres {
             let (c, r) = (Vec3::from(s.centre), s.radius);
@@ -152,27 +145,20 @@ impl Composite {
                     [-1.0, 1.0][i as usize >> 2],
                 )
             };
-            for i in 0..8u32 {
-                for bit in [1, 2, 4] {
-                    if i & bit == 0 {
-                        line(corner(i), corner(i | bit), [255, 0, 255]);
-                    }
-                }
-            }
+            lines.box_edges(corner, [255, 0, 255]);
         }
         // A wireframe grid through the middle of the ground's squares, a little above it (on it
         // exactly, the two depths would tie and the line would flicker in and out).
         let lift = 0.01;
         for i in -4..4 {
             let v = i as f32 + 0.5;
-            line(Vec3::new(v, lift, -GROUND_HALF), Vec3::new(v, lift, GROUND_HALF), [0, 170, 170]);
-            line(Vec3::new(-GROUND_HALF, lift, v), Vec3::new(GROUND_HALF, lift, v), [0, 170, 170]);
+            lines.line(Vec3::new(v, lift, -GROUND_HALF), Vec3::new(v, lift, GROUND_HALF), [0, 170, 170]);
+            lines.line(Vec3::new(-GROUND_HALF, lift, v), Vec3::new(GROUND_HALF, lift, v), [0, 170, 170]);
         }
         // The gizmo last, so that no other line is drawn over it where the checks look.
-        for &(a, b, colour) in &axes {
-            line(a, b, colour);
-        }
+        lines.half_axes(&axes);
         // ANCHOR_END: lines
+        let mut vertices = lines.vertices;
         let line_vertices = vertices.len() as i32;
         // Then the ground square as two triangles, for the depth check only.
         let g = GROUND_HALF;
@@ -181,23 +167,13 @@ impl Composite {
         }
         unsafe {
             let empty = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
-            let bytes = common::gbuffer::as_bytes(&vertices);
-            let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
-            gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
-            common::resources::created("gl_buffer", bytes.len() as u64);
-            let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
-            gl.vertex_array_vertex_buffer(vao, 0, Some(buffer), 0, size_of::<LineVertex>() as i32);
-            for (location, offset) in [(0, 0), (1, 12)] {
-                gl.enable_vertex_array_attrib(vao, location);
-                gl.vertex_array_attrib_format_f32(vao, location, 3, glow::FLOAT, false, offset);
-                gl.vertex_array_attrib_binding_f32(vao, location, 0);
-            }
+            let vertices = LineBuffer::new(gl, &vertices)?;
             let renderbuffer = |format, bytes_per_pixel: u32| -> Result<glow::Renderbuffer> {
                 let rb = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
                 gl.bind_renderbuffer(glow::RENDERBUFFER, Some(rb));
                 gl.renderbuffer_storage(glow::RENDERBUFFER, format, width as i32, height as i32);
                 gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-                common::resources::created(
+                common::base::resources::created(
                     &format!("gl_renderbuffer: {format:#x}"),
                     (bytes_per_pixel * width * height) as u64,
                 );
@@ -221,8 +197,7 @@ impl Composite {
                 traced_program,
                 lines_program,
                 empty,
-                vertex_array: vao,
-                vertices: buffer,
+                vertices,
                 line_vertices,
                 framebuffer,
                 colour,
@@ -310,7 +285,7 @@ impl Composite {
             gl.use_program(Some(self.lines_program));
             let at = gl.get_uniform_location(self.lines_program, "view_projection");
             gl.uniform_matrix_4_f32_slice(at.as_ref(), false, &view_projection.to_cols_array());
-            gl.bind_vertex_array(Some(self.vertex_array));
+            gl.bind_vertex_array(Some(self.vertices.vertex_array));
             gl.draw_arrays(mode, first, count);
             gl.bind_vertex_array(None);
         }
@@ -345,11 +320,10 @@ impl Composite {
         unsafe {
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.depth);
-            common::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::DEPTH_COMPONENT24));
+            common::base::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::DEPTH_COMPONENT24));
             gl.delete_renderbuffer(self.colour);
-            common::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::RGBA8));
-            gl.delete_vertex_array(self.vertex_array);
-            gl.delete_buffer(self.vertices);
+            common::base::resources::destroyed(&format!("gl_renderbuffer: {:#x}", glow::RGBA8));
+            self.vertices.delete(gl);
             gl.delete_vertex_array(self.empty);
             gl.delete_program(self.lines_program);
             gl.delete_program(self.traced_program);

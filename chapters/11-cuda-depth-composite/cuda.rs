@@ -4,7 +4,7 @@
 
 use crate::scene::TraceParams;
 use anyhow::{Context as _, Result, ensure};
-use common::cuda::{CudaDevice, cu, sys};
+use common::interop::cuda::{CudaDevice, cu, sys};
 use std::ffi::{CString, c_void};
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
 
@@ -150,7 +150,7 @@ impl RegisteredPbo {
         unsafe { sys::cuGraphicsUnregisterResource(self.resource) }
             .result()
             .context("cuGraphicsUnregisterResource")?;
-        common::resources::destroyed("cuda_graphics_resource");
+        common::base::resources::destroyed("cuda_graphics_resource");
         Ok(())
     }
 }
@@ -172,12 +172,12 @@ impl ImportedMemory {
             .context("cuImportExternalMemory(OPAQUE_FD)")?;
         // SAFETY: the import succeeded: the fd is CUDA's now, and closing it too would be a double close.
         let _ = fd.into_raw_fd();
-        common::resources::created("cuda_external_memory", 0); // its bytes are Vulkan's allocation
+        common::base::resources::created("cuda_external_memory", 0); // its bytes are Vulkan's allocation
         match unsafe { cu::external_memory::get_mapped_buffer(external, 0, bytes) } {
             Ok(pointer) => Ok(ImportedMemory { external, pointer }),
             Err(error) => {
                 unsafe { cu::external_memory::destroy_external_memory(external) }.ok();
-                common::resources::destroyed("cuda_external_memory");
+                common::base::resources::destroyed("cuda_external_memory");
                 Err(error).context("cuExternalMemoryGetMappedBuffer")
             }
         }
@@ -189,7 +189,7 @@ impl ImportedMemory {
             cu::memory_free(self.pointer).context("cuMemFree")?;
             cu::external_memory::destroy_external_memory(self.external).context("cuDestroyExternalMemory")?;
         }
-        common::resources::destroyed("cuda_external_memory");
+        common::base::resources::destroyed("cuda_external_memory");
         Ok(())
     }
 }

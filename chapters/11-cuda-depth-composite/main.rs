@@ -12,9 +12,9 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
-use common::cuda::CudaDevice;
-use common::exportable::{self, Dedicated, ExportableMemory, HANDLE_TYPE};
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::interop::cuda::CudaDevice;
+use common::interop::exportable::{self, Dedicated, ExportableMemory, HANDLE_TYPE};
 use common::interop::{self, SharedBuffer};
 use common::scene::Camera;
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
@@ -129,7 +129,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         TracerChoice::Cpu => None,
         choice => match CudaDevice::open(&vk.info.device_uuid) {
             Ok(device) => Some(CudaTracer::new(device)?),
-            Err(error) => match common::cuda::unavailable(&error) {
+            Err(error) => match common::interop::cuda::unavailable(&error) {
                 Some(why) if choice == TracerChoice::Auto => {
                     eprintln!("cuda: {why}: tracing on the CPU instead");
                     None
@@ -260,8 +260,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 Path::Pbo => CHAPTER.to_owned(),
                 Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
             };
-            let upright = common::output::flip_rows(picture, width, height);
-            common::output::save_rgba8(report, &out_dir, &name, width, height, &upright)?;
+            let upright = common::base::output::flip_rows(picture, width, height);
+            common::base::output::save_rgba8(report, &out_dir, &name, width, height, &upright)?;
         }
         gl_context.check_error("the frames")
     })();
@@ -277,7 +277,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     cleaned?;
     released?;
     gl_context.check_error("cleaning up")?;
-    let live = common::resources::live();
+    let live = common::base::resources::live();
     report.check("cuda_and_shared_resources_released", live.values().all(|&n| n == 0));
     let leaked: Vec<_> = fds_after.iter().filter(|fd| !fds_before.contains(fd)).collect();
     if !leaked.is_empty() {
@@ -343,7 +343,7 @@ impl Made {
         }
         if let Some(memory) = self.memory {
             unsafe { vk.device.free_memory(memory.memory, None) };
-            common::resources::destroyed("vk_memory_exportable");
+            common::base::resources::destroyed("vk_memory_exportable");
         }
         // CUDA's registration, before GL deletes the buffer it names.
         if let Some(registered) = self.registered {

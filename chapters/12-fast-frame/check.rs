@@ -5,9 +5,10 @@
 use crate::composite::{ComputeComposite, Uniforms, View};
 use crate::visibility::Targets;
 use anyhow::Result;
+use common::Report;
+use common::base::output;
 use common::frame::{Overlays, shows_colour};
 use common::scene::Camera;
-use common::{Report, output};
 use glam::Vec3;
 use glow::HasContext;
 use std::path::Path;
@@ -96,7 +97,7 @@ impl LastFrame<'_> {
         overlays.draw(gl, &targets.overlay_target(), view_projection);
         let with_lines = read_picture(gl, targets);
         let depth: Vec<f32> = (0..surface.width * surface.height).map(|i| surface.depth(i)).collect();
-        let probes = overlays.probe(&depth, (surface.width, surface.height), camera);
+        let probes = overlays.probe(&depth, surface.width, surface.height, camera);
         // Made where the view offers such a point, as in chapter 08; said when it does not (a
         // camera inside the pile may see no gizmo pixel with nothing in front, all around).
         let mut probe = |name, probe: Option<(usize, usize, [u8; 3])>, shown| match probe {
@@ -278,7 +279,7 @@ impl Chapter08 {
 pub fn trace_chapter_08(
     apis: crate::trace::Apis,
     allocator: &mut gpu_allocator::vulkan::Allocator,
-    (buffers, tlas): (&common::gbuffer::SceneBuffers, ash::vk::AccelerationStructureKHR),
+    (buffers, tlas): (&common::scene::gbuffer::SceneBuffers, ash::vk::AccelerationStructureKHR),
     scene: &common::scene::Scene,
     camera: &Camera,
     targets: &Targets,
@@ -286,8 +287,8 @@ pub fn trace_chapter_08(
 ) -> Result<Chapter08> {
     let crate::trace::Apis { vk, gl, sync, commands } = apis;
     let extent = targets.extent;
-    use common::ao::AoTracer;
-    use common::gbuffer::GBuffers;
+    use common::rt::ao::AoTracer;
+    use common::scene::gbuffer::GBuffers;
     let storage = ash::vk::ImageUsageFlags::STORAGE;
     let gbuffers = GBuffers::new(vk, gl, buffers, extent, storage)?;
     gbuffers.draw(&gl.gl, scene, camera);
@@ -298,7 +299,7 @@ pub fn trace_chapter_08(
     }
     while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
         let samples = per_frame.min(total - tracer.accumulated);
-        let rays = common::raytrace::AoRays { samples, accumulated: 0, radius, scene_scale };
+        let rays = common::rt::ao::AoRays { samples, accumulated: 0, radius, scene_scale };
         tracer.trace(vk, gl, sync, commands, &gbuffers, rays, None)?;
     }
     let (w, h) = (extent.width, extent.height);

@@ -96,7 +96,7 @@ fn compute_program(gl: &glow::Context, source: &str) -> Result<glow::Program> {
                 anyhow::bail!(error);
             }
         };
-        common::resources::created("gl_program", 0);
+        common::base::resources::created("gl_program", 0);
         gl.attach_shader(program, shader);
         gl.link_program(program);
         gl.detach_shader(program, shader);

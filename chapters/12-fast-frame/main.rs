@@ -11,16 +11,17 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
-use common::ao::AoArgs;
-use common::cli::Size;
-use common::commands::Timestamps;
+use common::base::cli::Size;
+use common::base::commands::Timestamps;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::timing::{GlPassTimer, PassTimes};
+use common::base::window::{Key, NamedKey, Window};
 use common::frame::Overlays;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BlasLayout, TlasFlags};
+use common::rt::ao::AoArgs;
 use common::scene::{Camera, SceneArgs};
-use common::sync::Sync;
-use common::timing::{GlPassTimer, PassTimes};
-use common::window::{Key, NamedKey, Window};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
@@ -121,7 +122,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let headless = args.common.headless || !common::window::display_available();
+    let headless = args.common.headless || !common::base::window::display_available();
     let (mut window, gl_context) = if headless {
         (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
     } else {
@@ -131,8 +132,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     report.set("window", window.is_some());
-    let sync = Sync::new(&vk, &gl_context)?;
-    report.sync = Some(sync.name());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. The shared scene and its structures (chapters 05-06), every triangle numbered
@@ -160,7 +161,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         (_, Some(_)) => Some(timeline::Timeline::new(gl, args.timeline.min(frame_limit))?),
         (_, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", vk.info.name),
     };
-    let skipped = common::ao::nothing_to_trace(settings.samples, settings.radius);
+    let skipped = common::rt::ao::nothing_to_trace(settings.samples, settings.radius);
     if let Some(reason) = skipped {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
     }
@@ -206,7 +207,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             tracer.resized(&vk, &targets);
             resizes += 1;
             // What exists after one resize must be what exists after every later one.
-            let live = (open_fd_count()?, common::resources::live(), gl_context.live_objects());
+            let live = (open_fd_count()?, common::base::resources::live(), gl_context.live_objects());
             after_first_resize.get_or_insert(live);
         }
         // ANCHOR_END: resize
@@ -224,12 +225,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let rays = settings.rays(samples, scene.size() / 2.0);
             if let Some(traced) = trace_pending.take() {
                 let stamps = timestamps.as_ref();
-                common::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
+                common::base::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
                 if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
                     t.trace_done(&vk, slot, stamps)?;
                 }
             }
-            let apis = Apis { vk: &vk, gl: &gl_context, sync: &sync, commands: &shared.commands };
+            let apis = Apis { vk: &vk, gl: &gl_context, sync: &handoff, commands: &shared.commands };
             tracer.trace(apis, &targets, &camera, rays, timestamps.as_ref())?;
             trace_pending = timestamps.is_some().then_some(slot);
         }
@@ -254,7 +255,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     if let Some(traced) = trace_pending {
         let stamps = timestamps.as_ref();
-        common::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
+        common::base::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
         if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
             t.trace_done(&vk, slot, stamps)?;
         }
@@ -267,14 +268,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     times.record(report);
     gl_context.check_error("the frame loop")?;
     if let Some(first) = after_first_resize {
-        let now = (open_fd_count()?, common::resources::live(), gl_context.live_objects());
+        let now = (open_fd_count()?, common::base::resources::live(), gl_context.live_objects());
         report.check("nothing_grows_across_resizes", now == first);
     }
 
     // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
     let (accumulated, scene_scale) = (tracer.accumulated, scene.size() / 2.0);
     let rays = settings.rays(if skipped.is_some() { 0 } else { settings.samples }, scene_scale);
-    let apis = Apis { vk: &vk, gl: &gl_context, sync: &sync, commands: &shared.commands };
+    let apis = Apis { vk: &vk, gl: &gl_context, sync: &handoff, commands: &shared.commands };
     if args.overlap_rounds > 0 {
         let probe = overlap::Probe {
             visibility: &visibility,
@@ -337,7 +338,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("frames", frame);
     report.set("resizes", resizes);
     report.set("pattern", settings.pattern);
-    report.check("hand_over_layouts_agree", sync.layouts_agreed());
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
 
     // 7. Clean up, newest first
     // ANCHOR: cleanup
@@ -351,7 +352,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(visibility);
     drop(targets);
     shared.destroy(&vk, &gl_context);
-    sync.destroy(&vk, &gl_context);
+    handoff.destroy(&vk, &gl_context);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

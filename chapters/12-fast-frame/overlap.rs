@@ -12,7 +12,7 @@
 use crate::trace::{Apis, Rays, SurfaceTracer};
 use crate::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::Result;
-use common::commands::median_p95;
+use common::base::commands::median_p95;
 use common::scene::{Camera, Scene};
 use glow::HasContext;
 use std::time::Instant;

@@ -3,8 +3,8 @@
 
 use crate::composite::{Uniforms, View};
 use crate::trace::{Pattern, Rays};
+use common::base::window::Key;
 use common::scene::Camera;
-use common::window::Key;
 
 /// What the keys change (chapter 08's, less its debug views of positions).
 #[derive(Clone, Copy, PartialEq)]

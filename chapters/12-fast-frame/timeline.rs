@@ -7,7 +7,7 @@
 
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
-use common::commands::{Commands, Timestamps, median_p95};
+use common::base::commands::{Commands, Timestamps, median_p95};
 use common::{Report, VulkanContext};
 use glow::HasContext;
 use plotters::prelude::*;

@@ -4,12 +4,13 @@
 use crate::visibility::{MeshIds, Targets};
 use anyhow::Result;
 use ash::vk;
-use common::accel::{DeviceBuffer, RayTracedScene};
-use common::commands::{Commands, Timestamps, first_use};
+use common::base::commands::{Commands, Timestamps, first_use};
+use common::interop::handoff::{HandOver, Handoff};
 use common::interop::{acquire_from_gl, release_to_gl};
-use common::raytrace::{RayPipeline, push_bytes};
+use common::rt::RayTracedScene;
+use common::rt::accel::DeviceBuffer;
+use common::rt::raytrace::{RayPipeline, push_bytes};
 use common::scene::Camera;
-use common::sync::{HandOver, Sync};
 use common::{GlContext, VulkanContext};
 use gpu_allocator::MemoryLocation;
 use gpu_allocator::vulkan::Allocator;
@@ -42,7 +43,7 @@ pub struct SurfaceRays {
 pub struct Apis<'a> {
     pub vk: &'a VulkanContext,
     pub gl: &'a GlContext,
-    pub sync: &'a Sync,
+    pub sync: &'a Handoff,
     pub commands: &'a Commands,
 }
 
@@ -140,7 +141,7 @@ impl SurfaceTracer {
         pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
         // ANCHOR_END: pipeline
         // The mesh table, written once: the ray generation shader reads it by its address.
-        let bytes = common::gbuffer::as_bytes(ids);
+        let bytes = common::scene::gbuffer::as_bytes(ids);
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
         let mut meshes = DeviceBuffer::new(
             vk,
@@ -207,7 +208,7 @@ impl SurfaceTracer {
     ) -> Result<()> {
         let Apis { vk, gl, sync, commands } = apis;
         // The ids come to Vulkan in GENERAL (storage images) and go back as GL's attachment; the
-        // surface is sampled by GL. On the host path both stay GENERAL (`Sync::hand_over`).
+        // surface is sampled by GL. On the host path both stay GENERAL (`Handoff::hand_over`).
         let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
         let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
         let layouts =

@@ -4,8 +4,8 @@
 
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
-use common::gbuffer::SceneBuffers;
 use common::interop::SharedImage;
+use common::scene::gbuffer::SceneBuffers;
 use common::scene::{Camera, Scene};
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
@@ -82,7 +82,7 @@ pub struct Targets {
 
 impl Targets {
     pub fn new(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> Result<Self> {
-        common::gbuffer::check_size(vk, gl, extent)?;
+        common::scene::gbuffer::check_size(vk, gl, extent)?;
         // ANCHOR: images
         // GL draws the ids (COLOR_ATTACHMENT), Vulkan reads them (STORAGE); Vulkan writes the
         // surface (STORAGE), GL samples it (SAMPLED).
@@ -102,7 +102,7 @@ impl Targets {
             g.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
             g.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, w, h);
             g.bind_renderbuffer(glow::RENDERBUFFER, None);
-            common::resources::created("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * w as u64 * h as u64);
+            common::base::resources::created("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * w as u64 * h as u64);
             let picture = g.create_named_texture(glow::TEXTURE_2D);
             let picture = picture.map_err(anyhow::Error::msg).inspect_err(|_| delete_depth(g, depth))?;
             g.texture_storage_2d(picture, 1, glow::RGBA8, w, h);
@@ -180,7 +180,7 @@ impl Targets {
 
 unsafe fn delete_depth(gl: &glow::Context, depth: glow::Renderbuffer) {
     unsafe { gl.delete_renderbuffer(depth) };
-    common::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
+    common::base::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
 }
 
 impl Drop for Targets {
@@ -207,12 +207,13 @@ impl VisibilityPass {
     pub fn new(gl: &GlContext, buffers: &SceneBuffers) -> Result<Self> {
         let g = &gl.gl;
         let program =
-            common::gl::program(g, VERTEX_SHADER, FRAGMENT_SHADER).context("the visibility program")?;
+            common::base::gl::program(g, VERTEX_SHADER, FRAGMENT_SHADER).context("the visibility program")?;
         let mut pass = VisibilityPass { program, vertex_arrays: Vec::new(), gl: g.clone() };
         // Chapter 05's vertex arrays: the same buffers, read the same way.
         for [vertices, indices] in &buffers.meshes {
-            let vao =
-                unsafe { common::gbuffer::vertex_array(g, &vertices.1, &indices.1, &buffers.instances.1) }?;
+            let vao = unsafe {
+                common::scene::gbuffer::vertex_array(g, &vertices.1, &indices.1, &buffers.instances.1)
+            }?;
             pass.vertex_arrays.push(vao);
         }
         Ok(pass)

@@ -6,8 +6,8 @@
 
 use crate::{Mode, Row};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::builtin_scenes::SceneKind;
-use common::cli::Size;
+use common::base::cli::Size;
+use common::scene::builtin::SceneKind;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;

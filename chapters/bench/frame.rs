@@ -5,16 +5,15 @@ use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
 use anyhow::Result;
 use ash::vk;
-use common::accel::RayTracedScene;
-use common::ao::AoTracer;
-use common::cli::Size;
-use common::commands::{Timestamps, median_p95};
+use common::base::cli::Size;
+use common::base::commands::{Timestamps, median_p95};
+use common::base::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Overlays, Uniforms, View};
-use common::gbuffer::GBuffers;
-use common::raytrace::AoRays;
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::ao::{AoRays, AoTracer};
+use common::scene::gbuffer::GBuffers;
 use common::scene::{Camera, Scene};
-use common::sync::Sync;
-use common::timing::{GlPassTimer, PassTimes};
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
 use std::time::Instant;
@@ -126,7 +125,7 @@ impl<'s> Frame<'s> {
         vk: &VulkanContext,
         gl: &GlContext,
         shared: &RayTracedScene,
-        sync: &Sync,
+        handoff: &Handoff,
         setting: Setting,
         stamps: &Timestamps,
         samples: &mut Samples,
@@ -163,7 +162,7 @@ impl<'s> Frame<'s> {
             }
             // Each frame a fresh estimate (weight 1), as when the camera moves every frame.
             self.tracer.reset();
-            self.tracer.trace(vk, gl, sync, &shared.commands, &self.gbuffers, rays, Some(stamps))?;
+            self.tracer.trace(vk, gl, handoff, &shared.commands, &self.gbuffers, rays, Some(stamps))?;
             if let Some(round_trip) = &mut self.round_trip {
                 round_trip.ao_to_gl(vk, gl)?;
             }
@@ -202,7 +201,7 @@ impl<'s> Frame<'s> {
     pub fn covered_pixels(&self, gl: &glow::Context) -> u64 {
         let (w, h) = (self.gbuffers.extent.width, self.gbuffers.extent.height);
         self.gbuffers.draw(gl, self.scene, &self.camera);
-        let positions = common::output::read_texture_f32(gl, self.gbuffers.textures()[0], w, h, 4);
+        let positions = common::base::output::read_texture_f32(gl, self.gbuffers.textures()[0], w, h, 4);
         positions.chunks_exact(4).filter(|p| p[3] != 0.0).count() as u64
     }
 
@@ -214,7 +213,10 @@ impl<'s> Frame<'s> {
         let (w, h) = (self.gbuffers.extent.width, self.gbuffers.extent.height);
         let read = || {
             let textures = self.gbuffers.textures();
-            textures.iter().map(|&t| common::output::read_texture_f32(gl, t, w, h, 4)).collect::<Vec<_>>()
+            textures
+                .iter()
+                .map(|&t| common::base::output::read_texture_f32(gl, t, w, h, 4))
+                .collect::<Vec<_>>()
         };
         self.gbuffers.draw(gl, self.scene, &self.camera);
         let one_pass = read();
@@ -238,7 +240,7 @@ impl<'s> Frame<'s> {
         if let Some(round_trip) = self.round_trip {
             round_trip.destroy(vk, gl, &mut shared.allocator);
         }
-        drop(self.overlays);
+        self.overlays.destroy(&gl.gl);
         self.composite.destroy(&gl.gl);
         self.tracer.destroy(vk, gl, &mut shared.allocator);
         self.gbuffers.destroy(vk, gl);

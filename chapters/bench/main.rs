@@ -13,24 +13,23 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::accel::{BlasLayout, RayTracedScene, TlasFlags};
-use common::cli::Size;
-use common::commands::Timestamps;
-use common::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
+use common::base::cli::Size;
+use common::base::commands::Timestamps;
+use common::base::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BlasLayout, TlasFlags};
 use common::scene::Scene;
-use common::sync::Sync;
 use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-// Chapter 08's composite pass and overlays come from `common::frame`, as chapter 08 draws them:
-// bench measures exactly the frame the chapter draws.
 mod fast;
 mod frame;
 mod outputs;
 mod round_trip;
 
-use common::builtin_scenes::SceneKind;
+use common::scene::builtin::SceneKind;
 use frame::{Frame, Samples, Setting};
 
 /// Chapter 08's frame, zero-copy against host-synchronised against a CPU round trip.
@@ -161,7 +160,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
     gl.set_debug_output(args.gl_debug);
-    common::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);
+    common::interop::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);
     let settings = serde_json::json!({
         "gl_debug": args.gl_debug,
         "depth_prepass": args.depth_prepass,
@@ -175,9 +174,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let types = &vk.memory_properties.memory_types[..vk.memory_properties.memory_type_count as usize];
     let offered: Vec<String> = types.iter().map(|t| format!("{:?}", t.property_flags)).collect();
     report.set("memory_types", offered);
-    let zero_copy = Sync::new(&vk, &gl)?;
+    let zero_copy = Handoff::new(&vk, &gl)?;
     report.set("zero_copy_sync", zero_copy.name());
-    let host = Sync::Host { disagreements: std::cell::Cell::new(0) };
+    let host = Handoff::Host { disagreements: std::cell::Cell::new(0) };
     let stamps = Timestamps::new(&vk)?;
     ensure!(stamps.is_some(), "{}: the queue writes no timestamps, which bench measures with", vk.info.name);
     let stamps = stamps.expect("checked");
@@ -222,10 +221,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 // Two rounds of every mode in turn: a clock or thermal drift touches all alike.
                 for _round in 0..2 {
                     for (frame, samples) in frames.iter_mut().zip(&mut samples) {
-                        let sync = if frame.mode == Mode::ZeroCopy { &zero_copy } else { &host };
+                        let handoff = if frame.mode == Mode::ZeroCopy { &zero_copy } else { &host };
                         let setting =
                             Setting { spp, frames: frames_per_run, depth_prepass: args.depth_prepass };
-                        frame.run(&vk, &gl, &shared, sync, setting, &stamps, samples)?;
+                        frame.run(&vk, &gl, &shared, handoff, setting, &stamps, samples)?;
                     }
                 }
                 for (mode, samples) in Mode::ALL.iter().zip(&samples) {

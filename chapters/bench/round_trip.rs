@@ -9,9 +9,9 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
-use common::accel::DeviceBuffer;
-use common::commands::{Commands, HostBuffer, transfers_to_host};
-use common::gbuffer::GBuffers;
+use common::base::commands::{Commands, HostBuffer, transfers_to_host};
+use common::rt::accel::DeviceBuffer;
+use common::scene::gbuffer::GBuffers;
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
 use gpu_allocator::MemoryLocation;

@@ -15,14 +15,14 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use cases::{Case, Placement};
 use clap::Parser;
-use common::accel::RayTracedScene;
-use common::ao::AoTracer;
-use common::commands::Timestamps;
-use common::gbuffer::GBuffers;
-use common::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::raytrace::AoRays;
-use common::sync::Sync;
-use common::{RAY_TRACED_INTEROP, Report, VulkanContext, output};
+use common::base::commands::Timestamps;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::output;
+use common::interop::handoff::Handoff;
+use common::rt::RayTracedScene;
+use common::rt::ao::{AoRays, AoTracer};
+use common::scene::gbuffer::GBuffers;
+use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
 use glam::DVec3;
 use serde::Serialize;
 use std::process::ExitCode;
@@ -112,20 +112,20 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
-    common::gbuffer::check_size(&vk, &gl, extent)?;
-    let sync = Sync::new(&vk, &gl)?;
-    report.sync = Some(sync.name());
+    common::scene::gbuffer::check_size(&vk, &gl, extent)?;
+    let handoff = Handoff::new(&vk, &gl)?;
+    report.sync = Some(handoff.name());
     let timestamps = Timestamps::new(&vk)?;
     let mut results = Vec::new();
     for case in &cases {
         let measured =
-            measure(&vk, &gl, &sync, timestamps.as_ref(), case, extent, spps, frame_counts, args.quick);
+            measure(&vk, &gl, &handoff, timestamps.as_ref(), case, extent, spps, frame_counts, args.quick);
         results.push(measured?);
     }
     if let Some(t) = timestamps {
         t.destroy(&vk);
     }
-    sync.destroy(&vk, &gl);
+    handoff.destroy(&vk, &gl);
 
     for case in &results {
         let last = case.rows.last().expect("every case has rows");
@@ -162,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 fn measure(
     vk: &VulkanContext,
     gl: &GlContext,
-    sync: &Sync,
+    handoff: &Handoff,
     timestamps: Option<&Timestamps>,
     case: &Case,
     extent: vk::Extent2D,
@@ -182,7 +182,7 @@ fn measure(
         let mut gpu_ms = 0.0;
         for _ in 0..frames {
             gbuffers.draw(&gl.gl, &case.scene, &case.camera);
-            tracer.trace(vk, gl, sync, &shared.commands, &gbuffers, rays(spp), timestamps)?;
+            tracer.trace(vk, gl, handoff, &shared.commands, &gbuffers, rays(spp), timestamps)?;
             if let Some(t) = timestamps {
                 // A measurement: wait for this frame's rays to read their GPU time.
                 unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;

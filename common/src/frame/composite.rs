@@ -1,9 +1,9 @@
-//! The composite pass (taught in chapter 08; chapters 09, 10 and `bench` draw it too): albedo x
-//! the blurred occlusion, from the G-buffers, into an offscreen target whose depth is the scene's.
+//! The composite pass: albedo x occlusion (or a debug view), blurred without crossing edges, into
+//! an offscreen colour buffer whose depth buffer is the G-buffer pass's.
 
-use super::Target;
-use crate::ao::AoTracer;
-use crate::gbuffer::GBuffers;
+use super::overlay::Target;
+use crate::rt::ao::AoTracer;
+use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
 use glam::Vec3;
 use glow::HasContext;
@@ -64,29 +64,24 @@ pub struct Composite {
 
 impl Composite {
     pub fn new(gl: &std::rc::Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
-        let program = crate::gl::program(gl, FULLSCREEN, COMPOSITE)?;
+        let program = crate::base::gl::program(gl, FULLSCREEN, COMPOSITE)?;
         // Core profile draws need a vertex array bound, even one that feeds nothing.
         let empty = unsafe { gl.create_named_vertex_array() }.map_err(anyhow::Error::msg)?;
-        let (framebuffer, colour) = unsafe { target(gl, gbuffers)? };
+        let (framebuffer, colour) = unsafe { new_target(gl, gbuffers)? };
         let (width, height) = (gbuffers.extent.width, gbuffers.extent.height);
         Ok(Composite { program, empty, framebuffer, colour, width, height, gl: gl.clone() })
     }
 
     /// After the G-buffers were made anew: a colour buffer of their size, their depth buffer.
     pub fn resize(&mut self, gl: &glow::Context, gbuffers: &GBuffers) -> Result<()> {
-        let (framebuffer, colour) = unsafe { target(gl, gbuffers)? };
+        let (framebuffer, colour) = unsafe { new_target(gl, gbuffers)? };
         unsafe {
             gl.delete_framebuffer(std::mem::replace(&mut self.framebuffer, framebuffer));
             gl.delete_renderbuffer(std::mem::replace(&mut self.colour, colour));
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
         }
         (self.width, self.height) = (gbuffers.extent.width, gbuffers.extent.height);
         Ok(())
-    }
-
-    /// Where the overlays are drawn: this target, whose depth is the scene's.
-    pub fn target(&self) -> Target {
-        Target { framebuffer: self.framebuffer, width: self.width, height: self.height }
     }
 
     // ANCHOR: composite
@@ -121,6 +116,11 @@ impl Composite {
         }
     }
     // ANCHOR_END: composite
+
+    /// Where overlays draw over the picture: this target, whose depth is the scene's.
+    pub fn target(&self) -> Target {
+        Target { framebuffer: self.framebuffer, width: self.width, height: self.height }
+    }
 
     /// The target's RGBA8 pixels, bottom row first (memory order).
     pub fn read(&self, gl: &glow::Context) -> Vec<u8> {
@@ -174,7 +174,7 @@ impl Drop for Composite {
         unsafe {
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.colour);
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
             gl.delete_vertex_array(self.empty);
             gl.delete_program(self.program);
         }
@@ -184,14 +184,17 @@ impl Drop for Composite {
 // ANCHOR: target
 /// An RGBA8 colour buffer, with the G-buffer pass's depth buffer attached as this target's
 /// depth: the scene's depth, exactly as GL rasterised it.
-unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Framebuffer, glow::Renderbuffer)> {
+unsafe fn new_target(
+    gl: &glow::Context,
+    gbuffers: &GBuffers,
+) -> Result<(glow::Framebuffer, glow::Renderbuffer)> {
     unsafe {
         let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
         gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
         let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-        crate::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
+        crate::base::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         gl.named_framebuffer_renderbuffer(
             Some(fb),
@@ -209,7 +212,7 @@ unsafe fn target(gl: &glow::Context, gbuffers: &GBuffers) -> Result<(glow::Frame
         if status != glow::FRAMEBUFFER_COMPLETE {
             gl.delete_framebuffer(fb);
             gl.delete_renderbuffer(colour);
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
+            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
             anyhow::bail!("composite framebuffer incomplete: {status:#x}");
         }
         Ok((fb, colour))

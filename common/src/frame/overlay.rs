@@ -1,63 +1,136 @@
-//! The overlay lines chapters 08-12 draw over their pictures (taught in chapter 08): an axis
-//! gizmo and a selected instance's box, depth-tested against the scene's depth, and the pixels
-//! their checks look at.
+//! Overlay lines: world-space segments drawn over a picture with the depth test against the
+//! scene's depth, so that the scene's surfaces hide them where they should. GL's own buffer:
+//! Vulkan never sees these.
 
-use super::Target;
 use crate::scene::{Camera, Scene};
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use glam::{Mat4, Vec3, Vec4};
 use glow::HasContext;
-use std::rc::Rc;
 
 const LINES_VERTEX: &str = include_str!("../../../shaders/gl/lines.vert");
 const LINES_FRAGMENT: &str = include_str!("../../../shaders/gl/lines.frag");
 
-/// One vertex of an overlay line: world position and colour (24 bytes; `lines.vert`'s inputs).
+/// Where overlays draw: a framebuffer whose depth attachment holds the scene's depth (the
+/// composite's target, or any other drawn over the same depth), and its size.
+#[derive(Clone, Copy, Debug)]
+pub struct Target {
+    pub framebuffer: glow::Framebuffer,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// One vertex of an overlay line: world position and colour (24 bytes, as `lines.vert` reads it).
 #[repr(C)]
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LineVertex {
     pub position: [f32; 3],
     pub colour: [f32; 3],
 }
 
-/// The overlay lines: an axis gizmo through the scene's centre, and the selected instance's
-/// oriented bounding box. GL's own buffer: Vulkan never sees these. Deleted when dropped.
-pub struct Overlays {
-    program: glow::Program,
-    vertex_array: glow::VertexArray,
-    buffer: glow::Buffer,
-    count: i32,
-    /// The gizmo's half-axes (start, end, colour), for the checks.
-    axes: Vec<(Vec3, Vec3, [u8; 3])>,
-    gl: Rc<glow::Context>,
+/// One half of a gizmo's axis: start, end, colour.
+pub type HalfAxis = (Vec3, Vec3, [u8; 3]);
+
+/// An axis gizmo through `centre`: x red, y green, z blue, each half `length` long. The
+/// negative half is darker, so that an axis's direction shows even where half of it is hidden.
+pub fn gizmo(centre: Vec3, length: f32) -> Vec<HalfAxis> {
+    let mut axes = Vec::new();
+    for (axis, colour) in [(Vec3::X, [255, 0, 0]), (Vec3::Y, [0, 255, 0]), (Vec3::Z, [0, 0, 255])] {
+        axes.push((centre, centre + axis * length, colour));
+        axes.push((centre, centre - axis * length, colour.map(|c| c / 2)));
+    }
+    axes
 }
 
-/// Pixels (x, y in memory order) the checks look at.
+/// Line vertices, two a line, in the order they are added.
+#[derive(Default)]
+pub struct Lines {
+    pub vertices: Vec<LineVertex>,
+}
+
+impl Lines {
+    pub fn line(&mut self, a: Vec3, b: Vec3, colour: [u8; 3]) {
+        let colour = colour.map(|c| c as f32 / 255.0);
+        self.vertices.push(LineVertex { position: a.into(), colour });
+        self.vertices.push(LineVertex { position: b.into(), colour });
+    }
+
+    /// The twelve edges of a box, from its eight corners: `corner(i)` is the corner whose bits
+    /// 0, 1, 2 of `i` choose the high x, y, z side.
+    pub fn box_edges(&mut self, corner: impl Fn(u32) -> Vec3, colour: [u8; 3]) {
+        for i in 0..8u32 {
+            for bit in [1, 2, 4] {
+                if i & bit == 0 {
+                    self.line(corner(i), corner(i | bit), colour);
+                }
+            }
+        }
+    }
+
+    pub fn half_axes(&mut self, axes: &[HalfAxis]) {
+        for &(a, b, colour) in axes {
+            self.line(a, b, colour);
+        }
+    }
+}
+
+/// Line vertices in a GL buffer, with the vertex array `lines.vert` reads them through
+/// (location 0 the position, 1 the colour).
+pub struct LineBuffer {
+    pub vertex_array: glow::VertexArray,
+    pub buffer: glow::Buffer,
+}
+
+impl LineBuffer {
+    pub fn new(gl: &glow::Context, vertices: &[LineVertex]) -> Result<Self> {
+        let bytes = crate::scene::gbuffer::as_bytes(vertices);
+        unsafe {
+            let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
+            gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
+            crate::base::resources::created("gl_buffer", bytes.len() as u64);
+            let vertex_array = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
+            let stride = size_of::<LineVertex>() as i32;
+            gl.vertex_array_vertex_buffer(vertex_array, 0, Some(buffer), 0, stride);
+            for (location, offset) in [(0, 0), (1, 12)] {
+                gl.enable_vertex_array_attrib(vertex_array, location);
+                gl.vertex_array_attrib_format_f32(vertex_array, location, 3, glow::FLOAT, false, offset);
+                gl.vertex_array_attrib_binding_f32(vertex_array, location, 0);
+            }
+            Ok(LineBuffer { vertex_array, buffer })
+        }
+    }
+
+    pub fn delete(self, gl: &glow::Context) {
+        unsafe {
+            gl.delete_vertex_array(self.vertex_array);
+            gl.delete_buffer(self.buffer);
+        }
+    }
+}
+
+/// The overlay lines: an axis gizmo through the scene's centre, and the selected instance's
+/// oriented bounding box.
+pub struct Overlays {
+    program: glow::Program,
+    lines: LineBuffer,
+    count: i32,
+    /// The gizmo's half-axes, for the checks.
+    axes: Vec<HalfAxis>,
+}
+
+/// Pixels (x, y in memory order) the checks look at, with the colour a line shows there.
 pub struct Probes {
     pub hidden: Option<(usize, usize, [u8; 3])>,
     pub visible: Option<(usize, usize, [u8; 3])>,
 }
 
 impl Overlays {
-    pub fn new(gl: &Rc<glow::Context>, scene: &Scene, select: usize) -> Result<Self> {
+    pub fn new(gl: &glow::Context, scene: &Scene, select: usize) -> Result<Self> {
         // ANCHOR: lines
         let centre = (scene.bounds.0 + scene.bounds.1) / 2.0;
-        let length = 0.3 * scene.size();
-        let mut axes = Vec::new();
-        for (axis, colour) in [(Vec3::X, [255, 0, 0]), (Vec3::Y, [0, 255, 0]), (Vec3::Z, [0, 0, 255])] {
-            axes.push((centre, centre + axis * length, colour));
-            // The negative half, darker: below the ground or behind the bunny, often hidden.
-            axes.push((centre, centre - axis * length, colour.map(|c| c / 2)));
-        }
-        let mut vertices: Vec<LineVertex> = Vec::new();
-        let mut line = |a: Vec3, b: Vec3, colour: [u8; 3]| {
-            let colour = colour.map(|c| c as f32 / 255.0);
-            vertices.push(LineVertex { position: a.into(), colour });
-            vertices.push(LineVertex { position: b.into(), colour });
-        };
-        for &(a, b, colour) in &axes {
-            line(a, b, colour);
-        }
+        // The negative halves go below the ground or behind the bunny: often hidden.
+        let axes = gizmo(centre, 0.3 * scene.size());
+        let mut lines = Lines::default();
+        lines.half_axes(&axes);
         // The selected instance's box: its mesh's bounds, carried by its transform.
         let mesh = scene.mesh_instances.iter().position(|r| r.contains(&(select as u32))).unwrap_or(0);
         let (low, high) = scene.meshes[mesh].vertices.iter().fold((Vec3::MAX, Vec3::MIN), |(l, h), v| {
@@ -71,40 +144,16 @@ impl Overlays {
                 if i & 4 == 0 { low.z } else { high.z },
             ))
         };
-        for i in 0..8u32 {
-            for bit in [1, 2, 4] {
-                if i & bit == 0 {
-                    line(corner(i), corner(i | bit), [255, 0, 255]);
-                }
-            }
-        }
+        lines.box_edges(corner, [255, 0, 255]);
         // ANCHOR_END: lines
-        let program =
-            crate::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT).context("the overlay lines' program")?;
-        let bytes = crate::gbuffer::as_bytes(&vertices);
-        let (vertex_array, buffer) = unsafe {
-            let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg);
-            let buffer = buffer.inspect_err(|_| gl.delete_program(program)).context("glCreateBuffers")?;
-            gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
-            crate::resources::created("gl_buffer", bytes.len() as u64);
-            let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg).inspect_err(|_| {
-                gl.delete_buffer(buffer);
-                gl.delete_program(program);
-            });
-            let vao = vao.context("glCreateVertexArrays")?;
-            gl.vertex_array_vertex_buffer(vao, 0, Some(buffer), 0, size_of::<LineVertex>() as i32);
-            for (location, offset) in [(0, 0), (1, 12)] {
-                gl.enable_vertex_array_attrib(vao, location);
-                gl.vertex_array_attrib_format_f32(vao, location, 3, glow::FLOAT, false, offset);
-                gl.vertex_array_attrib_binding_f32(vao, location, 0);
-            }
-            (vao, buffer)
-        };
-        Ok(Overlays { program, vertex_array, buffer, count: vertices.len() as i32, axes, gl: gl.clone() })
+        let program = crate::base::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
+        let count = lines.vertices.len() as i32;
+        let lines = LineBuffer::new(gl, &lines.vertices)?;
+        Ok(Overlays { program, lines, count, axes })
     }
 
     // ANCHOR: draw_lines
-    /// Lines over the picture, depth-tested against the scene's depth but not writing it.
+    /// Lines over the target's picture, depth-tested against the scene's depth but not writing it.
     pub fn draw(&self, gl: &glow::Context, target: &Target, view_projection: Mat4) {
         unsafe {
             gl.bind_framebuffer(glow::FRAMEBUFFER, Some(target.framebuffer));
@@ -116,7 +165,7 @@ impl Overlays {
             gl.use_program(Some(self.program));
             let at = gl.get_uniform_location(self.program, "view_projection");
             gl.uniform_matrix_4_f32_slice(at.as_ref(), false, &view_projection.to_cols_array());
-            gl.bind_vertex_array(Some(self.vertex_array));
+            gl.bind_vertex_array(Some(self.lines.vertex_array));
             gl.draw_arrays(glow::LINES, 0, self.count);
             gl.bind_vertex_array(None);
             gl.depth_mask(true);
@@ -126,9 +175,10 @@ impl Overlays {
     // ANCHOR_END: draw_lines
 
     /// Points along the gizmo that are certainly hidden (a surface clearly in front, all around)
-    /// or certainly visible (nothing at all in front, all around), by the scene's view depth per
-    /// pixel (`scene_depth`: `width` x `height`, GL's bottom row first, 0 where nothing was drawn).
-    pub fn probe(&self, scene_depth: &[f32], (width, height): (usize, usize), camera: &Camera) -> Probes {
+    /// or certainly visible (nothing at all in front, all around), by the scene's view depth:
+    /// one value a pixel, `width * height` of them in memory order (bottom row first), 0 where
+    /// nothing was drawn. `camera` is the one the picture was drawn with.
+    pub fn probe(&self, depth: &[f32], width: usize, height: usize, camera: &Camera) -> Probes {
         let view_projection = camera.view_projection(width as f32 / height as f32);
         let (eye, forward) = (camera.eye, (camera.target - camera.eye).normalize());
         let mut probes = Probes { hidden: None, visible: None };
@@ -145,39 +195,23 @@ impl Overlays {
                 if x < 2 || y < 2 || x + 2 >= width || y + 2 >= height {
                     continue;
                 }
-                let depth = forward.dot(point - eye);
+                let point_depth = forward.dot(point - eye);
                 let around = |test: &dyn Fn(f32) -> bool| {
-                    (y - 2..=y + 2).all(|v| (x - 2..=x + 2).all(|u| test(scene_depth[v * width + u])))
+                    (y - 2..=y + 2).all(|v| (x - 2..=x + 2).all(|u| test(depth[v * width + u])))
                 };
-                if probes.hidden.is_none() && around(&|w| w > 0.0 && w < 0.9 * depth) {
+                if probes.hidden.is_none() && around(&|w| w > 0.0 && w < 0.9 * point_depth) {
                     probes.hidden = Some((x, y, colour));
                 }
-                if probes.visible.is_none() && around(&|w| w <= 0.0 || w > 1.1 * depth) {
+                if probes.visible.is_none() && around(&|w| w <= 0.0 || w > 1.1 * point_depth) {
                     probes.visible = Some((x, y, colour));
                 }
             }
         }
         probes
     }
-}
 
-impl Drop for Overlays {
-    fn drop(&mut self) {
-        unsafe {
-            self.gl.delete_vertex_array(self.vertex_array);
-            self.gl.delete_buffer(self.buffer);
-            self.gl.delete_program(self.program);
-        }
+    pub fn destroy(self, gl: &glow::Context) {
+        self.lines.delete(gl);
+        unsafe { gl.delete_program(self.program) };
     }
-}
-
-/// Does the line's colour appear within a pixel of (x, y)? (A 1-pixel line may be rasterised on
-/// a neighbour of the point's own pixel.)
-pub fn shows_colour(pixels: &[u8], width: usize, (x, y, colour): (usize, usize, [u8; 3])) -> bool {
-    (y - 1..=y + 1).any(|v| {
-        (x - 1..=x + 1).any(|u| {
-            let p = &pixels[(v * width + u) * 4..][..3];
-            p.iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 3)
-        })
-    })
 }

@@ -1,13 +1,13 @@
 //! Vulkan memory seen by GL: importing an exported fd as a GL memory object, and a buffer (taught
 //! in chapter 02) or a 2D texture (chapter 03) stored in it.
 
-use crate::commands::image_barrier;
-use crate::exportable::{self, Dedicated, ExportableMemory};
-use crate::gl::{
-    DEDICATED_MEMORY_OBJECT_EXT, HANDLE_TYPE_OPAQUE_FD_EXT, MemoryObjectFns, OPTIMAL_TILING_EXT,
+use crate::base::commands::image_barrier;
+use crate::base::gl::{
+    DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MemoryObjectFns, OPTIMAL_TILING_EXT,
     TEXTURE_TILING_EXT,
 };
-use crate::{GlContext, VulkanContext};
+use crate::base::vulkan::VulkanContext;
+use crate::interop::exportable::{self, Dedicated, ExportableMemory};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
@@ -39,7 +39,7 @@ pub struct MemoryObject {
 impl Drop for MemoryObject {
     fn drop(&mut self) {
         unsafe { (self.fns.DeleteMemoryObjectsEXT)(1, &self.name) };
-        crate::resources::destroyed("gl_memory_object");
+        crate::base::resources::destroyed("gl_memory_object");
     }
 }
 
@@ -50,7 +50,7 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
     let ext = gl.memory_fns()?;
     let mut name = 0;
     unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
-    crate::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
+    crate::base::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
     // From here on the guard deletes the memory object on every early return.
     let memory_object = MemoryObject { name, fns: *ext };
     if dedicated {
@@ -59,7 +59,7 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
         unsafe { (ext.MemoryObjectParameterivEXT)(name, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
     }
     // (`VKGL_FAIL_AT=import` fails here, as a driver that refuses the import would.)
-    crate::fail::at("import")?;
+    crate::base::fail::at("import")?;
     // An error left by an earlier call would be read below as the import's own, and the fd then
     // closed although GL took it: report it now, while the fd is still only ours.
     gl.check_error("a GL call before glImportMemoryFdEXT")?;
@@ -85,7 +85,7 @@ pub fn import_buffer(
     // A failure from here on drops `memory_object`, which deletes it.
     let buffer =
         unsafe { gl.gl.create_named_buffer() }.map_err(anyhow::Error::msg).context("glCreateBuffers")?;
-    crate::resources::created("gl_buffer_imported", 0);
+    crate::base::resources::created("gl_buffer_imported", 0);
     let shared = SharedBuffer { buffer, memory_object, gl: gl.gl.clone() };
     // Like glNamedBufferStorage, but the storage already exists: it is the memory object.
     let ext = gl.memory_fns()?;
@@ -125,11 +125,11 @@ pub fn import_texture_2d(
     let memory_object = import_memory(gl, fd, memory.size, true)?;
     // The import succeeded: a failure from here on must still delete the memory object, and
     // does, by dropping it. (`VKGL_FAIL_AT=texture` fails here.)
-    crate::fail::at("texture")?;
+    crate::base::fail::at("texture")?;
     let texture = unsafe { gl.gl.create_named_texture(glow::TEXTURE_2D) }
         .map_err(anyhow::Error::msg)
         .context("glCreateTextures")?;
-    crate::resources::created("gl_texture_imported", 0);
+    crate::base::resources::created("gl_texture_imported", 0);
     let shared = SharedTexture { texture, memory_object, gl: gl.gl.clone() };
     let ext = gl.memory_fns()?;
     unsafe {
@@ -161,7 +161,7 @@ impl SharedBuffer {
 impl Drop for SharedBuffer {
     fn drop(&mut self) {
         unsafe { self.gl.delete_buffer(self.buffer) };
-        crate::resources::destroyed("gl_buffer_imported");
+        crate::base::resources::destroyed("gl_buffer_imported");
         // `memory_object` is dropped next (fields drop after this), which deletes it.
     }
 }
@@ -175,9 +175,9 @@ impl SharedTexture {
 
 impl Drop for SharedTexture {
     fn drop(&mut self) {
-        crate::sync::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
+        crate::interop::handoff::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
         unsafe { self.gl.delete_texture(self.texture) };
-        crate::resources::destroyed("gl_texture_imported");
+        crate::base::resources::destroyed("gl_texture_imported");
     }
 }
 
@@ -218,16 +218,16 @@ fn destroy_vulkan_half(
     if image == vk::Image::null() {
         return; // nothing was made (or it has been handed on)
     }
-    crate::commands::wait_idle(device);
+    crate::base::commands::wait_idle(device);
     unsafe {
         device.destroy_image_view(view, None);
         if memory != vk::DeviceMemory::null() {
             device.free_memory(memory, None);
-            crate::resources::destroyed("vk_memory_exportable");
+            crate::base::resources::destroyed("vk_memory_exportable");
         }
         if image != vk::Image::null() {
             device.destroy_image(image, None);
-            crate::resources::destroyed("vk_image_exportable");
+            crate::base::resources::destroyed("vk_image_exportable");
         }
     }
 }
@@ -258,7 +258,7 @@ impl SharedImage {
             .image(image)
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
-            .subresource_range(crate::commands::COLOR_RANGE);
+            .subresource_range(crate::base::commands::COLOR_RANGE);
         half.view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
         let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
         let fd = exportable::export_fd(&fd_loader, memory.memory)?;
@@ -291,7 +291,7 @@ impl Drop for SharedImage {
 /// them out of `UNDEFINED` (which may initialise what the driver keeps beside the pixels) and
 /// releases them to `VK_QUEUE_FAMILY_EXTERNAL`. For images GL uses first (chapter 03's, the
 /// G-buffers): from here on each is in a layout both sides know, the one the host path hands it
-/// over in (`Sync::hand_over`). Set-up work: the CPU waits for it.
+/// over in (`Handoff::hand_over`). Set-up work: the CPU waits for it.
 pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Result<()> {
     let general = vk::ImageLayout::GENERAL;
     let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
@@ -302,13 +302,16 @@ pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Res
             image_barrier(image.image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
         })
         .collect();
-    let commands = crate::commands::Commands::new(vk)?;
+    let commands = crate::base::commands::Commands::new(vk)?;
     commands.run_once(vk, |cb| unsafe {
         let (top, bottom) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
         vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
     })?;
     for image in images {
-        crate::sync::vulkan_left(image.texture.texture.0.get(), crate::gl::layout::of(general));
+        crate::interop::handoff::vulkan_left(
+            image.texture.texture.0.get(),
+            crate::base::gl::layout::of(general),
+        );
     }
     Ok(())
 }

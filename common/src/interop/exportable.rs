@@ -3,7 +3,7 @@
 //! gpu-allocator cannot do this (it has no way to chain `VkExportMemoryAllocateInfo`), so every
 //! shared resource gets its own plain `vkAllocateMemory`, bound at offset 0.
 
-use crate::VulkanContext;
+use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use std::os::fd::{FromRawFd, OwnedFd};
@@ -83,7 +83,7 @@ pub fn allocate(
     // ANCHOR: allocate_memory
     let memory = unsafe { ctx.device.allocate_memory(&info, None) }
         .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
-    crate::resources::created("vk_memory_exportable", size);
+    crate::base::resources::created("vk_memory_exportable", size);
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     let allowed_types = requirements.memory_type_bits;
     Ok(ExportableMemory { memory, size, memory_type_index, property_flags, allowed_types })
@@ -141,7 +141,7 @@ pub fn create_image(
         .push_next(&mut external);
     let image = unsafe { ctx.device.create_image(&info, None) }
         .with_context(|| format!("vkCreateImage ({format:?})"))?;
-    crate::resources::created("vk_image_exportable", 0);
+    crate::base::resources::created("vk_image_exportable", 0);
     Ok(image)
 }
 // ANCHOR_END: create_image
@@ -213,7 +213,7 @@ impl ExportedBuffer {
             ctx.info.name
         );
         let buffer = unsafe { ctx.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
-        crate::resources::created("vk_buffer_exportable", 0);
+        crate::base::resources::created("vk_buffer_exportable", 0);
         // The guard exists from the first object on: a failed allocation, bind or map below
         // destroys what was made before it.
         let mut exported = ExportedBuffer {
@@ -233,7 +233,7 @@ impl ExportedBuffer {
         exported.memory = allocate(ctx, &requirements, host, dedicated)?;
         let memory = exported.memory.memory;
         unsafe { ctx.device.bind_buffer_memory(buffer, memory, 0) }.context("vkBindBufferMemory")?;
-        crate::fail::at("map")?; // `VKGL_FAIL_AT=map`: as if vkMapMemory had failed
+        crate::base::fail::at("map")?; // `VKGL_FAIL_AT=map`: as if vkMapMemory had failed
         exported.mapped = unsafe { ctx.device.map_memory(memory, 0, bytes, vk::MemoryMapFlags::empty()) }
             .context("vkMapMemory")?
             .cast::<u8>();
@@ -257,14 +257,14 @@ impl ExportedBuffer {
 
 impl Drop for ExportedBuffer {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.device);
+        crate::base::commands::wait_idle(&self.device);
         unsafe {
             if !self.mapped.is_null() {
                 self.device.unmap_memory(self.memory.memory);
             }
             if self.memory.memory != vk::DeviceMemory::null() {
                 self.device.free_memory(self.memory.memory, None);
-                crate::resources::destroyed("vk_memory_exportable");
+                crate::base::resources::destroyed("vk_memory_exportable");
             }
             self.device.destroy_buffer(self.buffer, None);
         }

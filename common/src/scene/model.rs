@@ -172,8 +172,8 @@ pub fn default_scene(count: u32, seed: u64) -> Scene {
 }
 
 /// The default scene's meshes, kept as OBJ files in `assets/` and built into the binaries.
-const TETRAHEDRON_OBJ: &str = include_str!("../../assets/tetrahedron.obj");
-const GROUND_OBJ: &str = include_str!("../../assets/ground.obj");
+const TETRAHEDRON_OBJ: &str = include_str!("../../../assets/tetrahedron.obj");
+const GROUND_OBJ: &str = include_str!("../../../assets/ground.obj");
 
 /// A regular tetrahedron of circumradius 1 with one normal per face (12 vertices).
 pub fn tetrahedron() -> Mesh {
@@ -244,7 +244,7 @@ pub struct SceneArgs {
     /// One of the scenes `bench` measures instead: `large` (the default scene's tetrahedra over a
     /// million-triangle rippled ground) or `ceiling` (one triangle every ray misses).
     #[arg(long, value_enum, conflicts_with = "scene")]
-    pub builtin: Option<crate::builtin_scenes::SceneKind>,
+    pub builtin: Option<super::builtin::SceneKind>,
 }
 
 impl SceneArgs {

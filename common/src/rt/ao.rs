@@ -1,19 +1,20 @@
 //! Ray-traced ambient occlusion from GL's G-buffers, accumulated over frames (taught in chapter
 //! 07; chapter 08 composites with it).
 
-use crate::commands::{Commands, Timestamps, first_use};
-use crate::gbuffer::GBuffers;
+use crate::base::commands::{Commands, Timestamps, first_use};
+use crate::base::gl::GlContext;
+use crate::base::vulkan::VulkanContext;
+use crate::interop::handoff::{HandOver, Handoff};
 use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
-use crate::raytrace::{AoRays, RayPipeline, push_bytes};
-use crate::sync::{HandOver, Sync};
-use crate::{GlContext, VulkanContext};
+use crate::rt::raytrace::{RayPipeline, push_bytes};
+use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
 use ash::vk;
 use glow::HasContext;
 use gpu_allocator::vulkan::Allocator;
 
-const RAYGEN: &[u8] = include_bytes!("../../shaders/ao.rgen.spv");
-const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+const RAYGEN: &[u8] = include_bytes!("../../../shaders/ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../../shaders/miss.rmiss.spv");
 
 /// The ambient-occlusion flags (chapters 07 and 08).
 #[derive(clap::Args, Debug, Clone)]
@@ -53,14 +54,14 @@ impl AoArgs {
 /// The checks every chapter that traces makes of the AO image as GL holds it: every value a
 /// fraction of rays, in [0, 1], and background pixels (position w = 0) exactly 1.
 pub fn check_occlusion(
-    report: &mut crate::Report,
+    report: &mut crate::base::report::Report,
     gl: &glow::Context,
     gbuffers: &GBuffers,
     tracer: &AoTracer,
 ) {
     let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
-    let positions = crate::output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
-    let visibility = crate::output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
+    let positions = crate::base::output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
+    let visibility = crate::base::output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
     report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
     let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
     report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
@@ -197,7 +198,7 @@ impl AoTracer {
         &mut self,
         vk: &VulkanContext,
         gl: &GlContext,
-        sync: &Sync,
+        handoff: &Handoff,
         commands: &Commands,
         gbuffers: &GBuffers,
         mut rays: AoRays,
@@ -209,13 +210,15 @@ impl AoTracer {
         // `hand_over` makes all of them GENERAL both ways (GL moves no layout there).
         let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
         let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-        let layouts =
-            (sync.hand_over(vk::ImageLayout::GENERAL, attachment), sync.hand_over(read_only, read_only));
+        let layouts = (
+            handoff.hand_over(vk::ImageLayout::GENERAL, attachment),
+            handoff.hand_over(read_only, read_only),
+        );
         let ((gbuffer_to_vulkan, gbuffer_to_gl), (ao_to_vulkan, ao_to_gl)) = (layouts.0.gl(), layouts.1.gl());
         let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
         // The AO image only once GL has had it.
         let handed = if self.gl_has_image { 3 } else { 2 };
-        sync.gl_release(
+        handoff.gl_release(
             gl,
             &textures[..handed],
             &[gbuffer_to_vulkan, gbuffer_to_vulkan, ao_to_vulkan][..handed],
@@ -224,9 +227,9 @@ impl AoTracer {
         rays.accumulated = self.accumulated;
         unsafe { self.record(vk, cb, gbuffers, layouts, &rays, timestamps) };
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-        commands.submit(vk, sync.vulkan_waits_on().map(|s| (s, stage)), sync.vulkan_signals())?;
+        commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
         let layouts = [gbuffer_to_gl, gbuffer_to_gl, ao_to_gl];
-        sync.gl_acquire(vk, gl, commands.fence, &textures, &layouts)?;
+        handoff.gl_acquire(vk, gl, commands.fence, &textures, &layouts)?;
         self.gl_has_image = true;
         self.accumulated += rays.samples;
         Ok(())
@@ -291,5 +294,36 @@ impl AoTracer {
     pub fn destroy(self, vk: &VulkanContext, gl: &GlContext, allocator: &mut Allocator) {
         self.image.destroy(vk, gl);
         self.pipeline.destroy(vk, allocator);
+    }
+}
+
+// ANCHOR: ao_rays
+/// The push constants of `shaders/ao.rgen` (std430: four 4-byte members, 16 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct AoRays {
+    /// Rays per pixel this frame.
+    pub samples: u32,
+    /// Rays per pixel already in the running mean (filled in by `AoTracer::trace`).
+    pub accumulated: u32,
+    /// How far an occluder counts, in world units.
+    pub radius: f32,
+    /// The largest coordinate of the re-centred scene, half its diagonal: the ray offset scales
+    /// with it (`Scene::size() / 2`).
+    pub scene_scale: f32,
+}
+// ANCHOR_END: ao_rays
+
+#[cfg(test)]
+mod rays_tests {
+    use super::*;
+
+    #[test]
+    fn ao_rays_match_the_glsl_block() {
+        assert_eq!(std::mem::offset_of!(AoRays, samples), 0);
+        assert_eq!(std::mem::offset_of!(AoRays, accumulated), 4);
+        assert_eq!(std::mem::offset_of!(AoRays, radius), 8);
+        assert_eq!(std::mem::offset_of!(AoRays, scene_scale), 12);
+        assert_eq!(size_of::<AoRays>(), 16);
     }
 }

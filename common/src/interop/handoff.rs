@@ -1,7 +1,8 @@
 //! How GL and Vulkan take turns on shared memory (taught in chapter 03): two exported
 //! semaphores where both drivers can share them, or the CPU waiting for each side where not.
 
-use crate::{GlContext, VulkanContext};
+use crate::base::gl::GlContext;
+use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
@@ -10,7 +11,7 @@ use std::collections::BTreeMap;
 use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
 use std::sync::Mutex;
 
-/// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Sync::Host`].
+/// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Handoff::Host`].
 pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
 
 /// One semaphore, seen by both APIs. Deleted on both sides when dropped (GL's first).
@@ -19,11 +20,12 @@ pub struct SharedSemaphore {
     /// GL's name for it; 0 until the import succeeded.
     pub gl: u32,
     device: ash::Device,
-    gl_fns: Option<crate::gl::SemaphoreFns>,
+    gl_fns: Option<crate::base::gl::SemaphoreFns>,
 }
 
 /// The two hand-overs of every frame, and how they are made.
-pub enum Sync {
+#[allow(clippy::large_enum_variant)] // one per program: boxing the semaphores would buy nothing
+pub enum Handoff {
     /// GL and Vulkan wait for each other on the GPU; the CPU never waits.
     Semaphores {
         /// Signalled by GL when it is done with the shared images; Vulkan waits on it.
@@ -35,7 +37,7 @@ pub enum Sync {
     /// (`glFinish`) before submitting Vulkan's work, and for Vulkan's fence before GL goes on.
     /// Each API sits idle while the other works, and the CPU blocks twice a frame. Nothing tells
     /// GL a layout, so GL changes none: a shared image stays in the layout Vulkan last left it
-    /// in, which is why [`Sync::hand_over`] keeps it in `GENERAL` both ways on this path.
+    /// in, which is why [`Handoff::hand_over`] keeps it in `GENERAL` both ways on this path.
     Host {
         /// Hand-overs to Vulkan that named another layout than the one Vulkan had left.
         disagreements: Cell<u32>,
@@ -43,7 +45,7 @@ pub enum Sync {
 }
 
 /// The layout (GL's name) each shared texture, by GL name, was in when Vulkan last handed it to
-/// GL: written by [`Sync::gl_acquire`] and `interop::hand_new_images_to_gl`, forgotten when the
+/// GL: written by [`Handoff::gl_acquire`] and `interop::hand_new_images_to_gl`, forgotten when the
 /// texture is deleted. On the host path GL moves no layout, so this is the layout Vulkan's next
 /// acquire must name.
 static LEFT_BY_VULKAN: Mutex<BTreeMap<u32, u32>> = Mutex::new(BTreeMap::new());
@@ -71,18 +73,18 @@ pub struct HandOver {
 // ANCHOR_END: hand_over
 
 impl HandOver {
-    /// GL's names for the two layouts, for [`Sync::gl_release`] and [`Sync::gl_acquire`].
+    /// GL's names for the two layouts, for [`Handoff::gl_release`] and [`Handoff::gl_acquire`].
     pub fn gl(self) -> (u32, u32) {
-        let name = |layout| crate::gl::layout::of(layout).expect("a layout GL can name");
+        let name = |layout| crate::base::gl::layout::of(layout).expect("a layout GL can name");
         (name(self.to_vulkan), name(self.to_gl))
     }
 }
 
-impl Sync {
+impl Handoff {
     // ANCHOR: sync_new
     /// Semaphores when both sides support them (and `VKGL_HIDE_EXTENSIONS` hides neither), else
     /// the host fallback; says which on stderr.
-    pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Sync> {
+    pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Handoff> {
         let vulkan_can = vk.has_extension(SEMAPHORE_EXTENSION) && vulkan_can_export_semaphores(vk);
         let (Some(_), true) = (&gl.semaphores, vulkan_can) else {
             let missing = match (vulkan_can, gl.semaphores.is_some()) {
@@ -91,21 +93,21 @@ impl Sync {
                 _ => "GL cannot import semaphores (no GL_EXT_semaphore_fd)",
             };
             eprintln!("sync: host ({missing}): the CPU waits for each API in turn");
-            return Ok(Sync::Host { disagreements: Cell::new(0) });
+            return Ok(Handoff::Host { disagreements: Cell::new(0) });
         };
         let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
         // Should this one fail, `gl_done` is dropped on the way out, which deletes it.
         let vulkan_done = SharedSemaphore::new(vk, gl).context("sharing the vulkan_done semaphore")?;
         eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
-        Ok(Sync::Semaphores { gl_done, vulkan_done })
+        Ok(Handoff::Semaphores { gl_done, vulkan_done })
     }
     // ANCHOR_END: sync_new
 
     /// "semaphores" or "host", for the report.
     pub fn name(&self) -> &'static str {
         match self {
-            Sync::Semaphores { .. } => "semaphores",
-            Sync::Host { .. } => "host",
+            Handoff::Semaphores { .. } => "semaphores",
+            Handoff::Host { .. } => "host",
         }
     }
 
@@ -121,8 +123,8 @@ impl Sync {
     ///   the one layout valid for every use on both sides (attachment, sampling, storage, copies).
     pub fn hand_over(&self, to_vulkan: vk::ImageLayout, to_gl: vk::ImageLayout) -> HandOver {
         match self {
-            Sync::Semaphores { .. } => HandOver { to_vulkan, to_gl },
-            Sync::Host { .. } => {
+            Handoff::Semaphores { .. } => HandOver { to_vulkan, to_gl },
+            Handoff::Host { .. } => {
                 HandOver { to_vulkan: vk::ImageLayout::GENERAL, to_gl: vk::ImageLayout::GENERAL }
             }
         }
@@ -134,8 +136,8 @@ impl Sync {
     /// pair of layouts agrees.
     pub fn layouts_agreed(&self) -> bool {
         match self {
-            Sync::Semaphores { .. } => true,
-            Sync::Host { disagreements, .. } => disagreements.get() == 0,
+            Handoff::Semaphores { .. } => true,
+            Handoff::Host { disagreements, .. } => disagreements.get() == 0,
         }
     }
 
@@ -146,9 +148,9 @@ impl Sync {
         // GL reads one layout per texture from the pointer: a shorter slice would be read past.
         assert_eq!(textures.len(), layouts.len(), "one layout per texture");
         match self {
-            Sync::Semaphores { gl_done, .. } => {
+            Handoff::Semaphores { gl_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
-                let ext = gl.semaphores.as_ref().expect("Sync::Semaphores implies GL semaphores");
+                let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.SignalSemaphoreEXT)(
                         gl_done.gl,
@@ -163,7 +165,7 @@ impl Sync {
                     gl.gl.flush();
                 }
             }
-            Sync::Host { disagreements } => {
+            Handoff::Host { disagreements } => {
                 // No layout travels with glFinish: the textures are in the layouts Vulkan's own
                 // releases left. Count every one that `layouts` misnames (for the chapter's check).
                 disagreements.set(disagreements.get() + misnamed_layouts(textures, layouts));
@@ -177,16 +179,16 @@ impl Sync {
     /// already waited).
     pub fn vulkan_waits_on(&self) -> Option<vk::Semaphore> {
         match self {
-            Sync::Semaphores { gl_done, .. } => Some(gl_done.vk),
-            Sync::Host { .. } => None,
+            Handoff::Semaphores { gl_done, .. } => Some(gl_done.vk),
+            Handoff::Host { .. } => None,
         }
     }
 
     /// What Vulkan's submission signals for GL (`None` on the host path).
     pub fn vulkan_signals(&self) -> Option<vk::Semaphore> {
         match self {
-            Sync::Semaphores { vulkan_done, .. } => Some(vulkan_done.vk),
-            Sync::Host { .. } => None,
+            Handoff::Semaphores { vulkan_done, .. } => Some(vulkan_done.vk),
+            Handoff::Host { .. } => None,
         }
     }
 
@@ -203,11 +205,11 @@ impl Sync {
         layouts: &[u32],
     ) -> Result<()> {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
-        crate::fail::at("gl_acquire")?; // `VKGL_FAIL_AT=gl_acquire`, for the error-path tests
+        crate::base::fail::at("gl_acquire")?; // `VKGL_FAIL_AT=gl_acquire`, for the error-path tests
         match self {
-            Sync::Semaphores { vulkan_done, .. } => {
+            Handoff::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
-                let ext = gl.semaphores.as_ref().expect("Sync::Semaphores implies GL semaphores");
+                let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.WaitSemaphoreEXT)(
                         vulkan_done.gl,
@@ -220,7 +222,7 @@ impl Sync {
                 };
                 Ok(())
             }
-            Sync::Host { .. } => {
+            Handoff::Host { .. } => {
                 // Where Vulkan left them, GL will not move them: the next gl_release checks it.
                 textures.iter().zip(layouts).for_each(|(t, &layout)| vulkan_left(t.0.get(), Some(layout)));
                 unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
@@ -232,7 +234,7 @@ impl Sync {
 
     /// Destroys the semaphores on both sides (GL's first: it holds the imported payload).
     pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
-        if let Sync::Semaphores { gl_done, vulkan_done } = self {
+        if let Handoff::Semaphores { gl_done, vulkan_done } = self {
             vulkan_done.destroy(vk, gl);
             gl_done.destroy(vk, gl);
         }
@@ -250,13 +252,13 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
         if actual != Some(layout) {
             misnamed += 1;
             let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
-                format!("{} (Vulkan's last release)", crate::gl::layout::name(*l))
+                format!("{} (Vulkan's last release)", crate::base::gl::layout::name(*l))
             });
             eprintln!(
                 "sync: host path: texture {} handed to Vulkan as {}, but GL moves no layout here \
                  and it is in {actual}",
                 texture.0.get(),
-                crate::gl::layout::name(*layout)
+                crate::base::gl::layout::name(*layout)
             );
         }
     }
@@ -287,7 +289,7 @@ impl SharedSemaphore {
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
-        crate::resources::created("vk_semaphore_exportable", 0);
+        crate::base::resources::created("vk_semaphore_exportable", 0);
         // From here on the guard destroys what exists on every early return.
         let mut shared =
             SharedSemaphore { vk: semaphore, gl: 0, device: vk.device.clone(), gl_fns: Some(*ext) };
@@ -299,7 +301,7 @@ impl SharedSemaphore {
         let fd = unsafe { OwnedFd::from_raw_fd(fd) };
         unsafe { (ext.GenSemaphoresEXT)(1, &mut shared.gl) };
         unsafe {
-            (ext.ImportSemaphoreFdEXT)(shared.gl, crate::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
+            (ext.ImportSemaphoreFdEXT)(shared.gl, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
         };
         // On failure `fd` is dropped, and so closed (the failed import did not take it), and
         // `shared` deletes GL's semaphore and Vulkan's.
@@ -318,7 +320,7 @@ impl SharedSemaphore {
 
 impl Drop for SharedSemaphore {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.device);
+        crate::base::commands::wait_idle(&self.device);
         if let (Some(ext), true) = (&self.gl_fns, self.gl != 0) {
             unsafe { (ext.DeleteSemaphoresEXT)(1, &self.gl) };
         }

@@ -11,7 +11,7 @@ pub struct Report {
     pub vulkan: Option<VulkanReport>,
     pub gl: Option<GlReport>,
     /// What the chapter created on the GPU, by kind (`common::resources`), beside the extensions.
-    pub resources: Vec<crate::resources::Created>,
+    pub resources: Vec<crate::base::resources::Created>,
     /// Do GL and Vulkan run on the same device and driver? `None` when the chapter uses no GL.
     pub uuids_match: Option<bool>,
     /// How the two APIs take turns: "semaphores", "host", or `None` when they never share work.
@@ -112,7 +112,7 @@ impl Report {
         });
     }
 
-    /// Prints the report and decides the exit code (see [`crate::run_chapter`]), from the checks
+    /// Prints the report and decides the exit code (see [`crate::base::chapter::run_chapter`]), from the checks
     /// and from `validation`, the layer's and GL's error counts that the caller filled in.
     pub fn finish(self, json: bool) -> ExitCode {
         let failed: Vec<&str> = self.checks.iter().filter(|(_, ok)| !**ok).map(|(n, _)| n.as_str()).collect();

@@ -2,8 +2,8 @@
 //! shader binding table, and a storage image for results (taught in chapter 06; chapter 07
 //! traces its ambient occlusion rays through the same kind of pipeline).
 
-use crate::VulkanContext;
-use crate::accel::DeviceBuffer;
+use crate::base::vulkan::VulkanContext;
+use crate::rt::accel::DeviceBuffer;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
@@ -110,7 +110,7 @@ impl RayPipeline {
         unsafe { modules.iter().for_each(|m| device.destroy_shader_module(*m, None)) };
         let pipeline = pipeline.map_err(|(_, e)| e).context("vkCreateRayTracingPipelinesKHR")?[0];
         this.pipeline = pipeline;
-        crate::resources::created("vk_pipeline: ray tracing", 0);
+        crate::base::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
 
         let (sbt, regions) = shader_binding_table(vk, &loader, allocator, pipeline, groups.len() as u32)?;
@@ -188,7 +188,7 @@ impl RayPipeline {
 
 impl Drop for RayPipeline {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.device);
+        crate::base::commands::wait_idle(&self.device);
         unsafe {
             self.device.destroy_descriptor_pool(self.pool, None);
             self.device.destroy_pipeline(self.pipeline, None);
@@ -269,7 +269,18 @@ impl StorageImage {
         usage: vk::ImageUsageFlags,
         extent: vk::Extent2D,
     ) -> Result<Self> {
-        let info = crate::exportable::image_info(format, usage | vk::ImageUsageFlags::STORAGE, extent);
+        // Written by a ray generation shader (STORAGE), and only ever by Vulkan: no external
+        // memory, so nothing binds it to the create-info an exported image must share with GL.
+        let info = vk::ImageCreateInfo::default()
+            .image_type(vk::ImageType::TYPE_2D)
+            .format(format)
+            .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
+            .mip_levels(1)
+            .array_layers(1)
+            .samples(vk::SampleCountFlags::TYPE_1)
+            .tiling(vk::ImageTiling::OPTIMAL)
+            .usage(usage | vk::ImageUsageFlags::STORAGE)
+            .initial_layout(vk::ImageLayout::UNDEFINED);
         let image = unsafe { vk.device.create_image(&info, None) }.context("vkCreateImage")?;
         let mut this = StorageImage {
             image,
@@ -288,13 +299,13 @@ impl StorageImage {
         };
         this.allocation = allocator.allocate(&description)?;
         let allocation = &this.allocation;
-        crate::resources::created("vk_image: storage", allocation.size());
+        crate::base::resources::created("vk_image: storage", allocation.size());
         unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
-            .subresource_range(crate::commands::COLOR_RANGE);
+            .subresource_range(crate::base::commands::COLOR_RANGE);
         this.view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
         Ok(this)
     }
@@ -309,7 +320,7 @@ impl StorageImage {
 
 impl Drop for StorageImage {
     fn drop(&mut self) {
-        crate::commands::wait_idle(&self.device);
+        crate::base::commands::wait_idle(&self.device);
         unsafe {
             self.device.destroy_image_view(self.view, None);
             self.device.destroy_image(self.image, None);
@@ -362,36 +373,5 @@ mod tests {
         assert_eq!(offset_of!(PrimaryRays, t_min), 80);
         assert_eq!(offset_of!(PrimaryRays, t_max), 84);
         assert_eq!(size_of::<PrimaryRays>(), 88);
-    }
-}
-
-// ANCHOR: ao_rays
-/// The push constants of `shaders/ao.rgen` (std430: four 4-byte members, 16 bytes).
-#[repr(C)]
-#[derive(Clone, Copy, Debug)]
-pub struct AoRays {
-    /// Rays per pixel this frame.
-    pub samples: u32,
-    /// Rays per pixel already in the running mean (filled in by `AoTracer::trace`).
-    pub accumulated: u32,
-    /// How far an occluder counts, in world units.
-    pub radius: f32,
-    /// The largest coordinate of the re-centred scene, half its diagonal: the ray offset scales
-    /// with it (`Scene::size() / 2`).
-    pub scene_scale: f32,
-}
-// ANCHOR_END: ao_rays
-
-#[cfg(test)]
-mod ao_tests {
-    use super::*;
-
-    #[test]
-    fn ao_rays_match_the_glsl_block() {
-        assert_eq!(std::mem::offset_of!(AoRays, samples), 0);
-        assert_eq!(std::mem::offset_of!(AoRays, accumulated), 4);
-        assert_eq!(std::mem::offset_of!(AoRays, radius), 8);
-        assert_eq!(std::mem::offset_of!(AoRays, scene_scale), 12);
-        assert_eq!(size_of::<AoRays>(), 16);
     }
 }

@@ -6,9 +6,9 @@
 //! says so ([`GlPassTimer`]), and Vulkan's timestamps are read after the fence wait the frame
 //! already has ([`VkPassTimer`]).
 
-use crate::commands::{Timestamps, median_p95};
-use crate::report::Report;
-use crate::vulkan::VulkanContext;
+use crate::base::commands::{Timestamps, median_p95};
+use crate::base::report::Report;
+use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext as _;

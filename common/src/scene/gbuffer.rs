@@ -1,10 +1,11 @@
 //! The scene's shared buffers and the G-buffers GL rasterises them into (taught in chapter 05;
 //! chapters 06-08 draw the same way).
 
-use crate::exportable::ExportedBuffer;
+use crate::base::gl::GlContext;
+use crate::base::vulkan::VulkanContext;
+use crate::interop::exportable::ExportedBuffer;
 use crate::interop::{SharedBuffer, SharedImage, share_buffer};
 use crate::scene::{Camera, Instance, Scene, Vertex};
-use crate::{GlContext, VulkanContext};
 use anyhow::{Result, ensure};
 use ash::vk;
 use glow::HasContext;
@@ -20,9 +21,9 @@ pub const GBUFFERS: [(&str, vk::Format, u32, u32); 3] = [
 ];
 // ANCHOR_END: gbuffers
 
-const VERTEX_SHADER: &str = include_str!("../../shaders/gl/gbuffer.vert");
-const GEOMETRY_SHADER: &str = include_str!("../../shaders/gl/gbuffer.geom");
-const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/gbuffer.frag");
+const VERTEX_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.vert");
+const GEOMETRY_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.geom");
+const FRAGMENT_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.frag");
 
 /// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocated and GL
 /// imported: Vulkan's side (`.0`, for the acceleration structures) and GL's (`.1`, for drawing).
@@ -105,7 +106,8 @@ impl GBuffers {
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
-        let program = crate::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, FRAGMENT_SHADER)?;
+        let program =
+            crate::base::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, FRAGMENT_SHADER)?;
         let instances = &buffers.instances.1;
         let vertex_arrays = buffers
             .meshes
@@ -214,7 +216,7 @@ impl Drop for GBuffers {
             gl.delete_program(self.program);
             gl.delete_framebuffer(self.framebuffer);
             gl.delete_renderbuffer(self.depth);
-            crate::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
+            crate::base::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
         }
         // `images` are dropped next, each GL side first.
     }
@@ -316,7 +318,10 @@ unsafe fn framebuffer(
         gl.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
         let (width, height) = (extent.width as i32, extent.height as i32);
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, width, height);
-        crate::resources::created("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * width as u64 * height as u64);
+        crate::base::resources::created(
+            "gl_renderbuffer: DEPTH_COMPONENT32F",
+            4 * width as u64 * height as u64,
+        );
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
         let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         let mut draw_buffers = Vec::new();
@@ -332,7 +337,7 @@ unsafe fn framebuffer(
         if status != glow::FRAMEBUFFER_COMPLETE {
             gl.delete_framebuffer(fb);
             gl.delete_renderbuffer(depth);
-            crate::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
+            crate::base::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
         }
         ensure!(status == glow::FRAMEBUFFER_COMPLETE, "G-buffer framebuffer incomplete: {status:#x}");
         Ok((fb, depth))

@@ -72,7 +72,7 @@ impl GlInterop {
         unsafe { (self.register_buffer)(&mut resource, buffer.0.get(), flags as u32) }
             .result()
             .context("cuGraphicsGLRegisterBuffer")?;
-        crate::resources::created("cuda_graphics_resource", 0);
+        crate::base::resources::created("cuda_graphics_resource", 0);
         Ok(resource)
     }
 }
@@ -104,7 +104,7 @@ impl CudaDevice {
             let name = cu::device::get_name(device).context("cuDeviceGetName")?;
             let uuid = cu::device::get_uuid(device).context("cuDeviceGetUuid")?.bytes.map(|b| b as u8);
             if &uuid != device_uuid {
-                seen.push(format!("{name} ({})", crate::report::uuid_hex(&uuid)));
+                seen.push(format!("{name} ({})", crate::base::report::uuid_hex(&uuid)));
                 continue;
             }
             use sys::CUdevice_attribute::*;
@@ -124,7 +124,7 @@ impl CudaDevice {
         }
         Err(Unavailable(format!(
             "none of the {count} CUDA device(s) is the Vulkan/GL device {}: {seen:?}",
-            crate::report::uuid_hex(device_uuid)
+            crate::base::report::uuid_hex(device_uuid)
         ))
         .into())
     }

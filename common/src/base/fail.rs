@@ -13,7 +13,7 @@ pub const POINTS: [(&str, &str); 6] = [
     ("import", "GL's import of an exported fd (interop::import_memory)"),
     ("texture", "creating the GL texture after a successful import (interop::import_texture_2d)"),
     ("submit", "submitting a frame's Vulkan work (commands::Commands::submit)"),
-    ("gl_acquire", "GL taking the images back after Vulkan's work (sync::Sync::gl_acquire)"),
+    ("gl_acquire", "GL taking the images back after Vulkan's work (handoff::Handoff::gl_acquire)"),
 ];
 
 /// The point `VKGL_FAIL_AT` names, if any (read once).

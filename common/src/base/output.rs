@@ -1,6 +1,6 @@
 //! Writing what a chapter rendered: GL read-back and PNG files.
 
-use crate::Report;
+use crate::base::report::Report;
 use anyhow::{Context as _, Result};
 use glow::HasContext;
 use std::path::Path;

@@ -4,7 +4,13 @@
 //! Support is decided from GL's extension list only: Mesa's `eglGetProcAddress` returns a
 //! non-null stub for any name at all, so a non-null pointer proves nothing.
 
-use crate::vulkan::{DeviceInfo, hidden_extensions};
+mod debug;
+mod objects;
+
+pub use debug::*;
+pub use objects::*;
+
+use crate::base::vulkan::{DeviceInfo, hidden_extensions};
 use anyhow::{Context as _, Result, bail};
 use glow::HasContext;
 use glutin::api::egl;
@@ -13,7 +19,6 @@ use glutin::context::{ContextApi, ContextAttributesBuilder, GlProfile, PossiblyC
 use glutin::prelude::*;
 use std::collections::HashSet;
 use std::ffi::{CStr, CString, c_void};
-use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Sharing memory: memory objects, buffer and texture storage in them, and the device UUIDs.
 pub const MEMORY_EXTENSIONS: [&str; 2] = ["GL_EXT_memory_object", "GL_EXT_memory_object_fd"];
@@ -81,7 +86,7 @@ macro_rules! gl_functions {
                             bail!("the GL driver lists the extension but has no {name:?}");
                         }
                         // SAFETY: a non-null GL entry point with this signature (from the extension spec).
-                        unsafe { std::mem::transmute::<*const c_void, _>(pointer) }
+                        unsafe { std::mem::transmute::<*const c_void, unsafe extern "system" fn($($ty),*) $(-> $ret)?>(pointer) }
                     },)*
                 })
             }
@@ -352,12 +357,12 @@ impl GlContext {
     }
 
     /// The `gl` section of the chapter report.
-    pub fn report(&self) -> crate::report::GlReport {
-        crate::report::GlReport {
+    pub fn report(&self) -> crate::base::report::GlReport {
+        crate::base::report::GlReport {
             renderer: self.renderer.clone(),
             version: self.version.clone(),
-            device_uuid: crate::report::uuid_hex(&self.device_uuid),
-            driver_uuid: crate::report::uuid_hex(&self.driver_uuid),
+            device_uuid: crate::base::report::uuid_hex(&self.device_uuid),
+            driver_uuid: crate::base::report::uuid_hex(&self.driver_uuid),
             extensions: self.required.clone(),
         }
     }
@@ -381,7 +386,7 @@ pub fn uuids_match(vulkan: &DeviceInfo, gl: &GlContext) -> bool {
 /// GL and Vulkan must run on the same device and driver: an OPAQUE_FD handle means something
 /// only to the driver that made it. On a laptop with two GPUs, GL may well run on the other one.
 pub fn ensure_same_device(vulkan: &DeviceInfo, gl: &GlContext) -> Result<()> {
-    let hex = crate::report::uuid_hex;
+    let hex = crate::base::report::uuid_hex;
     if !uuids_match(vulkan, gl) {
         bail!(
             "GL and Vulkan run on different devices or drivers, so they cannot share memory:\n  \
@@ -399,192 +404,3 @@ pub fn ensure_same_device(vulkan: &DeviceInfo, gl: &GlContext) -> Result<()> {
     Ok(())
 }
 // ANCHOR_END: same_device
-
-fn error_name(error: u32) -> &'static str {
-    match error {
-        glow::INVALID_ENUM => "GL_INVALID_ENUM",
-        glow::INVALID_VALUE => "GL_INVALID_VALUE",
-        glow::INVALID_OPERATION => "GL_INVALID_OPERATION",
-        glow::OUT_OF_MEMORY => "GL_OUT_OF_MEMORY",
-        glow::INVALID_FRAMEBUFFER_OPERATION => "GL_INVALID_FRAMEBUFFER_OPERATION",
-        _ => "unknown",
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Debug output: GL's counterpart of the validation layer
-
-static GL_ERRORS: AtomicU32 = AtomicU32::new(0);
-
-/// How many errors GL's debug output reported in this process.
-pub fn gl_error_count() -> u32 {
-    GL_ERRORS.load(Ordering::Relaxed)
-}
-
-// ANCHOR: debug_output
-/// How GL reports problems (`bench --gl-debug`). Every context starts `Synchronous`: a message
-/// arrives inside the call that caused it, which is what one wants while learning and testing,
-/// and what costs most (the driver may serialise its work to do it). Timed runs can choose less.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum DebugOutput {
-    /// Messages inside the call that caused them (the default of every chapter).
-    Synchronous,
-    /// Messages whenever the driver gets to them: errors are still counted, later.
-    Asynchronous,
-    /// No messages: only `glGetError` (`GlContext::check_error`) still sees errors.
-    Off,
-}
-
-impl GlContext {
-    /// Changes how this context reports problems; see [`DebugOutput`].
-    pub fn set_debug_output(&self, mode: DebugOutput) {
-        unsafe {
-            match mode {
-                DebugOutput::Off => self.gl.disable(glow::DEBUG_OUTPUT),
-                _ => self.gl.enable(glow::DEBUG_OUTPUT),
-            }
-            match mode {
-                DebugOutput::Synchronous => self.gl.enable(glow::DEBUG_OUTPUT_SYNCHRONOUS),
-                _ => self.gl.disable(glow::DEBUG_OUTPUT_SYNCHRONOUS),
-            }
-        }
-    }
-}
-// ANCHOR_END: debug_output
-
-fn enable_debug_output(gl: &mut glow::Context) {
-    unsafe {
-        // Synchronous: the message arrives inside the call that caused it, so a backtrace helps.
-        gl.enable(glow::DEBUG_OUTPUT);
-        gl.enable(glow::DEBUG_OUTPUT_SYNCHRONOUS);
-        gl.debug_message_callback(|_source, kind, _id, severity, message| {
-            if kind == glow::DEBUG_TYPE_ERROR {
-                GL_ERRORS.fetch_add(1, Ordering::Relaxed);
-                eprintln!("gl debug error: {message}");
-            } else if severity == glow::DEBUG_SEVERITY_HIGH || severity == glow::DEBUG_SEVERITY_MEDIUM {
-                eprintln!("gl debug: {message}");
-            }
-        });
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Small GL helpers every drawing chapter uses
-
-/// Compiles and links a program from GLSL sources; a failure carries GL's info log.
-pub fn program(gl: &glow::Context, vertex: &str, fragment: &str) -> Result<glow::Program> {
-    program_from(
-        gl,
-        &[(glow::VERTEX_SHADER, vertex, "vertex"), (glow::FRAGMENT_SHADER, fragment, "fragment")],
-    )
-}
-
-/// As [`program`], with a geometry shader between the two.
-pub fn program_with_geometry(
-    gl: &glow::Context,
-    vertex: &str,
-    geometry: &str,
-    fragment: &str,
-) -> Result<glow::Program> {
-    let stages = [
-        (glow::VERTEX_SHADER, vertex, "vertex"),
-        (glow::GEOMETRY_SHADER, geometry, "geometry"),
-        (glow::FRAGMENT_SHADER, fragment, "fragment"),
-    ];
-    program_from(gl, &stages)
-}
-
-fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow::Program> {
-    unsafe {
-        let program = gl.create_program().map_err(anyhow::Error::msg)?;
-        crate::resources::created("gl_program", 0);
-        let mut shaders = Vec::new();
-        for &(kind, source, name) in stages {
-            let shader = gl.create_shader(kind).map_err(anyhow::Error::msg)?;
-            gl.shader_source(shader, source);
-            gl.compile_shader(shader);
-            if !gl.get_shader_compile_status(shader) {
-                let log = gl.get_shader_info_log(shader);
-                gl.delete_shader(shader);
-                shaders.into_iter().for_each(|s| gl.delete_shader(s));
-                gl.delete_program(program);
-                bail!("the {name} shader does not compile:\n{log}");
-            }
-            gl.attach_shader(program, shader);
-            shaders.push(shader);
-        }
-        gl.link_program(program);
-        for shader in shaders {
-            gl.detach_shader(program, shader);
-            gl.delete_shader(shader);
-        }
-        if !gl.get_program_link_status(program) {
-            let log = gl.get_program_info_log(program);
-            gl.delete_program(program);
-            bail!("the program does not link:\n{log}");
-        }
-        Ok(program)
-    }
-}
-
-/// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::output`].
-/// Deleted when dropped.
-pub struct RenderTarget {
-    pub framebuffer: glow::Framebuffer,
-    pub colour: glow::Renderbuffer,
-    pub width: u32,
-    pub height: u32,
-    gl: std::rc::Rc<glow::Context>,
-}
-
-impl RenderTarget {
-    pub fn new(gl: &std::rc::Rc<glow::Context>, width: u32, height: u32) -> Result<Self> {
-        unsafe {
-            let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
-            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
-            gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, width as i32, height as i32);
-            gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-            crate::resources::created("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
-            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
-            gl.named_framebuffer_renderbuffer(
-                Some(framebuffer),
-                glow::COLOR_ATTACHMENT0,
-                glow::RENDERBUFFER,
-                Some(colour),
-            );
-            let status = gl.check_named_framebuffer_status(Some(framebuffer), glow::FRAMEBUFFER);
-            if status != glow::FRAMEBUFFER_COMPLETE {
-                gl.delete_framebuffer(framebuffer);
-                gl.delete_renderbuffer(colour);
-                crate::resources::destroyed("gl_renderbuffer: RGBA8");
-                bail!("offscreen framebuffer incomplete: {status:#x}");
-            }
-            Ok(RenderTarget { framebuffer, colour, width, height, gl: gl.clone() })
-        }
-    }
-
-    /// Binds it for drawing and reading, with a viewport that covers it.
-    pub fn bind(&self, gl: &glow::Context) {
-        unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
-            gl.viewport(0, 0, self.width as i32, self.height as i32);
-        }
-    }
-
-    /// What dropping it does, where the reader sees it.
-    pub fn delete(self, _gl: &glow::Context) {
-        drop(self);
-    }
-}
-
-impl Drop for RenderTarget {
-    fn drop(&mut self) {
-        unsafe {
-            self.gl.bind_framebuffer(glow::FRAMEBUFFER, None);
-            self.gl.delete_framebuffer(self.framebuffer);
-            self.gl.delete_renderbuffer(self.colour);
-            crate::resources::destroyed("gl_renderbuffer: RGBA8");
-        }
-    }
-}

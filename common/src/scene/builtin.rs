@@ -2,7 +2,7 @@
 //! scene, a large one (over a million triangles), and a one-triangle "ceiling" whose rays all
 //! miss, which measures the best the GPU's traversal can do.
 
-use crate::scene::{Instance, Mesh, Scene, Vertex, default_scene};
+use super::model::{Instance, Mesh, Scene, Vertex, default_scene};
 use anyhow::Result;
 use glam::{Mat4, Vec3};
 

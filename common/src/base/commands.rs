@@ -1,7 +1,7 @@
 //! Recording and submitting Vulkan work: one command buffer reused every frame, guarded by a
 //! fence, plus one-shot submissions for set-up.
 
-use crate::VulkanContext;
+use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 
@@ -81,7 +81,7 @@ impl Commands {
             .signal_semaphores(&signals);
         unsafe {
             vk.device.end_command_buffer(self.buffer)?;
-            crate::fail::at("submit")?; // `VKGL_FAIL_AT=submit`: as if the submission were refused
+            crate::base::fail::at("submit")?; // `VKGL_FAIL_AT=submit`: as if the submission were refused
             // Reset only now, with nothing left to fail before the submission: a fence reset
             // earlier, then not submitted, would never signal, and the next wait would hang.
             vk.device.reset_fences(&[self.fence]).context("vkResetFences")?;
@@ -201,7 +201,7 @@ impl HostBuffer {
                 .allocation_size(requirements.size)
                 .memory_type_index(memory_type);
             host.memory = vk.device.allocate_memory(&allocate, None).context("vkAllocateMemory")?;
-            crate::resources::created("vk_memory_host", requirements.size);
+            crate::base::resources::created("vk_memory_host", requirements.size);
             vk.device.bind_buffer_memory(host.buffer, host.memory, 0).context("vkBindBufferMemory")?;
             host.mapped = vk
                 .device
@@ -248,7 +248,7 @@ impl Drop for HostBuffer {
             }
             if self.memory != vk::DeviceMemory::null() {
                 self.device.free_memory(self.memory, None);
-                crate::resources::destroyed("vk_memory_host");
+                crate::base::resources::destroyed("vk_memory_host");
             }
             self.device.destroy_buffer(self.buffer, None);
         }
@@ -313,7 +313,7 @@ impl Timestamps {
         let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
         let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
-        crate::resources::created("vk_query_pool: timestamps", 0);
+        crate::base::resources::created("vk_query_pool: timestamps", 0);
         let device = vk.device.clone();
         Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask, device }))
     }

@@ -7,8 +7,8 @@
 //! `ApplicationHandler` that keeps only what is safe to handle later on Linux: key presses,
 //! resizes and the close request. Rendering stays in the chapter's loop.
 
-use crate::GlContext;
-use crate::cli::Size;
+use crate::base::cli::Size;
+use crate::base::gl::GlContext;
 use anyhow::{Context as _, Result, anyhow, bail};
 use glutin::config::{Config, ConfigTemplateBuilder, GlConfig as _};
 use glutin::context::{ContextApi, ContextAttributesBuilder, GlProfile, PossiblyCurrentContext, Version};
@@ -133,7 +133,7 @@ impl Window {
 
     /// Shows the GPU time of each pass in the title bar, at most twice a second (a title changed
     /// every frame keeps the window manager busy).
-    pub fn show_times(&mut self, times: &crate::timing::PassTimes) {
+    pub fn show_times(&mut self, times: &crate::base::timing::PassTimes) {
         if self.titled.is_some_and(|t| t.elapsed() < Duration::from_millis(500)) {
             return;
         }
@@ -264,11 +264,11 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
     for (name, image) in &images {
         let (w, h) = image.dimensions();
         // PNG rows start at the top, GL's at the bottom.
-        let rows = crate::output::flip_rows(image.as_raw(), w, h);
+        let rows = crate::base::output::flip_rows(image.as_raw(), w, h);
         unsafe {
             let texture = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
             gl.texture_storage_2d(texture, 1, glow::RGBA8, w as i32, h as i32);
-            crate::resources::created("gl_texture: RGBA8", 4 * w as u64 * h as u64);
+            crate::base::resources::created("gl_texture: RGBA8", 4 * w as u64 * h as u64);
             let pixels = glow::PixelUnpackData::Slice(Some(&rows));
             gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
             gl.texture_sub_image_2d(

@@ -2,7 +2,7 @@
 //! installed), the physical device that has every extension the chapter asks for, a logical device
 //! with exactly those extensions, and one queue that can do graphics and compute.
 
-use crate::report::{ValidationReport, VulkanReport, uuid_hex};
+use crate::base::report::{ValidationReport, VulkanReport, uuid_hex};
 use anyhow::{Context as _, Result, bail};
 use ash::vk;
 use std::ffi::{CStr, c_char, c_void};

@@ -1,0 +1,116 @@
+//! The contract every chapter shares: run, report, exit code; and the few steps every chapter
+//! from 03 on repeats (both contexts connected, open fds counted, CPU time measured).
+
+use super::cli::CommonArgs;
+use super::gl::{self, GlContext};
+use super::report::Report;
+use super::vulkan::{self, VulkanContext};
+use super::{fail, resources, window};
+use std::process::ExitCode;
+
+/// Runs a chapter with the contract every chapter shares: parse the flags, run, then print the
+/// report (as JSON with `--json`) and turn failed checks or validation errors into a non-zero exit.
+///
+/// Exit codes: 0 all checks passed; 1 a check failed or the validation layer reported an error;
+/// 2 the chapter could not run (missing extension, bad input ...), with the reason on stderr.
+/// `common` finds the shared flags inside the chapter's own (`|args: &Args| &args.common`).
+pub fn run_chapter<A: clap::Parser>(
+    chapter: &str,
+    common: fn(&A) -> &CommonArgs,
+    run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>,
+) -> ExitCode {
+    let args = A::parse();
+    let common = common(&args);
+    let mut report = Report::new(chapter);
+    if let Err(error) = fail::check_armed() {
+        eprintln!("error: {error:#}");
+        return ExitCode::from(2);
+    }
+    // With an injected failure, the fds open before anything ran, to compare at exit.
+    let fds_before = fail::armed().map(|_| fail::open_fds());
+    let result = run(&args, &mut report);
+    if let Some(before) = fds_before {
+        // Everything `run` made is gone by now (destroyed, or dropped on the way out of an
+        // early return): so must its fds be. Drivers may keep a few of their own.
+        let left: Vec<_> = fail::open_fds().into_iter().filter(|fd| !before.contains(fd)).collect();
+        eprintln!("fds: left open after the chapter ran: {left:?}");
+        // And the objects whose destruction is counted (exportable memory and images, GL memory
+        // objects, imported textures and buffers, renderbuffers): none may be alive.
+        let alive: Vec<_> = resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
+        eprintln!("resources: alive after the chapter ran: {alive:?}");
+    }
+    if let Err(error) = result {
+        eprintln!("error: {error:#}");
+        return ExitCode::from(2);
+    }
+    show_pictures(chapter, common, &mut report);
+    finish(report, common.json)
+}
+
+/// Fills in what the run left behind (the validation layer's and GL's error counts, the
+/// resources created), prints the report and decides the exit code. The report knows nothing
+/// of either API (no module cycle): the counts are gathered here.
+pub fn finish(mut report: Report, json: bool) -> ExitCode {
+    report.validation = vulkan::validation_counts();
+    report.resources = resources::list();
+    report.validation.gl_errors = gl::gl_error_count();
+    report.finish(json)
+}
+
+/// A chapter that computed its pictures headless shows them in a window when there is a
+/// display (and no `--headless`), and says so when there is none. Chapters with windows of their
+/// own (04, 08) report `window` themselves.
+fn show_pictures(chapter: &str, common: &CommonArgs, report: &mut Report) {
+    if report.images.is_empty() || report.details.contains_key("window") {
+        return;
+    }
+    let out = common.out_dir(chapter);
+    let shown = if common.headless {
+        false
+    } else if !window::display_available() {
+        eprintln!(
+            "window: no display (DISPLAY / WAYLAND_DISPLAY unset); the pictures are in {}",
+            out.display()
+        );
+        false
+    } else {
+        let pictures: Vec<_> =
+            report.images.iter().map(|i| (i.name.clone(), std::path::PathBuf::from(&i.path))).collect();
+        match window::show_pictures(chapter, &pictures, common.frame_count(true)) {
+            Ok(seen) => {
+                report.check("window_shows_the_pictures", seen);
+                true
+            }
+            Err(error) => {
+                eprintln!("window: cannot show the pictures ({error:#}); they are in {}", out.display());
+                false
+            }
+        }
+    };
+    report.set("window", shown);
+}
+
+// ANCHOR: connect
+/// What every chapter from 03 on does once both contexts exist (chapter 02 spells it out): fill
+/// the report's `vulkan`, `gl` and `uuids_match`, and fail unless both run on the same device.
+pub fn connect(report: &mut Report, vk: &VulkanContext, gl: &GlContext) -> anyhow::Result<()> {
+    report.vulkan = Some(vk.report());
+    report.gl = Some(gl.report());
+    report.uuids_match = Some(gl::uuids_match(&vk.info, gl));
+    gl::ensure_same_device(&vk.info, gl)
+}
+// ANCHOR_END: connect
+
+// ANCHOR: open_fd_count
+/// How many file descriptors this process has open: the chapters' leak check compares this
+/// before and after their work.
+pub fn open_fd_count() -> anyhow::Result<usize> {
+    use anyhow::Context as _;
+    Ok(std::fs::read_dir("/proc/self/fd").context("listing /proc/self/fd")?.count())
+}
+// ANCHOR_END: open_fd_count
+
+/// Milliseconds since `start` (CPU time; GPU work is timed with timestamps).
+pub fn ms_since(start: std::time::Instant) -> f64 {
+    start.elapsed().as_secs_f64() * 1e3
+}

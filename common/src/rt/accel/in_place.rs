@@ -1,0 +1,109 @@
+//! Structures that move (chapters 09 and 10): one structure rebuilt or updated in place every
+//! frame, with a persistent scratch buffer.
+
+use super::memory::Scratch;
+use super::structure::build_sizes;
+use crate::base::vulkan::VulkanContext;
+use anyhow::Result;
+use ash::vk;
+use gpu_allocator::vulkan::Allocator;
+
+/// How [`InPlace::record`] refreshes a structure: a full build, or an update of the one there.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Refresh {
+    /// `MODE_BUILD`: a new tree for the geometry as it is now. Slower; traces as fast as a
+    /// first build.
+    Rebuild,
+    /// `MODE_UPDATE` with src = dst: the same tree, its boxes refitted around the geometry as it
+    /// is now. Fast; the tree keeps the shape it had when built, so it traces slower the further
+    /// things have moved since.
+    Update,
+}
+
+// ANCHOR: in_place
+/// What it takes to rebuild or update one acceleration structure in place, every frame, without
+/// allocating: its geometry and flags (which must stay those of its first build) and one
+/// persistent scratch buffer, large enough for either (`buildScratchSize`,
+/// `updateScratchSize`).
+pub struct InPlace {
+    pub handle: vk::AccelerationStructureKHR,
+    ty: vk::AccelerationStructureTypeKHR,
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+    geometry: vk::AccelerationStructureGeometryKHR<'static>,
+    primitives: u32,
+    scratch: Scratch,
+    /// The driver's scratch sizes for an update and for a build, for the report.
+    pub update_scratch_bytes: u64,
+    pub build_scratch_bytes: u64,
+}
+
+impl InPlace {
+    /// For `handle`, built with `flags` from `geometry` with `primitives` triangles or
+    /// instances. Without ALLOW_UPDATE in `flags` it can only be rebuilt.
+    pub fn new(
+        vk: &VulkanContext,
+        allocator: &mut Allocator,
+        loader: &ash::khr::acceleration_structure::Device,
+        handle: vk::AccelerationStructureKHR,
+        ty: vk::AccelerationStructureTypeKHR,
+        flags: vk::BuildAccelerationStructureFlagsKHR,
+        geometry: vk::AccelerationStructureGeometryKHR<'static>,
+        primitives: u32,
+    ) -> Result<Self> {
+        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(ty)
+            .flags(flags)
+            .geometries(std::slice::from_ref(&geometry));
+        let sizes = build_sizes(loader, &info, &[primitives]);
+        // One region, as large as the larger need: an update and a rebuild never run at once.
+        let bytes = sizes.update_scratch_size.max(sizes.build_scratch_size);
+        let scratch = Scratch::new(vk, allocator, &[bytes])?;
+        Ok(InPlace {
+            handle,
+            ty,
+            flags,
+            geometry,
+            primitives,
+            scratch,
+            update_scratch_bytes: sizes.update_scratch_size,
+            build_scratch_bytes: sizes.build_scratch_size,
+        })
+    }
+
+    /// Records the rebuild or the update. The caller records the barriers around it: before,
+    /// whatever wrote the inputs (and last read or wrote the structure or the scratch); after,
+    /// whatever reads the result.
+    pub fn record(
+        &self,
+        loader: &ash::khr::acceleration_structure::Device,
+        cb: vk::CommandBuffer,
+        refresh: Refresh,
+    ) {
+        let updatable = self.flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE);
+        assert!(refresh == Refresh::Rebuild || updatable, "updating a structure built without ALLOW_UPDATE");
+        let (mode, source) = match refresh {
+            Refresh::Rebuild => {
+                (vk::BuildAccelerationStructureModeKHR::BUILD, vk::AccelerationStructureKHR::null())
+            }
+            // src = dst: updated in place, no second structure needed.
+            Refresh::Update => (vk::BuildAccelerationStructureModeKHR::UPDATE, self.handle),
+        };
+        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(self.ty)
+            .flags(self.flags) // an update must use the flags of the build it updates
+            .mode(mode)
+            .src_acceleration_structure(source)
+            .dst_acceleration_structure(self.handle)
+            .geometries(std::slice::from_ref(&self.geometry))
+            .scratch_data(vk::DeviceOrHostAddressKHR { device_address: self.scratch.address(0) });
+        let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(self.primitives);
+        unsafe { loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]) };
+    }
+
+    /// The scratch buffer (the structure itself belongs to its owner).
+    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
+        self.scratch.destroy(vk, allocator);
+    }
+}
+// ANCHOR_END: in_place

@@ -1,0 +1,187 @@
+//! `common` stands in one-way layers (the map is in `src/lib.rs`): a module uses only its own
+//! layer and the layers below it. This test reads every source file, finds each path it names
+//! through `crate::` or `super::`, and fails naming the file and line of any that reaches a
+//! higher layer, or goes through the crate root (which only re-exports) instead of naming the
+//! module. The acceleration structures and ray pipelines are Vulkan only: they may not name GL.
+
+use std::path::{Path, PathBuf};
+
+/// The layers, lowest first.
+const LAYERS: [&str; 5] = ["base", "interop", "scene", "rt", "frame"];
+
+/// Modules with nothing of GL in them (a GL type here would tie the builds to a GL context).
+const VULKAN_ONLY: [&str; 2] = ["rt/accel/", "rt/raytrace.rs"];
+const GL_NAMES: [&str; 3] = ["glow", "GlContext", "crate::base::gl"];
+
+fn sources(dir: &Path, found: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            sources(&path, found);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            found.push(path);
+        }
+    }
+}
+
+/// The module a file defines, as path segments (`base/gl/mod.rs` -> `["base", "gl"]`).
+fn module_of(relative: &Path) -> Vec<String> {
+    let mut segments: Vec<String> =
+        relative.iter().map(|s| s.to_string_lossy().trim_end_matches(".rs").to_owned()).collect();
+    if matches!(segments.last().map(String::as_str), Some("mod" | "lib")) {
+        segments.pop();
+    }
+    segments
+}
+
+/// Every path a line names from the crate's root: `crate::a::b`, each item of
+/// `crate::{a, b::c}`, and `super::` paths resolved against `module`.
+fn paths_in(line: &str, module: &[String]) -> Vec<Vec<String>> {
+    let mut paths = Vec::new();
+    let ident = |s: &str| -> String { s.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect() };
+    let segments_from = |rest: &str| -> Vec<String> {
+        let mut out = Vec::new();
+        let mut rest = rest;
+        loop {
+            let name = ident(rest);
+            if name.is_empty() {
+                break;
+            }
+            rest = &rest[name.len()..];
+            out.push(name);
+            match rest.strip_prefix("::") {
+                Some(more) => rest = more,
+                None => break,
+            }
+        }
+        out
+    };
+    for (start, prefix) in line.match_indices("crate::").map(|(i, p)| (i, p.len())) {
+        let word_start = start == 0 || !line[..start].ends_with(|c: char| c.is_alphanumeric() || c == '_');
+        if !word_start {
+            continue;
+        }
+        let rest = &line[start + prefix..];
+        if let Some(group) = rest.strip_prefix('{') {
+            // Top-level items of the group: split at commas outside nested braces.
+            let (mut depth, mut item_start) = (0, 0);
+            for (i, c) in group.char_indices() {
+                match c {
+                    '{' => depth += 1,
+                    '}' if depth == 0 => {
+                        paths.push(segments_from(group[item_start..i].trim()));
+                        break;
+                    }
+                    '}' => depth -= 1,
+                    ',' if depth == 0 => {
+                        paths.push(segments_from(group[item_start..i].trim()));
+                        item_start = i + 1;
+                    }
+                    _ => {}
+                }
+            }
+        } else {
+            paths.push(segments_from(rest));
+        }
+    }
+    for (start, _) in line.match_indices("super::") {
+        if start > 0 && line[..start].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == ':') {
+            continue; // the second `super` of `super::super::`, handled with the first
+        }
+        let mut base: Vec<String> = module.to_vec();
+        let mut rest = &line[start..];
+        while let Some(more) = rest.strip_prefix("super::") {
+            base.pop();
+            rest = more;
+        }
+        let mut path = base;
+        path.extend(segments_from(rest));
+        paths.push(path);
+    }
+    paths.retain(|p| !p.is_empty());
+    paths
+}
+
+/// What is wrong with the paths `text` names, as `file:line: why` lines.
+fn violations(relative: &Path, text: &str) -> Vec<String> {
+    let module = module_of(relative);
+    let shown = relative.display();
+    let mut found = Vec::new();
+    let Some(layer) = module.first() else {
+        // The crate root: declarations, re-exports and doc comments only.
+        for (number, line) in text.lines().enumerate() {
+            let code = line.trim_start();
+            let allowed = code.is_empty()
+                || code.starts_with("//")
+                || code.starts_with("pub mod ")
+                || code.starts_with("pub use ");
+            if !allowed {
+                found.push(format!(
+                    "{shown}:{}: the crate root only declares and re-exports: {code}",
+                    number + 1
+                ));
+            }
+        }
+        return found;
+    };
+    let rank = |name: &str| LAYERS.iter().position(|l| *l == name);
+    let own =
+        rank(layer).unwrap_or_else(|| panic!("{shown} is in no layer ({layer}); the layers: {LAYERS:?}"));
+    let vulkan_only = VULKAN_ONLY.iter().any(|v| shown.to_string().starts_with(v));
+    for (number, line) in text.lines().enumerate() {
+        let at = format!("{shown}:{}", number + 1);
+        for path in paths_in(line, &module) {
+            let named = path.join("::");
+            match rank(&path[0]) {
+                None => {
+                    found.push(format!("{at}: `crate::{named}` goes through the crate root; name its module"))
+                }
+                Some(target) if target > own => found.push(format!(
+                    "{at}: `crate::{named}` reaches up from {layer} to {} (layers, lowest first: {LAYERS:?})",
+                    path[0]
+                )),
+                Some(_) => {}
+            }
+        }
+        if let Some(name) = GL_NAMES.iter().find(|n| vulkan_only && line.contains(*n)) {
+            found.push(format!("{at}: names `{name}` in a Vulkan-only module"));
+        }
+    }
+    found
+}
+
+#[test]
+fn no_module_reaches_a_higher_layer() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    sources(&root, &mut files);
+    files.sort();
+    assert!(files.len() > 20, "found only {} files under {}", files.len(), root.display());
+    let mut found = Vec::new();
+    for file in &files {
+        let text = std::fs::read_to_string(file).unwrap();
+        found.extend(violations(file.strip_prefix(&root).unwrap(), &text));
+    }
+    assert!(found.is_empty(), "modules that break the layers:\n{}", found.join("\n"));
+}
+
+#[test]
+fn the_check_sees_what_it_must_refuse() {
+    let check = |file: &str, text: &str| violations(Path::new(file), text);
+    // Down and sideways are fine, in every spelling.
+    assert!(check("rt/ao.rs", "use crate::base::vulkan::VulkanContext;").is_empty());
+    assert!(check("rt/ao.rs", "use crate::{base::gl::GlContext, scene::gbuffer::GBuffers};").is_empty());
+    assert!(check("frame/probe.rs", "use super::composite::Uniforms;").is_empty());
+    assert!(check("base/gl/debug.rs", "use super::super::report::Report;").is_empty());
+    // Up, through a group, through `super`, inline, and through the root.
+    assert_eq!(check("scene/gbuffer.rs", "use crate::rt::ao::AoTracer;").len(), 1);
+    assert_eq!(check("base/report.rs", "use crate::{base::cli, interop::handoff};").len(), 1);
+    assert_eq!(check("base/gl/mod.rs", "use super::super::super::frame::Target;").len(), 1);
+    assert_eq!(check("interop/import.rs", "let g = crate::scene::gbuffer::as_bytes(x);").len(), 1);
+    assert_eq!(check("base/output.rs", "use crate::Report;").len(), 1);
+    // GL in a Vulkan-only module; logic in the root.
+    assert_eq!(check("rt/accel/build.rs", "gl: &glow::Context,").len(), 1);
+    assert_eq!(check("lib.rs", "pub fn run() {}").len(), 1);
+    // Words that merely contain `crate::` are not paths.
+    assert!(check("base/cli.rs", "use mycrate::scene::Scene;").is_empty());
+}
