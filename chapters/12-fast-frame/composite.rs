@@ -43,7 +43,8 @@ pub struct ComputeComposite {
 
 impl ComputeComposite {
     pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
-        let program = compute_program(gl, COMPUTE_SHADER).context("the composite's compute shader")?;
+        let program = common::base::gl::compute_program(gl, COMPUTE_SHADER)
+            .context("the composite's compute shader")?;
         Ok(ComputeComposite { program, gl: gl.clone() })
     }
 
@@ -75,37 +76,5 @@ impl ComputeComposite {
 impl Drop for ComputeComposite {
     fn drop(&mut self) {
         unsafe { self.gl.delete_program(self.program) };
-    }
-}
-
-/// A program of one compute shader; a failure carries GL's info log and deletes what it made.
-fn compute_program(gl: &glow::Context, source: &str) -> Result<glow::Program> {
-    unsafe {
-        let shader = gl.create_shader(glow::COMPUTE_SHADER).map_err(anyhow::Error::msg)?;
-        gl.shader_source(shader, source);
-        gl.compile_shader(shader);
-        if !gl.get_shader_compile_status(shader) {
-            let log = gl.get_shader_info_log(shader);
-            gl.delete_shader(shader);
-            anyhow::bail!("the compute shader does not compile:\n{log}");
-        }
-        let program = match gl.create_program() {
-            Ok(program) => program,
-            Err(error) => {
-                gl.delete_shader(shader);
-                anyhow::bail!(error);
-            }
-        };
-        common::base::resources::created("gl_program", 0);
-        gl.attach_shader(program, shader);
-        gl.link_program(program);
-        gl.detach_shader(program, shader);
-        gl.delete_shader(shader);
-        if !gl.get_program_link_status(program) {
-            let log = gl.get_program_info_log(program);
-            gl.delete_program(program);
-            anyhow::bail!("the compute program does not link:\n{log}");
-        }
-        Ok(program)
     }
 }

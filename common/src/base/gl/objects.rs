@@ -27,6 +27,11 @@ pub fn program_with_geometry(
     program_from(gl, &stages)
 }
 
+/// A program of one compute shader (chapter 12's composite).
+pub fn compute_program(gl: &glow::Context, compute: &str) -> Result<glow::Program> {
+    program_from(gl, &[(glow::COMPUTE_SHADER, compute, "compute")])
+}
+
 fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow::Program> {
     unsafe {
         let program = gl.create_program().map_err(anyhow::Error::msg)?;
