@@ -28,6 +28,7 @@ use std::process::ExitCode;
 
 mod check;
 mod composite;
+mod layouts;
 mod overlap;
 mod settings;
 mod trace;
@@ -247,6 +248,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("overlap_ms", overlap);
         // The probe traced into the surface: the frames' rays again, for the checks.
         tracer.retrace(apis, &targets, &camera, rays, accumulated)?;
+    }
+    if args.layout_rounds > 0 {
+        let extent = targets.extent;
+        let f = layouts::Frame {
+            visibility: &visibility,
+            buffers: &shared.buffers,
+            scene: &scene,
+            ids: &ids,
+            camera: &camera,
+            extent,
+        };
+        let (ids_ms, normal_depth_ms, differing) = layouts::measure(&gl_context, f, args.layout_rounds)?;
+        report.set(
+            "layout_raster_ms",
+            serde_json::json!({ "ids_r32ui": ids_ms, "normal_depth_rg32ui": normal_depth_ms }),
+        );
+        report.check("layouts_cover_the_same_pixels", differing == 0);
     }
     if args.vulkan_composite_rounds > 0 {
         let (u, rounds) = (settings::uniforms(&settings, &camera), args.vulkan_composite_rounds);

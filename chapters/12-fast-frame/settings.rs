@@ -44,6 +44,10 @@ pub struct Args {
     /// (`overlap.rs`), over this many rounds of each order (0: don't).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
     pub overlap_rounds: u32,
+    /// Headless: after the frames, draw the ids and the other lean buffer this chapter measured
+    /// (a packed normal and depth) this many times each, timed by GL (`layouts.rs`; 0: don't).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
+    pub layout_rounds: u32,
     /// Headless: after the frames, time chapter 08's composite as a Vulkan compute shader over
     /// this many dispatches (`vk_composite.rs`), and compare its picture with GL's (0: don't).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
