@@ -9,6 +9,7 @@
 
 use anyhow::Result;
 use ash::vk;
+use common::base::cli::Smallest;
 use common::base::commands::Timestamps;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
@@ -22,6 +23,14 @@ use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_coun
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 32,
+    height: 32,
+    why: "the noise check compares neighbouring pixels on the scene: fewer pairs than 32x32 gives mean \
+          nothing",
+    shape: Some((4.0, 4.0, "the scene, framed, must still cover enough pixel pairs")),
+};
 
 /// Chapter 07: ray-traced ambient occlusion from GL's G-buffers.
 #[derive(clap::Parser)]
@@ -39,6 +48,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     let aspect = extent.width as f32 / extent.height as f32;
 
@@ -52,6 +62,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
