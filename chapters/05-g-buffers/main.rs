@@ -29,7 +29,7 @@ const SMALLEST: Smallest = Smallest {
     width: 8,
     height: 8,
     why: "the scene must cover part of the picture and leave part of it empty",
-    shape: None,
+    shape: Some((16.0, 16.0, "framed wider or taller, the scene covers too little or all of the picture")),
 };
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];

@@ -27,8 +27,13 @@ use std::ffi::CStr;
 use std::process::ExitCode;
 
 const CHAPTER: &str = "06-blas-tlas";
-/// Any size: nothing checked here depends on how many pixels there are.
-const SMALLEST: Smallest = Smallest::ANY;
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 4,
+    height: 4,
+    why: "rays must hit the scene somewhere, and a single row can pass below or above it",
+    shape: Some((16.0, 16.0, "framed wider or taller, the rays can miss the scene")),
+};
 const REQUIRED: [&CStr; 4] = [
     ash::khr::external_memory_fd::NAME,
     RAY_TRACING_EXTENSIONS[0],

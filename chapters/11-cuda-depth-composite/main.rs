@@ -95,14 +95,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     SMALLEST.check(CHAPTER, args.common.size)?;
     let (width, height) = (args.common.size.width, args.common.size.height);
     let bytes = traced_bytes(width, height);
-    // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
-    // cannot hold, before anything exists.
-    anyhow::ensure!(
-        bytes <= i32::MAX as u64,
-        "--size {width}x{height}: the traced colour and depth need {bytes} bytes; a GL buffer here holds \
-         at most {} bytes (16383x16383 fits)",
-        i32::MAX
-    );
     let paths = match args.path {
         PathChoice::Pbo => vec![Path::Pbo],
         PathChoice::ZeroCopy => vec![Path::ZeroCopy],
@@ -125,6 +117,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
+    // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
+    // cannot hold, before anything else exists.
+    anyhow::ensure!(
+        bytes <= i32::MAX as u64,
+        "--size {width}x{height} is too large for {CHAPTER}: the traced colour and depth need {bytes} \
+         bytes; a GL buffer here holds at most {} bytes (16383x16383 fits)",
+        i32::MAX
+    );
     report.sync = Some("host");
 
     // 3. CUDA on that device, or the CPU
