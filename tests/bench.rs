@@ -102,3 +102,34 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     snapshot["ablation"]["steps"] = steps.iter().map(|s| s["flags"].clone()).collect::<Vec<Value>>().into();
     assert_report_snapshot("bench-quick", &snapshot);
 }
+
+/// `--timeline N` puts the last N frames of chapter 08's frame and of chapter 12's, each on one
+/// clock: both gaps of a hand-over reported, both pictures written.
+#[test]
+fn bench_timeline_draws_chapter_08_and_chapter_12() {
+    let args = ["--quick", "--scenes", "default", "--sizes", "64x48", "--spp", "4", "--timeline", "2"];
+    let run = run_chapter_with(env!("CARGO_BIN_EXE_bench"), &args, &[]);
+    let report = run.succeeded();
+    let gaps = [
+        ("timeline_08", ["gap_gbuffer_to_trace_ms_median", "gap_trace_to_composite_ms_median"]),
+        ("timeline_12", ["gap_ids_to_trace_ms_median", "gap_trace_to_composite_ms_median"]),
+    ];
+    for (timeline, keys) in gaps {
+        let timeline = &report[timeline];
+        assert_eq!(timeline["frames"], 2, "{timeline}");
+        for key in keys {
+            assert!(timeline[key].as_f64().is_some_and(f64::is_finite), "{key}: {timeline}");
+        }
+    }
+    let out = run.out_dir.path();
+    let spans: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("timeline-08.json")).unwrap()).unwrap();
+    let passes: Vec<&str> = spans.as_array().unwrap().iter().map(|s| s["pass"].as_str().unwrap()).collect();
+    assert_eq!(passes.len(), 6, "G-buffers, trace and composite of two frames: {passes:?}");
+    for pass in ["gbuffer", "ao_trace", "composite"] {
+        assert_eq!(passes.iter().filter(|p| **p == pass).count(), 2, "{pass} in {passes:?}");
+    }
+    for picture in ["timeline-08.svg", "fast-frame/timeline.svg"] {
+        assert!(std::fs::metadata(out.join(picture)).is_ok_and(|m| m.len() > 0), "{picture}");
+    }
+}

@@ -14,7 +14,7 @@ use common::base::commands::Timestamps;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{self, GlPassTimer, PassTimes};
-use common::interop::handoff::Handoff;
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::GBuffers;
@@ -68,6 +68,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
     let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
     let commands = &shared.commands;
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands };
 
     // 3. Share the G-buffers, and make the AO tracer with its shared image
     // ANCHOR: tracer
@@ -102,7 +103,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if std::mem::take(&mut trace_pending) {
                 timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
             }
-            tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, params, timestamps.as_ref())?;
+            tracer.trace(apis, &gbuffers, params, timestamps.as_ref())?;
             trace_pending = timestamps.is_some();
         }
         gl_timer.end_frame(gl, &mut times);

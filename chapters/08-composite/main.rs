@@ -17,7 +17,7 @@ use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::base::window::{Key, NamedKey, Window};
 use common::frame::{Composite, Overlays, Uniforms, View};
-use common::interop::handoff::Handoff;
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, TlasFlags};
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
@@ -150,6 +150,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
     let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let commands = &shared.commands;
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands };
     let extent = |size: common::base::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
     let mut gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
@@ -253,7 +254,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                     &mut times,
                 )?;
             }
-            tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, timestamps.as_ref())?;
+            tracer.trace(apis, &gbuffers, rays, timestamps.as_ref())?;
             traced += samples as u64 * (size.width * size.height) as u64;
             trace_pending = timestamps.is_some();
         }

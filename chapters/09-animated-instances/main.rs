@@ -11,14 +11,14 @@ use anyhow::Result;
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
-use common::base::commands::{Commands, Timestamps};
+use common::base::commands::{Commands, Timestamps, timed};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms, View};
-use common::interop::handoff::Handoff;
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
-use common::rt::accel::{InPlace, Refresh, TlasFlags, instances_geometry};
+use common::rt::accel::{BuildInputs, InPlace, Refresh, TlasFlags, instances_geometry};
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::Camera;
 use common::scene::gbuffer::GBuffers;
@@ -95,16 +95,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // geometry it was built from (the shared instance buffer) and one scratch buffer for good.
     let mut shared = RayTracedScene::with_tlas(&vk, &gl_context, &scene, TlasFlags::UPDATABLE)?;
     let instances = &shared.buffers.instances.0;
-    let tlas = InPlace::new(
-        &vk,
-        &mut shared.allocator,
-        &shared.structures.loader,
-        shared.structures.tlas.handle,
-        vk::AccelerationStructureTypeKHR::TOP_LEVEL,
-        TlasFlags::UPDATABLE.0,
-        instances_geometry(&vk, instances),
-        scene.instances.len() as u32,
-    )?;
+    let inputs = BuildInputs {
+        handle: shared.structures.tlas.handle,
+        ty: vk::AccelerationStructureTypeKHR::TOP_LEVEL,
+        flags: TlasFlags::UPDATABLE.0,
+        geometry: instances_geometry(&vk, instances),
+        primitives: scene.instances.len() as u32,
+    };
+    let tlas = InPlace::new(&vk, &mut shared.allocator, &shared.structures.loader, inputs)?;
     // The updates get a command buffer of their own, submitted before each frame's trace.
     let updates = Commands::new(&vk)?;
     // ANCHOR_END: updatable
@@ -127,6 +125,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         far_depth: camera.far,
     };
     let commands = &shared.commands;
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands };
     let update_timer = Timestamps::new(&vk)?;
     let trace_timer = Timestamps::new(&vk)?;
 
@@ -159,7 +158,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if args.animation.step > 0.0 {
             tracer.reset();
         }
-        tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
         times.frame_done();
@@ -206,7 +205,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // restarted, both traces cast exactly the same rays, and must find the same occluders.
     let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
         tracer.reset();
-        tracer.trace(&vk, &gl_context, &handoff, commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
@@ -296,14 +295,7 @@ fn refresh_tlas(
     unsafe {
         let host = vk::PipelineStageFlags::HOST;
         vk.device.cmd_pipeline_barrier(cb, host | build | rays, build, none, &[before], &[], &[]);
-        if let Some(t) = timer {
-            t.reset(vk, cb);
-            t.start(vk, cb, build);
-        }
-        tlas.record(loader, cb, refresh);
-        if let Some(t) = timer {
-            t.end(vk, cb);
-        }
+        timed(vk, cb, timer, build, || tlas.record(loader, cb, refresh));
         vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[after], &[], &[]);
     }
     // No semaphore: the update reads nothing GL writes. It may run while GL draws.

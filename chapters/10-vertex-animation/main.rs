@@ -16,8 +16,8 @@ use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{self, GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms, View};
-use common::interop::handoff::{Handoff, SharedSemaphore};
-use common::rt::accel::{self, AccelerationStructure, DeviceBuffer, InPlace, Refresh};
+use common::interop::handoff::{Apis, Handoff, SharedSemaphore};
+use common::rt::accel::{self, AccelerationStructure, BuildInputs, DeviceBuffer, InPlace, Refresh};
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::{GBuffers, SceneBuffers};
 use common::scene::{Camera, Instance, Scene, ground_plane};
@@ -28,7 +28,7 @@ use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
 mod sphere;
-use sphere::{Animation, Wave, WavePipeline, record_animation};
+use sphere::{Animation, Step, Wave, WavePipeline, record_animation};
 
 const CHAPTER: &str = "10-vertex-animation";
 /// The smallest picture this chapter can check, and why (the largest is the device's).
@@ -130,8 +130,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let triangles = mesh.indices.len() as u32 / 3;
         let bytes = accel::structure_size(&loader, bottom, flags, &geometry, triangles);
         let blas = AccelerationStructure::new(&vk, &loader, &mut allocator, bottom, flags, bytes)?;
-        let in_place =
-            InPlace::new(&vk, &mut allocator, &loader, blas.handle, bottom, flags, geometry, triangles)?;
+        let inputs = BuildInputs { handle: blas.handle, ty: bottom, flags, geometry, primitives: triangles };
+        let in_place = InPlace::new(&vk, &mut allocator, &loader, inputs)?;
         accel::set_blas_address(&buffers.instances.0, blases.len(), blas.address);
         blases.push((blas, in_place));
     }
@@ -140,8 +140,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let geometry = accel::instances_geometry(&vk, &buffers.instances.0);
     let bytes = accel::structure_size(&loader, top, tlas_flags, &geometry, 2);
     let tlas = AccelerationStructure::new(&vk, &loader, &mut allocator, top, tlas_flags, bytes)?;
-    let tlas_in_place =
-        InPlace::new(&vk, &mut allocator, &loader, tlas.handle, top, tlas_flags, geometry, 2)?;
+    let inputs = BuildInputs { handle: tlas.handle, ty: top, flags: tlas_flags, geometry, primitives: 2 };
+    let tlas_in_place = InPlace::new(&vk, &mut allocator, &loader, inputs)?;
     // ANCHOR_END: structures
 
     // 4. The compute pipeline, the rest directions, the G-buffers, the tracer, the composite
@@ -184,6 +184,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         far_depth: camera.far,
     };
     let (commands, animation) = (Commands::new(&vk)?, Commands::new(&vk)?);
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     let animation_timer = Timestamps::with_count(&vk, 4)?;
     let trace_timer = Timestamps::new(&vk)?;
 
@@ -200,17 +201,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: frame
         wave.time = args.animation.at(frame);
         // The first frame builds everything; later ones refit (or rebuild, by the policy).
-        let refresh = match (frame, args.animation.rebuild_every) {
-            (0, _) => Refresh::Rebuild,
-            (f, k) if k > 0 && f % k == 0 => Refresh::Rebuild,
-            _ => Refresh::Update,
+        let step = match (frame, args.animation.rebuild_every) {
+            (0, _) => Step::First,
+            (f, k) if k > 0 && f % k == 0 => Step::Next(Refresh::Rebuild),
+            _ => Step::Next(Refresh::Update),
         };
         let cb = animation.begin(&vk)?;
         if let (Some(done), Some(timer)) = (animated.take(), &animation_timer) {
             sphere::add_times(&vk, timer, done, &mut times)?;
         }
-        let parts = Animation { pipeline: &pipeline, wave: &wave, blases: &blases, tlas: &tlas_in_place };
-        record_animation(&vk, &loader, cb, &parts, refresh, frame == 0, animation_timer.as_ref());
+        let parts = Animation {
+            loader: &loader,
+            pipeline: &pipeline,
+            wave: &wave,
+            blases: &blases,
+            tlas: &tlas_in_place,
+        };
+        record_animation(&vk, cb, &parts, step, animation_timer.as_ref());
         animation.submit(&vk, None, vertices_moved.as_ref().map(|s| s.vk))?;
         // GL must not fetch the vertices before the compute shader has written them.
         match &vertices_moved {
@@ -237,18 +244,22 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if std::mem::take(&mut traced) {
             timing::read_after(&vk, commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
         }
-        tracer.trace(&vk, &gl_context, &handoff, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
         times.frame_done();
         // ANCHOR_END: frame
-        match refresh {
-            Refresh::Update => blas_refits += 1,
-            Refresh::Rebuild if frame > 0 => blas_rebuilds += 1,
-            Refresh::Rebuild => {} // the first build
-        }
         // Frame 0 builds everything: its time is not a refresh.
-        (animated, traced) = ((frame > 0).then_some(refresh), true);
+        let refreshed = match step {
+            Step::First => None,
+            Step::Next(refresh) => Some(refresh),
+        };
+        match refreshed {
+            Some(Refresh::Update) => blas_refits += 1,
+            Some(Refresh::Rebuild) => blas_rebuilds += 1,
+            None => {}
+        }
+        (animated, traced) = (refreshed, true);
         if frame == 0 || frame + 1 == frames || args.animation.every_frame {
             pictures.push((frame, output::flip_rows(&composite.read(gl), extent.width, extent.height)));
         }
@@ -287,7 +298,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         tracer.reset();
         let rays =
             AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-        tracer.trace(&vk, &gl_context, &handoff, &commands, &gbuffers, rays, trace_timer.as_ref())?;
+        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
         unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
@@ -296,8 +307,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (after_refits, refitted_ms) = trace_once(&mut tracer)?;
     // The same time again (the vertices do not move), with the BLAS rebuilt.
     let cb = animation.begin(&vk)?;
-    let parts = Animation { pipeline: &pipeline, wave: &wave, blases: &blases, tlas: &tlas_in_place };
-    record_animation(&vk, &loader, cb, &parts, Refresh::Rebuild, false, animation_timer.as_ref());
+    let parts = Animation {
+        loader: &loader,
+        pipeline: &pipeline,
+        wave: &wave,
+        blases: &blases,
+        tlas: &tlas_in_place,
+    };
+    record_animation(&vk, cb, &parts, Step::Next(Refresh::Rebuild), animation_timer.as_ref());
     animation.submit(&vk, None, None)?;
     unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }?;
     gbuffers.draw(gl, &scene, &camera);

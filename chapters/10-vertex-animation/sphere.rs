@@ -146,23 +146,29 @@ impl Drop for WavePipeline {
 
 /// What one frame's Vulkan animation work uses.
 pub struct Animation<'a> {
+    pub loader: &'a ash::khr::acceleration_structure::Device,
     pub pipeline: &'a WavePipeline,
     pub wave: &'a Wave,
     pub blases: &'a [(AccelerationStructure, InPlace)],
     pub tlas: &'a InPlace,
 }
 
+/// What a frame builds: the first builds everything (the ground's BLAS, the sphere's, the
+/// TLAS); each later one refreshes the sphere's BLAS as the policy says and updates the TLAS.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    First,
+    Next(Refresh),
+}
+
 // ANCHOR: record
 /// Compute moves the vertices -> barrier -> the sphere's BLAS refit (or rebuild) -> barrier ->
-/// the TLAS update -> barrier -> the frame's rays. `first` also builds the ground's BLAS and the
-/// TLAS for the first time.
+/// the TLAS update -> barrier -> the frame's rays.
 pub fn record_animation(
     vk: &VulkanContext,
-    loader: &ash::khr::acceleration_structure::Device,
     cb: vk::CommandBuffer,
     parts: &Animation,
-    refresh: Refresh,
-    first: bool,
+    step: Step,
     timer: Option<&Timestamps>,
 ) {
     let compute = vk::PipelineStageFlags::COMPUTE_SHADER;
@@ -193,11 +199,15 @@ pub fn record_animation(
         // which the previous frame's refit wrote.
         let moved = barrier(A::SHADER_WRITE | as_write, A::SHADER_READ | as_read | as_write);
         vk.device.cmd_pipeline_barrier(cb, compute | build, build, none, &[moved], &[], &[]);
-        let (sphere, ground) = (&parts.blases[1].1, &parts.blases[0].1);
-        if first {
+        let (loader, sphere, ground) = (parts.loader, &parts.blases[1].1, &parts.blases[0].1);
+        let (sphere_refresh, tlas_refresh) = match step {
+            Step::First => (Refresh::Rebuild, Refresh::Rebuild),
+            Step::Next(refresh) => (refresh, Refresh::Update),
+        };
+        if step == Step::First {
             ground.record(loader, cb, Refresh::Rebuild);
         }
-        sphere.record(loader, cb, refresh);
+        sphere.record(loader, cb, sphere_refresh);
         if let Some(t) = timer {
             t.write(vk, cb, build, 2);
         }
@@ -205,7 +215,7 @@ pub fn record_animation(
         // updated leaves the TLAS's boxes around where the sphere was (rays miss what bulged out).
         let refitted = barrier(as_write, as_read | as_write);
         vk.device.cmd_pipeline_barrier(cb, build, build, none, &[refitted], &[], &[]);
-        parts.tlas.record(loader, cb, if first { Refresh::Rebuild } else { Refresh::Update });
+        parts.tlas.record(loader, cb, tlas_refresh);
         if let Some(t) = timer {
             t.write(vk, cb, build, 3);
         }

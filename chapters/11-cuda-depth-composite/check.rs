@@ -2,7 +2,7 @@
 //! tracer wrote, the lines' depth test, and the composite's depth against rasterised depth.
 
 use crate::Path;
-use crate::composite::{Composite, DepthUniforms, Source};
+use crate::composite::{DepthComposite, DepthUniforms, Source};
 use crate::scene::{self, GROUND, TraceParams};
 use anyhow::Result;
 use common::Report;
@@ -41,7 +41,7 @@ pub fn report_times(report: &mut Report, path: Path, cuda: bool, times: &[Vec<f6
 /// One path's last frame, for checking.
 pub struct Frame<'a> {
     pub gl: &'a glow::Context,
-    pub composite: &'a Composite,
+    pub composite: &'a DepthComposite,
     pub source: Source<'a>,
     pub depth: &'a DepthUniforms,
     pub view_projection: Mat4,

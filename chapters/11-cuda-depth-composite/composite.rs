@@ -102,8 +102,10 @@ pub enum Source<'a> {
     Buffer(glow::Buffer),
 }
 
-/// The offscreen target (RGBA8 colour, 24-bit depth), the composite pass and the lines.
-pub struct Composite {
+/// The offscreen target (RGBA8 colour, 24-bit depth), the pass that writes the traced colour
+/// and its depth into it, and the lines drawn over it, depth-tested (common::frame::Composite
+/// composites G-buffers and AO instead; this one has no G-buffers).
+pub struct DepthComposite {
     traced_program: glow::Program,
     lines_program: glow::Program,
     empty: glow::VertexArray,
@@ -126,7 +128,7 @@ pub struct DepthUniforms {
     pub far: f32,
 }
 
-impl Composite {
+impl DepthComposite {
     pub fn new(gl: &glow::Context, width: u32, height: u32, spheres: &[Sphere]) -> Result<Self> {
         let traced_program = common::base::gl::program(gl, FULLSCREEN, RAYTRACED)?;
         let lines_program = common::base::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
@@ -193,7 +195,7 @@ impl Composite {
                 status == glow::FRAMEBUFFER_COMPLETE,
                 "composite framebuffer incomplete: {status:#x}"
             );
-            Ok(Composite {
+            Ok(DepthComposite {
                 traced_program,
                 lines_program,
                 empty,

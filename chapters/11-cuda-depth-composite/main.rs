@@ -27,7 +27,7 @@ mod check;
 mod composite;
 mod cuda;
 mod scene;
-use composite::{Composite, DepthUniforms, PixelBuffer, Source, gl_time_ms, traced_bytes};
+use composite::{DepthComposite, DepthUniforms, PixelBuffer, Source, gl_time_ms, traced_bytes};
 use cuda::{CudaTracer, ImportedMemory, RegisteredPbo};
 
 const CHAPTER: &str = "11-cuda-depth-composite";
@@ -196,7 +196,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR_END: path2
 
         // 6. Every frame: trace, hand the pixels to GL, composite, draw the lines
-        let composite = made.composite.insert(Composite::new(gl, width, height, &spheres)?);
+        let composite = made.composite.insert(DepthComposite::new(gl, width, height, &spheres)?);
         let mut pictures = Vec::new();
         for &path in &paths {
             let mut times: [Vec<f64>; 3] = Default::default(); // trace, upload, composite
@@ -316,7 +316,7 @@ struct Made {
     imported: Option<ImportedMemory>,
     shared: Option<SharedBuffer>,
     mapped: Option<*mut std::ffi::c_void>,
-    composite: Option<Composite>,
+    composite: Option<DepthComposite>,
 }
 
 impl Made {

@@ -8,6 +8,7 @@ use anyhow::Result;
 use common::Report;
 use common::base::output;
 use common::frame::{Overlays, shows_colour};
+use common::interop::handoff::Apis;
 use common::scene::Camera;
 use glam::Vec3;
 use glow::HasContext;
@@ -277,7 +278,7 @@ impl Chapter08 {
 /// `total` rays per pixel, as the frames of this chapter traced them; read back, then destroyed.
 #[allow(clippy::too_many_arguments)] // the APIs, the scene's three parts, and the frame to repeat
 pub fn trace_chapter_08(
-    apis: crate::trace::Apis,
+    apis: Apis,
     allocator: &mut gpu_allocator::vulkan::Allocator,
     (buffers, tlas): (&common::scene::gbuffer::SceneBuffers, ash::vk::AccelerationStructureKHR),
     scene: &common::scene::Scene,
@@ -285,7 +286,7 @@ pub fn trace_chapter_08(
     targets: &Targets,
     (per_frame, total, radius): (u32, u32, f32),
 ) -> Result<Chapter08> {
-    let crate::trace::Apis { vk, gl, sync, commands } = apis;
+    let (vk, gl) = (apis.vk, apis.gl);
     let extent = targets.extent;
     use common::rt::ao::AoTracer;
     use common::scene::gbuffer::GBuffers;
@@ -300,7 +301,7 @@ pub fn trace_chapter_08(
     while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
         let samples = per_frame.min(total - tracer.accumulated);
         let rays = common::rt::ao::AoRays { samples, accumulated: 0, radius, scene_scale };
-        tracer.trace(vk, gl, sync, commands, &gbuffers, rays, None)?;
+        tracer.trace(apis, &gbuffers, rays, None)?;
     }
     let (w, h) = (extent.width, extent.height);
     let positions = output::read_texture_f32(&gl.gl, gbuffers.textures()[0], w, h, 4);
@@ -308,7 +309,7 @@ pub fn trace_chapter_08(
     let ids = read_ids(&gl.gl, targets);
     let subpixel_bits = unsafe { gl.gl.get_parameter_i32(glow::SUBPIXEL_BITS) }.clamp(1, 16) as u32;
     unsafe { gl.gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[apis.commands.fence], true, u64::MAX) }?;
     tracer.destroy(vk, gl, allocator);
     drop(gbuffers);
     Ok(Chapter08 { positions, visibility, ids, subpixel_bits })
@@ -328,7 +329,7 @@ pub struct ErrorAgainst<'a> {
 }
 
 impl ErrorAgainst<'_> {
-    pub fn measure(self, apis: crate::trace::Apis) -> Result<(f64, f64)> {
+    pub fn measure(self, apis: Apis) -> Result<(f64, f64)> {
         let gl = apis.gl;
         let LastFrame { targets, composite, camera, .. } = *self.last;
         let shown = |blur| -> Vec<u8> {

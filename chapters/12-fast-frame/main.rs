@@ -15,10 +15,11 @@ use common::base::cli::Size;
 use common::base::cli::Smallest;
 use common::base::commands::Timestamps;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::timeline::{self, Timeline};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::base::window::{Key, NamedKey, Window};
 use common::frame::Overlays;
-use common::interop::handoff::Handoff;
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, TlasFlags};
 use common::rt::ao::AoArgs;
@@ -31,12 +32,11 @@ mod check;
 mod composite;
 mod overlap;
 mod settings;
-mod timeline;
 mod trace;
 mod visibility;
 use composite::{ComputeComposite, View};
 use settings::Settings;
-use trace::{Apis, Pattern, Rays, SurfaceTracer};
+use trace::{Pattern, Rays, SurfaceTracer};
 use visibility::{Targets, VisibilityPass};
 
 const CHAPTER: &str = "12-fast-frame";
@@ -166,7 +166,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut trace_pending = None; // the traced frame's timeline slot, if any, once submitted
     let mut timeline = match (args.timeline, &timestamps) {
         (0, _) => None,
-        (_, Some(_)) => Some(timeline::Timeline::new(gl, args.timeline.min(frame_limit))?),
+        (_, Some(_)) => Some(Timeline::new(gl, args.timeline.min(frame_limit), ["ids", "composite"])?),
         (_, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", vk.info.name),
     };
     let skipped = common::rt::ao::nothing_to_trace(settings.samples, settings.radius);
@@ -241,7 +241,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                     t.trace_done(&vk, slot, stamps)?;
                 }
             }
-            let apis = Apis { vk: &vk, gl: &gl_context, sync: &handoff, commands: &shared.commands };
+            let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &shared.commands };
             tracer.trace(apis, &targets, &camera, rays, timestamps.as_ref())?;
             trace_pending = timestamps.is_some().then_some(slot);
         }
@@ -274,7 +274,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_timer.finish(gl, &mut times);
     if let (Some(t), Some(stamps)) = (timeline.take(), &timestamps) {
         unsafe { gl.finish() };
-        t.finish(&vk, &shared.commands, stamps, report, &args.common.out_dir(CHAPTER))?;
+        let out = args.common.out_dir(CHAPTER).join("timeline");
+        report.set("timeline", t.finish(&vk, &shared.commands, stamps, &out)?);
     }
     times.record(report);
     gl_context.check_error("the frame loop")?;
@@ -286,7 +287,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
     let (accumulated, scene_scale) = (tracer.accumulated, scene.size() / 2.0);
     let rays = settings.rays(if skipped.is_some() { 0 } else { settings.samples }, scene_scale);
-    let apis = Apis { vk: &vk, gl: &gl_context, sync: &handoff, commands: &shared.commands };
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &shared.commands };
     if args.overlap_rounds > 0 {
         let probe = overlap::Probe {
             visibility: &visibility,

@@ -9,10 +9,11 @@
 //! If the driver runs GL's work beside Vulkan's, *during* is shorter by up to the second pass's
 //! time; if it runs one API's work at a time, the two take as long.
 
-use crate::trace::{Apis, Rays, SurfaceTracer};
+use crate::trace::{Rays, SurfaceTracer};
 use crate::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::Result;
 use common::base::commands::median_p95;
+use common::interop::handoff::Apis;
 use common::scene::{Camera, Scene};
 use glow::HasContext;
 use std::time::Instant;

@@ -4,14 +4,14 @@
 use crate::visibility::{MeshIds, Targets};
 use anyhow::Result;
 use ash::vk;
-use common::base::commands::{Commands, Timestamps, first_use};
-use common::interop::handoff::{HandOver, Handoff};
+use common::VulkanContext;
+use common::base::commands::{Timestamps, first_use, timed};
+use common::interop::handoff::{Apis, HandOver};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::RayTracedScene;
 use common::rt::accel::DeviceBuffer;
 use common::rt::raytrace::{RayPipeline, push_bytes};
 use common::scene::Camera;
-use common::{GlContext, VulkanContext};
 use gpu_allocator::MemoryLocation;
 use gpu_allocator::vulkan::Allocator;
 
@@ -37,15 +37,6 @@ pub struct SurfaceRays {
     pub instances: u64,
 }
 // ANCHOR_END: surface_rays
-
-/// The two APIs and how they hand over, as every trace needs them.
-#[derive(Clone, Copy)]
-pub struct Apis<'a> {
-    pub vk: &'a VulkanContext,
-    pub gl: &'a GlContext,
-    pub sync: &'a Handoff,
-    pub commands: &'a Commands,
-}
 
 /// What a frame's rays are asked to do, beside the camera.
 #[derive(Clone, Copy)]
@@ -206,18 +197,20 @@ impl SurfaceTracer {
         timestamps: Option<&Timestamps>,
         between: impl FnOnce(),
     ) -> Result<()> {
-        let Apis { vk, gl, sync, commands } = apis;
+        let Apis { vk, gl, handoff, commands } = apis;
         // The ids come to Vulkan in GENERAL (storage images) and go back as GL's attachment; the
         // surface is sampled by GL. On the host path both stay GENERAL (`Handoff::hand_over`).
         let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
         let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-        let layouts =
-            (sync.hand_over(vk::ImageLayout::GENERAL, attachment), sync.hand_over(read_only, read_only));
+        let layouts = (
+            handoff.hand_over(vk::ImageLayout::GENERAL, attachment),
+            handoff.hand_over(read_only, read_only),
+        );
         let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) =
             (layouts.0.gl(), layouts.1.gl());
         let textures = [targets.visibility.texture.texture, targets.surface.texture.texture];
         let handed = if self.gl_has_surface { 2 } else { 1 };
-        sync.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
+        handoff.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
         let cb = commands.begin(vk)?;
         let aspect = targets.extent.width as f32 / targets.extent.height as f32;
         let push = SurfaceRays {
@@ -235,9 +228,9 @@ impl SurfaceTracer {
         };
         unsafe { self.record(vk, cb, targets, layouts, &push, timestamps) };
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-        commands.submit(vk, sync.vulkan_waits_on().map(|s| (s, stage)), sync.vulkan_signals())?;
+        commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
         between();
-        sync.gl_acquire(vk, gl, commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
+        handoff.gl_acquire(vk, gl, commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
         self.gl_has_surface = true;
         self.accumulated += rays.samples;
         Ok(())
@@ -275,18 +268,11 @@ impl SurfaceTracer {
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         let none = vk::DependencyFlags::empty();
         unsafe {
-            if let Some(t) = timestamps {
-                t.reset(vk, cb);
-            }
             // From the stage the submission waits for GL at: the acquire must follow GL's signal.
             vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
-            if let Some(t) = timestamps {
-                t.start(vk, cb, stage);
-            }
-            self.pipeline.trace(vk, cb, push_bytes(push), targets.extent);
-            if let Some(t) = timestamps {
-                t.end(vk, cb);
-            }
+            timed(vk, cb, timestamps, stage, || {
+                self.pipeline.trace(vk, cb, push_bytes(push), targets.extent)
+            });
             let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
             vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
         }

@@ -7,9 +7,10 @@ use anyhow::Result;
 use ash::vk;
 use common::base::cli::Size;
 use common::base::commands::{Timestamps, median_p95};
+use common::base::timeline::{self, Timeline};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Overlays, Uniforms, View};
-use common::interop::handoff::Handoff;
+use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoRays, AoTracer};
 use common::scene::gbuffer::GBuffers;
@@ -117,29 +118,31 @@ impl<'s> Frame<'s> {
         })
     }
 
-    /// `setting.frames` measured frames after two to warm up, into `samples`. Nothing waits
-    /// inside a frame that the mode itself does not make wait.
-    #[allow(clippy::too_many_arguments)] // the two contexts, the scene's, the two ways to time
+    /// `setting.frames` measured frames after two to warm up, into `samples`; the last ones
+    /// also on `timeline`, if there is one. Nothing waits inside a frame that the mode itself
+    /// does not make wait.
     pub fn run(
         &mut self,
-        vk: &VulkanContext,
-        gl: &GlContext,
-        shared: &RayTracedScene,
-        handoff: &Handoff,
+        apis: Apis,
         setting: Setting,
         stamps: &Timestamps,
-        samples: &mut Samples,
+        (samples, timeline): (&mut Samples, &mut Option<Timeline>),
     ) -> Result<()> {
+        let Apis { vk, gl, .. } = apis;
         let Setting { spp, frames: count, depth_prepass } = setting;
         let g = &gl.gl;
-        let fence = shared.commands.fence;
+        let fence = apis.commands.fence;
         let radius = self.scene.size() * 0.05;
         let rays = AoRays { samples: spp, accumulated: 0, radius, scene_scale: self.scene.size() / 2.0 };
         let aspect = self.gbuffers.extent.width as f32 / self.gbuffers.extent.height as f32;
         let mut times = PassTimes::default();
         let mut last: Option<Instant> = None;
+        let slots: Vec<_> =
+            (0..count + 2).map(|f| timeline.as_ref().and_then(|t| t.slot(f, count + 2))).collect();
+        let slot = |frame: u32| slots[frame as usize];
         for frame in 0..count + 2 {
             let measured = frame >= 2;
+            timeline::stamp(timeline, slot(frame), 0);
             self.gl_timer.begin(g, "raster")?;
             if depth_prepass {
                 self.gbuffers.draw_depth_first(g, self.scene, &self.camera);
@@ -147,6 +150,7 @@ impl<'s> Frame<'s> {
                 self.gbuffers.draw(g, self.scene, &self.camera);
             }
             self.gl_timer.end(g);
+            timeline::stamp(timeline, slot(frame), 1);
             if let Some(round_trip) = &mut self.round_trip {
                 round_trip.gbuffers_to_vulkan(vk, gl, &self.gbuffers)?;
             }
@@ -159,17 +163,22 @@ impl<'s> Frame<'s> {
                 if frame > 2 {
                     samples.ao_ms.push(stamps.read_ms(vk)?);
                 }
+                if let (Some(t), Some(previous)) = (timeline.as_mut(), slot(frame - 1)) {
+                    t.trace_done(vk, previous, stamps)?;
+                }
             }
             // Each frame a fresh estimate (weight 1), as when the camera moves every frame.
             self.tracer.reset();
-            self.tracer.trace(vk, gl, handoff, &shared.commands, &self.gbuffers, rays, Some(stamps))?;
+            self.tracer.trace(apis, &self.gbuffers, rays, Some(stamps))?;
             if let Some(round_trip) = &mut self.round_trip {
                 round_trip.ao_to_gl(vk, gl)?;
             }
+            timeline::stamp(timeline, slot(frame), 2);
             self.gl_timer.begin(g, "composite")?;
             self.composite.draw(g, &self.gbuffers, &self.tracer, &self.uniforms);
             self.overlays.draw(g, &self.composite.target(), self.camera.view_projection(aspect));
             self.gl_timer.end(g);
+            timeline::stamp(timeline, slot(frame), 3);
             if measured {
                 self.gl_timer.end_frame(g, &mut times);
             } else {
@@ -187,6 +196,9 @@ impl<'s> Frame<'s> {
         unsafe { g.finish() };
         unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
         samples.ao_ms.push(stamps.read_ms(vk)?);
+        if let (Some(t), Some(last)) = (timeline.as_mut(), slot(count + 1)) {
+            t.trace_done(vk, last, stamps)?;
+        }
         self.gl_timer.finish(g, &mut times);
         for pass in ["raster", "composite"] {
             for &ms in times.samples(pass) {

@@ -16,7 +16,8 @@ use ash::vk;
 use common::base::cli::{Size, Smallest, parse_size};
 use common::base::commands::Timestamps;
 use common::base::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
-use common::interop::handoff::Handoff;
+use common::base::timeline::Timeline;
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, TlasFlags};
 use common::scene::Scene;
@@ -70,6 +71,10 @@ struct Args {
     /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     frames: Option<u32>,
+    /// Also draw the last N frames' passes of chapter 08's frame and of chapter 12's, each on one
+    /// clock, into timeline-08.svg and fast-frame/timeline.svg (0: none).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
+    timeline: u32,
     /// The ablation's converged reference, in rays per pixel [default: 1024; --quick: 64].
     #[arg(long, value_parser = clap::value_parser!(u32).range(16..=1 << 20))]
     reference_rays: Option<u32>,
@@ -232,7 +237,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                         let handoff = if frame.mode == Mode::ZeroCopy { &zero_copy } else { &host };
                         let setting =
                             Setting { spp, frames: frames_per_run, depth_prepass: args.depth_prepass };
-                        frame.run(&vk, &gl, &shared, handoff, setting, &stamps, samples)?;
+                        let apis = Apis { vk: &vk, gl: &gl, handoff, commands: &shared.commands };
+                        frame.run(apis, setting, &stamps, (samples, &mut None))?;
                     }
                 }
                 for (mode, samples) in Mode::ALL.iter().zip(&samples) {
@@ -248,6 +254,28 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             }
         }
         shared.destroy(&vk, &gl);
+    }
+    if args.timeline > 0 {
+        // Chapter 08's frame and chapter 12's, each on one clock: the default scene at the
+        // ablation's setting (the largest size, 16 rays or the most asked for).
+        let (size, spp) = ablation_setting(&sizes, &spps);
+        let scene = SceneKind::Default.build(args.quick)?;
+        let mut shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
+        let extent = vk::Extent2D { width: size.width, height: size.height };
+        let mut frame = Frame::new(&vk, &gl, &mut shared, &scene, extent, Mode::ZeroCopy)?;
+        let mut timeline = Some(Timeline::new(&gl.gl, args.timeline, ["gbuffer", "composite"])?);
+        let apis = Apis { vk: &vk, gl: &gl, handoff: &zero_copy, commands: &shared.commands };
+        let setting = Setting { spp, frames: args.timeline, depth_prepass: args.depth_prepass };
+        frame.run(apis, setting, &stamps, (&mut Samples::default(), &mut timeline))?;
+        let timeline = timeline.take().expect("made above");
+        report.set(
+            "timeline_08",
+            timeline.finish(&vk, &shared.commands, &stamps, &args.out.join("timeline-08"))?,
+        );
+        frame.destroy(&vk, &gl, &mut shared);
+        shared.destroy(&vk, &gl);
+        let fast = fast::timeline(size, spp, args.timeline, &args.out.join("fast-frame"))?;
+        report.set("timeline_12", fast);
     }
     stamps.destroy(&vk);
     report.check("every_scene_covers_pixels", covered_everywhere);
@@ -271,8 +299,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     checks(report, &rows, (Mode::ALL.len() + 1) * scenes_count * sizes.len() * spps.len());
     // The ablation: chapter 12 with its choices undone one at a time, on the default scene at
     // the largest size, at 16 rays (or the most asked for, if fewer).
-    let size = *sizes.iter().max_by_key(|s| s.width as u64 * s.height as u64).expect("a size");
-    let spp = if spps.contains(&16) { 16 } else { *spps.iter().max().expect("a ray count") };
+    let (size, spp) = ablation_setting(&sizes, &spps);
     let reference = args.reference_rays.unwrap_or(if args.quick { 64 } else { 1024 });
     let steps = fast::ablation(size, spp, 2 * frames_per_run, reference, &args.out.join("fast-frame"))?;
     let chapter_08 = rows.iter().find(|r| {
@@ -287,6 +314,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     report.set("rows", &rows);
     Ok(())
+}
+
+/// The ablation's (and the timelines') setting: the largest size, at 16 rays per pixel, or the
+/// most asked for if fewer.
+fn ablation_setting(sizes: &[Size], spps: &[u32]) -> (Size, u32) {
+    let size = *sizes.iter().max_by_key(|s| s.width as u64 * s.height as u64).expect("a size");
+    (size, if spps.contains(&16) { 16 } else { *spps.iter().max().expect("a ray count") })
 }
 
 /// The BLAS/TLAS numbers of the large scene.

@@ -68,10 +68,8 @@ fn camera(
     scene: &Scene,
     place: Placement,
     size: f64,
-    eye: DVec3,
-    target: DVec3,
-    near: f64,
-    far: f64,
+    (eye, target): (DVec3, DVec3),
+    (near, far): (f64, f64),
 ) -> Camera {
     let origin = DVec3::from(scene.origin);
     Camera {
@@ -107,8 +105,13 @@ pub fn parallel_planes(place: Placement) -> anyhow::Result<Case> {
     let ceiling = [ceiling[0], ceiling[3], ceiling[2], ceiling[1]]; // facing down
     let scene = one_mesh_scene(quads(&[floor, ceiling], place), place, L, DVec3::new(0.5, H / 2.0, 0.0))?;
     let origin = DVec3::from(scene.origin);
-    let camera =
-        camera(&scene, place, L, DVec3::new(0.0, H / 2.0, 2.5), DVec3::new(0.0, H / 2.0, -2.0), 0.05, 20.0);
+    let camera = camera(
+        &scene,
+        place,
+        L,
+        (DVec3::new(0.0, H / 2.0, 2.5), DVec3::new(0.0, H / 2.0, -2.0)),
+        (0.05, 20.0),
+    );
     let exact = move |p: DVec3| {
         let p = place.to_case(p, origin, L);
         let inside = p.x.abs() <= b - R && p.z.abs() <= b - R;
@@ -135,7 +138,8 @@ pub fn floor_and_wall(place: Placement) -> anyhow::Result<Case> {
         [DVec3::new(0.0, 0.0, a), DVec3::new(0.0, L, a), DVec3::new(0.0, L, b), DVec3::new(0.0, 0.0, b)];
     let scene = one_mesh_scene(quads(&[floor, wall], place), place, L, DVec3::new(0.5, 0.5, 0.0))?;
     let origin = DVec3::from(scene.origin);
-    let camera = camera(&scene, place, L, DVec3::new(3.2, 2.4, 1.6), DVec3::new(0.3, 0.3, -0.6), 0.05, 20.0);
+    let camera =
+        camera(&scene, place, L, (DVec3::new(3.2, 2.4, 1.6), DVec3::new(0.3, 0.3, -0.6)), (0.05, 20.0));
     let exact = move |p: DVec3| {
         let p = place.to_case(p, origin, L);
         // On the floor the height is (nearly) 0 and the distance to the wall is x; on the wall

@@ -18,7 +18,7 @@ use clap::Parser;
 use common::base::commands::Timestamps;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
-use common::interop::handoff::Handoff;
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoRays, AoTracer};
 use common::scene::gbuffer::GBuffers;
@@ -102,6 +102,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // Rays per pixel per frame, and frames: every combination is one row.
     let (spps, frame_counts): (&[u32], &[u32]) =
         if args.quick { (&[1, 4], &[1, 4, 16]) } else { (&[1, 4, 16, 64], &[1, 4, 16, 64]) };
+    let grid = Grid { extent, spps, frame_counts, quick: args.quick };
     let place = Placement { scale: args.scale, offset: args.offset };
     let aspect = extent.width as f32 / extent.height as f32;
     let mut cases = vec![cases::parallel_planes(place)?, cases::floor_and_wall(place)?];
@@ -118,9 +119,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let timestamps = Timestamps::new(&vk)?;
     let mut results = Vec::new();
     for case in &cases {
-        let measured =
-            measure(&vk, &gl, &handoff, timestamps.as_ref(), case, extent, spps, frame_counts, args.quick);
-        results.push(measured?);
+        results.push(measure(&vk, &gl, &handoff, timestamps.as_ref(), case, &grid)?);
     }
     if let Some(t) = timestamps {
         t.destroy(&vk);
@@ -157,19 +156,25 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
+/// What every case measures: each number of rays per pixel per frame for each number of
+/// frames, at one size; `quick` leaves out the long reference run.
+struct Grid<'a> {
+    extent: vk::Extent2D,
+    spps: &'a [u32],
+    frame_counts: &'a [u32],
+    quick: bool,
+}
+
 /// Every row of one case: the scene shared and built once, each row traced from zero.
-#[allow(clippy::too_many_arguments)]
 fn measure(
     vk: &VulkanContext,
     gl: &GlContext,
     handoff: &Handoff,
     timestamps: Option<&Timestamps>,
     case: &Case,
-    extent: vk::Extent2D,
-    spps: &[u32],
-    frame_counts: &[u32],
-    quick: bool,
+    grid: &Grid,
 ) -> Result<CaseReport> {
+    let &Grid { extent, spps, frame_counts, quick } = grid;
     let mut shared = RayTracedScene::new(vk, gl, &case.scene)?;
     let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer = AoTracer::new(vk, gl, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
@@ -182,7 +187,12 @@ fn measure(
         let mut gpu_ms = 0.0;
         for _ in 0..frames {
             gbuffers.draw(&gl.gl, &case.scene, &case.camera);
-            tracer.trace(vk, gl, handoff, &shared.commands, &gbuffers, rays(spp), timestamps)?;
+            tracer.trace(
+                Apis { vk, gl, handoff, commands: &shared.commands },
+                &gbuffers,
+                rays(spp),
+                timestamps,
+            )?;
             if let Some(t) = timestamps {
                 // A measurement: wait for this frame's rays to read their GPU time.
                 unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;

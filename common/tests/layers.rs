@@ -185,3 +185,89 @@ fn the_check_sees_what_it_must_refuse() {
     // Words that merely contain `crate::` are not paths.
     assert!(check("base/cli.rs", "use mycrate::scene::Scene;").is_empty());
 }
+
+/// What each layer holds, for the picture (lowest first, as [`LAYERS`]).
+const ROLES: [&str; 5] = [
+    "contexts, commands, the report, flags, windows, GPU timing (chapters 01-04)",
+    "memory Vulkan exports and GL imports, the hand-off between them, CUDA's import",
+    "meshes, instances, OBJ files, the camera; the G-buffers GL draws (chapter 05)",
+    "acceleration structures and ray pipelines (Vulkan only), the AO tracer (06-07)",
+    "the composite, overlay lines and pixel probes the frames of 08-12 share",
+];
+
+/// The modules of one layer as the picture names them: files, and folders with a slash.
+fn modules_of(layer: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(layer)
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .filter(|path| path.file_name().is_some_and(|n| n != "mod.rs"))
+        .map(|path| {
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            if path.is_dir() { format!("{name}/") } else { name.trim_end_matches(".rs").to_owned() }
+        })
+        .collect();
+    names.sort();
+    names
+}
+
+/// The layers as an SVG: one band a layer, the highest on top, each naming its modules, and an
+/// arrow down the side for the one direction a module may look.
+fn layers_picture(root: &Path) -> String {
+    let (width, band, gap, left) = (760, 64, 14, 40);
+    let height = LAYERS.len() * (band + gap) + gap;
+    let mut svg = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{width}\" height=\"{height}\" \
+         viewBox=\"0 0 {width} {height}\" font-family=\"sans-serif\" font-size=\"13\">\n\
+         <rect width=\"{width}\" height=\"{height}\" fill=\"white\"/>\n"
+    );
+    for (row, (layer, role)) in LAYERS.iter().zip(ROLES).rev().enumerate() {
+        let y = gap + row * (band + gap);
+        let modules = modules_of(&root.join(layer)).join("  ");
+        svg += &format!(
+            "<rect x=\"{left}\" y=\"{y}\" width=\"{}\" height=\"{band}\" rx=\"6\" fill=\"#eef3fb\" stroke=\"#5b7db1\"/>\n\
+             <text x=\"{}\" y=\"{}\" font-weight=\"bold\">{layer}</text>\n\
+             <text x=\"{}\" y=\"{}\" fill=\"#333\">{role}</text>\n\
+             <text x=\"{}\" y=\"{}\" font-family=\"monospace\" font-size=\"12\" fill=\"#1a3d6e\">{modules}</text>\n",
+            width - left - 10,
+            left + 12,
+            y + 20,
+            left + 90,
+            y + 20,
+            left + 12,
+            y + 46,
+        );
+    }
+    let (top, bottom) = (gap + band / 2, height - gap - band / 2);
+    svg += &format!(
+        "<line x1=\"20\" y1=\"{top}\" x2=\"20\" y2=\"{}\" stroke=\"#5b7db1\" stroke-width=\"2\"/>\n\
+         <polygon points=\"14,{} 26,{} 20,{bottom}\" fill=\"#5b7db1\"/>\n\
+         <text x=\"16\" y=\"{}\" transform=\"rotate(-90 16 {})\" font-size=\"11\" fill=\"#5b7db1\" text-anchor=\"middle\">uses</text>\n\
+         </svg>\n",
+        bottom - 10,
+        bottom - 12,
+        bottom - 12,
+        height / 2,
+        height / 2,
+    );
+    svg
+}
+
+/// The book's picture of the layers is drawn from the folders as they are: a module added,
+/// moved or removed fails this test until the picture is made again
+/// (`VKGL_UPDATE_IMAGES=1 cargo test -p common --test layers`).
+#[test]
+fn the_books_picture_shows_the_layers_as_they_are() {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let drawn = layers_picture(&manifest.join("src"));
+    let picture = manifest.join("../book/src/images/common-layers.svg");
+    if std::env::var_os("VKGL_UPDATE_IMAGES").is_some() {
+        std::fs::write(&picture, &drawn).unwrap();
+    }
+    let committed = std::fs::read_to_string(&picture).unwrap_or_default();
+    assert!(
+        committed == drawn,
+        "{} does not show common/src as it is; draw it again with \
+         VKGL_UPDATE_IMAGES=1 cargo test -p common --test layers",
+        picture.display()
+    );
+}

@@ -283,6 +283,26 @@ pub fn transfers_to_host(vk: &VulkanContext, cb: vk::CommandBuffer) {
     };
 }
 
+/// Records `pass` between two timestamps when there are any: the queries reset, "start" once
+/// earlier commands reach `stage` (record it after the barrier that waits for the other API,
+/// so that waiting is not counted as work), "end" once `pass` has completed.
+pub fn timed(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    timestamps: Option<&Timestamps>,
+    stage: vk::PipelineStageFlags,
+    pass: impl FnOnce(),
+) {
+    if let Some(t) = timestamps {
+        t.reset(vk, cb);
+        t.start(vk, cb, stage);
+    }
+    pass();
+    if let Some(t) = timestamps {
+        t.end(vk, cb);
+    }
+}
+
 /// GPU timestamps around each frame's Vulkan work, read back once the frame's fence has signalled.
 pub struct Timestamps {
     pub pool: vk::QueryPool,

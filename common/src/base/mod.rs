@@ -10,6 +10,7 @@ pub mod gl;
 pub mod output;
 pub mod report;
 pub mod resources;
+pub mod timeline;
 pub mod timing;
 pub mod vulkan;
 pub mod window;

@@ -23,6 +23,16 @@ pub struct SharedSemaphore {
     gl_fns: Option<crate::base::gl::SemaphoreFns>,
 }
 
+/// Both APIs and how work passes between them, as every frame that hands images over needs
+/// them: the contexts, the hand-over, and the command buffer Vulkan's part is recorded into.
+#[derive(Clone, Copy)]
+pub struct Apis<'a> {
+    pub vk: &'a VulkanContext,
+    pub gl: &'a GlContext,
+    pub handoff: &'a Handoff,
+    pub commands: &'a crate::base::commands::Commands,
+}
+
 /// The two hand-overs of every frame, and how they are made.
 #[allow(clippy::large_enum_variant)] // one per program: boxing the semaphores would buy nothing
 pub enum Handoff {

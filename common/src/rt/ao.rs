@@ -1,10 +1,10 @@
 //! Ray-traced ambient occlusion from GL's G-buffers, accumulated over frames (taught in chapter
 //! 07; chapter 08 composites with it).
 
-use crate::base::commands::{Commands, Timestamps, first_use};
+use crate::base::commands::{Timestamps, first_use, timed};
 use crate::base::gl::GlContext;
 use crate::base::vulkan::VulkanContext;
-use crate::interop::handoff::{HandOver, Handoff};
+use crate::interop::handoff::{Apis, HandOver};
 use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::raytrace::{RayPipeline, push_bytes};
 use crate::scene::gbuffer::GBuffers;
@@ -196,14 +196,12 @@ impl AoTracer {
     /// told to wait for that before it samples the AO. `rays.accumulated` is filled in here.
     pub fn trace(
         &mut self,
-        vk: &VulkanContext,
-        gl: &GlContext,
-        handoff: &Handoff,
-        commands: &Commands,
+        apis: Apis,
         gbuffers: &GBuffers,
         mut rays: AoRays,
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
+        let Apis { vk, gl, handoff, commands } = apis;
         let gbuffer_textures = gbuffers.textures();
         // Positions and normals come to Vulkan in GENERAL, the layout storage images need, and go
         // back as attachments for GL's next draw; the AO image is sampled by GL. On the host path
@@ -272,18 +270,11 @@ impl AoTracer {
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         let none = vk::DependencyFlags::empty();
         unsafe {
-            if let Some(t) = timestamps {
-                t.reset(vk, cb);
-            }
             // From the stage the submission waits for GL at: the acquire must follow GL's signal.
             vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
-            if let Some(t) = timestamps {
-                t.start(vk, cb, stage);
-            }
-            self.pipeline.trace(vk, cb, push_bytes(rays), gbuffers.extent);
-            if let Some(t) = timestamps {
-                t.end(vk, cb);
-            }
+            timed(vk, cb, timestamps, stage, || {
+                self.pipeline.trace(vk, cb, push_bytes(rays), gbuffers.extent)
+            });
             let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
             vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
         }

@@ -2,7 +2,7 @@
 //! acceleration-structure builds, and the structures built from them. Here, above both the
 //! scene layer (GL's side of the buffers) and the Vulkan-only structures.
 
-use super::accel::{BlasLayout, SceneAccel, TlasFlags, allocator, build_with, check_limits};
+use super::accel::{BlasLayout, BuildOptions, SceneAccel, TlasFlags, allocator, build_with, check_limits};
 use crate::base::commands::Commands;
 use crate::base::gl::GlContext;
 use crate::base::vulkan::VulkanContext;
@@ -52,7 +52,8 @@ impl RayTracedScene {
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let buffers = SceneBuffers::share(vk, gl, scene, usage)?;
         let commands = Commands::new(vk)?;
-        let structures = build_with(vk, &mut allocator, &commands, scene, &buffers, tlas_flags, layout)?;
+        let structures =
+            build_with(vk, &mut allocator, &commands, scene, &buffers, BuildOptions { tlas_flags, layout })?;
         Ok(RayTracedScene { allocator, buffers, commands, structures })
     }
 

@@ -2,7 +2,11 @@
 //! rasterises into G-buffers Vulkan can read (chapter 05).
 
 pub mod builtin;
+mod camera;
 pub mod gbuffer;
 mod model;
+mod obj;
 
+pub use camera::*;
 pub use model::*;
+pub use obj::*;

@@ -55,7 +55,7 @@ pub fn build(
     scene: &Scene,
     buffers: &SceneBuffers,
 ) -> Result<SceneAccel> {
-    build_with(vk, allocator, commands, scene, buffers, TlasFlags::STATIC, BlasLayout::PerMesh)
+    build_with(vk, allocator, commands, scene, buffers, BuildOptions::STATIC)
 }
 
 /// Which bottom-level structures hold the scene's triangles.
@@ -86,16 +86,30 @@ impl TlasFlags {
     ));
 }
 
-/// [`build`], with the TLAS built with `tlas_flags`.
+/// How [`build_with`] builds the scene's structures: the TLAS's flags, and which BLASes hold
+/// the triangles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BuildOptions {
+    pub tlas_flags: TlasFlags,
+    pub layout: BlasLayout,
+}
+
+impl BuildOptions {
+    /// What chapters 06-08 build: a static TLAS over one BLAS per mesh.
+    pub const STATIC: BuildOptions =
+        BuildOptions { tlas_flags: TlasFlags::STATIC, layout: BlasLayout::PerMesh };
+}
+
+/// [`build`], as `options` say.
 pub fn build_with(
     vk: &VulkanContext,
     allocator: &mut Allocator,
     commands: &Commands,
     scene: &Scene,
     buffers: &SceneBuffers,
-    tlas_flags: TlasFlags,
-    layout: BlasLayout,
+    options: BuildOptions,
 ) -> Result<SceneAccel> {
+    let BuildOptions { tlas_flags, layout } = options;
     let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
     let timestamps = Timestamps::with_count(vk, 2)?;
     let mut stats = AccelStats { layout: Some(layout), ..Default::default() };

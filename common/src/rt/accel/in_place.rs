@@ -22,16 +22,23 @@ pub enum Refresh {
 }
 
 // ANCHOR: in_place
-/// What it takes to rebuild or update one acceleration structure in place, every frame, without
-/// allocating: its geometry and flags (which must stay those of its first build) and one
-/// persistent scratch buffer, large enough for either (`buildScratchSize`,
-/// `updateScratchSize`).
-pub struct InPlace {
+/// One structure's build as [`InPlace`] repeats it every frame: the structure, its type, the
+/// flags of its first build (an update must use the same), its geometry, and how many triangles
+/// or instances that geometry holds.
+#[derive(Clone, Copy)]
+pub struct BuildInputs {
     pub handle: vk::AccelerationStructureKHR,
-    ty: vk::AccelerationStructureTypeKHR,
-    flags: vk::BuildAccelerationStructureFlagsKHR,
-    geometry: vk::AccelerationStructureGeometryKHR<'static>,
-    primitives: u32,
+    pub ty: vk::AccelerationStructureTypeKHR,
+    pub flags: vk::BuildAccelerationStructureFlagsKHR,
+    pub geometry: vk::AccelerationStructureGeometryKHR<'static>,
+    pub primitives: u32,
+}
+
+/// What it takes to rebuild or update one acceleration structure in place, every frame, without
+/// allocating: the inputs of its first build and one persistent scratch buffer, large enough
+/// for either (`buildScratchSize`, `updateScratchSize`).
+pub struct InPlace {
+    inputs: BuildInputs,
     scratch: Scratch,
     /// The driver's scratch sizes for an update and for a build, for the report.
     pub update_scratch_bytes: u64,
@@ -39,32 +46,23 @@ pub struct InPlace {
 }
 
 impl InPlace {
-    /// For `handle`, built with `flags` from `geometry` with `primitives` triangles or
-    /// instances. Without ALLOW_UPDATE in `flags` it can only be rebuilt.
+    /// For `inputs.handle`. Without ALLOW_UPDATE in `inputs.flags` it can only be rebuilt.
     pub fn new(
         vk: &VulkanContext,
         allocator: &mut Allocator,
         loader: &ash::khr::acceleration_structure::Device,
-        handle: vk::AccelerationStructureKHR,
-        ty: vk::AccelerationStructureTypeKHR,
-        flags: vk::BuildAccelerationStructureFlagsKHR,
-        geometry: vk::AccelerationStructureGeometryKHR<'static>,
-        primitives: u32,
+        inputs: BuildInputs,
     ) -> Result<Self> {
         let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-            .ty(ty)
-            .flags(flags)
-            .geometries(std::slice::from_ref(&geometry));
-        let sizes = build_sizes(loader, &info, &[primitives]);
+            .ty(inputs.ty)
+            .flags(inputs.flags)
+            .geometries(std::slice::from_ref(&inputs.geometry));
+        let sizes = build_sizes(loader, &info, &[inputs.primitives]);
         // One region, as large as the larger need: an update and a rebuild never run at once.
         let bytes = sizes.update_scratch_size.max(sizes.build_scratch_size);
         let scratch = Scratch::new(vk, allocator, &[bytes])?;
         Ok(InPlace {
-            handle,
-            ty,
-            flags,
-            geometry,
-            primitives,
+            inputs,
             scratch,
             update_scratch_bytes: sizes.update_scratch_size,
             build_scratch_bytes: sizes.build_scratch_size,
@@ -80,24 +78,25 @@ impl InPlace {
         cb: vk::CommandBuffer,
         refresh: Refresh,
     ) {
-        let updatable = self.flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE);
+        let BuildInputs { handle, ty, flags, geometry, primitives } = &self.inputs;
+        let updatable = flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE);
         assert!(refresh == Refresh::Rebuild || updatable, "updating a structure built without ALLOW_UPDATE");
         let (mode, source) = match refresh {
             Refresh::Rebuild => {
                 (vk::BuildAccelerationStructureModeKHR::BUILD, vk::AccelerationStructureKHR::null())
             }
             // src = dst: updated in place, no second structure needed.
-            Refresh::Update => (vk::BuildAccelerationStructureModeKHR::UPDATE, self.handle),
+            Refresh::Update => (vk::BuildAccelerationStructureModeKHR::UPDATE, *handle),
         };
         let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-            .ty(self.ty)
-            .flags(self.flags) // an update must use the flags of the build it updates
+            .ty(*ty)
+            .flags(*flags) // an update must use the flags of the build it updates
             .mode(mode)
             .src_acceleration_structure(source)
-            .dst_acceleration_structure(self.handle)
-            .geometries(std::slice::from_ref(&self.geometry))
+            .dst_acceleration_structure(*handle)
+            .geometries(std::slice::from_ref(geometry))
             .scratch_data(vk::DeviceOrHostAddressKHR { device_address: self.scratch.address(0) });
-        let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(self.primitives);
+        let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(*primitives);
         unsafe { loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]) };
     }
 

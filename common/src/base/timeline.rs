@@ -1,21 +1,24 @@
-//! `--timeline N`: the last N frames' passes, GL's and Vulkan's, on one clock, as JSON and SVG.
+//! A frame's passes, GL's and Vulkan's, on one clock, as JSON and SVG: chapter 12's
+//! `--timeline N` and the bench's (chapter 08's frame). A frame is GL's raster pass, Vulkan's
+//! trace, then GL's composite (with the overlays).
 //!
 //! GL's passes are stamped with `glQueryCounter(GL_TIMESTAMP)` before and after; Vulkan's trace
 //! with the frame's own timestamps. The two APIs count on clocks of their own, so the offset
 //! between them is measured once at the end: GL's time is read, Vulkan writes a timestamp, GL's
 //! time is read again, and Vulkan's stamp lies between the two readings.
 
+use super::commands::{Commands, Timestamps, median_p95};
+use super::vulkan::VulkanContext;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
-use common::base::commands::{Commands, Timestamps, median_p95};
-use common::{Report, VulkanContext};
 use glow::HasContext;
 use plotters::prelude::*;
 use std::path::Path;
 use std::rc::Rc;
 
-/// Stamps GL's clock at point `which` (0 and 1 around the ids, 2 and 3 around the composite and
-/// overlays) of the timeline's frame `slot`, when there is a timeline and this frame is in it.
+/// Stamps GL's clock at point `which` (0 and 1 around the raster pass, 2 and 3 around the
+/// composite and overlays) of the timeline's frame `slot`, when there is a timeline and this
+/// frame is in it.
 pub fn stamp(timeline: &Option<Timeline>, slot: Option<u32>, which: usize) {
     if let (Some(t), Some(slot)) = (timeline, slot) {
         unsafe { t.gl.query_counter(t.queries[slot as usize][which], glow::TIMESTAMP) };
@@ -35,15 +38,19 @@ struct Span {
 /// The stamps of the last `frames` frames (GL's as queries until they are read).
 pub struct Timeline {
     frames: u32,
-    /// Per frame: the ids (before, after), the composite and overlays (before, after).
+    /// GL's two passes, as the report and the picture name them: the raster pass, the composite.
+    passes: [&'static str; 2],
+    /// Per frame: the raster pass (before, after), the composite and overlays (before, after).
     queries: Vec<[glow::Query; 4]>,
     vulkan: Vec<(u32, [f64; 2])>,
     gl: Rc<glow::Context>,
 }
 
 impl Timeline {
-    pub fn new(gl: &Rc<glow::Context>, frames: u32) -> Result<Self> {
-        let mut timeline = Timeline { frames, queries: Vec::new(), vulkan: Vec::new(), gl: gl.clone() };
+    /// For the last `frames` frames, GL's passes named `passes` (the raster pass, the composite).
+    pub fn new(gl: &Rc<glow::Context>, frames: u32, passes: [&'static str; 2]) -> Result<Self> {
+        let mut timeline =
+            Timeline { frames, passes, queries: Vec::new(), vulkan: Vec::new(), gl: gl.clone() };
         for _ in 0..frames {
             let mut made = Vec::new();
             for _ in 0..4 {
@@ -86,23 +93,24 @@ impl Timeline {
         Ok(best)
     }
 
-    /// Reads everything (both APIs idle), puts it on GL's clock, reports the gaps between the
-    /// passes, and writes `timeline.json` and `timeline.svg` into `out`.
+    /// Reads everything (both APIs idle), puts it on GL's clock, writes `<out>.json` and
+    /// `<out>.svg` (`out` a path without extension), and returns the gaps between the passes,
+    /// for the report.
     pub fn finish(
         self,
         vk: &VulkanContext,
         commands: &Commands,
         stamps: &Timestamps,
-        report: &mut Report,
         out: &Path,
-    ) -> Result<()> {
+    ) -> Result<serde_json::Map<String, serde_json::Value>> {
+        let [raster, composite] = self.passes;
         let (offset, uncertainty) = self.offset(vk, commands, stamps)?;
         let mut spans = Vec::new();
         for (slot, q) in self.queries.iter().enumerate() {
             let read = |i: usize| unsafe { self.gl.get_query_parameter_u64(q[i], glow::QUERY_RESULT) } as f64;
             let frame = slot as u32;
-            spans.push(Span { frame, vulkan: false, pass: "ids", start: read(0), end: read(1) });
-            spans.push(Span { frame, vulkan: false, pass: "composite", start: read(2), end: read(3) });
+            spans.push(Span { frame, vulkan: false, pass: raster, start: read(0), end: read(1) });
+            spans.push(Span { frame, vulkan: false, pass: composite, start: read(2), end: read(3) });
         }
         for &(frame, [start, end]) in &self.vulkan {
             spans.push(Span {
@@ -116,27 +124,23 @@ impl Timeline {
         ensure!(!spans.is_empty(), "--timeline: no frame was recorded");
         let origin = spans.iter().map(|s| s.start).fold(f64::INFINITY, f64::min);
         let ms = |ns: f64| (ns - origin) / 1e6;
-        // The GPU's idle time at each hand-over: from the ids to the trace, from the trace to the
-        // composite (negative: the passes overlapped).
+        // The GPU's idle time at each hand-over: from the raster pass to the trace, from the
+        // trace to the composite (negative: the passes overlapped).
         let find = |frame, pass| spans.iter().find(|s| s.frame == frame && s.pass == pass);
         let (mut to_vulkan, mut to_gl) = (Vec::new(), Vec::new());
         for frame in 0..self.frames {
-            if let (Some(ids), Some(trace), Some(composite)) =
-                (find(frame, "ids"), find(frame, "ao_trace"), find(frame, "composite"))
+            if let (Some(drawn), Some(trace), Some(shown)) =
+                (find(frame, raster), find(frame, "ao_trace"), find(frame, composite))
             {
-                to_vulkan.push((trace.start - ids.end) / 1e6);
-                to_gl.push((composite.start - trace.end) / 1e6);
+                to_vulkan.push((trace.start - drawn.end) / 1e6);
+                to_gl.push((shown.start - trace.end) / 1e6);
             }
         }
-        report.set(
-            "timeline",
-            serde_json::json!({
-                "frames": self.frames,
-                "clock_offset_uncertainty_us": uncertainty / 1e3,
-                "gap_ids_to_trace_ms_median": median_p95(&to_vulkan).0,
-                "gap_trace_to_composite_ms_median": median_p95(&to_gl).0,
-            }),
-        );
+        let mut summary = serde_json::Map::new();
+        summary.insert("frames".into(), self.frames.into());
+        summary.insert("clock_offset_uncertainty_us".into(), (uncertainty / 1e3).into());
+        summary.insert(format!("gap_{raster}_to_trace_ms_median"), median_p95(&to_vulkan).0.into());
+        summary.insert(format!("gap_trace_to_{composite}_ms_median"), median_p95(&to_gl).0.into());
         let rows: Vec<_> = spans
             .iter()
             .map(|s| {
@@ -144,15 +148,17 @@ impl Timeline {
                 serde_json::json!({ "frame": s.frame, "api": api, "pass": s.pass, "start_ms": ms(s.start), "end_ms": ms(s.end) })
             })
             .collect();
-        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-        let path = out.join("timeline.json");
+        if let Some(dir) = out.parent() {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        let path = out.with_extension("json");
         std::fs::write(&path, serde_json::to_string_pretty(&rows)?)
             .with_context(|| format!("writing {}", path.display()))?;
-        let path = out.join("timeline.svg");
+        let path = out.with_extension("svg");
         let bars: Vec<_> = spans.iter().map(|s| (s.vulkan, s.pass, ms(s.start), ms(s.end))).collect();
-        draw(&path, &bars).with_context(|| format!("drawing {}", path.display()))?;
-        eprintln!("wrote {}/timeline.{{json,svg}}", out.display());
-        Ok(())
+        draw(&path, &bars, self.passes).with_context(|| format!("drawing {}", path.display()))?;
+        eprintln!("wrote {}.{{json,svg}}", out.display());
+        Ok(summary)
     }
 }
 
@@ -165,7 +171,7 @@ impl Drop for Timeline {
 }
 
 /// Two lanes, GL above and Vulkan below, one bar per pass, time in milliseconds across.
-fn draw(path: &Path, bars: &[(bool, &str, f64, f64)]) -> Result<()> {
+fn draw(path: &Path, bars: &[(bool, &str, f64, f64)], [raster, _]: [&str; 2]) -> Result<()> {
     let end = bars.iter().map(|b| b.3).fold(0.0, f64::max);
     let root = SVGBackend::new(path, (900, 220)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -184,10 +190,10 @@ fn draw(path: &Path, bars: &[(bool, &str, f64, f64)]) -> Result<()> {
         .draw()?;
     chart.draw_series(bars.iter().map(|&(vulkan, pass, start, end)| {
         let (low, high) = if vulkan { (0.2, 0.8) } else { (1.2, 1.8) };
-        let colour = match pass {
-            "ids" => BLUE,
-            "composite" => GREEN,
-            _ => RED,
+        let colour = match (vulkan, pass == raster) {
+            (true, _) => RED,
+            (false, true) => BLUE,
+            (false, false) => GREEN,
         };
         Rectangle::new([(start, low), (end, high)], colour.filled())
     }))?;
