@@ -783,3 +783,25 @@ fn snake_case_names_the_pages_quote_exist() {
     }
     assert!(errors.is_empty(), "names the book quotes that nothing has:\n{}", errors.join("\n"));
 }
+
+/// The interop cheat sheet's table names every GL entry point `common` loads for sharing memory
+/// and semaphores (the `MemoryObjectFns` and `SemaphoreFns` of `base/gl/mod.rs`), so that a
+/// call added there cannot be missing from the page a reader looks it up on.
+#[test]
+fn the_cheat_sheet_names_every_interop_entry_point() {
+    let gl = std::fs::read_to_string(root().join("common/src/base/gl/mod.rs")).unwrap();
+    let page = std::fs::read_to_string(root().join("book/src/interop-cheat-sheet.md")).unwrap();
+    let table: String = page.lines().filter(|l| l.starts_with('|')).collect::<Vec<_>>().join("\n");
+    let mut names = Vec::new();
+    for block in ["MemoryObjectFns {", "SemaphoreFns {"] {
+        let start = gl.find(block).unwrap_or_else(|| panic!("{block} in base/gl/mod.rs"));
+        let body = &gl[start + block.len()..];
+        let body = &body[..body.find('}').unwrap()];
+        for line in body.lines().map(str::trim).filter(|l| l.contains(": fn(")) {
+            names.push(format!("gl{}", &line[..line.find(':').unwrap()]));
+        }
+    }
+    assert!(names.len() >= 15, "found only {names:?}");
+    let missing: Vec<_> = names.iter().filter(|name| !table.contains(&format!("`{name}"))).collect();
+    assert!(missing.is_empty(), "interop-cheat-sheet.md's table does not name {missing:?}");
+}

@@ -6,7 +6,12 @@ use anyhow::{Context as _, Result};
 use glow::HasContext;
 use std::rc::Rc;
 
-const COMPUTE_SHADER: &str = include_str!("../../shaders/gl/fast_composite.comp");
+/// GL's declarations (the surface sampled, the settings as uniforms), then the tile and blur
+/// that Vulkan's compute shader includes too.
+const COMPUTE_SHADER: &str = concat!(
+    include_str!("../../shaders/gl/fast_composite.comp"),
+    include_str!("../../shaders/composite_tile.glsl")
+);
 
 /// What the composite shows (its `view` uniform, in this order).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]

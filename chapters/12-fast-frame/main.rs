@@ -21,21 +21,22 @@ use common::base::window::{Key, NamedKey, Window};
 use common::frame::Overlays;
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
-use common::rt::accel::{BlasLayout, TlasFlags};
-use common::rt::ao::AoArgs;
-use common::scene::{Camera, SceneArgs};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::rt::accel::TlasFlags;
+use common::scene::Camera;
+use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
 mod check;
 mod composite;
+mod layouts;
 mod overlap;
 mod settings;
 mod trace;
 mod visibility;
-use composite::{ComputeComposite, View};
-use settings::Settings;
+mod vk_composite;
+use composite::ComputeComposite;
+use settings::{Args, Settings};
 use trace::{Pattern, Rays, SurfaceTracer};
 use visibility::{Targets, VisibilityPass};
 
@@ -54,50 +55,6 @@ const SMALLEST: Smallest = Smallest {
 };
 /// The smallest side a window's resize (or `--resize-every`) draws at.
 const SMALLEST_SIDE: u32 = SMALLEST.width;
-
-/// Chapter 12: chapter 08's frame from a visibility buffer, with a compute composite.
-#[derive(clap::Parser)]
-struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
-    scene: SceneArgs,
-    #[command(flatten)]
-    ao: AoArgs,
-    /// Blur radius in pixels (0 skips the blur).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
-    blur: u32,
-    /// Which picture to show.
-    #[arg(long, value_enum, default_value = "final")]
-    view: View,
-    /// Which points of the AO sample sequence each pixel takes: 4x4 blocks sharing one run
-    /// (the least error after the blur, measured), per pixel (chapter 07's), or shared by 8x8
-    /// tiles for coherent rays (see the book for what each does to time and error).
-    #[arg(long, value_enum, default_value = "tile4x4")]
-    pattern: Pattern,
-    /// As chapter 08's `--blas`: one flat BLAS of every instance (measured faster here), or one
-    /// BLAS per mesh.
-    #[arg(long, value_enum, default_value = "flat")]
-    blas: BlasLayout,
-    /// Start this many times closer to the scene's centre than the framing puts the camera.
-    #[arg(long, default_value_t = 1.0)]
-    zoom: f32,
-    /// After the frames: trace this many rays per pixel more, and report how far the last
-    /// frame's occlusion was from that converged one, before and after the blur (0: don't).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 20))]
-    error_against: u32,
-    /// After the frames: measure whether GL's work runs beside Vulkan's on this driver
-    /// (`overlap.rs`), over this many rounds of each order (0: don't).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
-    overlap_rounds: u32,
-    /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into
-    /// timeline.json and timeline.svg in --out (0: none).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
-    timeline: u32,
-    /// Headless: make the images of one size anew every K frames, as a window's resize does.
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
-    resize_every: Option<u32>,
-}
 
 fn main() -> ExitCode {
     common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
@@ -302,6 +259,32 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("overlap_ms", overlap);
         // The probe traced into the surface: the frames' rays again, for the checks.
         tracer.retrace(apis, &targets, &camera, rays, accumulated)?;
+    }
+    if args.layout_rounds > 0 {
+        let extent = targets.extent;
+        let f = layouts::Frame {
+            visibility: &visibility,
+            buffers: &shared.buffers,
+            scene: &scene,
+            ids: &ids,
+            camera: &camera,
+            extent,
+        };
+        let (ids_ms, normal_depth_ms, differing) = layouts::measure(&gl_context, f, args.layout_rounds)?;
+        report.set(
+            "layout_raster_ms",
+            serde_json::json!({ "ids_r32ui": ids_ms, "normal_depth_rg32ui": normal_depth_ms }),
+        );
+        report.check("layouts_cover_the_same_pixels", differing == 0);
+    }
+    if args.vulkan_composite_rounds > 0 {
+        let (u, rounds) = (settings::uniforms(&settings, &camera), args.vulkan_composite_rounds);
+        let passes = (&targets, &composite);
+        let (ms, differs) = vk_composite::compare(apis, &mut shared.allocator, passes, &u, rounds)?;
+        report.set("composite_vulkan_compute_ms_median", ms);
+        report.set("composite_vulkan_largest_difference", differs);
+        // The same code, compiled by two drivers: rounding may differ (as the CPU check allows).
+        report.check("vulkan_composite_matches_gl", differs <= 2);
     }
     let surface = check::Surface::read(gl, &targets);
     if frame > 0 {

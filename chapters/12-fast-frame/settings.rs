@@ -1,10 +1,65 @@
-//! Chapter 12's settings: what the flags start with and the keys change, and what follows
-//! from them (the rays a frame traces, the composite's uniforms).
+//! Chapter 12's flags and settings: what the flags start with and the keys change, and what
+//! follows from them (the rays a frame traces, the composite's uniforms).
 
 use crate::composite::{Uniforms, View};
 use crate::trace::{Pattern, Rays};
+use common::CommonArgs;
 use common::base::window::Key;
-use common::scene::Camera;
+use common::rt::accel::BlasLayout;
+use common::rt::ao::AoArgs;
+use common::scene::{Camera, SceneArgs};
+
+/// Chapter 12: chapter 08's frame from a visibility buffer, with a compute composite.
+#[derive(clap::Parser)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: CommonArgs,
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    #[command(flatten)]
+    pub ao: AoArgs,
+    /// Blur radius in pixels (0 skips the blur).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    pub blur: u32,
+    /// Which picture to show.
+    #[arg(long, value_enum, default_value = "final")]
+    pub view: View,
+    /// Which points of the AO sample sequence each pixel takes: 4x4 blocks sharing one run
+    /// (the least error after the blur, measured), per pixel (chapter 07's), or shared by 8x8
+    /// tiles for coherent rays (see the book for what each does to time and error).
+    #[arg(long, value_enum, default_value = "tile4x4")]
+    pub pattern: Pattern,
+    /// As chapter 08's `--blas`: one flat BLAS of every instance (measured faster here), or one
+    /// BLAS per mesh.
+    #[arg(long, value_enum, default_value = "flat")]
+    pub blas: BlasLayout,
+    /// Start this many times closer to the scene's centre than the framing puts the camera.
+    #[arg(long, default_value_t = 1.0)]
+    pub zoom: f32,
+    /// After the frames: trace this many rays per pixel more, and report how far the last
+    /// frame's occlusion was from that converged one, before and after the blur (0: don't).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 20))]
+    pub error_against: u32,
+    /// After the frames: measure whether GL's work runs beside Vulkan's on this driver
+    /// (`overlap.rs`), over this many rounds of each order (0: don't).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
+    pub overlap_rounds: u32,
+    /// Headless: after the frames, draw the ids and the other lean buffer this chapter measured
+    /// (a packed normal and depth) this many times each, timed by GL (`layouts.rs`; 0: don't).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
+    pub layout_rounds: u32,
+    /// Headless: after the frames, time chapter 08's composite as a Vulkan compute shader over
+    /// this many dispatches (`vk_composite.rs`), and compare its picture with GL's (0: don't).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1000))]
+    pub vulkan_composite_rounds: u32,
+    /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into
+    /// timeline.json and timeline.svg in --out (0: none).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
+    pub timeline: u32,
+    /// Headless: make the images of one size anew every K frames, as a window's resize does.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub resize_every: Option<u32>,
+}
 
 /// What the keys change (chapter 08's, less its debug views of positions).
 #[derive(Clone, Copy, PartialEq)]

@@ -205,9 +205,18 @@ pub struct VisibilityPass {
 
 impl VisibilityPass {
     pub fn new(gl: &GlContext, buffers: &SceneBuffers) -> Result<Self> {
+        Self::with_fragment_shader(gl, buffers, FRAGMENT_SHADER)
+    }
+
+    /// The same pass, writing what `fragment_shader` writes (`layouts.rs` measures another).
+    pub fn with_fragment_shader(
+        gl: &GlContext,
+        buffers: &SceneBuffers,
+        fragment_shader: &str,
+    ) -> Result<Self> {
         let g = &gl.gl;
         let program =
-            common::base::gl::program(g, VERTEX_SHADER, FRAGMENT_SHADER).context("the visibility program")?;
+            common::base::gl::program(g, VERTEX_SHADER, fragment_shader).context("the visibility program")?;
         let mut pass = VisibilityPass { program, vertex_arrays: Vec::new(), gl: g.clone() };
         // Chapter 05's vertex arrays: the same buffers, read the same way.
         for [vertices, indices] in &buffers.meshes {
@@ -230,9 +239,21 @@ impl VisibilityPass {
         ids: &[MeshIds],
         camera: &Camera,
     ) {
-        let (width, height) = (targets.extent.width, targets.extent.height);
+        self.draw_into(gl, (targets.visibility_framebuffer, targets.extent), scene, ids, camera);
+    }
+
+    /// [`VisibilityPass::draw`], into any framebuffer of an unsigned integer colour and a depth.
+    pub fn draw_into(
+        &self,
+        gl: &glow::Context,
+        (framebuffer, extent): (glow::Framebuffer, vk::Extent2D),
+        scene: &Scene,
+        ids: &[MeshIds],
+        camera: &Camera,
+    ) {
+        let (width, height) = (extent.width, extent.height);
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(targets.visibility_framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
             gl.viewport(0, 0, width as i32, height as i32);
             gl.enable(glow::DEPTH_TEST);
             gl.clear_buffer_u32_slice(glow::COLOR, 0, &[0; 4]);

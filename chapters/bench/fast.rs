@@ -86,11 +86,11 @@ pub fn row(scene: SceneKind, size: Size, spp: u32, frames: u32, covered: u64, ou
     })
 }
 
-/// Chapter 12's `--timeline frames` at one setting of the default scene: the gaps between its
-/// passes, from its report (its picture is in its own output folder under `out`).
-pub fn timeline(size: Size, spp: u32, frames: u32, out: &Path) -> Result<Value> {
+/// Chapter 12's `--timeline last` of `frames` frames at one setting of the default scene: the
+/// gaps between its passes, from its report (its picture is in its own output folder, `out`).
+pub fn timeline(size: Size, spp: u32, (frames, last): (u32, u32), out: &Path) -> Result<Value> {
     let mut args = setting(SceneKind::Default, size, spp, frames);
-    args.extend(["--timeline".into(), frames.to_string()]);
+    args.extend(["--timeline".into(), last.to_string()]);
     Ok(run(&args, out)?["timeline"].clone())
 }
 

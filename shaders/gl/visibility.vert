@@ -1,7 +1,9 @@
 #version 450 core
 // Chapter 12: the visibility buffer's vertex stage. Positions are transformed exactly as
 // gbuffer.vert transforms them (the same products in the same order), so that both passes cover
-// the same pixels with the same triangles; nothing else is passed on but one id.
+// the same pixels with the same triangles; nothing else is passed on but one id (and the
+// view-space position, which only normal_depth.frag, the layout this chapter measured against,
+// reads).
 
 // Per vertex (binding 0): common::scene::Vertex's position. Per instance (binding 1, divisor 1):
 // the object-to-world rows of common::scene::Instance.
@@ -18,11 +20,13 @@ uniform uint triangles;
 
 // The id of this instance's triangle 0 (gl_InstanceID counts from 0 in every draw).
 flat out uint instance_first_id;
+out vec3 view_position;
 
 void main() {
     mat4 object_to_world = transpose(mat4(row0, row1, row2, vec4(0.0, 0.0, 0.0, 1.0)));
     vec4 world = object_to_world * vec4(position, 1.0);
     vec4 in_view = view * world;
     gl_Position = projection * in_view;
+    view_position = in_view.xyz;
     instance_first_id = first_id + uint(gl_InstanceID) * triangles;
 }

@@ -5,6 +5,7 @@
 pub mod chapter;
 pub mod cli;
 pub mod commands;
+pub mod compute;
 pub mod fail;
 pub mod gl;
 pub mod output;

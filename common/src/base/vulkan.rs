@@ -376,10 +376,12 @@ fn pick_physical_device(
 }
 
 fn device_info(instance: &ash::Instance, physical_device: vk::PhysicalDevice) -> DeviceInfo {
+    // ANCHOR: vulkan_uuids
     let mut id = vk::PhysicalDeviceIDProperties::default();
     let mut driver = vk::PhysicalDeviceDriverProperties::default();
     let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut id).push_next(&mut driver);
     unsafe { instance.get_physical_device_properties2(physical_device, &mut props2) };
+    // ANCHOR_END: vulkan_uuids
     let props = props2.properties;
     let text = |s: Result<&CStr, _>| s.map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     DeviceInfo {

@@ -275,6 +275,7 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
     misnamed
 }
 
+// ANCHOR: can_export_semaphores
 /// Can this device export binary semaphores as opaque fds?
 fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
     let info = vk::PhysicalDeviceExternalSemaphoreInfo::default()
@@ -289,6 +290,7 @@ fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
     };
     properties.external_semaphore_features.contains(vk::ExternalSemaphoreFeatureFlags::EXPORTABLE)
 }
+// ANCHOR_END: can_export_semaphores
 
 impl SharedSemaphore {
     // ANCHOR: share_semaphore

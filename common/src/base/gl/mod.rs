@@ -25,6 +25,7 @@ pub const MEMORY_EXTENSIONS: [&str; 2] = ["GL_EXT_memory_object", "GL_EXT_memory
 /// Sharing semaphores.
 pub const SEMAPHORE_EXTENSIONS: [&str; 2] = ["GL_EXT_semaphore", "GL_EXT_semaphore_fd"];
 
+// ANCHOR: enums
 // Enums from GL_EXT_memory_object(_fd) and GL_EXT_semaphore, which glow does not define.
 pub const TEXTURE_TILING_EXT: u32 = 0x9580;
 pub const DEDICATED_MEMORY_OBJECT_EXT: u32 = 0x9581;
@@ -66,6 +67,7 @@ pub mod layout {
         })
     }
 }
+// ANCHOR_END: enums
 
 /// Declares a struct of GL function pointers and a loader that refuses null ones.
 macro_rules! gl_functions {
@@ -94,6 +96,7 @@ macro_rules! gl_functions {
     };
 }
 
+// ANCHOR: entry_points
 gl_functions! {
     /// `GL_EXT_memory_object` and `GL_EXT_memory_object_fd`.
     MemoryObjectFns {
@@ -120,6 +123,7 @@ gl_functions! {
         IsSemaphoreEXT: fn(u32) -> u8;
     }
 }
+// ANCHOR_END: entry_points
 
 gl_functions! {
     /// GL 4.5 core's `glIs*` queries (glow lacks some), to count the objects that exist.
@@ -262,6 +266,7 @@ impl GlContext {
         };
         let mut device_uuid = [0; UUID_SIZE_EXT];
         let mut driver_uuid = [0; UUID_SIZE_EXT];
+        // ANCHOR: gl_uuids
         if let Some(m) = &memory {
             // SAFETY: both queries write exactly GL_UUID_SIZE_EXT bytes.
             unsafe {
@@ -269,6 +274,7 @@ impl GlContext {
                 (m.GetUnsignedBytevEXT)(DRIVER_UUID_EXT, driver_uuid.as_mut_ptr());
             }
         }
+        // ANCHOR_END: gl_uuids
         Ok(GlContext {
             gl: std::rc::Rc::new(gl),
             memory,

@@ -1,0 +1,31 @@
+#version 450 core
+// Chapter 12's other lean buffer, measured against the ids (`--layout-rounds`) and not used by
+// the frame: what a trace needs of a hit without the scene's buffers, 8 bytes a pixel. x: the
+// triangle's geometric normal, facing the camera, packed as gbuffer.frag packs it; y: the view
+// depth's bits. The hit point would come back from the depth and the pixel's ray, and albedo
+// would need 4 bytes more.
+
+in vec3 view_position;
+
+layout(location = 0) out uvec2 normal_depth;
+
+vec2 sign_not_zero(vec2 v) {
+    return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
+}
+
+// gbuffer.frag's pack_normal, as an integer.
+uint pack_normal(vec3 n) {
+    vec2 p = n.xy / (abs(n.x) + abs(n.y) + abs(n.z));
+    if (n.z < 0.0) {
+        p = (1.0 - abs(p.yx)) * sign_not_zero(p);
+    }
+    uvec2 q = uvec2(round(clamp(p * 0.5 + 0.5, 0.0, 1.0) * 4095.0));
+    return q.x * 4096u + q.y;
+}
+
+void main() {
+    // The triangle's own normal from the position's screen-space derivatives; in view space the
+    // camera looks down -z, so the side facing it has a positive z.
+    vec3 n = normalize(cross(dFdx(view_position), dFdy(view_position)));
+    normal_depth = uvec2(pack_normal(n.z < 0.0 ? -n : n), floatBitsToUint(-view_position.z));
+}
