@@ -250,13 +250,13 @@ fn sizes_bench() {
     let usual: BTreeSet<String> =
         bench("64x48").succeeded()["checks"].as_object().unwrap().keys().cloned().collect();
     for (size, expected) in [
-        ("1x1", "error: --size 1x1 is too small for bench: its checks need at least 24x24 pixels"),
-        ("2x2", "error: --size 2x2 is too small for bench"),
-        ("3x1", "error: --size 3x1 is too small for bench"),
-        ("16x200", "error: --size 16x200 is too small for bench"),
-        ("200x16", "error: --size 200x16 is too small for bench"),
-        ("200x24", "error: --size 200x24 is too wide for bench: its checks need a width of at most 4 times"),
-        ("16385x16385", "error: --size 16385x16385 is too large for bench: at most 16384x16384 pixels here"),
+        ("1x1", "error: --sizes 1x1 is too small for bench: its checks need at least 24x24 pixels"),
+        ("2x2", "error: --sizes 2x2 is too small for bench"),
+        ("3x1", "error: --sizes 3x1 is too small for bench"),
+        ("16x200", "error: --sizes 16x200 is too small for bench"),
+        ("200x16", "error: --sizes 200x16 is too small for bench"),
+        ("200x24", "error: --sizes 200x24 is too wide for bench: its checks need a width of at most 4 times"),
+        ("16385x16385", "error: --sizes 16385x16385 is too large for bench: at most 16384x16384 pixels here"),
     ] {
         let run = bench(size);
         assert_eq!(run.output.status.code(), Some(2), "{size}: exit 2\n{}", run.stderr);

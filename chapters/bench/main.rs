@@ -153,7 +153,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         (sizes, _) => sizes.to_vec(),
     };
     for &size in &sizes {
-        SMALLEST.check("bench", size)?;
+        SMALLEST.check_flag("--sizes", "bench", size)?;
     }
     let spps = match (&args.spp[..], args.quick) {
         ([], false) => vec![1, 4, 16, 64],
@@ -170,7 +170,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     common::connect(report, &vk, &gl)?;
     let largest = common::largest_size(&vk, &gl);
     for &size in &sizes {
-        largest.check("bench", size)?;
+        largest.check_flag("--sizes", "bench", size)?;
     }
     gl.set_debug_output(args.gl_debug);
     common::interop::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);

@@ -131,9 +131,14 @@ impl Smallest {
     /// Refuses `size` (an error, which `run_chapter` turns into exit 2) when it is smaller than
     /// this on either side, or wider or taller than `shape`; before anything is made.
     pub fn check(&self, program: &str, size: Size) -> anyhow::Result<()> {
+        self.check_flag("--size", program, size)
+    }
+
+    /// [`Smallest::check`] for a size given by `flag` (the bench's `--sizes`).
+    pub fn check_flag(&self, flag: &str, program: &str, size: Size) -> anyhow::Result<()> {
         anyhow::ensure!(
             size.width >= self.width && size.height >= self.height,
-            "--size {size} is too small for {program}: its checks need at least {}x{} pixels ({})",
+            "{flag} {size} is too small for {program}: its checks need at least {}x{} pixels ({})",
             self.width,
             self.height,
             self.why
@@ -142,12 +147,12 @@ impl Smallest {
             let (width, height) = (size.width as f32, size.height as f32);
             anyhow::ensure!(
                 width <= widest * height,
-                "--size {size} is too wide for {program}: its checks need a width of at most {widest} \
+                "{flag} {size} is too wide for {program}: its checks need a width of at most {widest} \
                  times the height ({why})"
             );
             anyhow::ensure!(
                 height <= tallest * width,
-                "--size {size} is too tall for {program}: its checks need a height of at most {tallest} \
+                "{flag} {size} is too tall for {program}: its checks need a height of at most {tallest} \
                  times the width ({why})"
             );
         }
@@ -172,9 +177,14 @@ pub struct Largest {
 impl Largest {
     /// Refuses `size` when either side is beyond what the device allows; before anything is made.
     pub fn check(&self, program: &str, size: Size) -> anyhow::Result<()> {
+        self.check_flag("--size", program, size)
+    }
+
+    /// [`Largest::check`] for a size given by `flag` (the bench's `--sizes`).
+    pub fn check_flag(&self, flag: &str, program: &str, size: Size) -> anyhow::Result<()> {
         anyhow::ensure!(
             size.width <= self.width && size.height <= self.height,
-            "--size {size} is too large for {program}: at most {}x{} pixels here ({})",
+            "{flag} {size} is too large for {program}: at most {}x{} pixels here ({})",
             self.width,
             self.height,
             self.limits
@@ -182,7 +192,7 @@ impl Largest {
         let pixels = size.width as u64 * size.height as u64;
         anyhow::ensure!(
             pixels <= self.pixels,
-            "--size {size} is too large for {program}: at most {} pixels in all here, e.g. {side}x{side} ({})",
+            "{flag} {size} is too large for {program}: at most {} pixels in all here, e.g. {side}x{side} ({})",
             self.pixels,
             self.limits,
             side = (self.pixels as f64).sqrt() as u64
