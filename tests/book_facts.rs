@@ -39,6 +39,14 @@ impl Page {
                     open = Some(Block { info, lines: Vec::new() });
                 }
                 (Some(_), true) => blocks.push(open.take().unwrap()),
+                // A generated transcript (`book/src/transcripts/`): its lines, at the include's.
+                (Some(block), false) if line.trim().starts_with("{{#include transcripts/") => {
+                    let file = line.trim().trim_start_matches("{{#include ").trim_end_matches("}}");
+                    let path = root().join("book/src").join(file);
+                    let included =
+                        std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                    block.lines.extend(included.lines().map(|l| (number, l.to_owned())));
+                }
                 (Some(block), false) => block.lines.push((number, line.to_owned())),
                 (None, false) => prose.push((number, line.to_owned())),
             }

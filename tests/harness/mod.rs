@@ -78,7 +78,7 @@ pub fn run_chapter_with(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
 }
 
 /// Points the Vulkan loader at lavapipe and EGL at Mesa, unless `VKGL_TEST_NATIVE` is set.
-fn pin_software_stack(command: &mut Command) {
+pub fn pin_software_stack(command: &mut Command) {
     if std::env::var_os("VKGL_TEST_NATIVE").is_some() {
         return;
     }

@@ -3,6 +3,10 @@
 //! `-- shaders --check` writes nothing: it lists stale shaders and exits 1 if there are any.
 //! `cargo run -p xtask -- cuda`: compile the CUDA kernels in `shaders/cuda/` to PTX with NVRTC and
 //! rewrite `shaders/cuda/ptx.lock` (see ptx.rs).
+//! `cargo run -p xtask -- transcripts`: run every command of the book's transcripts
+//! (`book/src/transcripts/*.txt`) again and rewrite those whose output changed. The running and
+//! the comparing live in `tests/transcripts.rs`, which this runs with `VKGL_UPDATE_TRANSCRIPTS=1`,
+//! so the files are written exactly as the test reads them.
 
 mod ptx;
 mod spirv_lock;
@@ -20,7 +24,8 @@ fn main() -> Result<ExitCode> {
         ["shaders"] => build(&shaders).map(|()| ExitCode::SUCCESS),
         ["shaders", "--check"] => check(&shaders),
         ["cuda"] => ptx::build(&shaders.join("cuda")).map(|()| ExitCode::SUCCESS),
-        _ => bail!("usage: cargo run -p xtask -- shaders [--check] | cuda (got {args:?})"),
+        ["transcripts"] => transcripts(shaders.parent().unwrap()),
+        _ => bail!("usage: cargo run -p xtask -- shaders [--check] | cuda | transcripts (got {args:?})"),
     }
 }
 
@@ -57,4 +62,25 @@ fn check(dir: &Path) -> Result<ExitCode> {
     }
     eprintln!("fix: `cargo run -p xtask -- shaders`, then commit the .spv files and shaders/spirv.lock");
     Ok(ExitCode::FAILURE)
+}
+
+fn transcripts(root: &Path) -> Result<ExitCode> {
+    let cargo = env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let status = Command::new(cargo)
+        .current_dir(root)
+        .args([
+            "test",
+            "--locked",
+            "--test",
+            "transcripts",
+            "--",
+            "transcripts_match_what_the_programs_print",
+        ])
+        .args(["--exact", "--nocapture"])
+        .env("VKGL_UPDATE_TRANSCRIPTS", "1")
+        .status()
+        .context("running cargo test --test transcripts")?;
+    ensure!(status.success(), "writing the transcripts failed (see above)");
+    println!("transcripts in book/src/transcripts are current: read `git diff book/src/transcripts`");
+    Ok(ExitCode::SUCCESS)
 }
