@@ -54,9 +54,11 @@ impl Page {
         Page { name: name.to_owned(), prose, blocks }
     }
 
-    /// `03-semaphores` for a chapter's page, `None` for the others.
+    /// `03-semaphores` for a chapter's page and for its deeper page (`03-semaphores-deeper.md`),
+    /// `None` for the others.
     fn chapter(&self) -> Option<&str> {
         let stem = self.name.strip_suffix(".md")?;
+        let stem = stem.strip_suffix("-deeper").unwrap_or(stem);
         stem.as_bytes().get(..2)?.iter().all(u8::is_ascii_digit).then_some(stem)
     }
 
@@ -812,4 +814,49 @@ fn the_cheat_sheet_names_every_interop_entry_point() {
     assert!(names.len() >= 15, "found only {names:?}");
     let missing: Vec<_> = names.iter().filter(|name| !table.contains(&format!("`{name}"))).collect();
     assert!(missing.is_empty(), "interop-cheat-sheet.md's table does not name {missing:?}");
+}
+
+/// The most words a chapter's page may hold: what a 40-minute workshop slot can cover.
+const CORE_WORDS: usize = 3_000;
+
+/// The words of a page as the reader reads them: every whitespace-separated word with a letter or
+/// digit in it (so not `|`, `#` or `-`), outside fenced blocks: headings, prose, lists and tables,
+/// but no `{{#include}}` line. Code and transcripts are not counted: they are what the words
+/// explain.
+fn words(page: &Page) -> usize {
+    let lines = page.prose.iter().filter(|(_, l)| !l.trim().starts_with("{{#"));
+    lines.flat_map(|(_, l)| l.split_whitespace()).filter(|w| w.chars().any(char::is_alphanumeric)).count()
+}
+
+/// Each chapter's page holds the core path (what to type, what to see, why) in at most
+/// [`CORE_WORDS`] words; the measurements, edge cases and history go to its `-deeper` page.
+#[test]
+fn chapter_pages_fit_a_workshop_slot() {
+    let pages = pages();
+    let chapters: Vec<&Page> =
+        pages.iter().filter(|p| p.chapter().is_some() && !p.name.ends_with("-deeper.md")).collect();
+    assert!(chapters.len() >= 12, "only {} chapter pages", chapters.len());
+    let mut too_long = Vec::new();
+    for page in &chapters {
+        let count = words(page);
+        eprintln!("{:>6} words  {}", count, page.name);
+        if count > CORE_WORDS {
+            too_long.push(format!(
+                "{}: {count} words, more than {CORE_WORDS}: move measurements, edge cases and history to {}",
+                page.name,
+                page.name.replace(".md", "-deeper.md")
+            ));
+        }
+    }
+    assert!(too_long.is_empty(), "{}", too_long.join("\n"));
+}
+
+/// The count is the one stated: words outside code, tables and headings included.
+#[test]
+fn words_count_prose_not_code() {
+    let page = Page::parse(
+        "99-test.md",
+        "# Title here\n\nTwo words.\n\n```rust\n{{#include x.rs:a}}\nlet x = 1;\n```\n\n| a | b |\n{{#include y.md}}\n",
+    );
+    assert_eq!(words(&page), 2 + 2 + 2);
 }
