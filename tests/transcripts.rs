@@ -381,7 +381,7 @@ fn blocks(text: &str) -> Vec<(String, usize, Vec<String>)> {
 #[rustfmt::skip]
 const TYPED_OUTPUT: &[(&str, &str, &str)] = &[
     ("book/src/01-exportable-memory.md", "vulkan: using NVIDIA H200", "an NVIDIA H200's output"),
-    ("book/src/02-gl-buffer-import.md", "vulkan: using NVIDIA H200", "an NVIDIA H200's output"),
+    ("book/src/02-gl-buffer-import-deeper.md", "vulkan: using NVIDIA H200", "an NVIDIA H200's output"),
     ("book/src/02-gl-buffer-import.md", "gl debug error: GL_INVALID_OPERATION", "the program changed as the text says"),
     ("book/src/02-gl-buffer-import.md", "gl debug error: GL_OUT_OF_MEMORY", "the program changed as the text says"),
     ("book/src/03-semaphores-deeper.md", "vulkan: using NVIDIA H200", "an NVIDIA H200's output"),
