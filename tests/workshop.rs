@@ -389,7 +389,6 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
     let mut failures = Vec::new();
     let mut timings = Vec::new();
     for (number, members) in batches(&touched).iter().enumerate() {
-        let names: Vec<&str> = members.iter().map(|&i| SOLUTIONS[i].patch).collect();
         // 1. A copy of the working tree with the patches applied, staged in a temporary
         //    directory, then synchronised into the copy cargo builds.
         let phase = Instant::now();
@@ -424,29 +423,45 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
 
         // 2. Build the patched chapters, once, into the tests' target directory.
         let phase = Instant::now();
-        let mut build = Command::new(&cargo);
-        build.args(["build", "--locked", "--offline", "--manifest-path"]).arg(copy.join("Cargo.toml"));
-        build.args(&profile_flags).env("CARGO_TARGET_DIR", &target);
-        // Without debug information: a debug chapter links to about 185 MB with it, 10 without,
-        // and what it does is the same. Only these packages change; the dependencies are the
-        // tests' own, reused as built.
-        for package in ["vkgl-interop", "common"] {
-            build.arg("--config").arg(format!("profile.{profile}.package.{package}.debug=false"));
+        let build = |chapters: &[&str]| {
+            let mut build = Command::new(&cargo);
+            build.args(["build", "--locked", "--offline", "--manifest-path"]).arg(copy.join("Cargo.toml"));
+            build.args(&profile_flags).env("CARGO_TARGET_DIR", &target);
+            // Without debug information: a debug chapter links to about 185 MB with it, 10 without,
+            // and what it does is the same. Only these packages change; the dependencies are the
+            // tests' own, reused as built.
+            for package in ["vkgl-interop", "common"] {
+                build.arg("--config").arg(format!("profile.{profile}.package.{package}.debug=false"));
+            }
+            build.arg("--config").arg(format!("profile.{profile}.package.vkgl-interop.strip=\"debuginfo\""));
+            for chapter in chapters {
+                build.args(["--bin", &format!("workshop-{chapter}")]);
+            }
+            let built = build.output().unwrap_or_else(|e| panic!("cannot run cargo ({e})"));
+            (built.status.success(), String::from_utf8_lossy(&built.stderr).into_owned())
+        };
+        let chapters: Vec<&str> = members.iter().map(|&i| SOLUTIONS[i].chapter).collect();
+        let (built, log) = build(&chapters);
+        if !built {
+            // Which solutions fail, one chapter at a time (what built already is not built again).
+            let broken: Vec<String> = members
+                .iter()
+                .map(|&i| (&SOLUTIONS[i], build(&[SOLUTIONS[i].chapter])))
+                .filter(|(_, (built, _))| !built)
+                .map(|(s, (_, log))| format!("{} (chapter {}) does not build:\n{log}", s.patch, s.chapter))
+                .collect();
+            panic!("workshop solutions that do not build (copy {}):\n{}", copy.display(), broken.join("\n"));
         }
-        build.arg("--config").arg(format!("profile.{profile}.package.vkgl-interop.strip=\"debuginfo\""));
-        for &i in members {
-            build.args(["--bin", &format!("workshop-{}", SOLUTIONS[i].chapter)]);
-        }
-        let built = build.output().unwrap_or_else(|e| panic!("cannot run cargo ({e})"));
-        let log = String::from_utf8_lossy(&built.stderr);
-        assert!(built.status.success(), "the workshop solutions {names:?} do not build:\n{log}");
         let compiled: Vec<&str> = log
             .lines()
             .filter_map(|l| l.trim().strip_prefix("Compiling "))
             .map(|l| l.split(' ').next().unwrap())
             .collect();
-        timings
-            .push(format!("build {number}: {:.1} s, compiled {compiled:?}", phase.elapsed().as_secs_f64()));
+        timings.push(format!(
+            "build {number} ({} patches): {:.1} s, compiled {compiled:?}",
+            members.len(),
+            phase.elapsed().as_secs_f64()
+        ));
 
         // 3. Run each patched chapter headless on the software stack.
         for &i in members {
