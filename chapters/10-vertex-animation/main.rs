@@ -10,6 +10,7 @@
 use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::AnimationArgs;
+use common::base::cli::Smallest;
 use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
@@ -30,6 +31,18 @@ mod sphere;
 use sphere::{Animation, Step, VertexHandoff, Wave, WavePipeline, record_animation};
 
 const CHAPTER: &str = "10-vertex-animation";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 48,
+    height: 48,
+    why: "1% of the pixels must change between the first and the last frame: the wave must cover enough of \
+          them",
+    shape: Some((
+        1.5,
+        2.0,
+        "framed wider or taller, the sphere covers too few pixels for 1% of the picture to change",
+    )),
+};
 
 /// Chapter 10: a compute shader moves vertices; the BLAS is refitted, the TLAS updated.
 #[derive(clap::Parser)]
@@ -53,6 +66,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     args.animation.check()?;
     ensure!(
@@ -82,6 +96,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
