@@ -5,11 +5,11 @@
 //!
 //! The solutions are built once, all patches in one copy where none touches what another does,
 //! into this test's own target directory: the registry dependencies the tests were built with
-//! are reused, and only the workspace's crates (`common`, the chapters) compile again, since the
-//! copy is another package at another path. The copy's binaries are renamed `workshop-NN-slug`,
-//! so that they never replace the chapters the other tests run. The copy lives at a fixed path
-//! under `CARGO_TARGET_TMPDIR` and is rewritten only where its files change, so a second run
-//! builds nothing that has not changed.
+//! are reused, and only the workspace's crates (`common`, the chapters) compile again. The copy's
+//! binaries are renamed `workshop-NN-slug`, so that they never replace the chapters the other
+//! tests run. The copy lives at one fixed path under `CARGO_TARGET_TMPDIR`, for every group of
+//! patches in turn, and is rewritten only where its files change: a second run builds nothing
+//! that has not changed.
 
 mod harness;
 
@@ -415,7 +415,10 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
         }
         let manifest = stage.path().join("Cargo.toml");
         std::fs::write(&manifest, rename_bins(&std::fs::read_to_string(&manifest).unwrap())).unwrap();
-        let copy = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("workshop-solutions-{number}"));
+        // One path for every group: cargo names a workspace crate's artifacts by its place in its
+        // workspace, the same in every copy, and records the sources it read by their paths. A
+        // second path would find the first one's artifacts, judged by the first one's files.
+        let copy = Path::new(env!("CARGO_TARGET_TMPDIR")).join("workshop-solutions");
         std::fs::create_dir_all(&copy).unwrap();
         sync(stage.path(), &copy);
         drop(stage);
@@ -429,7 +432,9 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
             build.args(&profile_flags).env("CARGO_TARGET_DIR", &target);
             // Without debug information: a debug chapter links to about 185 MB with it, 10 without,
             // and what it does is the same. Only these packages change; the dependencies are the
-            // tests' own, reused as built.
+            // tests' own, reused as built. It also keeps the copy's `common` apart from the tests'
+            // own, which has the same name and place in its workspace (so, with the same profile,
+            // the same artifacts).
             for package in ["vkgl-interop", "common"] {
                 build.arg("--config").arg(format!("profile.{profile}.package.{package}.debug=false"));
             }
