@@ -309,6 +309,34 @@ fn target_and_profile() -> (PathBuf, String, Vec<String>, PathBuf) {
     (target.to_owned(), profile, flags, out)
 }
 
+impl Proof {
+    fn describe(&self) -> String {
+        match self {
+            Proof::Check(name) => format!("the check `{name}`, passing"),
+            Proof::Field(name) => format!("the report's field `{name}`"),
+            Proof::Flag(flag) => format!("the flag {flag}, accepted"),
+            Proof::Image(name) => format!("the image `{name}`"),
+            Proof::Unseen(why) => format!("nothing ({why})"),
+        }
+    }
+}
+
+/// Whether `run` shows what the patch adds. The chapter as it is must not: the test runs it too,
+/// so that a proof that shows nothing fails.
+fn proof_holds(proof: &Proof, run: &harness::Run) -> bool {
+    let report = run.report.as_ref();
+    match *proof {
+        Proof::Check(name) => report.is_some_and(|r| r["checks"][name] == true),
+        Proof::Field(name) => report.is_some_and(|r| r.get(name).is_some()),
+        // clap refuses an unknown flag with exit code 2 and no report.
+        Proof::Flag(_) => run.output.status.code() != Some(2) || report.is_some(),
+        Proof::Image(name) => report
+            .and_then(|r| r["images"].as_array())
+            .is_some_and(|images| images.iter().any(|i| i["name"] == name)),
+        Proof::Unseen(_) => true,
+    }
+}
+
 /// Why a solution's run does not count, or `None` when it passed and showed what the patch adds.
 fn judge(solution: &Solution, run: &harness::Run) -> Option<String> {
     let status = run.output.status;
@@ -334,20 +362,8 @@ fn judge(solution: &Solution, run: &harness::Run) -> Option<String> {
     if std::env::var_os("CI").is_some() && report["validation"]["layer"] != true {
         problems.push("CI must run with VK_LAYER_KHRONOS_validation".to_owned());
     }
-    match solution.proof {
-        Proof::Check(name) if checks.get(name) != Some(&Value::Bool(true)) => {
-            problems.push(format!("the report lacks the patch's check `{name}` (or it failed)"))
-        }
-        Proof::Field(name) if report.get(name).is_none() => {
-            problems.push(format!("the report lacks the patch's field `{name}`"))
-        }
-        Proof::Image(name) => {
-            let images = report["images"].as_array().cloned().unwrap_or_default();
-            if !images.iter().any(|i| i["name"] == name) {
-                problems.push(format!("the run wrote no image `{name}`"));
-            }
-        }
-        _ => {}
+    if !proof_holds(&solution.proof, run) {
+        problems.push(format!("the run does not show what the patch adds: {}", solution.proof.describe()));
     }
     (!problems.is_empty()).then(|| problems.join("; "))
 }
@@ -481,6 +497,23 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
                     Some("could not run it, or its output was not a report (see the panic above)".to_owned())
                 }
             };
+            // The chapter as it is, with the same flags: it must not show what the patch adds.
+            let original = bin_dir.join(solution.chapter);
+            let original = original.to_str().unwrap();
+            let unpatched =
+                std::panic::catch_unwind(|| harness::run_chapter_with(original, solution.args, &[]));
+            let verdict = match (verdict, unpatched) {
+                (None, Ok(unpatched))
+                    if !matches!(solution.proof, Proof::Unseen(_))
+                        && proof_holds(&solution.proof, &unpatched) =>
+                {
+                    Some(format!(
+                        "{original}, unpatched, shows {} too: the run proves nothing about the patch",
+                        solution.proof.describe()
+                    ))
+                }
+                (verdict, _) => verdict,
+            };
             if let Some(why) = verdict {
                 let stderr = run.as_ref().map(|r| r.stderr.as_str()).unwrap_or("");
                 let tail: Vec<&str> =
@@ -492,8 +525,7 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
                     solution.args.join(" "),
                     tail.join("\n  ")
                 ));
-            }
-            if let Proof::Unseen(why) = solution.proof {
+            } else if let Proof::Unseen(why) = solution.proof {
                 eprintln!("{}: built and passed; the run cannot show what it adds: {why}", solution.patch);
             }
             timings.push(format!("run {}: {:.1} s", solution.chapter, phase.elapsed().as_secs_f64()));
