@@ -1,7 +1,8 @@
 //! The workshop kit keeps its promises: every worked solution (`book/src/workshop/*.diff`) applies
-//! to a copy of the repository, builds, and runs headless with all of its chapter's checks
-//! passing and with what the patch adds visible in the run; every chapter in the kit's time table
-//! has a challenge; every chapter page ends with the sections the kit tells teachers to expect.
+//! to a copy of the repository, builds, and runs headless on the software stack with all of its
+//! chapter's checks passing and with what the patch adds visible in the run (and not in the
+//! chapter as it is, run with the same flags); every chapter in the kit's time table has a
+//! challenge; every chapter page ends with the sections the kit tells teachers to expect.
 //!
 //! The solutions are built once, all patches in one copy where none touches what another does,
 //! into this test's own target directory: the registry dependencies the tests were built with
@@ -28,7 +29,8 @@ struct Solution {
     proof: Proof,
 }
 
-/// What shows that the run was the patched chapter's, not the chapter as it is.
+/// What shows that the run was the patched chapter's: the patched run must show it, the chapter
+/// as it is must not.
 enum Proof {
     /// A check only the patched chapter makes: it must be in the report, and pass.
     Check(&'static str),
