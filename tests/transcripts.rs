@@ -139,7 +139,7 @@ fn transcripts() -> Vec<Transcript> {
 }
 
 /// What may differ between two runs of the same program on the software stack, masked:
-/// - a number of milliseconds (`1.305 ms` -> `[ms]`): timings;
+/// - a number of milliseconds (`1.305 ms` -> `[ms]`) and a ratio of two (`(1.03x)`): timings;
 /// - the versions in a device's name (`LLVM 15.0.6`, `Mesa 25.0.7-2~bpo12+1`, `256 bits`, the
 ///   vector width LLVM picked for this CPU) -> `LLVM [v]`, `Mesa [v]`, `[n] bits`;
 /// - UUIDs (32 hex digits) -> `[uuid]`;
@@ -159,9 +159,12 @@ fn normalise_line(line: &str) -> String {
     for (i, word) in words.iter().enumerate() {
         let previous = i.checked_sub(1).map(|p| words[p].trim_start_matches('('));
         let next = words.get(i + 1).copied();
-        let (head, tail) = split_number(word);
+        let paren = if word.starts_with('(') { "(" } else { "" };
+        let (head, tail) = split_number(word.strip_prefix('(').unwrap_or(word));
         let masked = if !head.is_empty() && next.is_some_and(|n| n == "ms" || n.starts_with("ms")) {
-            format!("[ms]{tail}")
+            format!("{paren}[ms]{tail}")
+        } else if !head.is_empty() && paren == "(" && tail.starts_with("x)") {
+            format!("([ratio]{tail}")
         } else if !head.is_empty() && tail.is_empty() && next.is_some_and(|n| n.starts_with("bits")) {
             "[n]".to_owned()
         } else if matches!(previous, Some("LLVM" | "Mesa")) && word.starts_with(|c: char| c.is_ascii_digit())
@@ -221,6 +224,10 @@ fn normalise_masks_only_what_varies() {
         (
             "      pbo:  cpu_trace 162.290 ms  gl_upload 0.612 ms",
             "      pbo:  cpu_trace [ms] ms  gl_upload [ms] ms",
+        ),
+        (
+            "trace through the updated TLAS 60.061 ms, through a rebuilt one 58.028 ms (1.04x)",
+            "trace through the updated TLAS [ms] ms, through a rebuilt one [ms] ms ([ratio]x)",
         ),
     ];
     for (line, expected) in cases {
