@@ -457,12 +457,12 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("cargo run --release --bin 10-vertex-animation -- --headless --json --size 1920x1080", Skip::Always("sized for a GPU")),
     ("cargo run --release --bin bench -- --json", Skip::Always("the full sweep: minutes on a GPU")),
     ("cargo run --release --bin convergence -- --json", Skip::Always("the full sweep: minutes on a GPU")),
-    ("cargo run --release --bin bench -- --quick", Skip::Slow("about 50 s")),
-    ("cargo run --release --bin 07-ao-ray-pipeline -- --headless --size 320x240 --frames 4 --scene", Skip::Slow("about 50 s")),
+    ("cargo run --release --bin bench -- --quick", Skip::Slow("35 to 55 s")),
+    ("cargo run --release --bin 07-ao-ray-pipeline -- --headless --size 320x240 --frames 4 --scene", Skip::Slow("35 to 50 s")),
     ("cargo run --release --bin 08-composite -- --headless --size 320x240 --frames 4 --scene", Skip::Slow("about 45 s")),
     ("cargo run --release --bin 08-composite$", Skip::Slow("a window's size, headless: about 25 s")),
-    ("cargo run --release --bin 09-animated-instances", Skip::Slow("30 s to 3 min")),
-    ("cargo run --release --bin 12-fast-frame", Skip::Slow("1 to 2 min")),
+    ("cargo run --release --bin 09-animated-instances", Skip::Slow("20 s to 2.5 min")),
+    ("cargo run --release --bin 12-fast-frame", Skip::Slow("50 s to 1.5 min")),
 ];
 // ANCHOR_END: skipped
 
