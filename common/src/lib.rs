@@ -26,8 +26,9 @@ pub mod interop;
 pub mod rt;
 pub mod scene;
 
-pub use base::chapter::{connect, finish, ms_since, open_fd_count, run_chapter};
+pub use base::chapter::{connect, finish, ms_since, run_chapter};
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
 pub use base::report::Report;
+pub use base::resources::open_fd_count;
 pub use base::vulkan::{RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};

@@ -26,16 +26,16 @@ pub fn run_chapter<A: clap::Parser>(
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
-    // With an injected failure, the fds open before anything ran, to compare at exit.
-    let fds_before = fail::armed().map(|_| fail::open_fds());
+    // With `VKGL_FAIL_AT` set, the fds open before anything ran, to compare at exit.
+    let fds_before = fail::armed().map(|_| resources::open_fds());
     let result = run(&args, &mut report);
     if let Some(before) = fds_before {
-        // Everything `run` made is gone by now (destroyed, or dropped on the way out of an
+        // Everything `run` made is gone by now (dropped at its end, or on the way out of an
         // early return): so must its fds be. Drivers may keep a few of their own.
-        let left: Vec<_> = fail::open_fds().into_iter().filter(|fd| !before.contains(fd)).collect();
+        let left: Vec<_> = resources::open_fds().into_iter().filter(|fd| !before.contains(fd)).collect();
         eprintln!("fds: left open after the chapter ran: {left:?}");
-        // And the objects whose destruction is counted (exportable memory and images, GL memory
-        // objects, imported textures and buffers, renderbuffers): none may be alive.
+        // And the objects whose destruction is counted (exportable memory and images, every GL
+        // object, which would otherwise die unseen with its context): none may be alive.
         let alive: Vec<_> = resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
         eprintln!("resources: alive after the chapter ran: {alive:?}");
     }
@@ -100,15 +100,6 @@ pub fn connect(report: &mut Report, vk: &VulkanContext, gl: &GlContext) -> anyho
     gl::ensure_same_device(&vk.info, gl)
 }
 // ANCHOR_END: connect
-
-// ANCHOR: open_fd_count
-/// How many file descriptors this process has open: the chapters' leak check compares this
-/// before and after their work.
-pub fn open_fd_count() -> anyhow::Result<usize> {
-    use anyhow::Context as _;
-    Ok(std::fs::read_dir("/proc/self/fd").context("listing /proc/self/fd")?.count())
-}
-// ANCHOR_END: open_fd_count
 
 /// Milliseconds since `start` (CPU time; GPU work is timed with timestamps).
 pub fn ms_since(start: std::time::Instant) -> f64 {
