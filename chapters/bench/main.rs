@@ -132,7 +132,7 @@ pub struct Row {
 fn main() -> ExitCode {
     let args: Args = clap::Parser::parse();
     let mut report = Report::new("bench");
-    if let Err(error) = run(&args, &mut report) {
+    if let Err(error) = common::base::chapter::accounted(|| run(&args, &mut report)) {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }

@@ -84,7 +84,7 @@ pub struct CaseReport {
 fn main() -> ExitCode {
     let args = Args::parse();
     let mut report = Report::new("convergence");
-    if let Err(error) = run(&args, &mut report) {
+    if let Err(error) = common::base::chapter::accounted(|| run(&args, &mut report)) {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }

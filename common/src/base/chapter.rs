@@ -22,13 +22,23 @@ pub fn run_chapter<A: clap::Parser>(
     let args = A::parse();
     let common = common(&args);
     let mut report = Report::new(chapter);
-    if let Err(error) = fail::check_armed() {
+    let result = accounted(|| run(&args, &mut report));
+    if let Err(error) = result {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
+    show_pictures(chapter, common, &mut report);
+    finish(report, common.json)
+}
+
+/// Runs `run`, having checked `VKGL_FAIL_AT` (`base::fail`); when it is set, prints what `run`
+/// left behind on stderr: the fds it opened and did not close, and the counted resources still
+/// alive. (`run_chapter` does this for every chapter; `bench` and `convergence` call it.)
+pub fn accounted<T>(run: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
+    fail::check_armed()?;
     // With `VKGL_FAIL_AT` set, the fds open before anything ran, to compare at exit.
     let fds_before = fail::armed().map(|_| resources::open_fds());
-    let result = run(&args, &mut report);
+    let result = run();
     if let Some(before) = fds_before {
         // Everything `run` made is gone by now (dropped at its end, or on the way out of an
         // early return): so must its fds be. Drivers may keep a few of their own.
@@ -39,12 +49,7 @@ pub fn run_chapter<A: clap::Parser>(
         let alive: Vec<_> = resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
         eprintln!("resources: alive after the chapter ran: {alive:?}");
     }
-    if let Err(error) = result {
-        eprintln!("error: {error:#}");
-        return ExitCode::from(2);
-    }
-    show_pictures(chapter, common, &mut report);
-    finish(report, common.json)
+    result
 }
 
 /// Fills in what the run left behind (the validation layer's and GL's error counts, the
