@@ -35,6 +35,17 @@ fn ch04_time_moves_the_picture() {
     assert!(changed * 10 > pixels, "only {changed} of {pixels} pixels differ between --time 0 and 1.5");
 }
 
+/// Two frames 1/60 s apart may not differ visibly in a small picture: the check that the
+/// animation moves is then not made, and the chapter says so; from 2/60 s apart it is made.
+#[test]
+fn ch04_frames_too_close_to_differ_are_not_compared() {
+    let close = run_chapter(BIN, &["--size", "16x16", "--frames", "2", "--time", "5"], &[]);
+    assert!(close.succeeded()["checks"].get("frames_differ_over_time").is_none());
+    assert!(close.stderr.contains("frames_differ_over_time is not checked"), "{}", close.stderr);
+    let apart = run_chapter(BIN, &["--size", "16x16", "--frames", "3", "--time", "5"], &[]);
+    assert_eq!(apart.succeeded()["checks"]["frames_differ_over_time"], true);
+}
+
 #[test]
 fn ch04_resizing_leaks_nothing() {
     let args = ["--size", "160x120", "--time", "0", "--frames", "40", "--resize-every", "1"];

@@ -242,7 +242,7 @@ fn flags_at_and_beyond_their_limits() {
         (vec!["--power", "0.5"], "choose between 1 and 3"),
         (vec!["--power", "-2"], "choose between 1 and 3"),
         (vec!["--instances", "4294967295"], "is not in 0..=1000000"),
-        (vec!["--size", "0x1"], "between 1 and 16384"),
+        (vec!["--size", "0x1"], "between 1 and 32768"),
     ];
     for (args, expected) in refused {
         let mut all = if args[0] == "--size" { vec![] } else { vec!["--size", "32x32"] };

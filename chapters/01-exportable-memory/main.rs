@@ -9,6 +9,7 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::base::cli::{Largest, Smallest};
 use common::base::fail;
 use common::base::guard::guard;
 use common::base::report::uuid_hex;
@@ -21,6 +22,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 const CHAPTER: &str = "01-exportable-memory";
+/// Any size: nothing checked here depends on how many pixels there are.
+const SMALLEST: Smallest = Smallest::ANY;
 
 // ANCHOR: extensions
 /// Exporting memory as a POSIX fd is the only device extension this chapter needs.
@@ -48,6 +51,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let started = Instant::now();
     // ANCHOR: usage
     // What the buffer and the image will be used for. Export support is asked for, and
@@ -118,15 +122,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("buffer_exportable", buffer_support.external_memory_features.contains(exportable));
     report.check("image_exportable", image_support.external_memory_features.contains(exportable));
     let size = args.common.size;
-    if size.width > max_extent.width || size.height > max_extent.height {
-        anyhow::bail!(
-            "--size {}x{}: this device's exportable images stop at {}x{}",
-            size.width,
-            size.height,
-            max_extent.width,
-            max_extent.height
-        );
-    }
+    let largest = Largest {
+        width: max_extent.width,
+        height: max_extent.height,
+        pixels: u64::MAX, // nothing is read back
+        limits: format!("{}: the maxExtent of an exportable RGBA8 storage image", ctx.info.name),
+    };
+    largest.check(CHAPTER, size)?;
 
     // 3. Create a buffer and an image that may be exported
     // ANCHOR: create

@@ -8,6 +8,7 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::base::cli::Smallest;
 use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device};
 use common::base::guard::guard;
@@ -21,6 +22,14 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 const CHAPTER: &str = "02-gl-buffer-import";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 8,
+    height: 8,
+    why: "the pixels that hold the points it probes, (-0.6, -0.7) and (-0.6, 0.7), must have their \
+          centres inside the triangle and outside it",
+    shape: None,
+};
 const DEVICE_EXTENSIONS: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 
 // ANCHOR: vertices
@@ -49,6 +58,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let (width, height) = (args.common.size.width, args.common.size.height);
     let out_dir = args.common.out_dir(CHAPTER);
 
@@ -66,6 +76,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.uuids_match = Some(common::base::gl::uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     // ANCHOR_END: uuids
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     let open_fds_before = open_fd_count()?;
 
     // 3. Export a vertex buffer from Vulkan
@@ -141,11 +152,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let first = draw(CHAPTER, report)?;
     // Left of the base (bottom) is inside the triangle; the same spot mirrored to the top is not.
-    let bottom_left = pixel(&first, width, height, -0.6, -0.7);
-    let top_left = pixel(&first, width, height, -0.6, 0.7);
+    let (bottom_left, centre) = pixel(&first, width, height, -0.6, -0.7);
+    let (top_left, _) = pixel(&first, width, height, -0.6, 0.7);
     report.check("triangle_drawn_from_vulkan_memory", is_lit(bottom_left) && !is_lit(top_left));
-    // uv (0.125, 0.9375) there: the colour proves the uv attribute came through too.
-    report.check("uv_attribute_read_correctly", close(bottom_left, [32, 239, 16]));
+    // uv (0.125, 0.9375) at (-0.6, -0.7); GL interpolated it at the centre of that pixel, and
+    // the colour proves the uv attribute came through too.
+    report.check("uv_attribute_read_correctly", close(bottom_left, uv_colour(centre)));
 
     // 6. Vulkan writes, GL reads
     // ANCHOR: vulkan_writes
@@ -160,8 +172,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // ANCHOR_END: vulkan_writes
     report.check("gl_reads_what_vulkan_wrote", seen_by_gl == bytes_of(&FLIPPED));
-    let flipped_ok = !is_lit(pixel(&second, width, height, -0.6, -0.7))
-        && is_lit(pixel(&second, width, height, -0.6, 0.7));
+    let flipped_ok = !is_lit(pixel(&second, width, height, -0.6, -0.7).0)
+        && is_lit(pixel(&second, width, height, -0.6, 0.7).0);
     report.check("gl_draws_what_vulkan_wrote", flipped_ok);
 
     // 7. GL writes, Vulkan reads
@@ -196,12 +208,22 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
-/// The pixel at normalised device coordinates (x, y), from an image whose top row comes first.
-fn pixel(pixels: &[u8], width: u32, height: u32, x: f32, y: f32) -> [u8; 4] {
-    let column = (((x + 1.0) / 2.0) * width as f32) as usize;
-    let row = (((1.0 - y) / 2.0) * height as f32) as usize;
-    let at = (row.min(height as usize - 1) * width as usize + column.min(width as usize - 1)) * 4;
-    pixels[at..at + 4].try_into().unwrap()
+/// The pixel at normalised device coordinates (x, y), from an image whose top row comes first,
+/// and the centre of that pixel in the same coordinates.
+fn pixel(pixels: &[u8], width: u32, height: u32, x: f32, y: f32) -> ([u8; 4], [f32; 2]) {
+    let column = ((((x + 1.0) / 2.0) * width as f32) as usize).min(width as usize - 1);
+    let row = ((((1.0 - y) / 2.0) * height as f32) as usize).min(height as usize - 1);
+    let at = (row * width as usize + column) * 4;
+    let centre =
+        [(column as f32 + 0.5) / width as f32 * 2.0 - 1.0, 1.0 - (row as f32 + 0.5) / height as f32 * 2.0];
+    (pixels[at..at + 4].try_into().unwrap(), centre)
+}
+
+/// uv_colour.frag's colour, (u, v, 1 - v), at `p` inside TRIANGLE: u and v grow linearly
+/// across it, from (0.5, 0) at the apex (0, 0.8) to (0, 1) and (1, 1) at the base's ends.
+fn uv_colour(p: [f32; 2]) -> [u8; 3] {
+    let (u, v) = ((p[0] + 0.8) / 1.6, (0.8 - p[1]) / 1.6);
+    [u, v, 1.0 - v].map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)
 }
 
 fn is_lit(p: [u8; 4]) -> bool {

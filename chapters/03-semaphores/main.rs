@@ -10,6 +10,7 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::base::cli::Smallest;
 use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
@@ -23,6 +24,8 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 const CHAPTER: &str = "03-semaphores";
+/// Any size: nothing checked here depends on how many pixels there are.
+const SMALLEST: Smallest = Smallest::ANY;
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 /// Without it the chapter still runs, synchronising on the host.
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
@@ -42,6 +45,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     let frames = args.common.frame_count(false);
 
@@ -54,6 +58,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     let open_fds_before = common::open_fd_count()?;
     // ANCHOR: shared_image
     let usage = vk::ImageUsageFlags::COLOR_ATTACHMENT // GL draws into it

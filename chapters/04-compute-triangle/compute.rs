@@ -173,12 +173,3 @@ impl Drop for ComputePipeline {
         }
     }
 }
-
-/// The largest image side both APIs allow: Vulkan's `maxImageDimension2D`, GL's
-/// `GL_MAX_TEXTURE_SIZE`.
-pub fn largest_image_side(vk: &VulkanContext, gl: &glow::Context) -> u32 {
-    use glow::HasContext;
-    let gl_largest = unsafe { gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE) } as u32;
-    let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
-    limits.max_image_dimension2_d.min(gl_largest)
-}

@@ -14,6 +14,7 @@ mod compute;
 use anyhow::{Context as _, Result, bail};
 use ash::vk;
 use check::Checks;
+use common::base::cli::Smallest;
 use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
 use common::base::output;
@@ -29,6 +30,14 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 const CHAPTER: &str = "04-compute-triangle";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 16,
+    height: 16,
+    why: "it compares the pixels at the triangle's centre and halfway to each corner with the computed \
+          image, and needs 1% of the pixels to change between frames",
+    shape: None,
+};
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 /// Without it the chapter still runs, synchronising on the host.
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
@@ -110,6 +119,7 @@ fn share_image(
 // ANCHOR_END: share_image
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let size = args.common.size;
     let windowed = !args.common.headless && window::display_available();
     if !args.common.headless && !windowed {
@@ -138,6 +148,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl = &gl_context.gl;
     // ANCHOR_END: contexts
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     report.set("window", windowed);
     let open_fds_before = open_fd_count()?;
     let handoff = Handoff::new(&vk, &gl_context)?;
@@ -162,7 +173,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut image = share_image(&vk, &gl_context, compute.set, extent)?;
     // A new image has never been GL's: there is nothing to hand over yet (step 8).
     let mut image_is_new = true;
-    let largest = compute::largest_image_side(&vk, gl); // where '+' stops
+    let largest = common::largest_size(&vk, &gl_context);
+    let largest = largest.width.min(largest.height); // where '+' stops
 
     // 5. Prepare GL's draw
     let program = common::base::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;

@@ -8,6 +8,7 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
@@ -23,6 +24,13 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 const CHAPTER: &str = "05-g-buffers";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 8,
+    height: 8,
+    why: "the scene must cover part of the picture and leave part of it empty",
+    shape: Some((16.0, 16.0, "framed wider or taller, the scene covers too little or all of the picture")),
+};
 const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
 const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 
@@ -44,6 +52,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
 
     // 1. Load the scene
@@ -61,6 +70,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;

@@ -9,6 +9,7 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::base::cli::Smallest;
 use common::base::commands::{
     Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
@@ -26,6 +27,13 @@ use std::ffi::CStr;
 use std::process::ExitCode;
 
 const CHAPTER: &str = "06-blas-tlas";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 4,
+    height: 4,
+    why: "rays must hit the scene somewhere, and a single row can pass below or above it",
+    shape: Some((16.0, 16.0, "framed wider or taller, the rays can miss the scene")),
+};
 const REQUIRED: [&CStr; 4] = [
     ash::khr::external_memory_fd::NAME,
     RAY_TRACING_EXTENSIONS[0],
@@ -50,6 +58,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     let aspect = extent.width as f32 / extent.height as f32;
 
@@ -66,6 +75,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;

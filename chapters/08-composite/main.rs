@@ -11,6 +11,7 @@
 
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
+use common::base::cli::Smallest;
 use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timing::{GlPassTimer, PassTimes};
@@ -30,6 +31,14 @@ mod check;
 use check::LastFrame;
 
 const CHAPTER: &str = "08-composite";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 24,
+    height: 24,
+    why: "the overlay checks need a pixel of the gizmo, with 2 pixels of room around it, behind a surface \
+          and another in the open",
+    shape: Some((f32::INFINITY, 2.0, "framed taller, the gizmo's axes leave the picture")),
+};
 
 /// Chapter 08: albedo x ray-traced AO, composited by GL, with depth-correct overlays.
 #[derive(clap::Parser)]
@@ -84,6 +93,7 @@ struct Settings {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
@@ -125,6 +135,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::scene::gbuffer::check_size(
         &vk,

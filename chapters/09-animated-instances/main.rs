@@ -10,6 +10,7 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::AnimationArgs;
+use common::base::cli::Smallest;
 use common::base::commands::{Commands, Timestamps, timed};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
@@ -28,6 +29,17 @@ use std::process::ExitCode;
 mod ring;
 
 const CHAPTER: &str = "09-animated-instances";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 16,
+    height: 16,
+    why: "1% of the pixels must change between the first and the last frame",
+    shape: Some((
+        4.0,
+        4.0,
+        "framed wider or taller, the ring covers too few pixels for 1% of the picture to change",
+    )),
+};
 
 /// Chapter 09: a TLAS updated in place as instances move.
 #[derive(clap::Parser)]
@@ -54,6 +66,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     args.animation.check()?;
 
@@ -72,6 +85,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());

@@ -10,12 +10,13 @@
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::cli::AnimationArgs;
+use common::base::cli::Smallest;
 use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{self, GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms, View};
-use common::interop::handoff::{Apis, Handoff, SharedSemaphore};
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::accel::{self, AccelerationStructure, BuildInputs, DeviceBuffer, InPlace, Refresh};
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::{GBuffers, SceneBuffers};
@@ -27,9 +28,21 @@ use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
 mod sphere;
-use sphere::{Animation, Step, Wave, WavePipeline, record_animation};
+use sphere::{Animation, Step, VertexHandoff, Wave, WavePipeline, record_animation};
 
 const CHAPTER: &str = "10-vertex-animation";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 48,
+    height: 48,
+    why: "1% of the pixels must change between the first and the last frame: the wave must cover enough of \
+          them",
+    shape: Some((
+        1.5,
+        2.0,
+        "framed wider or taller, the sphere covers too few pixels for 1% of the picture to change",
+    )),
+};
 
 /// Chapter 10: a compute shader moves vertices; the BLAS is refitted, the TLAS updated.
 #[derive(clap::Parser)]
@@ -53,6 +66,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     args.animation.check()?;
     ensure!(
@@ -82,6 +96,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
@@ -92,11 +107,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS
         | vk::BufferUsageFlags::STORAGE_BUFFER;
     let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
-    // Signalled by Vulkan once the vertices have moved; GL waits on it before drawing them.
-    let vertices_moved = match &handoff {
-        Handoff::Semaphores { .. } => Some(SharedSemaphore::new(&vk, &gl_context)?),
-        Handoff::Host { .. } => None,
-    };
+    // The sphere's vertex buffer goes from Vulkan's compute shader to GL's vertex fetch and
+    // back every frame, with semaphores of its own where the images have theirs.
+    let vertices = VertexHandoff::new(&vk, &gl_context, &handoff, buffers.meshes[1][0].1.buffer)?;
     // ANCHOR_END: share
 
     // 3. The structures: the ground's BLAS, the sphere's refittable one, an updatable TLAS
@@ -177,7 +190,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (mut animated, mut traced) = (None, false);
     let (mut blas_refits, mut blas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
-    let vertex_buffer = buffers.meshes[1][0].1.buffer;
+    let vertex_buffer = buffers.meshes[1][0].0.buffer;
     for frame in 0..frames {
         // ANCHOR: frame
         wave.time = args.animation.at(frame);
@@ -193,30 +206,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         let parts = Animation {
             loader: &loader,
+            vertices: vertex_buffer,
+            vertices_from_gl: vertices.with_gl(),
             pipeline: &pipeline,
             wave: &wave,
             blases: &blases,
             tlas: &tlas_in_place,
         };
         record_animation(&vk, cb, &parts, step, animation_timer.as_ref());
-        animation.submit(&vk, None, vertices_moved.as_ref().map(|s| s.vk))?;
-        // GL must not fetch the vertices before the compute shader has written them.
-        match &vertices_moved {
-            Some(semaphore) => unsafe {
-                let ext = gl_context.semaphores.as_ref().expect("semaphores were shared");
-                let names = [vertex_buffer.0.get()];
-                (ext.WaitSemaphoreEXT)(
-                    semaphore.gl,
-                    1,
-                    names.as_ptr(),
-                    0,
-                    std::ptr::null(),
-                    std::ptr::null(),
-                );
-            },
-            None => unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }
-                .context("vkWaitForFences")?,
-        }
+        // Vulkan writes the vertices once GL's last draw has fetched them; GL fetches them again
+        // once they are written.
+        animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
+        vertices.to_gl(&vk, &gl_context, animation.fence)?;
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         if args.animation.step > 0.0 {
             tracer.reset(); // the surface moved: the running mean is of a picture that is gone
@@ -291,14 +292,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let cb = animation.begin(&vk)?;
     let parts = Animation {
         loader: &loader,
+        vertices: vertex_buffer,
+        vertices_from_gl: vertices.with_gl(),
         pipeline: &pipeline,
         wave: &wave,
         blases: &blases,
         tlas: &tlas_in_place,
     };
     record_animation(&vk, cb, &parts, Step::Next(Refresh::Rebuild), animation_timer.as_ref());
-    animation.submit(&vk, None, None)?;
-    unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
+    vertices.to_gl(&vk, &gl_context, animation.fence)?;
     gbuffers.draw(gl, &scene, &camera);
     let (after_rebuild, rebuilt_ms) = trace_once(&mut tracer)?;
     let differing = after_refits.iter().zip(&after_rebuild).filter(|(a, b)| a != b).count();
@@ -337,7 +340,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(blases); // each BLAS, then its scratch buffer
     // (Each allocation held a handle to `allocator`, which frees its memory blocks with the
     // last one, at the end of `run`: before the device, never by hand.)
-    drop(vertices_moved); // the semaphore, if any: GL's side, then Vulkan's
+    drop(vertices); // its two semaphores, if any: GL's side first
     drop(buffers); // each GL side, then Vulkan's
     drop(handoff);
     // ANCHOR_END: cleanup

@@ -2,15 +2,19 @@
 //! on the CPU, for the checks), the compute pipeline, and one frame's Vulkan work with its
 //! barriers.
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
 use common::base::commands::Timestamps;
 use common::base::fail;
 use common::base::timing::PassTimes;
+use common::interop::handoff::{Handoff, SharedSemaphore};
 use common::rt::accel::{AccelerationStructure, InPlace, Refresh};
 use common::scene::{Mesh, Vertex};
+use common::{GlContext, base::commands::buffer_barrier};
 use glam::Vec3;
+use glow::HasContext;
+use std::cell::Cell;
 use std::f32::consts::PI;
 
 const SHADER: &[u8] = include_bytes!("../../shaders/sphere_wave.comp.spv");
@@ -130,9 +134,88 @@ impl Drop for WavePipeline {
     }
 }
 
+// ANCHOR: vertex_handoff
+/// The vertex buffer's hand-overs, as the images have theirs: Vulkan's compute shader writes the
+/// vertices, GL's vertex fetch reads them, and the buffer moves between the two APIs like an
+/// image (a queue family ownership transfer to and from `VK_QUEUE_FAMILY_EXTERNAL`, with no
+/// layout). With semaphores, `moved` carries it to GL and `drawn` back; without, the CPU waits.
+pub struct VertexHandoff {
+    semaphores: Option<[SharedSemaphore; 2]>,
+    gl_buffer: glow::Buffer,
+    /// GL has had the vertices since Vulkan last wrote them: Vulkan must take them back first.
+    with_gl: Cell<bool>,
+}
+
+impl VertexHandoff {
+    pub fn new(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        handoff: &Handoff,
+        gl_buffer: glow::Buffer,
+    ) -> Result<Self> {
+        let semaphores = match handoff {
+            Handoff::Semaphores { .. } => {
+                Some([SharedSemaphore::new(vk, gl)?, SharedSemaphore::new(vk, gl)?])
+            }
+            Handoff::Host { .. } => None,
+        };
+        Ok(VertexHandoff { semaphores, gl_buffer, with_gl: Cell::new(false) })
+    }
+
+    /// Whether Vulkan's next write must first acquire the buffer from GL.
+    pub fn with_gl(&self) -> bool {
+        self.with_gl.get()
+    }
+
+    /// Just before Vulkan's next write: GL releases the buffer after every draw it has queued
+    /// (a signal that lists it), and the submission waits for that at the compute stage; the
+    /// CPU waits for GL instead without semaphores. Nothing the first time: GL never had it.
+    pub fn to_vulkan(&self, gl: &GlContext) -> Option<(vk::Semaphore, vk::PipelineStageFlags)> {
+        if !self.with_gl.replace(false) {
+            return None;
+        }
+        let Some([_, drawn]) = &self.semaphores else {
+            unsafe { gl.gl.finish() };
+            return None;
+        };
+        let ext = gl.semaphores.as_ref().expect("semaphores were shared");
+        let buffers = [self.gl_buffer.0.get()];
+        unsafe {
+            (ext.SignalSemaphoreEXT)(drawn.gl, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
+            gl.gl.flush(); // a signal waits in GL's queue until flushed
+        }
+        Some((drawn.vk, vk::PipelineStageFlags::COMPUTE_SHADER))
+    }
+
+    /// What Vulkan's submission signals once the vertices are written.
+    pub fn vulkan_signals(&self) -> Option<vk::Semaphore> {
+        self.semaphores.as_ref().map(|[moved, _]| moved.vk)
+    }
+
+    /// After Vulkan's write: GL acquires the buffer (a wait that lists it), or the CPU waits for
+    /// the submission's `fence`. GL's vertex fetch may read the vertices from here on.
+    pub fn to_gl(&self, vk: &VulkanContext, gl: &GlContext, fence: vk::Fence) -> Result<()> {
+        match &self.semaphores {
+            Some([moved, _]) => unsafe {
+                let ext = gl.semaphores.as_ref().expect("semaphores were shared");
+                let buffers = [self.gl_buffer.0.get()];
+                (ext.WaitSemaphoreEXT)(moved.gl, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
+            },
+            None => unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
+                .context("vkWaitForFences for the moved vertices")?,
+        }
+        self.with_gl.set(true);
+        Ok(())
+    }
+}
+// ANCHOR_END: vertex_handoff
+
 /// What one frame's Vulkan animation work uses.
 pub struct Animation<'a> {
     pub loader: &'a ash::khr::acceleration_structure::Device,
+    /// The sphere's vertex buffer, and whether GL has it (to be acquired before the write).
+    pub vertices: vk::Buffer,
+    pub vertices_from_gl: bool,
     pub pipeline: &'a WavePipeline,
     pub wave: &'a Wave,
     pub blases: &'a [(AccelerationStructure, InPlace)],
@@ -149,7 +232,8 @@ pub enum Step {
 
 // ANCHOR: record
 /// Compute moves the vertices -> barrier -> the sphere's BLAS refit (or rebuild) -> barrier ->
-/// the TLAS update -> barrier -> the frame's rays.
+/// the TLAS update -> barrier -> the frame's rays; the vertex buffer taken from GL before the
+/// write (after the first frame) and given back after the refit, its last reader here.
 pub fn record_animation(
     vk: &VulkanContext,
     cb: vk::CommandBuffer,
@@ -169,10 +253,13 @@ pub fn record_animation(
             t.reset(vk, cb);
         }
         // Before the compute shader overwrites the vertices, everything that read them last frame
-        // must be done: the previous refit (build stage) and GL's vertex fetch. GL's draw came
-        // before its release, which the previous trace waited for at the ray tracing stage: so
-        // waiting for that stage waits for GL too. Reads only: no access flags.
-        vk.device.cmd_pipeline_barrier(cb, build | rays, compute, none, &[], &[], &[]);
+        // must be done: the previous refit (build stage) and GL's vertex fetch, which this
+        // submission waits for at the compute stage (or the CPU did). Reads only: no access to
+        // make available. The buffer comes back from GL (from `VK_QUEUE_FAMILY_EXTERNAL`).
+        let external = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
+        let acquire = buffer_barrier(parts.vertices, (A::NONE, A::SHADER_WRITE), external);
+        let acquire = if parts.vertices_from_gl { std::slice::from_ref(&acquire) } else { &[] };
+        vk.device.cmd_pipeline_barrier(cb, build | rays | compute, compute, none, &[], acquire, &[]);
         if let Some(t) = timer {
             t.write(vk, cb, compute, 0);
         }
@@ -208,6 +295,12 @@ pub fn record_animation(
         // The rays read the TLAS and, through it, the BLASes, in the next submission.
         let ready = barrier(as_write, as_read);
         vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[ready], &[], &[]);
+        // The vertices go to GL: the shader's writes made available, ownership to
+        // `VK_QUEUE_FAMILY_EXTERNAL`, after the refit, the last command here that reads them.
+        let to_gl = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
+        let release = buffer_barrier(parts.vertices, (A::SHADER_WRITE, A::NONE), to_gl);
+        let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+        vk.device.cmd_pipeline_barrier(cb, compute | build, bottom, none, &[], &[release], &[]);
     }
 }
 // ANCHOR_END: record

@@ -12,6 +12,7 @@
 
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::base::cli::Smallest;
 use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::interop::cuda::CudaDevice;
@@ -31,6 +32,17 @@ use composite::{DepthComposite, DepthUniforms, PixelBuffer, Source, gl_time_ms, 
 use cuda::{CudaTracer, ImportedMemory, RegisteredPbo};
 
 const CHAPTER: &str = "11-cuda-depth-composite";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 32,
+    height: 32,
+    why: "the overlay checks probe gizmo pixels with two pixels of room around them",
+    shape: Some((
+        f32::INFINITY,
+        1.0,
+        "framed taller than wide, the gizmo's axis behind the red sphere leaves the picture",
+    )),
+};
 
 /// Chapter 11: a ray-traced image (CUDA, or the same tracer on the CPU) depth-composited with
 /// GL-rasterised lines.
@@ -81,26 +93,9 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let (width, height) = (args.common.size.width, args.common.size.height);
     let bytes = traced_bytes(width, height);
-    // The checks probe gizmo pixels with two pixels around them, and GL buffer sizes are 32-bit signed here
-    // (glow's glNamedBufferData): refuse what the chapter cannot check or hold, before anything exists.
-    anyhow::ensure!(
-        width >= 32 && height >= 32,
-        "--size {width}x{height}: chapter 11 needs at least 32x32 pixels for its overlay checks"
-    );
-    // Framed taller than wide, the gizmo's axis behind the red sphere leaves the picture, and the
-    // hidden-line check would have no pixel to look at.
-    anyhow::ensure!(
-        height <= width,
-        "--size {width}x{height}: chapter 11's overlay checks need a picture at least as wide as it is tall"
-    );
-    anyhow::ensure!(
-        bytes <= i32::MAX as u64,
-        "--size {width}x{height}: the traced colour and depth need {bytes} bytes; a GL buffer here holds \
-         at most {} bytes (16383x16383 fits)",
-        i32::MAX
-    );
     let paths = match args.path {
         PathChoice::Pbo => vec![Path::Pbo],
         PathChoice::ZeroCopy => vec![Path::ZeroCopy],
@@ -122,6 +117,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
+    // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
+    // cannot hold, before anything else exists.
+    anyhow::ensure!(
+        bytes <= i32::MAX as u64,
+        "--size {width}x{height} is too large for {CHAPTER}: the traced colour and depth need {bytes} \
+         bytes; a GL buffer here holds at most {} bytes (16383x16383 fits)",
+        i32::MAX
+    );
     report.sync = Some("host");
 
     // 3. CUDA on that device, or the CPU

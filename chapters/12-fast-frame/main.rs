@@ -12,6 +12,7 @@
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::cli::Size;
+use common::base::cli::Smallest;
 use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::{self, Timeline};
@@ -40,22 +41,28 @@ use trace::{Pattern, Rays, SurfaceTracer};
 use visibility::{Targets, VisibilityPass};
 
 const CHAPTER: &str = "12-fast-frame";
-/// One compute group, and room around the overlay probes.
-const SMALLEST: u32 = 16;
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 24,
+    height: 24,
+    why: "one compute group, and the overlay checks need a pixel of the gizmo, with 2 pixels of room around \
+          it, behind a surface and another in the open",
+    shape: Some((
+        4.0,
+        2.0,
+        "framed taller, the gizmo's axes leave the picture; wider, its per-pixel AO strays from chapter 08's",
+    )),
+};
+/// The smallest side a window's resize (or `--resize-every`) draws at.
+const SMALLEST_SIDE: u32 = SMALLEST.width;
 
 fn main() -> ExitCode {
     common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
     let mut size = args.common.size;
-    ensure!(
-        size.width >= SMALLEST && size.height >= SMALLEST,
-        "--size {}x{}: chapter 12 draws at least {SMALLEST}x{SMALLEST} (one compute group, and room \
-         around the overlays' test pixels)",
-        size.width,
-        size.height
-    );
 
     // 1. Load the scene, and aim the camera at it
     let scene = args.scene.load()?;
@@ -88,6 +95,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     report.set("window", window.is_some());
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
@@ -144,7 +152,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 tracer.accumulated = 0;
             }
             let (width, height) = window.size();
-            if (width, height) != (size.width, size.height) && width >= SMALLEST && height >= SMALLEST {
+            if (width, height) != (size.width, size.height)
+                && width >= SMALLEST_SIDE
+                && height >= SMALLEST_SIDE
+            {
                 new_size = Some(Size { width, height });
             }
         }
@@ -153,7 +164,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         if let Some(every) = args.resize_every.filter(|&k| window.is_none() && frame > 0 && frame % k == 0) {
             // Three quarters, whole, half, as chapter 08's `--resize-every`.
-            let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(SMALLEST);
+            let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(SMALLEST_SIDE);
             new_size =
                 Some(Size { width: scale(args.common.size.width), height: scale(args.common.size.height) });
         }

@@ -3,7 +3,7 @@
 
 use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Size;
 use common::base::commands::{Timestamps, median_p95};
@@ -159,7 +159,7 @@ impl<'s> Frame<'s> {
             // are queued, so the GPU has work while the CPU waits.
             if frame > 0 {
                 unsafe { g.flush() };
-                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
                 if frame > 2 {
                     samples.ao_ms.push(stamps.read_ms(vk)?);
                 }
@@ -194,7 +194,7 @@ impl<'s> Frame<'s> {
         }
         // The last frame: until both APIs are done with it.
         unsafe { g.finish() };
-        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
         samples.ao_ms.push(stamps.read_ms(vk)?);
         if let (Some(t), Some(last)) = (timeline.as_mut(), slot(count + 1)) {
             t.trace_done(vk, last, stamps)?;

@@ -13,7 +13,7 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::base::cli::Size;
+use common::base::cli::{Size, Smallest, parse_size};
 use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::Timeline;
@@ -80,15 +80,6 @@ struct Args {
     reference_rays: Option<u32>,
 }
 
-fn parse_size(text: &str) -> Result<Size, String> {
-    let (w, h) = text.split_once('x').ok_or_else(|| format!("expected WIDTHxHEIGHT, not {text:?}"))?;
-    let side = |s: &str| s.parse::<u32>().ok().filter(|v| (8..=16384).contains(v));
-    match (side(w), side(h)) {
-        (Some(width), Some(height)) => Ok(Size { width, height }),
-        _ => Err(format!("{text}: each side must be a number from 8 to 16384")),
-    }
-}
-
 /// How the frame's images travel between GL and Vulkan.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -139,6 +130,16 @@ fn main() -> ExitCode {
     common::finish(report, args.json)
 }
 
+/// Chapter 12's smallest picture, whose frame bench runs beside chapter 08's at every size (and
+/// chapter 08's is smaller).
+const SMALLEST: Smallest = Smallest {
+    width: 24,
+    height: 24,
+    why: "chapter 12, whose frame it runs: one compute group, and the overlay checks need a pixel of \
+          the gizmo, with 2 pixels of room around it, behind a surface and another in the open",
+    shape: Some((4.0, 2.0, "as chapter 12's")),
+};
+
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. What to measure
     let scenes = if args.scenes.is_empty() {
@@ -151,6 +152,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         ([], true) => vec![Size { width: 64, height: 48 }, Size { width: 96, height: 64 }],
         (sizes, _) => sizes.to_vec(),
     };
+    for &size in &sizes {
+        SMALLEST.check_flag("--sizes", "bench", size)?;
+    }
     let spps = match (&args.spp[..], args.quick) {
         ([], false) => vec![1, 4, 16, 64],
         ([], true) => vec![1, 4],
@@ -164,6 +168,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
+    let largest = common::largest_size(&vk, &gl);
+    for &size in &sizes {
+        largest.check_flag("--sizes", "bench", size)?;
+    }
     gl.set_debug_output(args.gl_debug);
     common::interop::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);
     let settings = serde_json::json!({

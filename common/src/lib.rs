@@ -40,7 +40,7 @@ pub mod interop;
 pub mod rt;
 pub mod scene;
 
-pub use base::chapter::{connect, finish, ms_since, run_chapter};
+pub use base::chapter::{connect, finish, largest_size, ms_since, run_chapter};
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
 pub use base::report::Report;

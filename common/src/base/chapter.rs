@@ -1,7 +1,7 @@
 //! The contract every chapter shares: run, report, exit code; and the few steps every chapter
 //! from 03 on repeats (both contexts connected, open fds counted, CPU time measured).
 
-use super::cli::CommonArgs;
+use super::cli::{CommonArgs, Largest};
 use super::gl::{self, GlContext};
 use super::report::Report;
 use super::vulkan::{self, VulkanContext};
@@ -105,6 +105,39 @@ pub fn connect(report: &mut Report, vk: &VulkanContext, gl: &GlContext) -> anyho
     gl::ensure_same_device(&vk.info, gl)
 }
 // ANCHOR_END: connect
+
+// ANCHOR: largest_size
+/// The largest picture both APIs allow on this device: Vulkan's `maxImageDimension2D`, and GL's
+/// largest texture, renderbuffer and viewport; and as many RGBA8 pixels as GL reads back in one
+/// call (`glReadPixels` writes at most `i32::MAX` bytes: a GLsizei), which every chapter's checks
+/// do. Each is named in the refusal, with its value.
+pub fn largest_size(vk: &VulkanContext, gl: &GlContext) -> Largest {
+    use glow::HasContext as _;
+    let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
+    let vulkan = limits.max_image_dimension2_d;
+    let (texture, renderbuffer, mut viewport) = unsafe {
+        let texture = gl.gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE).max(0) as u32;
+        let renderbuffer = gl.gl.get_parameter_i32(glow::MAX_RENDERBUFFER_SIZE).max(0) as u32;
+        (texture, renderbuffer, [0i32; 2])
+    };
+    unsafe { gl.gl.get_parameter_i32_slice(glow::MAX_VIEWPORT_DIMS, &mut viewport) };
+    let side = vulkan.min(texture).min(renderbuffer);
+    Largest {
+        width: side.min(viewport[0].max(0) as u32),
+        height: side.min(viewport[1].max(0) as u32),
+        pixels: i32::MAX as u64 / 4,
+        limits: format!(
+            "{}: Vulkan maxImageDimension2D {vulkan}, GL_MAX_TEXTURE_SIZE {texture}, \
+             GL_MAX_RENDERBUFFER_SIZE {renderbuffer}, GL_MAX_VIEWPORT_DIMS {}x{}; GL reads back at \
+             most {} bytes in one call, 4 a pixel",
+            vk.info.name,
+            viewport[0],
+            viewport[1],
+            i32::MAX
+        ),
+    }
+}
+// ANCHOR_END: largest_size
 
 /// Milliseconds since `start` (CPU time; GPU work is timed with timestamps).
 pub fn ms_since(start: std::time::Instant) -> f64 {

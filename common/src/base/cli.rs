@@ -10,7 +10,8 @@ pub struct CommonArgs {
     #[arg(long)]
     pub headless: bool,
 
-    /// Size of what the chapter renders or allocates, as WIDTHxHEIGHT.
+    /// Size of what the chapter renders or allocates, as WIDTHxHEIGHT (each chapter states its
+    /// smallest; the largest is the device's).
     #[arg(long, default_value = "800x600", value_parser = parse_size)]
     pub size: Size,
 
@@ -86,17 +87,120 @@ pub struct Size {
     pub height: u32,
 }
 
-fn parse_size(text: &str) -> Result<Size, String> {
+impl std::fmt::Display for Size {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}x{}", self.width, self.height)
+    }
+}
+
+/// The largest side `--size` takes: a guard against typing mistakes, not a device limit (the
+/// largest any GPU of today allows, NVIDIA's 32768). The device's own limits ([`Largest`]) are
+/// checked once its contexts exist.
+pub const TYPED_LIMIT: u32 = 32768;
+
+/// `WIDTHxHEIGHT`, each side 1 to [`TYPED_LIMIT`].
+pub fn parse_size(text: &str) -> Result<Size, String> {
     let bad = || format!("expected WIDTHxHEIGHT, such as 800x600, not {text:?}");
     let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
     let width: u32 = w.trim().parse().map_err(|_| bad())?;
     let height: u32 = h.trim().parse().map_err(|_| bad())?;
-    // A sanity bound for typing mistakes; the device's own limits are checked where images are made.
-    if !(1..=16384).contains(&width) || !(1..=16384).contains(&height) {
-        return Err(format!("{width}x{height}: each side must be between 1 and 16384"));
+    if !(1..=TYPED_LIMIT).contains(&width) || !(1..=TYPED_LIMIT).contains(&height) {
+        return Err(format!("{width}x{height}: each side must be between 1 and {TYPED_LIMIT}"));
     }
     Ok(Size { width, height })
 }
+
+// ANCHOR: smallest
+/// The smallest picture a program can draw and still check, stated by each program with why:
+/// its checks probe pixels that need room, or count pixels that must be enough to mean something.
+#[derive(Debug, Clone, Copy)]
+pub struct Smallest {
+    pub width: u32,
+    pub height: u32,
+    /// What the checks need the pixels for, in a few words.
+    pub why: &'static str,
+    /// The widest and the tallest shape the checks hold at, each as a ratio of the sides
+    /// (width / height, height / width), and why (`None`: any shape).
+    pub shape: Option<(f32, f32, &'static str)>,
+}
+
+impl Smallest {
+    /// Any size: nothing the program checks depends on how many pixels there are.
+    pub const ANY: Smallest = Smallest { width: 1, height: 1, why: "", shape: None };
+
+    /// Refuses `size` (an error, which `run_chapter` turns into exit 2) when it is smaller than
+    /// this on either side, or wider or taller than `shape`; before anything is made.
+    pub fn check(&self, program: &str, size: Size) -> anyhow::Result<()> {
+        self.check_flag("--size", program, size)
+    }
+
+    /// [`Smallest::check`] for a size given by `flag` (the bench's `--sizes`).
+    pub fn check_flag(&self, flag: &str, program: &str, size: Size) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            size.width >= self.width && size.height >= self.height,
+            "{flag} {size} is too small for {program}: its checks need at least {}x{} pixels ({})",
+            self.width,
+            self.height,
+            self.why
+        );
+        if let Some((widest, tallest, why)) = self.shape {
+            let (width, height) = (size.width as f32, size.height as f32);
+            anyhow::ensure!(
+                width <= widest * height,
+                "{flag} {size} is too wide for {program}: its checks need a width of at most {widest} \
+                 times the height ({why})"
+            );
+            anyhow::ensure!(
+                height <= tallest * width,
+                "{flag} {size} is too tall for {program}: its checks need a height of at most {tallest} \
+                 times the width ({why})"
+            );
+        }
+        Ok(())
+    }
+}
+// ANCHOR_END: smallest
+
+// ANCHOR: largest
+/// The largest picture a device allows, and the limits that set it.
+#[derive(Debug, Clone)]
+pub struct Largest {
+    pub width: u32,
+    pub height: u32,
+    /// The most pixels in all (`u64::MAX`: no bound beyond the sides).
+    pub pixels: u64,
+    /// The device, and each limit with its value, e.g. "llvmpipe: Vulkan maxImageDimension2D
+    /// 16384, GL_MAX_TEXTURE_SIZE 16384".
+    pub limits: String,
+}
+
+impl Largest {
+    /// Refuses `size` when either side is beyond what the device allows; before anything is made.
+    pub fn check(&self, program: &str, size: Size) -> anyhow::Result<()> {
+        self.check_flag("--size", program, size)
+    }
+
+    /// [`Largest::check`] for a size given by `flag` (the bench's `--sizes`).
+    pub fn check_flag(&self, flag: &str, program: &str, size: Size) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            size.width <= self.width && size.height <= self.height,
+            "{flag} {size} is too large for {program}: at most {}x{} pixels here ({})",
+            self.width,
+            self.height,
+            self.limits
+        );
+        let pixels = size.width as u64 * size.height as u64;
+        anyhow::ensure!(
+            pixels <= self.pixels,
+            "{flag} {size} is too large for {program}: at most {} pixels in all here, e.g. {side}x{side} ({})",
+            self.pixels,
+            self.limits,
+            side = (self.pixels as f64).sqrt() as u64
+        );
+        Ok(())
+    }
+}
+// ANCHOR_END: largest
 
 #[cfg(test)]
 mod tests {
@@ -108,7 +212,31 @@ mod tests {
         assert_eq!(parse_size("7X3"), Ok(Size { width: 7, height: 3 }));
         assert!(parse_size("800").is_err());
         assert!(parse_size("0x600").is_err());
-        assert!(parse_size("20000x10").is_err());
+        assert!(parse_size("32768x10").is_ok());
+        assert!(parse_size("32769x10").is_err());
         assert!(parse_size("axb").is_err());
+    }
+
+    #[test]
+    fn refuses_what_is_too_small_too_tall_or_too_large() {
+        let at = |width, height| Size { width, height };
+        let smallest = Smallest { width: 16, height: 8, why: "room", shape: Some((2.0, 1.0, "framing")) };
+        assert!(smallest.check("p", at(16, 8)).is_ok());
+        assert!(smallest.check("p", at(16, 16)).is_ok());
+        let small = smallest.check("p", at(15, 8)).unwrap_err().to_string();
+        assert_eq!(small, "--size 15x8 is too small for p: its checks need at least 16x8 pixels (room)");
+        assert!(smallest.check("p", at(16, 7)).is_err());
+        assert!(smallest.check("p", at(16, 17)).unwrap_err().to_string().contains("too tall"));
+        assert!(smallest.check("p", at(32, 16)).is_ok());
+        assert!(smallest.check("p", at(33, 16)).unwrap_err().to_string().contains("too wide"));
+        assert!(Smallest::ANY.check("p", at(1, 1)).is_ok());
+        let largest = Largest { width: 100, height: 50, pixels: 4000, limits: "limit 100".into() };
+        assert!(largest.check("p", at(80, 50)).is_ok());
+        assert!(largest.check("p", at(100, 40)).is_ok());
+        let large = largest.check("p", at(101, 1)).unwrap_err().to_string();
+        assert_eq!(large, "--size 101x1 is too large for p: at most 100x50 pixels here (limit 100)");
+        assert!(largest.check("p", at(1, 51)).is_err());
+        let many = largest.check("p", at(81, 50)).unwrap_err().to_string();
+        assert!(many.contains("at most 4000 pixels in all here, e.g. 63x63"), "{many}");
     }
 }

@@ -122,6 +122,23 @@ impl Drop for Commands {
 }
 
 // ANCHOR: image_barrier
+/// A barrier over a whole buffer: the accesses to make available and visible `(src, dst)`, and
+/// the queue families ownership moves between (`QUEUE_FAMILY_IGNORED` twice for none).
+pub fn buffer_barrier<'a>(
+    buffer: vk::Buffer,
+    (src, dst): (vk::AccessFlags, vk::AccessFlags),
+    (from, to): (u32, u32),
+) -> vk::BufferMemoryBarrier<'a> {
+    vk::BufferMemoryBarrier::default()
+        .buffer(buffer)
+        .offset(0)
+        .size(vk::WHOLE_SIZE)
+        .src_access_mask(src)
+        .dst_access_mask(dst)
+        .src_queue_family_index(from)
+        .dst_queue_family_index(to)
+}
+
 /// A barrier over a whole colour image: the layout change `(old, new)`, the accesses to make
 /// available and visible `(src, dst)`, and the queue families ownership moves between
 /// (`QUEUE_FAMILY_IGNORED` twice for none).

@@ -113,7 +113,7 @@ pub fn read_after(
     times: &mut PassTimes,
 ) -> Result<()> {
     if let Some(stamps) = stamps {
-        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
         times.add(pass, stamps.read_ms(vk)?);
     }
     Ok(())
