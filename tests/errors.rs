@@ -1,60 +1,121 @@
-//! Error paths: chapters made to fail half-way, after both contexts and the shared resources
-//! exist, must still leave nothing behind. `VKGL_FAIL_AT=<point>` (common::base::fail) makes a named
-//! step fail as a driver might; each run must exit 2 with an error naming the step, without a
-//! panic, without a single validation message (a Vulkan object still alive when the device is
-//! destroyed is one: "has not been destroyed"), with no counted resource alive at exit
-//! (`common::base::resources::live`), and with no file descriptor left open beyond those the driver
-//! keeps after a successful run (`VKGL_FAIL_AT=none`, the baseline).
+//! Error paths: every fallible step of every chapter, made to fail in turn, must leave nothing
+//! behind. `VKGL_FAIL_AT=list` (common::base::fail) lists the steps a run reaches, numbered;
+//! `VKGL_FAIL_AT=<n>` makes step n fail as a driver might. Each such run must exit 2 with an
+//! error naming the step, without a panic, without a single validation message (a Vulkan object
+//! still alive when the device is destroyed is one: "has not been destroyed"), with no counted
+//! resource alive at exit (`common::base::resources::live`: exportable memory, every GL object
+//! ...), and with no file descriptor left open beyond those the driver keeps after a successful
+//! run (the listing run, which fails nothing, is the baseline).
 
 mod harness;
 
-use harness::{Run, run_chapter};
+use harness::{Run, run_chapter, run_chapter_with};
+use std::collections::BTreeMap;
 
-/// Every chapter with the points it reaches, so that each point is proved in several chapters.
-const CASES: &[(&str, &str, &[&str], &[&str])] = &[
-    (
-        "03-semaphores",
-        env!("CARGO_BIN_EXE_03-semaphores"),
-        &["--size", "64x48", "--frames", "3"],
-        &["import", "texture", "submit", "gl_acquire"],
-    ),
-    (
+/// A chapter, how it runs (small, few frames: a failure injected early in a run is as cheap as
+/// the run up to it), and whether it takes `--headless`.
+struct Case {
+    name: &'static str,
+    bin: &'static str,
+    args: &'static [&'static str],
+    headless: bool,
+}
+
+const fn chapter(name: &'static str, bin: &'static str, args: &'static [&'static str]) -> Case {
+    Case { name, bin, args, headless: true }
+}
+
+const CASES: &[Case] = &[
+    chapter("01-exportable-memory", env!("CARGO_BIN_EXE_01-exportable-memory"), &["--size", "32x24"]),
+    chapter("02-gl-buffer-import", env!("CARGO_BIN_EXE_02-gl-buffer-import"), &["--size", "32x24"]),
+    chapter("03-semaphores", env!("CARGO_BIN_EXE_03-semaphores"), &["--size", "32x24", "--frames", "3"]),
+    chapter(
         "04-compute-triangle",
         env!("CARGO_BIN_EXE_04-compute-triangle"),
         &["--size", "64x48", "--frames", "3"],
-        &["map", "texture", "submit", "gl_acquire"],
     ),
-    (
-        "05-g-buffers",
-        env!("CARGO_BIN_EXE_05-g-buffers"),
-        &["--size", "64x48"],
-        &["map", "import", "texture", "submit", "gl_acquire"],
-    ),
-    (
+    chapter("05-g-buffers", env!("CARGO_BIN_EXE_05-g-buffers"), &["--size", "32x24"]),
+    chapter("06-blas-tlas", env!("CARGO_BIN_EXE_06-blas-tlas"), &["--size", "32x24"]),
+    chapter(
         "07-ao-ray-pipeline",
         env!("CARGO_BIN_EXE_07-ao-ray-pipeline"),
-        &["--size", "64x48", "--frames", "2", "--samples", "2"],
-        &["map", "texture", "submit", "gl_acquire"],
+        &["--size", "32x24", "--frames", "2", "--samples", "2"],
     ),
-    (
+    chapter(
         "08-composite",
         env!("CARGO_BIN_EXE_08-composite"),
-        &["--size", "64x48", "--frames", "2", "--samples", "2"],
-        &["import", "submit", "gl_acquire"],
+        &["--size", "64x48", "--frames", "3", "--samples", "2", "--resize-every", "2"],
     ),
-    (
-        "12-fast-frame",
-        env!("CARGO_BIN_EXE_12-fast-frame"),
-        &["--size", "64x48", "--frames", "2", "--samples", "2"],
-        &["map", "import", "texture", "submit", "gl_acquire"],
+    chapter(
+        "09-animated-instances",
+        env!("CARGO_BIN_EXE_09-animated-instances"),
+        &["--size", "32x24", "--frames", "2", "--samples", "2"],
     ),
-    (
+    chapter(
         "10-vertex-animation",
         env!("CARGO_BIN_EXE_10-vertex-animation"),
         &["--size", "64x48", "--frames", "2", "--samples", "2", "--rings", "16"],
-        &["texture", "submit"],
     ),
+    chapter(
+        "11-cuda-depth-composite",
+        env!("CARGO_BIN_EXE_11-cuda-depth-composite"),
+        &["--size", "32x32", "--frames", "2"],
+    ),
+    chapter(
+        "12-fast-frame",
+        env!("CARGO_BIN_EXE_12-fast-frame"),
+        &["--size", "64x48", "--frames", "3", "--samples", "2", "--resize-every", "2"],
+    ),
+    Case {
+        name: "bench",
+        bin: env!("CARGO_BIN_EXE_bench"),
+        args: &["--quick", "--scenes", "ceiling", "--sizes", "32x24", "--spp", "1"],
+        headless: false,
+    },
+    Case {
+        name: "convergence",
+        bin: env!("CARGO_BIN_EXE_convergence"),
+        args: &["--quick", "--exact-only"],
+        headless: false,
+    },
 ];
+
+fn run(case: &Case, fail_at: &str) -> Run {
+    let env = [("VKGL_FAIL_AT", fail_at)];
+    match case.headless {
+        true => run_chapter(case.bin, case.args, &env),
+        false => run_chapter_with(case.bin, case.args, &env),
+    }
+}
+
+/// The steps a run reached: (number, what), in order.
+fn steps(run: &Run) -> Vec<(u32, String)> {
+    run.stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix("fail step "))
+        .filter_map(|l| l.split_once(": "))
+        .map(|(n, what)| (n.parse().expect("a step number"), what.to_owned()))
+        .collect()
+}
+
+/// Which steps to fail: the first and the last time each step is reached. The first proves the
+/// cleanup of what exists before it; the last, of a step in a loop, the cleanup with a frame's
+/// work in flight. (Failing every repetition of a frame's submission proves no more.)
+fn chosen(steps: &[(u32, String)]) -> Vec<(u32, String)> {
+    let mut first_and_last: BTreeMap<&str, (u32, u32)> = BTreeMap::new();
+    for (n, what) in steps {
+        first_and_last.entry(what).and_modify(|(_, last)| *last = *n).or_insert((*n, *n));
+    }
+    let mut chosen: Vec<(u32, String)> = first_and_last
+        .iter()
+        .flat_map(|(what, &(first, last))| {
+            let both = if first == last { vec![first] } else { vec![first, last] };
+            both.into_iter().map(|n| (n, what.to_string()))
+        })
+        .collect();
+    chosen.sort();
+    chosen
+}
 
 /// What each fd left open at exit points at (the fd numbers themselves may differ between runs).
 fn fds_left(run: &Run) -> Vec<String> {
@@ -72,47 +133,114 @@ fn fds_left(run: &Run) -> Vec<String> {
     targets
 }
 
-/// Nothing a clean error path may print (a panic, or any validation message at all), and no
-/// counted resource alive at exit: GL objects die with their context, so only the count shows
-/// a GL memory object, texture or renderbuffer that `run` forgot.
-fn assert_clean(label: &str, run: &Run) {
-    for bad in ["panicked", "has not been destroyed", "not destroyed", "validation error", "RUST_BACKTRACE"] {
-        assert!(!run.stderr.contains(bad), "{label}: stderr contains {bad:?}:\n{}", run.stderr);
+/// What is wrong with a run whose step `n` failed, if anything: its exit code, its error, what
+/// it printed, and what it left.
+fn problems(run: &Run, (n, what): &(u32, String), kept_by_driver: &[String]) -> Vec<String> {
+    let mut problems = Vec::new();
+    if run.output.status.code() != Some(2) {
+        problems.push(format!("exit code {:?}, not 2", run.output.status.code()));
     }
-    let alive = "resources: alive after the chapter ran: []";
-    assert!(run.stderr.contains(alive), "{label}: resources left alive:\n{}", run.stderr);
-}
-
-#[test]
-fn every_injected_failure_exits_2_and_leaves_nothing_behind() {
-    for &(chapter, bin, args, points) in CASES {
-        let baseline = run_chapter(bin, args, &[("VKGL_FAIL_AT", "none")]);
-        baseline.succeeded();
-        let kept_by_driver = fds_left(&baseline);
-        for &point in points {
-            let label = format!("{chapter} with VKGL_FAIL_AT={point}");
-            let run = run_chapter(bin, args, &[("VKGL_FAIL_AT", point)]);
-            assert_eq!(run.output.status.code(), Some(2), "{label}: exit code\n{}", run.stderr);
-            let named = format!("error: injected failure at {point}: ");
-            assert!(run.stderr.contains(&named), "{label}: the error names the step\n{}", run.stderr);
-            assert_clean(&label, &run);
-            let mut left = fds_left(&run);
-            left.retain(|fd| !kept_by_driver.contains(fd));
-            assert!(left.is_empty(), "{label}: fds left open {left:?}\n{}", run.stderr);
+    // The error line: the step's own message, perhaps behind the context of what it was for.
+    let named = format!("injected failure at step {n}: {what} (VKGL_FAIL_AT={n})");
+    if !run.stderr.lines().any(|l| l.starts_with("error: ") && l.contains(&named)) {
+        problems.push("no error naming the step".into());
+    }
+    for bad in ["panicked", "has not been destroyed", "not destroyed", "validation error", "RUST_BACKTRACE"] {
+        if run.stderr.contains(bad) {
+            problems.push(format!("stderr contains {bad:?}"));
         }
     }
+    if !run.stderr.contains("resources: alive after the chapter ran: []") {
+        problems.push("resources left alive".into());
+    }
+    let mut left = fds_left(run);
+    left.retain(|fd| !kept_by_driver.contains(fd));
+    if !left.is_empty() {
+        problems.push(format!("fds left open: {left:?}"));
+    }
+    problems
 }
 
 #[test]
-fn an_unknown_fail_point_is_refused() {
-    let run =
-        run_chapter(env!("CARGO_BIN_EXE_03-semaphores"), &["--size", "32x32"], &[("VKGL_FAIL_AT", "sumbit")]);
-    assert_eq!(run.output.status.code(), Some(2));
-    assert!(
-        run.stderr.contains("VKGL_FAIL_AT=sumbit names no fail point; known: none, map"),
-        "{}",
-        run.stderr
+fn every_fallible_step_of_every_chapter_fails_cleanly() {
+    // A few runs at once: each is one process, mostly waiting on the software driver.
+    let workers = std::thread::available_parallelism().map_or(2, |n| n.get()).clamp(2, 4);
+    let (mut injected, mut reached, mut failures) = (0, 0, Vec::new());
+    for case in CASES {
+        // The listing run fails nothing: it must pass its checks, and is the fd baseline.
+        let listing = run(case, "list");
+        listing.succeeded();
+        let kept_by_driver = fds_left(&listing);
+        let all = steps(&listing);
+        assert!(!all.is_empty(), "{}: VKGL_FAIL_AT=list listed no step:\n{}", case.name, listing.stderr);
+        let chosen = chosen(&all);
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let found: Vec<String> = std::thread::scope(|scope| {
+            let workers: Vec<_> = (0..workers)
+                .map(|_| {
+                    scope.spawn(|| {
+                        let mut found = Vec::new();
+                        while let Some(step) =
+                            chosen.get(next.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
+                        {
+                            let run = run(case, &step.0.to_string());
+                            let problems = problems(&run, step, &kept_by_driver);
+                            if !problems.is_empty() {
+                                let (n, what) = step;
+                                let stderr: Vec<_> = run.stderr.lines().rev().take(20).collect();
+                                let stderr = stderr.into_iter().rev().collect::<Vec<_>>().join("\n    ");
+                                found.push(format!(
+                                    "{} VKGL_FAIL_AT={n} ({what}): {}\n    {stderr}",
+                                    case.name,
+                                    problems.join("; ")
+                                ));
+                            }
+                        }
+                        found
+                    })
+                })
+                .collect();
+            workers.into_iter().flat_map(|w| w.join().expect("a worker thread")).collect()
+        });
+        eprintln!(
+            "{}: {} steps reached, {} of them distinct; {} failures injected, {} unclean",
+            case.name,
+            all.len(),
+            chosen.iter().map(|(_, what)| what).collect::<std::collections::BTreeSet<_>>().len(),
+            chosen.len(),
+            found.len()
+        );
+        (injected, reached) = (injected + chosen.len(), reached + all.len());
+        failures.extend(found);
+    }
+    println!("injected failures run: {injected} (of {reached} steps reached) in {} programs", CASES.len());
+    assert!(failures.is_empty(), "{} unclean error paths:\n{}", failures.len(), failures.join("\n"));
+}
+
+#[test]
+fn a_malformed_fail_at_is_refused() {
+    for value in ["sumbit", "0"] {
+        let run = run_chapter(
+            env!("CARGO_BIN_EXE_03-semaphores"),
+            &["--size", "32x32"],
+            &[("VKGL_FAIL_AT", value)],
+        );
+        assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+        let refused = format!("VKGL_FAIL_AT={value} is none of none, list or a step number from 1");
+        assert!(run.stderr.contains(&refused), "{}", run.stderr);
+    }
+}
+
+/// A step number past the last step fails nothing: the run succeeds (and says nothing failed).
+#[test]
+fn a_step_past_the_last_fails_nothing() {
+    let run = run_chapter(
+        env!("CARGO_BIN_EXE_01-exportable-memory"),
+        &["--size", "32x24"],
+        &[("VKGL_FAIL_AT", "100000")],
     );
+    run.succeeded();
+    assert!(!run.stderr.contains("injected failure"), "{}", run.stderr);
 }
 
 /// A natural failure: a size the flags accept and the device refuses once both contexts exist
@@ -127,7 +255,10 @@ fn a_size_the_device_refuses_fails_cleanly() {
     assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
     assert!(run.stderr.contains("error: --size 16384x16384: "), "{}", run.stderr);
     assert!(run.stderr.contains("4294967296 bytes"), "the error names the bytes needed:\n{}", run.stderr);
-    assert_clean("05 at 16384x16384", &run);
+    for bad in ["panicked", "not destroyed", "validation error"] {
+        assert!(!run.stderr.contains(bad), "stderr contains {bad:?}:\n{}", run.stderr);
+    }
+    assert!(run.stderr.contains("resources: alive after the chapter ran: []"), "{}", run.stderr);
     let mut left = fds_left(&run);
     left.retain(|fd| !kept_by_driver.contains(fd));
     assert!(left.is_empty(), "fds left open {left:?}\n{}", run.stderr);

@@ -10,6 +10,8 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::{Largest, Smallest};
+use common::base::fail;
+use common::base::guard::guard;
 use common::base::report::uuid_hex;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
@@ -135,25 +137,32 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .size(BUFFER_BYTES)
         .usage(buffer_usage)
         .push_next(&mut buffer_external);
-    let buffer = unsafe { ctx.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
+    // `fail::call`: the call, its error named, and a step `VKGL_FAIL_AT` can make fail.
+    let buffer = fail::call("vkCreateBuffer", || unsafe { ctx.device.create_buffer(&buffer_info, None) })?;
+    // Guarded the moment it exists: any early return from here on destroys it.
+    let buffer = guard(buffer, |&buffer| unsafe { ctx.device.destroy_buffer(buffer, None) });
     common::base::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
 
     // The image is made the same way, with ExternalMemoryImageCreateInfo (see exportable.rs).
     let extent = vk::Extent2D { width: size.width, height: size.height };
     let image = exportable::create_image(&ctx, IMAGE_FORMAT, image_usage, extent)?;
+    let image = guard(image, |&image| unsafe {
+        ctx.device.destroy_image(image, None);
+        common::base::resources::destroyed("vk_image_exportable"); // the report's live count
+    });
     // ANCHOR_END: create
 
     // 4. Ask whether each needs memory of its own
     // ANCHOR: requirements
     let mut buffer_dedicated = vk::MemoryDedicatedRequirements::default();
     let mut buffer_requirements = vk::MemoryRequirements2::default().push_next(&mut buffer_dedicated);
-    let info = vk::BufferMemoryRequirementsInfo2::default().buffer(buffer);
+    let info = vk::BufferMemoryRequirementsInfo2::default().buffer(*buffer);
     unsafe { ctx.device.get_buffer_memory_requirements2(&info, &mut buffer_requirements) };
     let buffer_requirements = buffer_requirements.memory_requirements;
 
     let mut image_dedicated = vk::MemoryDedicatedRequirements::default();
     let mut image_requirements = vk::MemoryRequirements2::default().push_next(&mut image_dedicated);
-    let info = vk::ImageMemoryRequirementsInfo2::default().image(image);
+    let info = vk::ImageMemoryRequirementsInfo2::default().image(*image);
     unsafe { ctx.device.get_image_memory_requirements2(&info, &mut image_requirements) };
     let image_requirements = image_requirements.memory_requirements;
     // ANCHOR_END: requirements
@@ -170,15 +179,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // The buffer is host-visible so that we can write the triangle into it from the CPU.
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
     let buffer_memory = exportable::allocate(&ctx, &buffer_requirements, host_visible, Dedicated::No)?;
+    let free = |memory: &exportable::ExportableMemory| unsafe { ctx.device.free_memory(memory.memory, None) };
+    let buffer_memory = guard(buffer_memory, free);
     // Images always get a dedicated allocation: the only kind every driver can share, and GL is
     // told so on import (GL_DEDICATED_MEMORY_OBJECT_EXT).
     let device_local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
     let image_memory =
-        exportable::allocate(&ctx, &image_requirements, device_local, Dedicated::Image(image))?;
+        exportable::allocate(&ctx, &image_requirements, device_local, Dedicated::Image(*image))?;
+    let image_memory = guard(image_memory, free);
     unsafe {
         // Offset 0, always: llvmpipe ignores offsets into imported memory.
-        ctx.device.bind_buffer_memory(buffer, buffer_memory.memory, 0).context("vkBindBufferMemory")?;
-        ctx.device.bind_image_memory(image, image_memory.memory, 0).context("vkBindImageMemory")?;
+        ctx.device.bind_buffer_memory(*buffer, buffer_memory.memory, 0).context("vkBindBufferMemory")?;
+        ctx.device.bind_image_memory(*image, image_memory.memory, 0).context("vkBindImageMemory")?;
     }
     // ANCHOR_END: allocate
     report.check("buffer_memory_has_import_slack", buffer_memory.size >= buffer_requirements.size + 48);
@@ -218,16 +230,19 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .allocation_size(buffer_memory.size)
         .memory_type_index(buffer_memory.memory_type_index)
         .push_next(&mut import);
-    let imported =
-        unsafe { ctx.device.allocate_memory(&import_info, None) }.context("importing the buffer's fd")?;
+    let imported = fail::call("vkAllocateMemory importing the buffer's fd", || unsafe {
+        ctx.device.allocate_memory(&import_info, None)
+    })?;
+    // Freeing the imported allocation releases the fd the driver took over.
+    let imported = guard(imported, |&memory| unsafe { ctx.device.free_memory(memory, None) });
     // SAFETY: the import succeeded, so the fd now belongs to the driver; it must not be closed.
     let _ = buffer_fd.into_raw_fd();
 
-    let view = unsafe { ctx.device.map_memory(imported, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
+    let view = unsafe { ctx.device.map_memory(*imported, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
         .context("mapping the imported memory")?;
     // SAFETY: BUFFER_BYTES of host-coherent mapped memory.
     let read_back: [[f32; 4]; 3] = unsafe { std::ptr::read_unaligned(view.cast()) };
-    unsafe { ctx.device.unmap_memory(imported) };
+    unsafe { ctx.device.unmap_memory(*imported) };
     // ANCHOR_END: reimport
     report.check("reimported_fd_reads_the_triangle", read_back == TRIANGLE);
 
@@ -256,16 +271,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 8. Clean up, newest first
     // ANCHOR: cleanup
-    // Nobody imported the image's fd, so it is still ours to close.
-    drop(image_fd);
-    unsafe {
-        // Freeing the imported allocation releases the fd the driver took over.
-        ctx.device.free_memory(imported, None);
-        ctx.device.free_memory(image_memory.memory, None);
-        ctx.device.free_memory(buffer_memory.memory, None);
-        ctx.device.destroy_image(image, None);
-        ctx.device.destroy_buffer(buffer, None);
-    }
+    // Nothing was submitted, so nothing is in flight. Each drop makes its guard's call.
+    drop(image_fd); // nobody imported the image's fd: it is still ours to close
+    drop(imported); // vkFreeMemory: releases the buffer's fd, which the driver took over
+    drop(image_memory); // vkFreeMemory
+    drop(buffer_memory); // vkFreeMemory
+    drop(image); // vkDestroyImage
+    drop(buffer); // vkDestroyBuffer
     // ANCHOR_END: cleanup
     let open_fds_after = open_fd_count()?;
     eprintln!("open fds: {open_fds_before} before exporting, {open_fds_after} after cleaning up");

@@ -9,7 +9,9 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
+use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device};
+use common::base::guard::guard;
 use common::base::output;
 use common::interop;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
@@ -84,16 +86,21 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .size(BUFFER_BYTES)
         .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
         .push_next(&mut external);
-    let buffer = unsafe { vk.device.create_buffer(&buffer_info, None) }.context("vkCreateBuffer")?;
+    let buffer = fail::call("vkCreateBuffer", || unsafe { vk.device.create_buffer(&buffer_info, None) })?;
+    // Each raw handle is guarded as it is made (chapter 01): an early return destroys it.
+    let buffer = guard(buffer, |&buffer| unsafe { vk.device.destroy_buffer(buffer, None) });
     common::base::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
-    let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
+    let requirements = unsafe { vk.device.get_buffer_memory_requirements(*buffer) };
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
     let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
-    unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
+    let memory = guard(memory, |memory| unsafe { vk.device.free_memory(memory.memory, None) });
+    unsafe { vk.device.bind_buffer_memory(*buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
     // Mapped for the whole chapter: Vulkan's view of the bytes.
-    let mapped = unsafe { vk.device.map_memory(memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
-        .context("vkMapMemory")?
-        .cast::<Triangle>();
+    let mapped = fail::call("vkMapMemory", || unsafe {
+        vk.device.map_memory(memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
+    })?
+    .cast::<Triangle>();
+    let mapped = guard(mapped, |_| unsafe { vk.device.unmap_memory(memory.memory) });
     // SAFETY: `mapped` is BUFFER_BYTES of host-coherent memory that only this thread touches.
     unsafe { mapped.write_unaligned(TRIANGLE) };
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
@@ -111,8 +118,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 5. Draw from it
     // ANCHOR: draw_setup
     let program = common::base::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
-    let vertex_array = unsafe {
-        let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
+    // A GL object that deletes itself when dropped, as every one made from here on does.
+    let vertex_array =
+        common::base::gl::create(gl, "glCreateVertexArrays", |gl| unsafe { gl.create_named_vertex_array() })?;
+    unsafe {
+        let vao = *vertex_array;
         // The imported buffer is an ordinary GL buffer now: bind it like any other.
         gl.vertex_array_vertex_buffer(vao, 0, Some(shared.buffer), 0, STRIDE);
         for (location, offset) in [(0, 0), (1, 8)] {
@@ -120,8 +130,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             gl.vertex_array_attrib_format_f32(vao, location, 2, glow::FLOAT, false, offset);
             gl.vertex_array_attrib_binding_f32(vao, location, 0);
         }
-        vao
-    };
+    }
     let target = RenderTarget::new(gl, width, height)?;
     // ANCHOR_END: draw_setup
     // The draw's GPU time (common::base::timing; the read-back waits for it anyway).
@@ -132,8 +141,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             target.bind(gl);
             gl.clear_color(CLEAR[0], CLEAR[1], CLEAR[2], CLEAR[3]);
             gl.clear(glow::COLOR_BUFFER_BIT);
-            gl.use_program(Some(program));
-            gl.bind_vertex_array(Some(vertex_array));
+            gl.use_program(Some(*program));
+            gl.bind_vertex_array(Some(*vertex_array));
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
         })?;
         gl_context.check_error("drawing from the imported buffer")?;
@@ -176,29 +185,26 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: gl_writes
     report.check("vulkan_reads_what_gl_wrote", seen_by_vulkan == TRIANGLE);
 
+    report.set("shared_bytes", memory.size);
+
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     gl_timer.finish(gl, &mut times);
     times.record(report);
-    gl_timer.delete(gl);
-    target.delete(gl);
-    unsafe {
-        gl.delete_vertex_array(vertex_array);
-        gl.delete_program(program);
-    }
-    // The GL buffer, then its memory object; deleting that releases GL's fd.
-    shared.delete(&gl_context);
-    unsafe {
-        vk.device.unmap_memory(memory.memory);
-        vk.device.free_memory(memory.memory, None);
-        vk.device.destroy_buffer(buffer, None);
-    }
+    // GL first: step 7's glFinish drained it, and Vulkan never submitted any work.
+    drop(gl_timer); // its queries
+    drop(target); // the framebuffer, then its renderbuffer
+    drop(vertex_array);
+    drop(program);
+    drop(shared); // the GL buffer, then its memory object: releases the fd GL took over
+    drop(mapped); // vkUnmapMemory
+    drop(memory); // vkFreeMemory
+    drop(buffer); // vkDestroyBuffer
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     let open_fds_after = open_fd_count()?;
     eprintln!("open fds: {open_fds_before} before exporting, {open_fds_after} after cleaning up");
     report.check("no_fd_leaked", open_fds_after == open_fds_before);
-    report.set("shared_bytes", memory.size);
     Ok(())
 }
 

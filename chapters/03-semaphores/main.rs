@@ -8,7 +8,7 @@
 //!
 //! Run: `cargo run --bin 03-semaphores -- --frames 60` (add `--unsynchronised` to see it break).
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
@@ -68,11 +68,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // GL draws into it first: Vulkan moves it out of UNDEFINED and hands it over before that.
     interop::hand_new_images_to_gl(&vk, &[&image])?;
     // ANCHOR_END: shared_image
-    let framebuffer = unsafe {
-        let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
-        gl.named_framebuffer_texture(Some(fb), glow::COLOR_ATTACHMENT0, Some(image.texture.texture), 0);
-        fb
-    };
+    let framebuffer =
+        common::base::gl::create(gl, "glCreateFramebuffers", |gl| unsafe { gl.create_named_framebuffer() })?;
+    let texture = Some(image.texture.texture);
+    unsafe { gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, texture, 0) };
 
     // 2. Share two semaphores, or fall back to the host
     // ANCHOR: sync
@@ -90,11 +89,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: layouts
 
     let pixels = (extent.width * extent.height) as usize;
-    let commands = Commands::new(&vk)?;
     let timestamps = Timestamps::new(&vk)?;
     let transfer = vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST;
     let mut vulkan_pattern = HostBuffer::new(&vk, pixels as u64 * 4, transfer)?;
     let gl_pixels_seen_by_vulkan = HostBuffer::new(&vk, pixels as u64 * 4, transfer)?;
+    // Made after everything its submissions use, so that an early return drops it first: its
+    // Drop waits for the last submission before anything that submission uses is destroyed.
+    let commands = Commands::new(&vk)?;
 
     let (mut vulkan_saw_gl, mut gl_saw_vulkan) = (true, true);
     // Each frame's GL clear and Vulkan copies (GPU), handshake and whole frame (CPU): common::timing.
@@ -107,7 +108,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // 3. GL draws, then hands the image to Vulkan
         // ANCHOR: gl_turn
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*framebuffer));
             gl.viewport(0, 0, extent.width as i32, extent.height as i32);
             let [r, g, b] = gl_colour.map(|c| c as f32 / 255.0);
             gl.clear_color(r, g, b, 1.0);
@@ -168,7 +169,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // The last frame's copy: wait for its fence (Commands::begin would) before reading it.
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
     vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frames - 1).0);
     if let Some(t) = &timestamps {
         times.add("vulkan_gpu", t.read_ms(&vk)?);
@@ -200,19 +201,17 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
-    // 6. Clean up, newest first (the GPU is idle: the last fence has signalled, GL has read)
+    // 6. Clean up, newest first (Vulkan is idle: the last fence has signalled)
     // ANCHOR: cleanup
-    unsafe { gl.finish() };
-    gl_pixels_seen_by_vulkan.destroy(&vk);
-    vulkan_pattern.destroy(&vk);
-    if let Some(t) = timestamps {
-        t.destroy(&vk);
-    }
-    commands.destroy(&vk);
-    gl_timer.delete(gl);
-    handoff.destroy(&vk, &gl_context);
-    unsafe { gl.delete_framebuffer(framebuffer) };
-    image.destroy(&vk, &gl_context);
+    unsafe { gl.finish() }; // and so is GL
+    drop(gl_timer); // its queries
+    drop(commands); // the command pool and the fence
+    drop(gl_pixels_seen_by_vulkan); // unmapped, freed, destroyed
+    drop(vulkan_pattern);
+    drop(timestamps);
+    drop(handoff); // the semaphores, GL's first: it holds the imported payload
+    drop(framebuffer);
+    drop(image); // GL's texture and memory object, then Vulkan's view, memory and image
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     // Every fd (image memory, two semaphores) went to GL and was released with its object.

@@ -1,10 +1,11 @@
 //! Chapter 04's compute pass: the pipeline that writes the shared image, and one frame's
 //! recording, with the two ownership barriers around the dispatch.
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::VulkanContext;
 use common::base::commands::{Timestamps, first_use};
+use common::base::fail;
 use common::interop::{SharedImage, acquire_from_gl, release_to_gl};
 
 const COMPUTE_SPIRV: &[u8] = include_bytes!("../../shaders/compute_triangle.comp.spv");
@@ -21,7 +22,8 @@ const WORKGROUP: u32 = 16;
 // ANCHOR_END: interface
 
 /// The compute pipeline, its layout, and the one descriptor set that points at the shared image.
-/// Destroyed when dropped too, so that an early return from `run` leaks nothing.
+/// Destroyed when dropped (newest first; the set goes with its pool), so that an early return
+/// from `run` leaks nothing. The GPU must be done with it.
 pub struct ComputePipeline {
     set_layout: vk::DescriptorSetLayout,
     layout: vk::PipelineLayout,
@@ -37,43 +39,60 @@ impl ComputePipeline {
         // ANCHOR: pipeline
         let device = &vk.device;
         let compute = vk::ShaderStageFlags::COMPUTE;
+        // The guard exists before its first object: a failure half-way destroys what was made
+        // (Vulkan ignores the null handles of what was not).
+        let mut this = ComputePipeline {
+            set_layout: vk::DescriptorSetLayout::null(),
+            layout: vk::PipelineLayout::null(),
+            pipeline: vk::Pipeline::null(),
+            descriptor_pool: vk::DescriptorPool::null(),
+            set: vk::DescriptorSet::null(),
+            device: device.clone(),
+        };
         let bindings = [vk::DescriptorSetLayoutBinding::default()
             .binding(0) // `binding = 0` in the shader: the image it writes
             .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
             .descriptor_count(1)
             .stage_flags(compute)];
         let set_layout_info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-        let set_layout = unsafe { device.create_descriptor_set_layout(&set_layout_info, None) }?;
+        this.set_layout = fail::call("vkCreateDescriptorSetLayout", || unsafe {
+            device.create_descriptor_set_layout(&set_layout_info, None)
+        })?;
         let push_range =
             [vk::PushConstantRange::default().stage_flags(compute).size(size_of::<Push>() as u32)];
-        let set_layouts = [set_layout];
+        let set_layouts = [this.set_layout];
         let layout_info = vk::PipelineLayoutCreateInfo::default()
             .set_layouts(&set_layouts)
             .push_constant_ranges(&push_range);
-        let layout = unsafe { device.create_pipeline_layout(&layout_info, None) }?;
-        // read_spv copies the bytes into u32 words: include_bytes! promises no 4-byte alignment.
-        let code =
-            ash::util::read_spv(&mut std::io::Cursor::new(COMPUTE_SPIRV)).context("reading the SPIR-V")?;
-        let module =
-            unsafe { device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None) }?;
-        let stage = vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module).name(c"main");
-        let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
-        let pipeline =
-            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None) }
+        this.layout = fail::call("vkCreatePipelineLayout", || unsafe {
+            device.create_pipeline_layout(&layout_info, None)
+        })?;
+        // SPIR-V to a shader module (common::base::compute), destroyed when dropped.
+        let module = common::base::compute::shader_module(vk, COMPUTE_SPIRV, "compute")?;
+        let stage =
+            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module.module).name(c"main");
+        let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(this.layout);
+        this.pipeline = fail::call("vkCreateComputePipelines", || unsafe {
+            device
+                .create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None)
                 .map_err(|(_, e)| e)
-                .context("vkCreateComputePipelines")?[0];
+        })?[0];
         common::base::resources::created("vk_pipeline: compute", 0); // for the report's list of resources
-        unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
+        drop(module); // the pipeline keeps what it needs
         let pool_sizes =
             [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];
         let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes);
-        let descriptor_pool = unsafe { device.create_descriptor_pool(&pool_info, None) }?;
+        this.descriptor_pool = fail::call("vkCreateDescriptorPool", || unsafe {
+            device.create_descriptor_pool(&pool_info, None)
+        })?;
         let allocate = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(descriptor_pool)
+            .descriptor_pool(this.descriptor_pool)
             .set_layouts(&set_layouts);
-        let set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
+        this.set =
+            fail::call("vkAllocateDescriptorSets", || unsafe { device.allocate_descriptor_sets(&allocate) })?
+                [0];
         // ANCHOR_END: pipeline
-        Ok(ComputePipeline { set_layout, layout, pipeline, descriptor_pool, set, device: device.clone() })
+        Ok(this)
     }
 
     // ANCHOR: record_compute
@@ -142,17 +161,11 @@ impl ComputePipeline {
         }
     }
     // ANCHOR_END: record_compute
-
-    /// Newest first; the descriptor set goes with its pool. The GPU must be idle.
-    pub fn destroy(self, _vk: &VulkanContext) {
-        drop(self); // Drop below does it
-    }
 }
 
 impl Drop for ComputePipeline {
     fn drop(&mut self) {
         unsafe {
-            let _ = self.device.device_wait_idle(); // after an early return, work may be in flight
             self.device.destroy_descriptor_pool(self.descriptor_pool, None);
             self.device.destroy_pipeline(self.pipeline, None);
             self.device.destroy_pipeline_layout(self.layout, None);

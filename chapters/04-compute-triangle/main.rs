@@ -11,7 +11,7 @@
 mod check;
 mod compute;
 
-use anyhow::{Result, bail};
+use anyhow::{Context as _, Result, bail};
 use ash::vk;
 use check::Checks;
 use common::base::cli::Smallest;
@@ -153,7 +153,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
-    let commands = Commands::new(&vk)?;
     let timestamps = Timestamps::new(&vk)?;
 
     // 2. Share the vertex buffer
@@ -179,15 +178,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Prepare GL's draw
     let program = common::base::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
-    let vertex_array = unsafe {
-        let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
-        for (location, offset) in [(0, 0), (1, 8)] {
-            gl.enable_vertex_array_attrib(vao, location);
-            gl.vertex_array_attrib_format_f32(vao, location, 2, glow::FLOAT, false, offset);
-            gl.vertex_array_attrib_binding_f32(vao, location, 0);
+    let vertex_array =
+        common::base::gl::create(gl, "glCreateVertexArrays", |gl| unsafe { gl.create_named_vertex_array() })?;
+    for (location, offset) in [(0, 0), (1, 8)] {
+        unsafe {
+            gl.enable_vertex_array_attrib(*vertex_array, location);
+            gl.vertex_array_attrib_format_f32(*vertex_array, location, 2, glow::FLOAT, false, offset);
+            gl.vertex_array_attrib_binding_f32(*vertex_array, location, 0);
         }
-        vao
-    };
+    }
     let target = match window {
         Some(_) => None, // the window's own back buffer
         None => Some(RenderTarget::new(gl, size.width, size.height)?),
@@ -196,6 +195,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let out_dir = args.common.out_dir(CHAPTER);
     let started = Instant::now();
     let (mut checks, mut gl_timer) = (Checks::default(), common::base::timing::GlPassTimer::new(gl)?);
+    // Made after everything its submissions use: an early return drops it first, and its Drop
+    // waits for the last submission before the image or the pipeline it used is destroyed.
+    let commands = Commands::new(&vk)?;
     let mut resizes = 0;
     let mut frame = 0;
     while frames == 0 || frame < frames {
@@ -236,12 +238,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // side first, and make the new one. The reference skipped the wait and leaked.
             unsafe {
                 gl.finish();
-                vk.device.wait_for_fences(&[commands.fence], true, u64::MAX)?;
+                vk.device.wait_for_fences(&[commands.fence], true, u64::MAX).context("vkWaitForFences")?;
             }
             // The new image first: if the device cannot make it, a window keeps the old one
             // (share_image points the descriptor at an image only once it exists).
             match share_image(&vk, &gl_context, compute.set, wanted) {
-                Ok(new) => std::mem::replace(&mut image, new).destroy(&vk, &gl_context),
+                Ok(new) => drop(std::mem::replace(&mut image, new)), // GL's side, then Vulkan's
                 Err(error) if window.is_some() => {
                     eprintln!(
                         "compute image: cannot make {}x{} ({error:#}); keeping",
@@ -299,15 +301,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         image_is_new = false;
         let (width, height) = window.as_ref().map_or((size.width, size.height), |w| w.size());
         gl_timer.time(gl, "gl_draw", || unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, target.as_ref().map(|t| t.framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, target.as_ref().map(|t| *t.framebuffer));
             gl.viewport(0, 0, width as i32, height as i32);
             gl.clear_color(CLEAR[0], CLEAR[1], CLEAR[2], CLEAR[3]);
             gl.clear(glow::COLOR_BUFFER_BIT);
-            gl.use_program(Some(program));
+            gl.use_program(Some(*program));
             // This frame's copy of the triangle: an offset inside GL's buffer, not the memory object.
             let offset = (slot * TRIANGLE_BYTES) as i32;
-            gl.vertex_array_vertex_buffer(vertex_array, 0, Some(vertices_gl.buffer), offset, STRIDE);
-            gl.bind_vertex_array(Some(vertex_array));
+            gl.vertex_array_vertex_buffer(*vertex_array, 0, Some(vertices_gl.buffer), offset, STRIDE);
+            gl.bind_vertex_array(Some(*vertex_array));
             gl.bind_texture_unit(0, Some(image.texture.texture)); // `binding = 0` in the shader
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
         })?;
@@ -330,7 +332,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         checks.times.add("frame_cpu", ms_since(frame_started));
         frame += 1;
     }
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
     if frame > 0
         && let Some(t) = &timestamps
     {
@@ -346,27 +348,19 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 11. Clean up, newest first, once both APIs are idle
     // ANCHOR: cleanup
-    unsafe {
-        gl.finish();
-        vk.device.device_wait_idle()?;
-    }
-    gl_timer.delete(gl);
-    if let Some(target) = target {
-        target.delete(gl);
-    }
-    unsafe {
-        gl.delete_vertex_array(vertex_array);
-        gl.delete_program(program);
-    }
-    image.destroy(&vk, &gl_context); // GL's texture and memory object, then view, memory, image
-    compute.destroy(&vk); // the descriptor pool (and its set), the pipeline, its layouts
-    vertices_gl.delete(&gl_context); // GL's buffer and memory object, then Vulkan's
-    vertices_vk.destroy(&vk);
-    if let Some(t) = timestamps {
-        t.destroy(&vk);
-    }
-    commands.destroy(&vk);
-    handoff.destroy(&vk, &gl_context);
+    unsafe { gl.finish() };
+    vk.wait_idle()?; // once: no guard below waits
+    drop(commands); // the command pool (and its buffer), the fence
+    drop(gl_timer);
+    drop(target);
+    drop(vertex_array);
+    drop(program);
+    drop(image); // GL's texture and memory object, then view, memory, image
+    drop(compute); // the descriptor pool (and its set), the pipeline, its layouts
+    drop(vertices_gl); // GL's buffer and memory object
+    drop(vertices_vk); // then Vulkan's buffer and memory
+    drop(timestamps);
+    drop(handoff); // the semaphores, GL's side first
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

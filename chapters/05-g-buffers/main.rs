@@ -6,7 +6,7 @@
 //!
 //! Run: `cargo run --release --bin 05-g-buffers` (or `-- --scene assets/bunny.obj`).
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
@@ -98,12 +98,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_context.check_error("drawing the G-buffers")?;
 
     // 6. Hand the G-buffers to Vulkan, which copies them out
-    let commands = Commands::new(&vk)?;
     let mut readbacks = Vec::new();
     for (_, _, _, bytes_per_pixel) in GBUFFERS {
         let bytes = (extent.width * extent.height * bytes_per_pixel) as u64;
         readbacks.push(HostBuffer::new(&vk, bytes, vk::BufferUsageFlags::TRANSFER_DST)?);
     }
+    let mut vk_timer = VkPassTimer::new(&vk, 1)?;
+    // Made after everything its submission uses, so that an early return drops it first (its
+    // Drop waits for that submission).
+    let commands = Commands::new(&vk)?;
     // ANCHOR: handover
     let textures = gbuffers.textures();
     // GL puts them in TRANSFER_SRC for Vulkan's copies; Vulkan gives them back as attachments
@@ -113,7 +116,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (signal_layout, wait_layout) = layouts.gl(); // as GL names them
     handoff.gl_release(&gl_context, &textures, &[signal_layout; 3]);
     let cb = commands.begin(&vk)?;
-    let mut vk_timer = VkPassTimer::new(&vk, 1)?;
     if let Some(t) = vk_timer.as_mut() {
         t.reset(&vk, cb);
     }
@@ -150,16 +152,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     commands.submit(&vk, wait, handoff.vulkan_signals())?;
     handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
     // ANCHOR_END: handover
     report.time_ms("raster_and_handover_cpu", ms_since(started));
     gl_timer.finish(gl, &mut times);
-    if let Some(t) = vk_timer {
+    if let Some(t) = &vk_timer {
         t.read(&vk, &mut times)?;
-        t.destroy(&vk);
     }
     times.record(report);
-    gl_timer.delete(gl);
 
     // 7. Check what Vulkan sees, and write it out
     let seen = GBufferPixels { position: readbacks[0].rgba32f(), normal: readbacks[1].rgba32f() };
@@ -193,8 +193,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         };
         // Nothing may still use the old images: GL finishes, and Vulkan's last copy has (fence above).
         unsafe { gl.finish() };
-        let old = std::mem::replace(&mut gbuffers, GBuffers::new(&vk, &gl_context, &buffers, size, usage)?);
-        old.destroy(&vk, &gl_context);
+        let new = GBuffers::new(&vk, &gl_context, &buffers, size, usage)?;
+        drop(std::mem::replace(&mut gbuffers, new)); // GL's objects, then each image, GL's side first
         gbuffers.draw(gl, &scene, &camera);
         fds_after_first = fds_after_first.or(Some(open_fd_count()?));
     }
@@ -207,11 +207,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 9. Clean up, newest first
     // ANCHOR: cleanup
-    readbacks.into_iter().for_each(|b| b.destroy(&vk));
-    commands.destroy(&vk);
-    gbuffers.destroy(&vk, &gl_context);
-    buffers.destroy(&vk, &gl_context);
-    handoff.destroy(&vk, &gl_context);
+    // Nothing is in flight: the copies' fence signalled, and GL finished before the resizes.
+    drop(commands);
+    drop(vk_timer);
+    drop(readbacks); // unmapped, freed, destroyed
+    drop(gl_timer);
+    drop(gbuffers); // GL's framebuffer and program, then each image, GL's side first
+    drop(buffers); // each buffer's GL side, then Vulkan's
+    drop(handoff); // the semaphores, if any
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

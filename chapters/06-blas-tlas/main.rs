@@ -7,7 +7,7 @@
 //!
 //! Run: `cargo run --release --bin 06-blas-tlas` (or `-- --scene assets/bunny.obj`).
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{
@@ -81,7 +81,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
-    let mut allocator = accel::allocator(&vk)?;
+    let allocator = accel::allocator(&vk)?;
 
     // 3. Share the scene's buffers, readable by acceleration-structure builds
     // ANCHOR: share
@@ -94,7 +94,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 4. Build the acceleration structures
     // ANCHOR: build
     let commands = Commands::new(&vk)?;
-    let structures = accel::build(&vk, &mut allocator, &commands, &scene, &buffers)?;
+    let structures = accel::build(&vk, &allocator, &commands, &scene, &buffers)?;
+    drop(commands); // each build waited for its submission: nothing is in flight
     // ANCHOR_END: build
     report.set("instances", scene.instances.len());
     report.set("triangles", scene.triangles());
@@ -137,10 +138,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     ];
     let push = PrimaryRays::new(&camera, aspect);
     let pipeline =
-        RayPipeline::new(&vk, &mut allocator, RAYGEN, MISS, &bindings, size_of::<PrimaryRays>() as u32)?;
+        RayPipeline::new(&vk, &allocator, RAYGEN, MISS, &bindings, size_of::<PrimaryRays>() as u32)?;
     let mask = StorageImage::new(
         &vk,
-        &mut allocator,
+        &allocator,
         vk::Format::R8G8B8A8_UNORM,
         vk::ImageUsageFlags::TRANSFER_SRC,
         extent,
@@ -152,6 +153,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let hits = HostBuffer::new(&vk, pixels * 4, vk::BufferUsageFlags::TRANSFER_DST)?;
     let coverage = HostBuffer::new(&vk, pixels * 16, vk::BufferUsageFlags::TRANSFER_DST)?;
     let timestamps = Timestamps::new(&vk)?;
+    // The trace's command buffer, made after everything the trace uses: an early return drops it
+    // first, and its Drop waits for the trace before any of those is destroyed.
+    let commands = Commands::new(&vk)?;
     let textures = gbuffers.textures();
     // As in chapter 05: copied from, then given back as attachments (GENERAL on the host path).
     let layouts =
@@ -174,7 +178,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let wait = handoff.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
     commands.submit(&vk, wait, handoff.vulkan_signals())?;
     handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
     if let Some(t) = &timestamps {
         report.time_ms("trace_gpu", t.read_ms(&vk)?);
     }
@@ -182,7 +186,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut times = PassTimes::new();
     gl_timer.finish(gl, &mut times);
     times.record(report);
-    gl_timer.delete(gl);
 
     // 7. Compare what the rays hit with what GL covered
     // ANCHOR: compare
@@ -240,19 +243,20 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
-    if let Some(t) = timestamps {
-        t.destroy(&vk);
-    }
-    coverage.destroy(&vk);
-    hits.destroy(&vk);
-    mask.destroy(&vk, &mut allocator);
-    pipeline.destroy(&vk, &mut allocator);
-    gbuffers.destroy(&vk, &gl_context);
-    structures.destroy(&vk, &mut allocator);
-    commands.destroy(&vk);
-    drop(allocator); // gpu-allocator frees its memory blocks: before the device goes
-    buffers.destroy(&vk, &gl_context);
-    handoff.destroy(&vk, &gl_context);
+    // Nothing is in flight: the trace's fence signalled, and GL's acquire followed it.
+    drop(commands);
+    drop(timestamps);
+    drop(coverage);
+    drop(hits);
+    drop(mask); // view and image, then its memory goes back to the allocator
+    drop(pipeline); // descriptors, pipeline, layouts, then the shader binding table
+    drop(gl_timer);
+    drop(gbuffers); // GL's objects, then each image, GL's side first
+    drop(structures); // the TLAS, then the BLASes it refers to
+    // (Every allocation holds a handle to the allocator, which frees its memory blocks when the
+    // last handle goes: `allocator`, at the end of `run`, before the device. Never by hand.)
+    drop(buffers); // never from the allocator: each GL side, then Vulkan's
+    drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -10,7 +10,7 @@
 use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::commands::Timestamps;
+use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{self, GlPassTimer, PassTimes};
@@ -66,16 +66,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
-    let mut shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
-    let commands = &shared.commands;
-    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands };
+    let shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
 
     // 3. Share the G-buffers, and make the AO tracer with its shared image
     // ANCHOR: tracer
     // The ray tracer reads the G-buffers as storage images.
     let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer =
-        AoTracer::new(&vk, &gl_context, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+        AoTracer::new(&vk, &gl_context, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
     // ANCHOR_END: tracer
 
     // 4. Every frame: GL draws, Vulkan traces and accumulates, GL reads
@@ -83,6 +81,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // the next trace, which waits for the previous one's fence anyway.
     let (mut gl_timer, mut times, timestamps) =
         (GlPassTimer::new(gl)?, PassTimes::new(), Timestamps::new(&vk)?);
+    // Made after everything the traces use: an early return drops it first, and its Drop waits
+    // for the last trace before the tracer or the G-buffers are destroyed.
+    let commands = Commands::new(&vk)?;
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     let (mut trace_pending, mut rays) = (false, 0u64);
     let mut first_noise = None;
     let mut positions = Vec::new();
@@ -184,16 +186,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 6. Clean up, newest first
     // ANCHOR: cleanup
     // Once the GPU is done with the last frame: its pipeline and images must outlive the
-    // commands that use them (GL's read-back only waited for GL).
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-    if let Some(t) = timestamps {
-        t.destroy(&vk);
-    }
-    gl_timer.delete(gl);
-    tracer.destroy(&vk, &gl_context, &mut shared.allocator);
-    gbuffers.destroy(&vk, &gl_context);
-    shared.destroy(&vk, &gl_context);
-    handoff.destroy(&vk, &gl_context);
+    // commands that use them (GL's read-back only waited for GL). One wait; no guard waits.
+    vk.wait_idle()?;
+    drop(commands);
+    drop(timestamps);
+    drop(gl_timer);
+    drop(tracer); // the AO image (GL's side, then Vulkan's), then the pipeline
+    drop(gbuffers);
+    drop(shared); // the structures, then the shared buffers; the allocator with its last handle
+    drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -9,10 +9,10 @@
 //! Run: `cargo run --release --bin 08-composite` (keys: 1-6 views, +/- rays, [/] radius,
 //! B blur, P power, O overlays, Esc quits; drag to orbit, wheel to zoom).
 
-use anyhow::{Result, ensure};
+use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::commands::Timestamps;
+use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::base::window::{Key, NamedKey, Window};
@@ -148,14 +148,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
-    let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
-    let commands = &shared.commands;
-    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands };
+    let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let extent = |size: common::base::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
     let mut gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
     let mut tracer =
-        AoTracer::new(&vk, &gl_context, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+        AoTracer::new(&vk, &gl_context, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
 
     // 4. The composite pass and the overlays: GL only
     // ANCHOR: setup
@@ -172,6 +170,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // for the next frame's trace (the wait that frame makes anyway): timing adds no wait.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let timestamps = Timestamps::new(&vk)?;
+    // Made after everything the traces use: an early return drops it first, and its Drop waits
+    // for the last trace before the tracer or the G-buffers are destroyed.
+    let commands = Commands::new(&vk)?;
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     let (mut trace_pending, mut traced) = (false, 0u64);
     let mut skipped = None;
     loop {
@@ -218,13 +220,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // Every shared image is made anew at the new size, once the GPU is done with the old
             // ones (the reference sample leaked them and kept descriptors pointing at them).
             unsafe { gl.finish() };
-            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
+                .context("vkWaitForFences before a resize")?;
             size = new;
             let fresh = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
             let old = std::mem::replace(&mut gbuffers, fresh);
             tracer.resize(&vk, &gl_context, &gbuffers)?;
             composite.resize(gl, &gbuffers)?;
-            old.destroy(&vk, &gl_context);
+            drop(old); // GL's objects, then each image, GL's side first
             resizes += 1;
             if resizes == 1 {
                 // What exists after one resize must be what exists after every later one.
@@ -330,17 +333,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
-    if let Some(t) = timestamps {
-        t.destroy(&vk);
-    }
-    gl_timer.delete(gl);
-    overlays.destroy(gl);
-    composite.destroy(gl);
-    tracer.destroy(&vk, &gl_context, &mut shared.allocator);
-    gbuffers.destroy(&vk, &gl_context);
-    shared.destroy(&vk, &gl_context);
-    handoff.destroy(&vk, &gl_context);
+    vk.wait_idle()?; // once: no guard below waits
+    drop(commands);
+    drop(timestamps);
+    drop(gl_timer);
+    drop(overlays); // GL only: the lines' buffer and vertex array, the program
+    drop(composite); // GL only: its target, vertex array and program
+    drop(tracer); // the AO image (GL's side, then Vulkan's), then the pipeline
+    drop(gbuffers);
+    drop(shared); // the structures, then the shared buffers, each GL side first
+    drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -7,7 +7,7 @@
 //!
 //! Run: `cargo run --release --bin 09-animated-instances -- --frames 120`.
 
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
@@ -90,10 +90,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let handoff = Handoff::new(&vk, &gl_context)?;
     report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
+    let update_timer = Timestamps::new(&vk)?; // before `updates`, whose submissions write it
     // ANCHOR: updatable
     // As chapter 06 built it, plus ALLOW_UPDATE. Then what updating it in place needs: the
     // geometry it was built from (the shared instance buffer) and one scratch buffer for good.
-    let mut shared = RayTracedScene::with_tlas(&vk, &gl_context, &scene, TlasFlags::UPDATABLE)?;
+    let shared = RayTracedScene::with_tlas(&vk, &gl_context, &scene, TlasFlags::UPDATABLE)?;
     let instances = &shared.buffers.instances.0;
     let inputs = BuildInputs {
         handle: shared.structures.tlas.handle,
@@ -102,7 +103,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         geometry: instances_geometry(&vk, instances),
         primitives: scene.instances.len() as u32,
     };
-    let tlas = InPlace::new(&vk, &mut shared.allocator, &shared.structures.loader, inputs)?;
+    let tlas = InPlace::new(&vk, &shared.allocator, &shared.structures.loader, inputs)?;
     // The updates get a command buffer of their own, submitted before each frame's trace.
     let updates = Commands::new(&vk)?;
     // ANCHOR_END: updatable
@@ -113,7 +114,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let storage = vk::ImageUsageFlags::STORAGE;
     let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, storage)?;
     let tlas_handle = shared.structures.tlas.handle;
-    let mut tracer = AoTracer::new(&vk, &gl_context, &mut shared.allocator, tlas_handle, &gbuffers)?;
+    let mut tracer = AoTracer::new(&vk, &gl_context, &shared.allocator, tlas_handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
     let uniforms = Uniforms {
         blur_radius: 2,
@@ -124,10 +125,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         bounds: scene.bounds,
         far_depth: camera.far,
     };
-    let commands = &shared.commands;
-    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands };
-    let update_timer = Timestamps::new(&vk)?;
     let trace_timer = Timestamps::new(&vk)?;
+    // Made after everything the traces use: an early return drops it first, and its Drop waits
+    // for the last trace before the tracer or the G-buffers are destroyed.
+    let commands = Commands::new(&vk)?;
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
 
     // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
     let frames = args.common.frame_count(false);
@@ -144,7 +146,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // The previous frame's Vulkan work is done: its trace, the TLAS update submitted before
         // it, and (the trace having waited for it) GL's draw. Nothing reads the instance
         // buffer now, so the CPU may write it. (The trace's own `begin` would wait here anyway.)
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
         read_times(&vk, last_refresh.take(), &update_timer, &trace_timer, &mut times)?;
         ring.write(instances, time);
         let refresh = match args.animation.rebuild_every {
@@ -173,7 +175,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             pictures.push((frame, upright));
         }
     }
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
     read_times(&vk, last_refresh, &update_timer, &trace_timer, &mut times)?;
     gl_timer.finish(gl, &mut times);
     gl_context.check_error("the frame loop")?;
@@ -206,7 +208,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
         tracer.reset();
         tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
     };
@@ -238,18 +240,17 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[commands.fence, updates.fence], true, u64::MAX) }?;
-    for timer in [trace_timer, update_timer].into_iter().flatten() {
-        timer.destroy(&vk);
-    }
-    gl_timer.delete(gl);
-    composite.destroy(gl);
-    tracer.destroy(&vk, &gl_context, &mut shared.allocator);
-    gbuffers.destroy(&vk, &gl_context);
-    updates.destroy(&vk);
-    tlas.destroy(&vk, &mut shared.allocator);
-    shared.destroy(&vk, &gl_context);
-    handoff.destroy(&vk, &gl_context);
+    vk.wait_idle()?; // once, for the traces and the updates: no guard below waits
+    drop(gl_timer);
+    drop(commands);
+    drop((trace_timer, update_timer));
+    drop(composite);
+    drop(tracer); // the AO image (GL's side, then Vulkan's), then the pipeline
+    drop(gbuffers);
+    drop(updates); // the updates' command buffer
+    drop(tlas); // the in-place update's scratch buffer (the TLAS is `shared`'s)
+    drop(shared); // the structures, then the shared buffers, each GL side first
+    drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -7,7 +7,7 @@
 //!
 //! Run: `cargo run --release --bin 10-vertex-animation -- --frames 60`.
 
-use anyhow::{Result, ensure};
+use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
@@ -114,7 +114,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 3. The structures: the ground's BLAS, the sphere's refittable one, an updatable TLAS
     accel::check_limits(&vk, &scene)?;
-    let mut allocator = accel::allocator(&vk)?;
+    let allocator = accel::allocator(&vk)?;
     let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
     // ANCHOR: structures
     use vk::BuildAccelerationStructureFlagsKHR as Flags;
@@ -127,9 +127,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let geometry = accel::triangles_geometry(&vk, mesh, &vertices.0, &indices.0);
         let triangles = mesh.indices.len() as u32 / 3;
         let bytes = accel::structure_size(&loader, bottom, flags, &geometry, triangles);
-        let blas = AccelerationStructure::new(&vk, &loader, &mut allocator, bottom, flags, bytes)?;
+        let blas = AccelerationStructure::new(&vk, &loader, &allocator, bottom, flags, bytes)?;
         let inputs = BuildInputs { handle: blas.handle, ty: bottom, flags, geometry, primitives: triangles };
-        let in_place = InPlace::new(&vk, &mut allocator, &loader, inputs)?;
+        let in_place = InPlace::new(&vk, &allocator, &loader, inputs)?;
         accel::set_blas_address(&buffers.instances.0, blases.len(), blas.address);
         blases.push((blas, in_place));
     }
@@ -137,9 +137,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let tlas_flags = accel::TlasFlags::UPDATABLE.0;
     let geometry = accel::instances_geometry(&vk, &buffers.instances.0);
     let bytes = accel::structure_size(&loader, top, tlas_flags, &geometry, 2);
-    let tlas = AccelerationStructure::new(&vk, &loader, &mut allocator, top, tlas_flags, bytes)?;
+    let tlas = AccelerationStructure::new(&vk, &loader, &allocator, top, tlas_flags, bytes)?;
     let inputs = BuildInputs { handle: tlas.handle, ty: top, flags: tlas_flags, geometry, primitives: 2 };
-    let tlas_in_place = InPlace::new(&vk, &mut allocator, &loader, inputs)?;
+    let tlas_in_place = InPlace::new(&vk, &allocator, &loader, inputs)?;
     // ANCHOR_END: structures
 
     // 4. The compute pipeline, the rest directions, the G-buffers, the tracer, the composite
@@ -149,14 +149,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let rest_directions: Vec<[f32; 4]> = directions.iter().map(|d| d.extend(0.0).to_array()).collect();
     let rest_bytes = (rest_directions.len() * size_of::<[f32; 4]>()) as u64;
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
-    let mut rest = DeviceBuffer::new(
-        &vk,
-        &mut allocator,
-        "rest directions",
-        rest_bytes,
-        storage,
-        MemoryLocation::CpuToGpu,
-    )?;
+    let mut rest =
+        DeviceBuffer::new(&vk, &allocator, "rest directions", rest_bytes, storage, MemoryLocation::CpuToGpu)?;
     let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
     mapped[..rest_bytes as usize].copy_from_slice(common::scene::gbuffer::as_bytes(&rest_directions));
     let mut wave = Wave {
@@ -170,7 +164,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         speed: 4.0,
     };
     let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
-    let mut tracer = AoTracer::new(&vk, &gl_context, &mut allocator, tlas.handle, &gbuffers)?;
+    let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, tlas.handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
     let uniforms = Uniforms {
         blur_radius: 2,
@@ -181,10 +175,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         bounds: scene.bounds,
         far_depth: camera.far,
     };
-    let (commands, animation) = (Commands::new(&vk)?, Commands::new(&vk)?);
-    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     let animation_timer = Timestamps::with_count(&vk, 4)?;
     let trace_timer = Timestamps::new(&vk)?;
+    // Made after everything their submissions use: an early return drops them first, and each
+    // one's Drop waits for its last submission before any of that is destroyed.
+    let (commands, animation) = (Commands::new(&vk)?, Commands::new(&vk)?);
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
 
     // 5. Every frame: move the vertices, refit, update, draw, trace, composite
     let frames = args.common.frame_count(false);
@@ -251,7 +247,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             pictures.push((frame, output::flip_rows(&composite.read(gl), extent.width, extent.height)));
         }
     }
-    unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }.context("vkWaitForFences")?;
     if let (Some(done), Some(timer)) = (animated, &animation_timer) {
         sphere::add_times(&vk, timer, done, &mut times)?;
     }
@@ -268,7 +264,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("workgroup_size", sphere::WORKGROUP);
 
     // 6. Check the vertices, the occlusion, the motion; write the frames
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
     let moved = &buffers.meshes[1][0].0;
     // SAFETY: `count` vertices of the coherent mapping; the GPU is done with them (fence above).
     let gpu =
@@ -286,7 +282,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let rays =
             AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
         tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }?;
+        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
         let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
         Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
     };
@@ -330,28 +326,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[commands.fence, animation.fence], true, u64::MAX) }?;
-    for timer in [trace_timer, animation_timer].into_iter().flatten() {
-        timer.destroy(&vk);
-    }
-    animation.destroy(&vk);
-    commands.destroy(&vk);
-    gl_timer.delete(gl);
-    composite.destroy(gl);
-    tracer.destroy(&vk, &gl_context, &mut allocator);
-    gbuffers.destroy(&vk, &gl_context);
-    rest.destroy(&vk, &mut allocator);
-    pipeline.destroy(&vk);
-    tlas_in_place.destroy(&vk, &mut allocator);
-    tlas.destroy(&vk, &loader, &mut allocator);
-    for (blas, in_place) in blases.into_iter().rev() {
-        in_place.destroy(&vk, &mut allocator);
-        blas.destroy(&vk, &loader, &mut allocator);
-    }
-    drop(allocator);
-    drop(vertices); // its two semaphores, GL's side first
-    buffers.destroy(&vk, &gl_context);
-    handoff.destroy(&vk, &gl_context);
+    vk.wait_idle()?; // once, for the animation and the traces: no guard below waits
+    drop((animation, commands));
+    drop(gl_timer);
+    drop((trace_timer, animation_timer));
+    drop(composite);
+    drop(tracer); // the AO image (GL's side, then Vulkan's), then the pipeline
+    drop(gbuffers);
+    drop(rest); // the buffer, then its memory, back to the allocator
+    drop(pipeline);
+    drop(tlas_in_place); // its scratch buffer
+    drop(tlas); // before the BLASes it refers to
+    drop(blases); // each BLAS, then its scratch buffer
+    // (Each allocation held a handle to `allocator`, which frees its memory blocks with the
+    // last one, at the end of `run`: before the device, never by hand.)
+    drop(vertices); // its two semaphores, if any: GL's side first
+    drop(buffers); // each GL side, then Vulkan's
+    drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

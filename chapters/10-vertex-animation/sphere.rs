@@ -6,6 +6,7 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
 use common::base::commands::Timestamps;
+use common::base::fail;
 use common::base::timing::PassTimes;
 use common::interop::handoff::{Handoff, SharedSemaphore};
 use common::rt::accel::{AccelerationStructure, InPlace, Refresh};
@@ -89,37 +90,27 @@ pub struct WavePipeline {
 
 impl WavePipeline {
     pub fn new(vk: &VulkanContext) -> Result<Self> {
-        let code = ash::util::read_spv(&mut std::io::Cursor::new(SHADER)).context("reading the SPIR-V")?;
-        let module = unsafe {
-            vk.device.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
-        }
-        .context("vkCreateShaderModule")?;
+        // The guard exists before its first object: a failure half-way destroys what was made.
+        let null = (vk::PipelineLayout::null(), vk::Pipeline::null());
+        let mut this = WavePipeline { layout: null.0, pipeline: null.1, device: vk.device.clone() };
+        let module = common::base::compute::shader_module(vk, SHADER, "wave")?;
         let range = vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::COMPUTE)
             .size(size_of::<Wave>() as u32);
         let layout_info =
             vk::PipelineLayoutCreateInfo::default().push_constant_ranges(std::slice::from_ref(&range));
-        let layout = match unsafe { vk.device.create_pipeline_layout(&layout_info, None) } {
-            Ok(layout) => layout,
-            Err(error) => {
-                unsafe { vk.device.destroy_shader_module(module, None) };
-                return Err(error).context("vkCreatePipelineLayout");
-            }
-        };
+        this.layout = fail::call("vkCreatePipelineLayout for the wave", || unsafe {
+            vk.device.create_pipeline_layout(&layout_info, None)
+        })?;
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(module)
+            .module(module.module)
             .name(c"main");
-        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout);
-        let created = unsafe { vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
-        unsafe { vk.device.destroy_shader_module(module, None) };
-        match created {
-            Ok(pipelines) => Ok(WavePipeline { layout, pipeline: pipelines[0], device: vk.device.clone() }),
-            Err((_, error)) => {
-                unsafe { vk.device.destroy_pipeline_layout(layout, None) };
-                Err(error).context("vkCreateComputePipelines")
-            }
-        }
+        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(this.layout);
+        this.pipeline = fail::call("vkCreateComputePipelines for the wave", || unsafe {
+            vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None).map_err(|(_, e)| e)
+        })?[0];
+        Ok(this) // `module` is dropped: the pipeline keeps what it needs
     }
 
     /// Records the dispatch: one invocation per vertex, in workgroups of [`WORKGROUP`].
@@ -131,17 +122,12 @@ impl WavePipeline {
             vk.device.cmd_dispatch(cb, wave.count.div_ceil(WORKGROUP), 1, 1);
         }
     }
-
-    /// The pipeline, then its layout (what dropping it does). The GPU must be done with it.
-    pub fn destroy(self, _vk: &VulkanContext) {
-        drop(self);
-    }
 }
 
 impl Drop for WavePipeline {
+    /// The pipeline, then its layout. The GPU must be done with it.
     fn drop(&mut self) {
         unsafe {
-            let _ = self.device.device_wait_idle(); // after an early return, work may be in flight
             self.device.destroy_pipeline(self.pipeline, None);
             self.device.destroy_pipeline_layout(self.layout, None);
         }

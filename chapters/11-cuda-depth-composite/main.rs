@@ -13,6 +13,7 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
+use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::interop::cuda::CudaDevice;
 use common::interop::exportable::{self, Dedicated, ExportableMemory, HANDLE_TYPE};
@@ -151,7 +152,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // After CUDA started: its driver keeps files of its own open (/dev/nvidia*) until the
     // process exits. The fds this chapter shares must all be closed again by step 8.
-    let fds_before = open_fds()?;
+    let fds_before = common::base::resources::open_fds();
 
     // Steps 4 to 7 put what they make in `made`; step 8 frees whatever is there, after success
     // or failure alike (CUDA must let go of GL's and Vulkan's memory before they free it).
@@ -161,7 +162,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: path1
         let pbo = made.pbo.insert(PixelBuffer::new(gl, width, height)?);
         if let Some(t) = &tracer {
-            made.registered = Some(RegisteredPbo::new(t, pbo.pbo)?);
+            made.registered = Some(RegisteredPbo::new(t, *pbo.pbo)?);
         }
         // ANCHOR_END: path1
 
@@ -172,7 +173,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             .size(bytes)
             .usage(vk::BufferUsageFlags::STORAGE_BUFFER)
             .push_next(&mut external);
-        let buffer = *made.buffer.insert(unsafe { vk.device.create_buffer(&buffer_info, None) }?);
+        let buffer = *made.buffer.insert(fail::call("vkCreateBuffer (exportable)", || unsafe {
+            vk.device.create_buffer(&buffer_info, None)
+        })?);
         let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
         // CUDA writes it from the GPU: device-local. The CPU tracer writes it through a mapping.
         let properties = match tracer {
@@ -191,7 +194,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let shared = made.shared.insert(interop::import_buffer(&gl_context, memory, fd, bytes)?);
         if tracer.is_none() {
             let flags = vk::MemoryMapFlags::empty();
-            made.mapped = Some(unsafe { vk.device.map_memory(memory.memory, 0, bytes, flags) }?);
+            made.mapped = Some(fail::call("vkMapMemory", || unsafe {
+                vk.device.map_memory(memory.memory, 0, bytes, flags)
+            })?);
         }
         // ANCHOR_END: path2
 
@@ -247,7 +252,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
             // 7. Check what this path drew
             let (source, buffer) = match path {
-                Path::Pbo => (Source::Textures(pbo), pbo.pbo),
+                Path::Pbo => (Source::Textures(pbo), *pbo.pbo),
                 Path::ZeroCopy => (Source::Buffer(shared.buffer), shared.buffer),
             };
             let traced = check::read_buffer(gl, buffer, bytes);
@@ -273,8 +278,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    let cleaned = made.destroy(&vk, &gl_context, tracer.as_ref());
-    let fds_after = open_fds()?;
+    let cleaned = made.destroy(&vk, tracer.as_ref());
+    let fds_after = common::base::resources::open_fds();
     let released = tracer.map_or(Ok(()), CudaTracer::destroy);
     // ANCHOR_END: cleanup
     outcome?;
@@ -289,20 +294,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     report.check("no_fd_leaked", leaked.is_empty() && fds_after.len() == fds_before.len());
     Ok(())
-}
-
-/// This process's open fds, each as "number -> what it is" (from /proc/self/fd), so that a
-/// leak names its file.
-fn open_fds() -> Result<Vec<String>> {
-    let mut fds = Vec::new();
-    for entry in std::fs::read_dir("/proc/self/fd").context("listing /proc/self/fd")? {
-        let path = entry?.path();
-        // The directory listing's own fd is gone by the time it is read: skip what vanished.
-        if let Ok(target) = std::fs::read_link(&path) {
-            fds.push(format!("{} -> {}", path.file_name().unwrap().to_string_lossy(), target.display()));
-        }
-    }
-    Ok(fds)
 }
 
 // ANCHOR: made
@@ -322,23 +313,19 @@ struct Made {
 impl Made {
     /// Frees what exists, newest first, once CUDA and GL are idle; every step runs even after
     /// one fails, and the first failure is returned.
-    fn destroy(self, vk: &VulkanContext, gl: &GlContext, tracer: Option<&CudaTracer>) -> Result<()> {
+    fn destroy(self, vk: &VulkanContext, tracer: Option<&CudaTracer>) -> Result<()> {
         let mut first_error = tracer.map_or(Ok(()), CudaTracer::synchronize);
         let mut keep = |result: Result<()>| {
             if let (Ok(()), Err(error)) = (&first_error, result) {
                 first_error = Err(error);
             }
         };
-        if let Some(composite) = self.composite {
-            composite.destroy(&gl.gl);
-        }
+        drop(self.composite); // GL only
         if let (Some(memory), Some(_)) = (&self.memory, self.mapped) {
             unsafe { vk.device.unmap_memory(memory.memory) };
         }
         // GL's import and CUDA's, before Vulkan frees the memory under them.
-        if let Some(shared) = self.shared {
-            shared.delete(gl);
-        }
+        drop(self.shared); // the GL buffer, then its memory object
         if let Some(imported) = self.imported {
             keep(imported.destroy());
         }
@@ -346,16 +333,13 @@ impl Made {
             unsafe { vk.device.destroy_buffer(buffer, None) };
         }
         if let Some(memory) = self.memory {
-            unsafe { vk.device.free_memory(memory.memory, None) };
-            common::base::resources::destroyed("vk_memory_exportable");
+            unsafe { vk.device.free_memory(memory.memory, None) }; // and (dropped) its count
         }
         // CUDA's registration, before GL deletes the buffer it names.
         if let Some(registered) = self.registered {
             keep(registered.destroy());
         }
-        if let Some(pbo) = self.pbo {
-            pbo.destroy(&gl.gl);
-        }
+        drop(self.pbo); // the textures, then the buffer
         first_error
     }
 }

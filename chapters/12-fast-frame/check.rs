@@ -4,7 +4,7 @@
 
 use crate::composite::{ComputeComposite, Uniforms, View};
 use crate::visibility::Targets;
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use common::Report;
 use common::base::output;
 use common::frame::{Overlays, shows_colour};
@@ -52,7 +52,7 @@ pub fn read_picture(gl: &glow::Context, targets: &Targets) -> Vec<u8> {
     let mut pixels = vec![0u8; w as usize * h as usize * 4];
     unsafe {
         gl.pixel_store_i32(glow::PACK_ALIGNMENT, 1);
-        gl.bind_texture(glow::TEXTURE_2D, Some(targets.picture));
+        gl.bind_texture(glow::TEXTURE_2D, Some(*targets.picture));
         let data = glow::PixelPackData::Slice(Some(&mut pixels));
         gl.get_tex_image(glow::TEXTURE_2D, 0, glow::RGBA, glow::UNSIGNED_BYTE, data);
         gl.bind_texture(glow::TEXTURE_2D, None);
@@ -279,7 +279,7 @@ impl Chapter08 {
 #[allow(clippy::too_many_arguments)] // the APIs, the scene's three parts, and the frame to repeat
 pub fn trace_chapter_08(
     apis: Apis,
-    allocator: &mut gpu_allocator::vulkan::Allocator,
+    allocator: &common::rt::accel::GpuAllocator,
     (buffers, tlas): (&common::scene::gbuffer::SceneBuffers, ash::vk::AccelerationStructureKHR),
     scene: &common::scene::Scene,
     camera: &Camera,
@@ -294,6 +294,10 @@ pub fn trace_chapter_08(
     let gbuffers = GBuffers::new(vk, gl, buffers, extent, storage)?;
     gbuffers.draw(&gl.gl, scene, camera);
     let mut tracer = AoTracer::new(vk, gl, allocator, tlas, &gbuffers)?;
+    // Its own command buffer, made after what it traces with: dropped first on an early return,
+    // it waits for its last trace before `tracer` and `gbuffers` go.
+    let commands = common::base::commands::Commands::new(vk)?;
+    let apis = Apis { commands: &commands, ..apis };
     let scene_scale = scene.size() / 2.0;
     if per_frame == 0 || total == 0 || radius == 0.0 {
         tracer.fill_unoccluded(vk, gl)?;
@@ -309,8 +313,9 @@ pub fn trace_chapter_08(
     let ids = read_ids(&gl.gl, targets);
     let subpixel_bits = unsafe { gl.gl.get_parameter_i32(glow::SUBPIXEL_BITS) }.clamp(1, 16) as u32;
     unsafe { gl.gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[apis.commands.fence], true, u64::MAX) }?;
-    tracer.destroy(vk, gl, allocator);
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    drop(commands);
+    drop(tracer);
     drop(gbuffers);
     Ok(Chapter08 { positions, visibility, ids, subpixel_bits })
 }

@@ -41,16 +41,16 @@ pub struct Uniforms {
     pub far_depth: f32,
 }
 
+/// Deleted when dropped (its program).
 pub struct ComputeComposite {
-    program: glow::Program,
-    gl: Rc<glow::Context>,
+    program: common::base::gl::Owned<glow::Program>,
 }
 
 impl ComputeComposite {
     pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
         let program = common::base::gl::compute_program(gl, COMPUTE_SHADER)
             .context("the composite's compute shader")?;
-        Ok(ComputeComposite { program, gl: gl.clone() })
+        Ok(ComputeComposite { program })
     }
 
     // ANCHOR: dispatch
@@ -59,10 +59,10 @@ impl ComputeComposite {
     pub fn draw(&self, gl: &glow::Context, targets: &Targets, u: &Uniforms) {
         let (width, height) = (targets.extent.width, targets.extent.height);
         unsafe {
-            gl.use_program(Some(self.program));
+            gl.use_program(Some(*self.program));
             gl.bind_texture_unit(0, Some(targets.surface.texture.texture));
-            gl.bind_image_texture(0, Some(targets.picture), 0, false, 0, glow::WRITE_ONLY, glow::RGBA8);
-            let at = |name| gl.get_uniform_location(self.program, name);
+            gl.bind_image_texture(0, Some(*targets.picture), 0, false, 0, glow::WRITE_ONLY, glow::RGBA8);
+            let at = |name| gl.get_uniform_location(*self.program, name);
             gl.uniform_1_i32(at("blur_radius").as_ref(), u.blur_radius);
             gl.uniform_1_f32(at("depth_tolerance").as_ref(), u.depth_tolerance);
             gl.uniform_1_f32(at("normal_tolerance").as_ref(), u.normal_tolerance);
@@ -76,10 +76,4 @@ impl ComputeComposite {
         }
     }
     // ANCHOR_END: dispatch
-}
-
-impl Drop for ComputeComposite {
-    fn drop(&mut self) {
-        unsafe { self.gl.delete_program(self.program) };
-    }
 }

@@ -12,6 +12,7 @@ use crate::visibility::{MeshIds, VisibilityPass};
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::GlContext;
+use common::base::gl::{Owned, create};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::scene::gbuffer::SceneBuffers;
 use common::scene::{Camera, Scene};
@@ -21,49 +22,41 @@ use std::rc::Rc;
 const NORMAL_DEPTH: &str = include_str!("../../shaders/gl/normal_depth.frag");
 
 /// An unsigned integer colour texture of `format` and a depth buffer, as one framebuffer.
+/// Deleted when dropped (the framebuffer first).
 struct Layout {
-    colour: glow::Texture,
-    depth: glow::Renderbuffer,
-    framebuffer: glow::Framebuffer,
+    framebuffer: Owned<glow::Framebuffer>,
+    _depth: Owned<glow::Renderbuffer>, // held to be deleted after the framebuffer
+    colour: Owned<glow::Texture>,
     gl: Rc<glow::Context>,
 }
 
 impl Layout {
     fn new(gl: &Rc<glow::Context>, format: u32, extent: vk::Extent2D) -> Result<Self> {
         let (w, h) = (extent.width as i32, extent.height as i32);
+        let colour = create(gl, "glCreateTextures for a layout", |gl| unsafe {
+            gl.create_named_texture(glow::TEXTURE_2D)
+        })?;
+        let depth =
+            create(gl, "glCreateRenderbuffers for a layout", |gl| unsafe { gl.create_renderbuffer() })?;
+        let framebuffer =
+            create(gl, "glCreateFramebuffers for a layout", |gl| unsafe { gl.create_named_framebuffer() })?;
+        let (c, d, f) = (*colour, *depth, *framebuffer);
+        // Each is owned from creation: a failure below drops `layout`, which deletes all three.
+        let layout = Layout { framebuffer, _depth: depth, colour, gl: gl.clone() };
         unsafe {
-            let colour = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
-            let depth = gl.create_renderbuffer().map_err(anyhow::Error::msg);
-            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg);
-            let (depth, framebuffer) = match (depth, framebuffer) {
-                (Ok(depth), Ok(framebuffer)) => (depth, framebuffer),
-                (depth, framebuffer) => {
-                    depth.into_iter().for_each(|d| gl.delete_renderbuffer(d));
-                    framebuffer.into_iter().for_each(|f| gl.delete_framebuffer(f));
-                    gl.delete_texture(colour);
-                    anyhow::bail!("creating a layout's framebuffer failed");
-                }
-            };
-            // From here on, dropping `layout` deletes all three.
-            let layout = Layout { colour, depth, framebuffer, gl: gl.clone() };
-            gl.texture_storage_2d(colour, 1, format, w, h);
-            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
+            gl.texture_storage_2d(c, 1, format, w, h);
+            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(d));
             gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, w, h);
             gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-            gl.named_framebuffer_texture(Some(framebuffer), glow::COLOR_ATTACHMENT0, Some(colour), 0);
-            gl.named_framebuffer_renderbuffer(
-                Some(framebuffer),
-                glow::DEPTH_ATTACHMENT,
-                glow::RENDERBUFFER,
-                Some(depth),
-            );
-            let status = gl.check_named_framebuffer_status(Some(framebuffer), glow::FRAMEBUFFER);
+            gl.named_framebuffer_texture(Some(f), glow::COLOR_ATTACHMENT0, Some(c), 0);
+            gl.named_framebuffer_renderbuffer(Some(f), glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER, Some(d));
+            let status = gl.check_named_framebuffer_status(Some(f), glow::FRAMEBUFFER);
             ensure!(
                 status == glow::FRAMEBUFFER_COMPLETE,
                 "a layout's framebuffer is incomplete: {status:#x}"
             );
-            Ok(layout)
         }
+        Ok(layout)
     }
 
     /// The last of `channels` channels of every pixel (the id; the depth), in memory order.
@@ -74,22 +67,12 @@ impl Layout {
         unsafe {
             self.gl.pixel_store_i32(glow::PACK_ALIGNMENT, 4);
             let bytes = std::slice::from_raw_parts_mut(words.as_mut_ptr().cast::<u8>(), words.len() * 4);
-            self.gl.bind_texture(glow::TEXTURE_2D, Some(self.colour));
+            self.gl.bind_texture(glow::TEXTURE_2D, Some(*self.colour));
             let data = glow::PixelPackData::Slice(Some(bytes));
             self.gl.get_tex_image(glow::TEXTURE_2D, 0, format, glow::UNSIGNED_INT, data);
             self.gl.bind_texture(glow::TEXTURE_2D, None);
         }
         words.chunks(channels).map(|c| c[channels - 1]).collect()
-    }
-}
-
-impl Drop for Layout {
-    fn drop(&mut self) {
-        unsafe {
-            self.gl.delete_framebuffer(self.framebuffer);
-            self.gl.delete_renderbuffer(self.depth);
-            self.gl.delete_texture(self.colour);
-        }
     }
 }
 
@@ -112,7 +95,7 @@ pub fn measure(gl: &GlContext, f: Frame, rounds: u32) -> Result<(f64, f64, usize
     let mut timer = GlPassTimer::new(g)?;
     let mut times = PassTimes::new();
     for _ in 0..rounds {
-        let at = |t: &Layout| (t.framebuffer, f.extent);
+        let at = |t: &Layout| (*t.framebuffer, f.extent);
         timer.time(g, "ids", || f.visibility.draw_into(g, at(&targets[0]), f.scene, f.ids, f.camera))?;
         timer.time(g, "normal_depth", || {
             normal_depth.draw_into(g, at(&targets[1]), f.scene, f.ids, f.camera)

@@ -9,11 +9,11 @@
 //! Run: `cargo run --release --bin 12-fast-frame` (keys: 1-5 views, +/- rays, [/] radius,
 //! B blur, P power, O overlays, T sample pattern, Esc quits; drag to orbit, wheel to zoom).
 
-use anyhow::{Result, ensure};
+use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::cli::Size;
 use common::base::cli::Smallest;
-use common::base::commands::Timestamps;
+use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::{self, Timeline};
 use common::base::timing::{GlPassTimer, PassTimes};
@@ -102,7 +102,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
 
     // 3. The shared scene and its structures (chapters 05-06), every triangle numbered
-    let mut shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
+    let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let ids = visibility::number_triangles(&vk, &scene, &shared.buffers)?;
     let extent = |size: Size| vk::Extent2D { width: size.width, height: size.height };
 
@@ -110,7 +110,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: setup
     let mut targets = Targets::new(&vk, &gl_context, extent(size))?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
-    let mut tracer = SurfaceTracer::new(&vk, &mut shared, &ids, &targets)?;
+    let mut tracer = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
     let composite = ComputeComposite::new(gl)?;
     let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
     // ANCHOR_END: setup
@@ -126,6 +126,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         (_, Some(_)) => Some(Timeline::new(gl, args.timeline.min(frame_limit), ["ids", "composite"])?),
         (_, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", vk.info.name),
     };
+    // Made after everything the frames use: an early return drops it first, and its Drop waits
+    // for the last frame's Vulkan work before any of that is destroyed.
+    let commands = Commands::new(&vk)?;
     let skipped = common::rt::ao::nothing_to_trace(settings.samples, settings.radius);
     if let Some(reason) = skipped {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
@@ -169,7 +172,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if let Some(new) = new_size {
             // Every image of the old size goes, once neither API uses it; the rest stays.
             unsafe { gl.finish() };
-            unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
+            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
+                .context("vkWaitForFences before a resize")?;
             size = new;
             drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, extent(size))?));
             tracer.resized(&vk, &targets);
@@ -193,12 +197,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let rays = settings.rays(samples, scene.size() / 2.0);
             if let Some(traced) = trace_pending.take() {
                 let stamps = timestamps.as_ref();
-                common::base::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
+                common::base::timing::read_after(&vk, commands.fence, stamps, "ao_trace", &mut times)?;
                 if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
                     t.trace_done(&vk, slot, stamps)?;
                 }
             }
-            let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &shared.commands };
+            let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
             tracer.trace(apis, &targets, &camera, rays, timestamps.as_ref())?;
             trace_pending = timestamps.is_some().then_some(slot);
         }
@@ -223,7 +227,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     if let Some(traced) = trace_pending {
         let stamps = timestamps.as_ref();
-        common::base::timing::read_after(&vk, shared.commands.fence, stamps, "ao_trace", &mut times)?;
+        common::base::timing::read_after(&vk, commands.fence, stamps, "ao_trace", &mut times)?;
         if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
             t.trace_done(&vk, slot, stamps)?;
         }
@@ -232,7 +236,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let (Some(t), Some(stamps)) = (timeline.take(), &timestamps) {
         unsafe { gl.finish() };
         let out = args.common.out_dir(CHAPTER).join("timeline");
-        report.set("timeline", t.finish(&vk, &shared.commands, stamps, &out)?);
+        report.set("timeline", t.finish(&vk, &commands, stamps, &out)?);
     }
     times.record(report);
     gl_context.check_error("the frame loop")?;
@@ -244,7 +248,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
     let (accumulated, scene_scale) = (tracer.accumulated, scene.size() / 2.0);
     let rays = settings.rays(if skipped.is_some() { 0 } else { settings.samples }, scene_scale);
-    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &shared.commands };
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     if args.overlap_rounds > 0 {
         let probe = overlap::Probe {
             visibility: &visibility,
@@ -280,7 +284,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if args.vulkan_composite_rounds > 0 {
         let (u, rounds) = (settings::uniforms(&settings, &camera), args.vulkan_composite_rounds);
         let passes = (&targets, &composite);
-        let (ms, differs) = vk_composite::compare(apis, &mut shared.allocator, passes, &u, rounds)?;
+        let (ms, differs) = vk_composite::compare(apis, &shared.allocator, passes, &u, rounds)?;
         report.set("composite_vulkan_compute_ms_median", ms);
         report.set("composite_vulkan_largest_difference", differs);
         // The same code, compiled by two drivers: rounding may differ (as the CPU check allows).
@@ -326,7 +330,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let rays = (rays.samples, accumulated, settings.radius);
     let parts = (&shared.buffers, shared.structures.tlas.handle);
     let chapter_08 =
-        check::trace_chapter_08(apis, &mut shared.allocator, parts, &scene, &camera, &targets, rays)?;
+        check::trace_chapter_08(apis, &shared.allocator, parts, &scene, &camera, &targets, rays)?;
     chapter_08.compare(&surface, per_pixel.as_ref(), report);
     report.set("samples_per_pixel", accumulated);
     report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());
@@ -338,16 +342,18 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
+    vk.wait_idle()?; // once: no guard below waits
+    drop(commands);
+    drop(timeline);
     drop(timestamps);
     drop(gl_timer);
     drop(overlays);
     drop(composite);
-    tracer.destroy(&vk, &mut shared.allocator);
+    drop(tracer); // the pipeline, then the mesh table
     drop(visibility);
     drop(targets);
-    shared.destroy(&vk, &gl_context);
-    handoff.destroy(&vk, &gl_context);
+    drop(shared); // the structures, then the shared buffers, each GL side first
+    drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", open_fd_count()? == open_fds_before);

@@ -13,7 +13,6 @@ use common::rt::accel::DeviceBuffer;
 use common::rt::raytrace::{RayPipeline, push_bytes};
 use common::scene::Camera;
 use gpu_allocator::MemoryLocation;
-use gpu_allocator::vulkan::Allocator;
 
 const RAYGEN: &[u8] = include_bytes!("../../shaders/visibility_ao.rgen.spv");
 const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
@@ -94,7 +93,8 @@ impl Pattern {
 }
 // ANCHOR_END: pattern
 
-/// The pipeline, the mesh table it reads, and how far the running mean has got.
+/// The pipeline, the mesh table it reads, and how far the running mean has got. Dropped, the
+/// pipeline goes, then the mesh table; the GPU must be done with both.
 pub struct SurfaceTracer {
     pipeline: RayPipeline,
     meshes: DeviceBuffer,
@@ -109,7 +109,7 @@ pub struct SurfaceTracer {
 impl SurfaceTracer {
     pub fn new(
         vk: &VulkanContext,
-        shared: &mut RayTracedScene,
+        shared: &RayTracedScene,
         ids: &[MeshIds],
         targets: &Targets,
     ) -> Result<Self> {
@@ -126,7 +126,7 @@ impl SurfaceTracer {
             binding(1, vk::DescriptorType::STORAGE_IMAGE), // the ids, from GL
             binding(2, vk::DescriptorType::STORAGE_IMAGE), // the surface, for GL
         ];
-        let allocator = &mut shared.allocator;
+        let allocator = &shared.allocator;
         let pipeline =
             RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<SurfaceRays>() as u32)?;
         pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
@@ -295,12 +295,6 @@ impl SurfaceTracer {
             self.trace(apis, targets, camera, rays, None)?;
         }
         Ok(())
-    }
-
-    /// The mesh table, then the pipeline (the GPU must be done with both).
-    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
-        self.meshes.destroy(vk, allocator);
-        self.pipeline.destroy(vk, allocator);
     }
 }
 

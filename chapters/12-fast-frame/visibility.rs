@@ -4,12 +4,12 @@
 
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
+use common::base::gl::{Owned, create};
 use common::interop::SharedImage;
 use common::scene::gbuffer::SceneBuffers;
 use common::scene::{Camera, Scene};
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
-use std::rc::Rc;
 
 const VERTEX_SHADER: &str = include_str!("../../shaders/gl/visibility.vert");
 const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/visibility.frag");
@@ -63,20 +63,20 @@ pub fn number_triangles(vk: &VulkanContext, scene: &Scene, buffers: &SceneBuffer
 /// Everything of one size. GL draws ids into `visibility`; Vulkan reads them and writes
 /// `surface`; GL's compute composite reads that and writes `picture`, and the overlays are drawn
 /// over `picture`, tested against `depth`, GL's depth of the visibility pass.
+/// Dropped, GL's own objects go first, then the two shared images, each GL side first.
 pub struct Targets {
+    /// `picture` and `depth`: where the overlays are drawn.
+    pub picture_framebuffer: Owned<glow::Framebuffer>,
+    visibility_framebuffer: Owned<glow::Framebuffer>,
+    /// GL only, RGBA8: what the frame shows.
+    pub picture: Owned<glow::Texture>,
+    /// GL only: the ids' depth buffer, then the overlays'.
+    pub depth: Owned<glow::Renderbuffer>,
     /// R32UI, 4 bytes a pixel: GL's only colour output.
     pub visibility: SharedImage,
     /// RGBA32F: visibility, view depth, packed normal, albedo (visibility_ao.rgen).
     pub surface: SharedImage,
     pub extent: vk::Extent2D,
-    /// GL only: the ids' depth buffer, then the overlays'.
-    pub depth: glow::Renderbuffer,
-    /// GL only, RGBA8: what the frame shows.
-    pub picture: glow::Texture,
-    visibility_framebuffer: glow::Framebuffer,
-    /// `picture` and `depth`: where the overlays are drawn.
-    pub picture_framebuffer: glow::Framebuffer,
-    gl: Rc<glow::Context>,
 }
 // ANCHOR_END: targets
 
@@ -96,34 +96,31 @@ impl Targets {
         // ANCHOR_END: images
         let g = &gl.gl;
         let (w, h) = (extent.width as i32, extent.height as i32);
+        // Each GL object is owned from the moment it exists: a later failure deletes them.
+        let depth =
+            create(g, "glCreateRenderbuffers for the ids' depth", |g| unsafe { g.create_renderbuffer() })?
+                .counted("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * w as u64 * h as u64);
+        let picture = create(g, "glCreateTextures for the picture", |g| unsafe {
+            g.create_named_texture(glow::TEXTURE_2D)
+        })?;
+        let framebuffer = |what| create(g, what, |g| unsafe { g.create_named_framebuffer() });
+        let targets = Targets {
+            picture_framebuffer: framebuffer("glCreateFramebuffers for the picture")?,
+            visibility_framebuffer: framebuffer("glCreateFramebuffers for the ids")?,
+            picture,
+            depth,
+            visibility,
+            surface,
+            extent,
+        };
+        let (depth, picture) = (*targets.depth, *targets.picture);
+        let (visibility_framebuffer, picture_framebuffer) =
+            (*targets.visibility_framebuffer, *targets.picture_framebuffer);
         unsafe {
-            // Made one after the other into the guard, so that a later failure deletes them.
-            let depth = g.create_renderbuffer().map_err(anyhow::Error::msg).context("glGenRenderbuffers")?;
             g.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
             g.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, w, h);
             g.bind_renderbuffer(glow::RENDERBUFFER, None);
-            common::base::resources::created("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * w as u64 * h as u64);
-            let picture = g.create_named_texture(glow::TEXTURE_2D);
-            let picture = picture.map_err(anyhow::Error::msg).inspect_err(|_| delete_depth(g, depth))?;
             g.texture_storage_2d(picture, 1, glow::RGBA8, w, h);
-            let framebuffers = [g.create_named_framebuffer(), g.create_named_framebuffer()];
-            let [Ok(visibility_framebuffer), Ok(picture_framebuffer)] = framebuffers else {
-                framebuffers.into_iter().flatten().for_each(|f| g.delete_framebuffer(f));
-                g.delete_texture(picture);
-                delete_depth(g, depth);
-                anyhow::bail!("glCreateFramebuffers failed");
-            };
-            let targets = Targets {
-                visibility,
-                surface,
-                extent,
-                depth,
-                picture,
-                visibility_framebuffer,
-                picture_framebuffer,
-                gl: gl.gl.clone(),
-            };
-            // From here on, dropping `targets` deletes everything.
             let depth_attachment = |fb| {
                 g.named_framebuffer_renderbuffer(
                     Some(fb),
@@ -139,18 +136,19 @@ impl Targets {
             depth_attachment(picture_framebuffer);
             for (name, fb) in [("visibility", visibility_framebuffer), ("picture", picture_framebuffer)] {
                 let status = g.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
+                // Incomplete: dropping `targets` on the way out deletes everything.
                 ensure!(
                     status == glow::FRAMEBUFFER_COMPLETE,
                     "the {name} framebuffer is incomplete: {status:#x}"
                 );
             }
-            Ok(targets)
         }
+        Ok(targets)
     }
 
     pub fn overlay_target(&self) -> common::frame::Target {
         common::frame::Target {
-            framebuffer: self.picture_framebuffer,
+            framebuffer: *self.picture_framebuffer,
             width: self.extent.width,
             height: self.extent.height,
         }
@@ -161,7 +159,7 @@ impl Targets {
         let (w, h) = (self.extent.width as i32, self.extent.height as i32);
         unsafe {
             gl.blit_named_framebuffer(
-                Some(self.picture_framebuffer),
+                Some(*self.picture_framebuffer),
                 None,
                 0,
                 0,
@@ -178,29 +176,11 @@ impl Targets {
     }
 }
 
-unsafe fn delete_depth(gl: &glow::Context, depth: glow::Renderbuffer) {
-    unsafe { gl.delete_renderbuffer(depth) };
-    common::base::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
-}
-
-impl Drop for Targets {
-    /// GL's own objects; the two shared images then drop themselves, GL's side first.
-    fn drop(&mut self) {
-        let gl = &self.gl;
-        unsafe {
-            gl.delete_framebuffer(self.picture_framebuffer);
-            gl.delete_framebuffer(self.visibility_framebuffer);
-            gl.delete_texture(self.picture);
-            delete_depth(gl, self.depth);
-        }
-    }
-}
-
 /// The visibility pass: the program and one vertex array per mesh, over the shared buffers.
+/// Deleted when dropped.
 pub struct VisibilityPass {
-    program: glow::Program,
-    vertex_arrays: Vec<glow::VertexArray>,
-    gl: Rc<glow::Context>,
+    vertex_arrays: Vec<Owned<glow::VertexArray>>,
+    program: Owned<glow::Program>,
 }
 
 impl VisibilityPass {
@@ -217,7 +197,7 @@ impl VisibilityPass {
         let g = &gl.gl;
         let program =
             common::base::gl::program(g, VERTEX_SHADER, fragment_shader).context("the visibility program")?;
-        let mut pass = VisibilityPass { program, vertex_arrays: Vec::new(), gl: g.clone() };
+        let mut pass = VisibilityPass { vertex_arrays: Vec::new(), program };
         // Chapter 05's vertex arrays: the same buffers, read the same way.
         for [vertices, indices] in &buffers.meshes {
             let vao = unsafe {
@@ -239,7 +219,7 @@ impl VisibilityPass {
         ids: &[MeshIds],
         camera: &Camera,
     ) {
-        self.draw_into(gl, (targets.visibility_framebuffer, targets.extent), scene, ids, camera);
+        self.draw_into(gl, (*targets.visibility_framebuffer, targets.extent), scene, ids, camera);
     }
 
     /// [`VisibilityPass::draw`], into any framebuffer of an unsigned integer colour and a depth.
@@ -258,15 +238,15 @@ impl VisibilityPass {
             gl.enable(glow::DEPTH_TEST);
             gl.clear_buffer_u32_slice(glow::COLOR, 0, &[0; 4]);
             gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
-            gl.use_program(Some(self.program));
-            let uniform = |name| gl.get_uniform_location(self.program, name);
+            gl.use_program(Some(*self.program));
+            let uniform = |name| gl.get_uniform_location(*self.program, name);
             let projection = camera.projection(width as f32 / height as f32);
             gl.uniform_matrix_4_f32_slice(uniform("view").as_ref(), false, &camera.view().to_cols_array());
             gl.uniform_matrix_4_f32_slice(uniform("projection").as_ref(), false, &projection.to_cols_array());
             for ((mesh, vao), numbering) in scene.meshes.iter().zip(&self.vertex_arrays).zip(ids) {
                 gl.uniform_1_u32(uniform("first_id").as_ref(), numbering.first_id);
                 gl.uniform_1_u32(uniform("triangles").as_ref(), numbering.triangles);
-                gl.bind_vertex_array(Some(*vao));
+                gl.bind_vertex_array(Some(**vao));
                 gl.draw_elements_instanced_base_vertex_base_instance(
                     glow::TRIANGLES,
                     mesh.indices.len() as i32,
@@ -282,13 +262,4 @@ impl VisibilityPass {
         }
     }
     // ANCHOR_END: draw
-}
-
-impl Drop for VisibilityPass {
-    fn drop(&mut self) {
-        unsafe {
-            self.vertex_arrays.drain(..).for_each(|v| self.gl.delete_vertex_array(v));
-            self.gl.delete_program(self.program);
-        }
-    }
 }

@@ -9,12 +9,14 @@ use crate::composite::{ComputeComposite, Uniforms};
 use crate::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
-use common::base::commands::{HostBuffer, Timestamps, copy_image_to_buffer, first_use, transfers_to_host};
+use common::base::commands::{
+    Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, transfers_to_host,
+};
 use common::base::compute::ComputePipeline;
 use common::interop::handoff::Apis;
 use common::interop::{acquire_from_gl, release_to_gl};
+use common::rt::accel::GpuAllocator;
 use common::rt::raytrace::StorageImage;
-use gpu_allocator::vulkan::Allocator;
 
 const SPIRV: &[u8] = include_bytes!("../../shaders/fast_composite.comp.spv");
 
@@ -40,12 +42,12 @@ pub struct Measured {
 /// `rounds` dispatches of Vulkan's composite over the surface GL holds after the frames.
 pub fn measure(
     apis: Apis,
-    allocator: &mut Allocator,
+    allocator: &GpuAllocator,
     targets: &Targets,
     u: &Uniforms,
     rounds: u32,
 ) -> Result<Measured> {
-    let Apis { vk, gl, handoff, commands } = apis;
+    let Apis { vk, gl, handoff, .. } = apis;
     let extent = targets.extent;
     let push = Push {
         blur_radius: u.blur_radius,
@@ -63,6 +65,7 @@ pub fn measure(
     let read_back = HostBuffer::new(vk, bytes, vk::BufferUsageFlags::TRANSFER_DST)?;
     let stamps = Timestamps::with_count(vk, 2 * rounds)?
         .with_context(|| format!("--vulkan-composite-rounds: {} writes no timestamps", vk.info.name))?;
+    let commands = &Commands::new(vk)?; // made last: dropped first, it waits for its submission
     pipeline.write_images(vk, &[targets.surface.view, picture.view]);
 
     // The surface: GL sampled it last; Vulkan reads it as a storage image, and gives it back.
@@ -127,7 +130,7 @@ pub fn measure(
     let measured = Measured { median_ms, picture: read_back.bytes().to_vec() };
     drop(stamps);
     drop(read_back);
-    picture.destroy(vk, allocator);
+    drop(picture);
     drop(pipeline);
     Ok(measured)
 }
@@ -136,7 +139,7 @@ pub fn measure(
 /// time, and the largest difference of any channel between the two pictures (in 1/255).
 pub fn compare(
     apis: Apis,
-    allocator: &mut Allocator,
+    allocator: &GpuAllocator,
     (targets, composite): (&Targets, &ComputeComposite),
     u: &Uniforms,
     rounds: u32,

@@ -3,7 +3,7 @@
 
 use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Size;
 use common::base::commands::{Timestamps, median_p95};
@@ -60,18 +60,18 @@ pub struct Setting {
 }
 
 /// What one size needs: chapter 08's G-buffers, tracer, composite and overlays, and the round
-/// trip's buffers.
+/// trip's buffers. Dropped newest first (fields drop in order); the GPU must be done with them.
 pub struct Frame<'s> {
     pub mode: Mode,
     scene: &'s Scene,
     camera: Camera,
-    gbuffers: GBuffers,
-    tracer: AoTracer,
-    composite: Composite,
-    overlays: Overlays,
+    gl_timer: GlPassTimer,
     /// `cpu-round-trip` only.
     round_trip: Option<RoundTrip>,
-    gl_timer: GlPassTimer,
+    overlays: Overlays,
+    composite: Composite,
+    tracer: AoTracer,
+    gbuffers: GBuffers,
     uniforms: Uniforms,
 }
 
@@ -79,7 +79,7 @@ impl<'s> Frame<'s> {
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
-        shared: &mut RayTracedScene,
+        shared: &RayTracedScene,
         scene: &'s Scene,
         extent: vk::Extent2D,
         mode: Mode,
@@ -87,11 +87,11 @@ impl<'s> Frame<'s> {
         let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
         let storage = vk::ImageUsageFlags::STORAGE;
         let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, storage)?;
-        let tracer = AoTracer::new(vk, gl, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+        let tracer = AoTracer::new(vk, gl, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
         let composite = Composite::new(&gl.gl, &gbuffers)?;
         let overlays = Overlays::new(&gl.gl, scene, 0)?;
         let round_trip = match mode {
-            Mode::CpuRoundTrip => Some(RoundTrip::new(vk, gl, &mut shared.allocator, extent)?),
+            Mode::CpuRoundTrip => Some(RoundTrip::new(vk, gl, &shared.allocator, extent)?),
             _ => None,
         };
         // Chapter 08's defaults: blur radius 2, power 2, the final view.
@@ -108,12 +108,12 @@ impl<'s> Frame<'s> {
             mode,
             scene,
             camera,
-            gbuffers,
-            tracer,
-            composite,
-            overlays,
-            round_trip,
             gl_timer: GlPassTimer::new(&gl.gl)?,
+            round_trip,
+            overlays,
+            composite,
+            tracer,
+            gbuffers,
             uniforms,
         })
     }
@@ -159,7 +159,7 @@ impl<'s> Frame<'s> {
             // are queued, so the GPU has work while the CPU waits.
             if frame > 0 {
                 unsafe { g.flush() };
-                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
                 if frame > 2 {
                     samples.ao_ms.push(stamps.read_ms(vk)?);
                 }
@@ -194,7 +194,7 @@ impl<'s> Frame<'s> {
         }
         // The last frame: until both APIs are done with it.
         unsafe { g.finish() };
-        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
         samples.ao_ms.push(stamps.read_ms(vk)?);
         if let (Some(t), Some(last)) = (timeline.as_mut(), slot(count + 1)) {
             t.trace_done(vk, last, stamps)?;
@@ -240,21 +240,5 @@ impl<'s> Frame<'s> {
             })
         };
         (0..(w * h) as usize).filter(|&i| pixel_differs(i)).count() as u64
-    }
-
-    /// Newest first, once both APIs are idle.
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext, shared: &mut RayTracedScene) {
-        unsafe { gl.gl.finish() };
-        unsafe {
-            let _ = vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX);
-        }
-        self.gl_timer.delete(&gl.gl);
-        if let Some(round_trip) = self.round_trip {
-            round_trip.destroy(vk, gl, &mut shared.allocator);
-        }
-        self.overlays.destroy(&gl.gl);
-        self.composite.destroy(&gl.gl);
-        self.tracer.destroy(vk, gl, &mut shared.allocator);
-        self.gbuffers.destroy(vk, gl);
     }
 }

@@ -14,7 +14,7 @@
 use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::{Size, Smallest, parse_size};
-use common::base::commands::Timestamps;
+use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::Timeline;
 use common::interop::handoff::{Apis, Handoff};
@@ -123,7 +123,7 @@ pub struct Row {
 fn main() -> ExitCode {
     let args: Args = clap::Parser::parse();
     let mut report = Report::new("bench");
-    if let Err(error) = run(&args, &mut report) {
+    if let Err(error) = common::base::chapter::accounted(|| run(&args, &mut report)) {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
@@ -203,7 +203,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut covered_everywhere = true;
     for kind in scenes {
         let scene = kind.build(args.quick)?;
-        let mut shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
+        let shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         // What the scene's memory turned out to be (`--scene-memory device` is a preference).
         let memory = &shared.buffers.instances.0.memory;
         report.set("scene_memory_flags", format!("{:?}", memory.property_flags));
@@ -221,8 +221,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // its own layouts, from the first frame to the last.
             let mut frames = Vec::new();
             for mode in Mode::ALL {
-                frames.push(Frame::new(&vk, &gl, &mut shared, &scene, extent, mode)?);
+                frames.push(Frame::new(&vk, &gl, &shared, &scene, extent, mode)?);
             }
+            // Made after what the frames use: dropped first on an early return, it waits for
+            // the last submission before the frames go.
+            let commands = Commands::new(&vk)?;
             if args.depth_prepass {
                 depth_first_differences += frames[0].depth_first_differences(&gl.gl);
             }
@@ -237,7 +240,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                         let handoff = if frame.mode == Mode::ZeroCopy { &zero_copy } else { &host };
                         let setting =
                             Setting { spp, frames: frames_per_run, depth_prepass: args.depth_prepass };
-                        let apis = Apis { vk: &vk, gl: &gl, handoff, commands: &shared.commands };
+                        let apis = Apis { vk: &vk, gl: &gl, handoff, commands: &commands };
                         frame.run(apis, setting, &stamps, (samples, &mut None))?;
                     }
                 }
@@ -249,43 +252,45 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 rows.push(fast::row(kind, size, spp, 2 * frames_per_run, covered, &out)?);
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
-            for frame in frames.into_iter().rev() {
-                frame.destroy(&vk, &gl, &mut shared);
-            }
+            unsafe { glow::HasContext::finish(&*gl.gl) };
+            vk.wait_idle()?; // once: no guard below waits
+            drop(commands);
+            drop(frames); // each newest first: GL's objects, then the shared images
         }
-        shared.destroy(&vk, &gl);
+        drop(shared);
     }
     if args.timeline > 0 {
         // Chapter 08's frame and chapter 12's, each on one clock: the last frames of as many as
         // a row measures, on the default scene at the ablation's setting.
         let (size, spp) = ablation_setting(&sizes, &spps);
         let scene = SceneKind::Default.build(args.quick)?;
-        let mut shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
+        let shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         let extent = vk::Extent2D { width: size.width, height: size.height };
-        let mut frame = Frame::new(&vk, &gl, &mut shared, &scene, extent, Mode::ZeroCopy)?;
+        let mut frame = Frame::new(&vk, &gl, &shared, &scene, extent, Mode::ZeroCopy)?;
         let mut timeline = Some(Timeline::new(&gl.gl, args.timeline, ["gbuffer", "composite"])?);
-        let apis = Apis { vk: &vk, gl: &gl, handoff: &zero_copy, commands: &shared.commands };
+        let commands = Commands::new(&vk)?; // made last: dropped first, it waits for its work
+        let apis = Apis { vk: &vk, gl: &gl, handoff: &zero_copy, commands: &commands };
         let frames = (2 * frames_per_run).max(args.timeline);
         let setting = Setting { spp, frames, depth_prepass: args.depth_prepass };
         frame.run(apis, setting, &stamps, (&mut Samples::default(), &mut timeline))?;
         let timeline = timeline.take().expect("made above");
-        report.set(
-            "timeline_08",
-            timeline.finish(&vk, &shared.commands, &stamps, &args.out.join("timeline-08"))?,
-        );
-        frame.destroy(&vk, &gl, &mut shared);
-        shared.destroy(&vk, &gl);
+        report.set("timeline_08", timeline.finish(&vk, &commands, &stamps, &args.out.join("timeline-08"))?);
+        unsafe { glow::HasContext::finish(&*gl.gl) };
+        vk.wait_idle()?; // once: no guard below waits
+        drop(commands);
+        drop(frame);
+        drop(shared);
         let fast = fast::timeline(size, spp, (frames, args.timeline), &args.out.join("fast-frame"))?;
         report.set("timeline_12", fast);
     }
-    stamps.destroy(&vk);
+    drop(stamps);
     report.check("every_scene_covers_pixels", covered_everywhere);
     report.check("hand_over_layouts_agreed", zero_copy.layouts_agreed() && host.layouts_agreed());
     // Every scene's buffers, images and memory objects were made and destroyed since the count:
     // none may be left holding an fd.
     report.check("no_fd_leaked", common::open_fd_count()? == open_fds_before);
-    host.destroy(&vk, &gl);
-    zero_copy.destroy(&vk, &gl);
+    drop(host);
+    drop(zero_copy); // the semaphores, if any
     gl.check_error("the bench")?;
 
     // 4. What the rows say, in every form

@@ -11,23 +11,25 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::commands::{Commands, HostBuffer, transfers_to_host};
 use common::rt::accel::DeviceBuffer;
+use common::rt::accel::GpuAllocator;
 use common::scene::gbuffer::GBuffers;
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
 use gpu_allocator::MemoryLocation;
-use gpu_allocator::vulkan::Allocator;
 
+/// Dropped newest first (fields drop in order): the command buffer, once its last copy is done,
+/// then GL's texture, then Vulkan's buffers.
 pub struct RoundTrip {
     commands: Commands,
-    /// Positions then normals, as GL reads them back (RGBA32F, 32 bytes a pixel).
-    upload: HostBuffer,
-    /// Where Vulkan would trace from: device-local.
-    gbuffers: DeviceBuffer,
+    /// GL's copy of the AO, uploaded from the read-back.
+    texture: common::base::gl::Owned<glow::Texture>,
+    readback: HostBuffer,
     /// The AO as Vulkan would hold it (R32F), and its read-back.
     ao: DeviceBuffer,
-    readback: HostBuffer,
-    /// GL's copy of the AO, uploaded from the read-back.
-    texture: glow::Texture,
+    /// Where Vulkan would trace from: device-local.
+    gbuffers: DeviceBuffer,
+    /// Positions then normals, as GL reads them back (RGBA32F, 32 bytes a pixel).
+    upload: HostBuffer,
     extent: vk::Extent2D,
 }
 
@@ -35,12 +37,11 @@ impl RoundTrip {
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
-        allocator: &mut Allocator,
+        allocator: &GpuAllocator,
         extent: vk::Extent2D,
     ) -> Result<Self> {
         let pixels = extent.width as u64 * extent.height as u64;
         let transfer = vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST;
-        let commands = Commands::new(vk)?;
         let upload = HostBuffer::new(vk, 32 * pixels, transfer)?;
         let gbuffers = DeviceBuffer::new(
             vk,
@@ -53,11 +54,15 @@ impl RoundTrip {
         let ao =
             DeviceBuffer::new(vk, allocator, "round-trip AO", 4 * pixels, transfer, MemoryLocation::GpuOnly)?;
         let readback = HostBuffer::new(vk, 4 * pixels, transfer)?;
-        let texture = unsafe {
-            let texture = gl.gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
-            gl.gl.texture_storage_2d(texture, 1, glow::R32F, extent.width as i32, extent.height as i32);
-            texture
+        let texture =
+            common::base::gl::create(&gl.gl, "glCreateTextures for the round trip's AO", |g| unsafe {
+                g.create_named_texture(glow::TEXTURE_2D)
+            })?;
+        unsafe {
+            gl.gl.texture_storage_2d(*texture, 1, glow::R32F, extent.width as i32, extent.height as i32)
         };
+        // Made after what its copies use: dropped first, it waits for the last of them.
+        let commands = Commands::new(vk)?;
         Ok(RoundTrip { commands, upload, gbuffers, ao, readback, texture, extent })
     }
 
@@ -100,7 +105,7 @@ impl RoundTrip {
         unsafe {
             gl.gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 4);
             gl.gl.texture_sub_image_2d(
-                self.texture,
+                *self.texture,
                 0,
                 0,
                 0,
@@ -114,14 +119,4 @@ impl RoundTrip {
         gl.check_error("uploading the AO to GL").context("cpu-round-trip")
     }
     // ANCHOR_END: copies
-
-    /// GL's texture, then Vulkan's buffers (the GPU must be idle).
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext, allocator: &mut Allocator) {
-        unsafe { gl.gl.delete_texture(self.texture) };
-        self.readback.destroy(vk);
-        self.ao.destroy(vk, allocator);
-        self.gbuffers.destroy(vk, allocator);
-        self.upload.destroy(vk);
-        self.commands.destroy(vk);
-    }
 }

@@ -11,11 +11,11 @@ mod cases;
 mod exact;
 mod outputs;
 
-use anyhow::{Result, ensure};
+use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use cases::{Case, Placement};
 use clap::Parser;
-use common::base::commands::Timestamps;
+use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::interop::handoff::{Apis, Handoff};
@@ -84,7 +84,7 @@ pub struct CaseReport {
 fn main() -> ExitCode {
     let args = Args::parse();
     let mut report = Report::new("convergence");
-    if let Err(error) = run(&args, &mut report) {
+    if let Err(error) = common::base::chapter::accounted(|| run(&args, &mut report)) {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
@@ -121,10 +121,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     for case in &cases {
         results.push(measure(&vk, &gl, &handoff, timestamps.as_ref(), case, &grid)?);
     }
-    if let Some(t) = timestamps {
-        t.destroy(&vk);
-    }
-    handoff.destroy(&vk, &gl);
+    drop(timestamps);
+    drop(handoff);
 
     for case in &results {
         let last = case.rows.last().expect("every case has rows");
@@ -175,9 +173,11 @@ fn measure(
     grid: &Grid,
 ) -> Result<CaseReport> {
     let &Grid { extent, spps, frame_counts, quick } = grid;
-    let mut shared = RayTracedScene::new(vk, gl, &case.scene)?;
+    let shared = RayTracedScene::new(vk, gl, &case.scene)?;
     let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
-    let mut tracer = AoTracer::new(vk, gl, &mut shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+    let mut tracer = AoTracer::new(vk, gl, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+    // Made after what the traces use: dropped first on an early return, it waits for the last.
+    let commands = Commands::new(vk)?;
     let scene_scale = cases::scene_scale(&case.scene);
     let rays = |samples| AoRays { samples, accumulated: 0, radius: case.radius, scene_scale };
 
@@ -187,15 +187,11 @@ fn measure(
         let mut gpu_ms = 0.0;
         for _ in 0..frames {
             gbuffers.draw(&gl.gl, &case.scene, &case.camera);
-            tracer.trace(
-                Apis { vk, gl, handoff, commands: &shared.commands },
-                &gbuffers,
-                rays(spp),
-                timestamps,
-            )?;
+            tracer.trace(Apis { vk, gl, handoff, commands: &commands }, &gbuffers, rays(spp), timestamps)?;
             if let Some(t) = timestamps {
                 // A measurement: wait for this frame's rays to read their GPU time.
-                unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
+                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
+                    .context("vkWaitForFences")?;
                 gpu_ms += t.read_ms(vk)?;
             }
         }
@@ -247,10 +243,11 @@ fn measure(
     if !quick {
         eprintln!("{}: {} rows", case.name, rows.len());
     }
-    unsafe { vk.device.wait_for_fences(&[shared.commands.fence], true, u64::MAX) }?;
-    tracer.destroy(vk, gl, &mut shared.allocator);
-    gbuffers.destroy(vk, gl);
-    shared.destroy(vk, gl);
+    vk.wait_idle()?; // once: no guard below waits
+    drop(commands);
+    drop(tracer);
+    drop(gbuffers);
+    drop(shared);
     let slope = slope(&rows);
     Ok(CaseReport { scene: case.name, reference: reference_name, pixels, slope, rows })
 }

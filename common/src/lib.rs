@@ -19,6 +19,20 @@
 //! ```
 //!
 //! The crate root only declares the layers and re-exports what nearly every chapter names.
+//!
+//! One teardown rule holds in every layer:
+//!
+//! - every object is owned by a guard from the moment it exists (`base::gl::Owned` for GL's,
+//!   `base::guard::Guard` for the raw handles chapters 01 and 02 show), so that an early return
+//!   destroys what was made, newest first; a constructor that fails half-way drops what it made;
+//! - only `base::commands::Commands` waits, for its own last submission, when dropped: a chapter
+//!   makes it after everything its submissions use, so it is dropped first. No other `Drop` waits
+//!   or idles the device; a chapter waits once (`VulkanContext::wait_idle`) before its list of
+//!   `drop(x)` in reverse order;
+//! - gpu-allocator memory is freed by its owner (`rt::accel::Memory`), through a shared
+//!   `GpuAllocator` handle; the allocator goes with its last handle;
+//! - every fallible step goes through `base::fail` (`VKGL_FAIL_AT`), and every count of what is
+//!   alive (resources, GL objects, fds) lives in `base::resources`.
 
 pub mod base;
 pub mod frame;
@@ -26,8 +40,9 @@ pub mod interop;
 pub mod rt;
 pub mod scene;
 
-pub use base::chapter::{connect, finish, largest_size, ms_since, open_fd_count, run_chapter};
+pub use base::chapter::{connect, finish, largest_size, ms_since, run_chapter};
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
 pub use base::report::Report;
+pub use base::resources::open_fd_count;
 pub use base::vulkan::{RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};

@@ -22,29 +22,34 @@ pub fn run_chapter<A: clap::Parser>(
     let args = A::parse();
     let common = common(&args);
     let mut report = Report::new(chapter);
-    if let Err(error) = fail::check_armed() {
-        eprintln!("error: {error:#}");
-        return ExitCode::from(2);
-    }
-    // With an injected failure, the fds open before anything ran, to compare at exit.
-    let fds_before = fail::armed().map(|_| fail::open_fds());
-    let result = run(&args, &mut report);
-    if let Some(before) = fds_before {
-        // Everything `run` made is gone by now (destroyed, or dropped on the way out of an
-        // early return): so must its fds be. Drivers may keep a few of their own.
-        let left: Vec<_> = fail::open_fds().into_iter().filter(|fd| !before.contains(fd)).collect();
-        eprintln!("fds: left open after the chapter ran: {left:?}");
-        // And the objects whose destruction is counted (exportable memory and images, GL memory
-        // objects, imported textures and buffers, renderbuffers): none may be alive.
-        let alive: Vec<_> = resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
-        eprintln!("resources: alive after the chapter ran: {alive:?}");
-    }
+    let result = accounted(|| run(&args, &mut report));
     if let Err(error) = result {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
     show_pictures(chapter, common, &mut report);
     finish(report, common.json)
+}
+
+/// Runs `run`, having checked `VKGL_FAIL_AT` (`base::fail`); when it is set, prints what `run`
+/// left behind on stderr: the fds it opened and did not close, and the counted resources still
+/// alive. (`run_chapter` does this for every chapter; `bench` and `convergence` call it.)
+pub fn accounted<T>(run: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
+    fail::check_armed()?;
+    // With `VKGL_FAIL_AT` set, the fds open before anything ran, to compare at exit.
+    let fds_before = fail::armed().map(|_| resources::open_fds());
+    let result = run();
+    if let Some(before) = fds_before {
+        // Everything `run` made is gone by now (dropped at its end, or on the way out of an
+        // early return): so must its fds be. Drivers may keep a few of their own.
+        let left: Vec<_> = resources::open_fds().into_iter().filter(|fd| !before.contains(fd)).collect();
+        eprintln!("fds: left open after the chapter ran: {left:?}");
+        // And the objects whose destruction is counted (exportable memory and images, every GL
+        // object, which would otherwise die unseen with its context): none may be alive.
+        let alive: Vec<_> = resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
+        eprintln!("resources: alive after the chapter ran: {alive:?}");
+    }
+    result
 }
 
 /// Fills in what the run left behind (the validation layer's and GL's error counts, the
@@ -133,15 +138,6 @@ pub fn largest_size(vk: &VulkanContext, gl: &GlContext) -> Largest {
     }
 }
 // ANCHOR_END: largest_size
-
-// ANCHOR: open_fd_count
-/// How many file descriptors this process has open: the chapters' leak check compares this
-/// before and after their work.
-pub fn open_fd_count() -> anyhow::Result<usize> {
-    use anyhow::Context as _;
-    Ok(std::fs::read_dir("/proc/self/fd").context("listing /proc/self/fd")?.count())
-}
-// ANCHOR_END: open_fd_count
 
 /// Milliseconds since `start` (CPU time; GPU work is timed with timestamps).
 pub fn ms_since(start: std::time::Instant) -> f64 {

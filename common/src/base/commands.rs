@@ -1,13 +1,17 @@
 //! Recording and submitting Vulkan work: one command buffer reused every frame, guarded by a
 //! fence, plus one-shot submissions for set-up.
 
+use crate::base::fail;
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 
 /// A command pool with one primary command buffer and the fence of its last submission.
-/// Dropped without [`Commands::destroy`] (an early return), it waits for its last submission
-/// and destroys itself all the same.
+///
+/// The one guard that waits: dropped, it waits for its last submission before destroying the
+/// pool. A chapter makes the `Commands` its frames submit through after everything those frames
+/// use, so that Rust, dropping locals newest first, drops it first: on an early return, the work
+/// in flight is done before anything it uses is destroyed. No other guard waits.
 pub struct Commands {
     pub pool: vk::CommandPool,
     pub buffer: vk::CommandBuffer,
@@ -33,14 +37,15 @@ impl Commands {
             let pool_info = vk::CommandPoolCreateInfo::default()
                 .queue_family_index(vk.queue_family_index)
                 .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-            commands.pool = vk.device.create_command_pool(&pool_info, None).context("vkCreateCommandPool")?;
+            commands.pool =
+                fail::call("vkCreateCommandPool", || vk.device.create_command_pool(&pool_info, None))?;
             let allocate =
                 vk::CommandBufferAllocateInfo::default().command_pool(commands.pool).command_buffer_count(1);
             commands.buffer =
-                vk.device.allocate_command_buffers(&allocate).context("vkAllocateCommandBuffers")?[0];
+                fail::call("vkAllocateCommandBuffers", || vk.device.allocate_command_buffers(&allocate))?[0];
             // Created signalled, so that waiting before the first submission returns at once.
             let fence_info = vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED);
-            commands.fence = vk.device.create_fence(&fence_info, None).context("vkCreateFence")?;
+            commands.fence = fail::call("vkCreateFence", || vk.device.create_fence(&fence_info, None))?;
         }
         Ok(commands)
     }
@@ -54,10 +59,12 @@ impl Commands {
                 vk.device.wait_for_fences(&[self.fence], true, u64::MAX).context("vkWaitForFences")?;
                 self.in_flight.set(false);
             }
-            vk.device.reset_command_buffer(self.buffer, vk::CommandBufferResetFlags::empty())?;
+            vk.device
+                .reset_command_buffer(self.buffer, vk::CommandBufferResetFlags::empty())
+                .context("vkResetCommandBuffer")?;
             let begin =
                 vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
-            vk.device.begin_command_buffer(self.buffer, &begin)?;
+            vk.device.begin_command_buffer(self.buffer, &begin).context("vkBeginCommandBuffer")?;
         }
         Ok(self.buffer)
     }
@@ -80,8 +87,8 @@ impl Commands {
             .command_buffers(&buffers)
             .signal_semaphores(&signals);
         unsafe {
-            vk.device.end_command_buffer(self.buffer)?;
-            crate::base::fail::at("submit")?; // `VKGL_FAIL_AT=submit`: as if the submission were refused
+            vk.device.end_command_buffer(self.buffer).context("vkEndCommandBuffer")?;
+            fail::step("vkQueueSubmit")?; // as if the submission were refused
             // Reset only now, with nothing left to fail before the submission: a fence reset
             // earlier, then not submitted, would never signal, and the next wait would hang.
             vk.device.reset_fences(&[self.fence]).context("vkResetFences")?;
@@ -99,14 +106,10 @@ impl Commands {
         self.submit(vk, None, None)?;
         unsafe { vk.device.wait_for_fences(&[self.fence], true, u64::MAX) }.context("vkWaitForFences")
     }
-
-    /// Waits for the last submission, then destroys the fence and the pool (and its buffer).
-    pub fn destroy(self, _vk: &VulkanContext) {
-        drop(self); // what Drop does is what an explicit destroy does
-    }
 }
 
 impl Drop for Commands {
+    /// Waits for the last submission, then destroys the fence and the pool (and its buffer).
     fn drop(&mut self) {
         unsafe {
             if self.in_flight.get() {
@@ -116,13 +119,6 @@ impl Drop for Commands {
             self.device.destroy_command_pool(self.pool, None);
         }
     }
-}
-
-/// What a guard from `common` does first when it is dropped: wait until the device is idle.
-/// After an early return the work that failed may still be running; on the success path the
-/// chapter has already waited, and this returns at once.
-pub(crate) fn wait_idle(device: &ash::Device) {
-    let _ = unsafe { device.device_wait_idle() };
 }
 
 // ANCHOR: image_barrier
@@ -210,28 +206,29 @@ impl HostBuffer {
         };
         unsafe {
             let info = vk::BufferCreateInfo::default().size(size).usage(usage);
-            host.buffer = vk.device.create_buffer(&info, None).context("vkCreateBuffer")?;
+            host.buffer =
+                fail::call("vkCreateBuffer (host-visible)", || vk.device.create_buffer(&info, None))?;
             let requirements = vk.device.get_buffer_memory_requirements(host.buffer);
             let flags = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
             let memory_type = vk.find_memory_type(requirements.memory_type_bits, flags)?;
             let allocate = vk::MemoryAllocateInfo::default()
                 .allocation_size(requirements.size)
                 .memory_type_index(memory_type);
-            host.memory = vk.device.allocate_memory(&allocate, None).context("vkAllocateMemory")?;
+            host.memory =
+                fail::call("vkAllocateMemory (host-visible)", || vk.device.allocate_memory(&allocate, None))?;
             crate::base::resources::created("vk_memory_host", requirements.size);
             vk.device.bind_buffer_memory(host.buffer, host.memory, 0).context("vkBindBufferMemory")?;
-            host.mapped = vk
-                .device
-                .map_memory(host.memory, 0, size, vk::MemoryMapFlags::empty())
-                .context("vkMapMemory")?
-                .cast();
+            host.mapped = fail::call("vkMapMemory (host-visible)", || {
+                vk.device.map_memory(host.memory, 0, size, vk::MemoryMapFlags::empty())
+            })?
+            .cast();
         }
         Ok(host)
     }
 
     /// The mapped bytes. The GPU must not be writing them (wait for the fence first).
     pub fn bytes(&self) -> &[u8] {
-        // SAFETY: `mapped` is `size` bytes of coherent memory, mapped until `destroy`.
+        // SAFETY: `mapped` is `size` bytes of coherent memory, mapped until dropped.
         unsafe { std::slice::from_raw_parts(self.mapped, self.size as usize) }
     }
 
@@ -249,16 +246,12 @@ impl HostBuffer {
         // SAFETY: as above, and `&mut self` makes this the only view.
         unsafe { std::slice::from_raw_parts_mut(self.mapped, self.size as usize) }
     }
-
-    pub fn destroy(self, _vk: &VulkanContext) {
-        drop(self);
-    }
 }
 
 impl Drop for HostBuffer {
-    /// Unmaps, frees and destroys what exists (Vulkan ignores null handles), once the device is idle.
+    /// Unmaps, frees and destroys what exists (Vulkan ignores null handles). The GPU must be
+    /// done with it.
     fn drop(&mut self) {
-        wait_idle(&self.device);
         unsafe {
             if !self.mapped.is_null() {
                 self.device.unmap_memory(self.memory);
@@ -349,7 +342,9 @@ impl Timestamps {
         let valid_mask = if valid_bits >= 64 { u64::MAX } else { (1u64 << valid_bits) - 1 };
         let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
-        let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
+        let pool = fail::call("vkCreateQueryPool for timestamps", || unsafe {
+            vk.device.create_query_pool(&info, None)
+        })?;
         crate::base::resources::created("vk_query_pool: timestamps", 0);
         let device = vk.device.clone();
         Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask, device }))
@@ -416,10 +411,6 @@ impl Timestamps {
     fn ms(&self, start: u64, end: u64) -> f64 {
         ticks_to_ms(start, end, self.valid_mask, self.period_ns)
     }
-
-    pub fn destroy(self, _vk: &VulkanContext) {
-        drop(self);
-    }
 }
 
 /// Milliseconds from tick `start` to tick `end` of a counter with `valid_mask`'s bits, each tick
@@ -430,8 +421,8 @@ fn ticks_to_ms(start: u64, end: u64, valid_mask: u64, period_ns: f64) -> f64 {
 }
 
 impl Drop for Timestamps {
+    /// The GPU must be done with the queries.
     fn drop(&mut self) {
-        wait_idle(&self.device);
         unsafe { self.device.destroy_query_pool(self.pool, None) };
     }
 }

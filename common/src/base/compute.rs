@@ -1,16 +1,32 @@
 //! A compute pipeline over storage images, with push constants: the kind chapter 04 builds step
 //! by step, for the compute shaders later chapters dispatch (chapter 12's Vulkan composite).
 
+use super::fail;
 use super::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 
-/// SPIR-V bytes as a shader module. `read_spv` copies them into `u32` words: `include_bytes!`
-/// promises no 4-byte alignment.
-pub fn shader_module(vk: &VulkanContext, spirv: &[u8]) -> Result<vk::ShaderModule> {
+/// A shader module, destroyed when dropped: once the pipeline made from it exists (which keeps
+/// what it needs), or on the way out of a failed one.
+pub struct ShaderModule {
+    pub module: vk::ShaderModule,
+    device: ash::Device,
+}
+
+/// SPIR-V bytes as a shader module; `stage` names it in errors. `read_spv` copies the bytes into
+/// `u32` words: `include_bytes!` promises no 4-byte alignment.
+pub fn shader_module(vk: &VulkanContext, spirv: &[u8], stage: &str) -> Result<ShaderModule> {
     let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv)).context("reading SPIR-V")?;
     let info = vk::ShaderModuleCreateInfo::default().code(&words);
-    unsafe { vk.device.create_shader_module(&info, None) }.context("vkCreateShaderModule")
+    let what = format!("vkCreateShaderModule for the {stage} shader");
+    let module = fail::call(&what, || unsafe { vk.device.create_shader_module(&info, None) })?;
+    Ok(ShaderModule { module, device: vk.device.clone() })
+}
+
+impl Drop for ShaderModule {
+    fn drop(&mut self) {
+        unsafe { self.device.destroy_shader_module(self.module, None) };
+    }
 }
 
 /// One compute shader, its storage images (bindings 0, 1, ... of set 0) and its push constants,
@@ -51,30 +67,36 @@ impl ComputePipeline {
             })
             .collect();
         let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-        this.set_layout = unsafe { device.create_descriptor_set_layout(&info, None) }
-            .context("vkCreateDescriptorSetLayout for a compute pipeline")?;
+        this.set_layout = fail::call("vkCreateDescriptorSetLayout for a compute pipeline", || unsafe {
+            device.create_descriptor_set_layout(&info, None)
+        })?;
         let push = [vk::PushConstantRange::default().stage_flags(compute).size(push_bytes)];
         let set_layouts = [this.set_layout];
         let info =
             vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&push);
-        this.layout = unsafe { device.create_pipeline_layout(&info, None) }
-            .context("vkCreatePipelineLayout for a compute pipeline")?;
-        let module = shader_module(vk, spirv)?;
-        let stage = vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module).name(c"main");
+        this.layout = fail::call("vkCreatePipelineLayout for a compute pipeline", || unsafe {
+            device.create_pipeline_layout(&info, None)
+        })?;
+        let module = shader_module(vk, spirv, "compute")?;
+        let stage =
+            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module.module).name(c"main");
         let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(this.layout);
-        let made = unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None) };
-        unsafe { device.destroy_shader_module(module, None) }; // the pipeline keeps what it needs
-        this.pipeline = made.map_err(|(_, e)| e).context("vkCreateComputePipelines")?[0];
+        this.pipeline = fail::call("vkCreateComputePipelines", || unsafe {
+            device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None).map_err(|(_, e)| e)
+        })?[0];
+        drop(module); // the pipeline keeps what it needs of it
         super::resources::created("vk_pipeline: compute", 0);
         let sizes =
             [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: images }];
         let info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes);
-        this.pool = unsafe { device.create_descriptor_pool(&info, None) }
-            .context("vkCreateDescriptorPool for a compute pipeline")?;
+        this.pool = fail::call("vkCreateDescriptorPool for a compute pipeline", || unsafe {
+            device.create_descriptor_pool(&info, None)
+        })?;
         let info =
             vk::DescriptorSetAllocateInfo::default().descriptor_pool(this.pool).set_layouts(&set_layouts);
-        this.set = unsafe { device.allocate_descriptor_sets(&info) }
-            .context("vkAllocateDescriptorSets for a compute pipeline")?[0];
+        this.set = fail::call("vkAllocateDescriptorSets for a compute pipeline", || unsafe {
+            device.allocate_descriptor_sets(&info)
+        })?[0];
         Ok(this)
     }
 

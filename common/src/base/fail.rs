@@ -1,60 +1,95 @@
-//! Injected failures, to prove the error paths clean up: `VKGL_FAIL_AT=<point>` makes the named
-//! step fail as if the driver had refused it. The points sit after the contexts and shared
-//! resources exist, where a leak would show: the validation layer's "not destroyed" messages at
-//! device destruction, or a file descriptor still open at exit (`run_chapter` lists them in this
-//! mode). `tests/errors.rs` runs chapters with each point.
+//! Injected failures, to prove the error paths clean up. Every fallible step a chapter takes
+//! (creating a Vulkan or GL object, allocating, exporting or importing memory or a semaphore,
+//! compiling a shader, submitting) goes through [`step`] or [`call`] first, which number the
+//! steps in the order a run reaches them:
+//!
+//! - `VKGL_FAIL_AT=list` fails nothing and prints `fail step <n>: <what>` for each step reached;
+//! - `VKGL_FAIL_AT=<n>` makes step `n` fail as if the driver had refused it;
+//! - `VKGL_FAIL_AT=none` fails nothing.
+//!
+//! In all three, `run_chapter` prints what was left at exit (`base::resources`): the open fds,
+//! the counted resources still alive, and the GL objects alive when the GL context went. A
+//! Vulkan object left alive shows as the validation layer's "has not been destroyed" when the
+//! device goes. `tests/errors.rs` fails every step of every chapter in turn.
 
 use anyhow::{Result, bail};
+use std::sync::atomic::{AtomicU32, Ordering};
 
-/// The named points, in the order a chapter reaches them.
-pub const POINTS: [(&str, &str); 6] = [
-    ("none", "nothing fails; the fds at exit are listed all the same: the baseline for the others"),
-    ("map", "mapping an exported buffer's memory (exportable::ExportedBuffer::new)"),
-    ("import", "GL's import of an exported fd (interop::import_memory)"),
-    ("texture", "creating the GL texture after a successful import (interop::import_texture_2d)"),
-    ("submit", "submitting a frame's Vulkan work (commands::Commands::submit)"),
-    ("gl_acquire", "GL taking the images back after Vulkan's work (handoff::Handoff::gl_acquire)"),
-];
-
-/// The point `VKGL_FAIL_AT` names, if any (read once).
-pub fn armed() -> Option<&'static str> {
-    static ARMED: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
-    ARMED.get_or_init(|| std::env::var("VKGL_FAIL_AT").ok()).as_deref()
+/// What `VKGL_FAIL_AT` asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Armed {
+    /// `none`: nothing fails; what is left at exit is listed all the same.
+    Nothing,
+    /// `list`: nothing fails; every step reached is printed.
+    List,
+    /// `<n>`: step `n` (from 1) fails.
+    At(u32),
 }
 
-/// Fails when `VKGL_FAIL_AT` names `point`; otherwise does nothing.
-pub fn at(point: &str) -> Result<()> {
-    debug_assert!(POINTS.iter().any(|(name, _)| *name == point), "unknown fail point {point}");
-    if armed() == Some(point) {
-        let step = POINTS.iter().find(|(name, _)| *name == point).map_or("", |(_, step)| *step);
-        bail!("injected failure at {point}: {step} (VKGL_FAIL_AT={point})");
+/// What `VKGL_FAIL_AT` asks for, if it is set (read once). A value that is none of the three
+/// forms is refused by [`check_armed`].
+pub fn armed() -> Option<Armed> {
+    static ARMED: std::sync::OnceLock<Option<Armed>> = std::sync::OnceLock::new();
+    *ARMED.get_or_init(|| parse(&std::env::var("VKGL_FAIL_AT").ok()?).ok())
+}
+
+fn parse(value: &str) -> Result<Armed> {
+    match value {
+        "none" => Ok(Armed::Nothing),
+        "list" => Ok(Armed::List),
+        n => match n.parse::<u32>() {
+            Ok(n) if n > 0 => Ok(Armed::At(n)),
+            _ => bail!("VKGL_FAIL_AT={value} is none of none, list or a step number from 1"),
+        },
+    }
+}
+
+/// Checks `VKGL_FAIL_AT` has one of the three forms: a typo would otherwise test nothing.
+pub fn check_armed() -> Result<()> {
+    match std::env::var("VKGL_FAIL_AT") {
+        Ok(value) => parse(&value).map(|_| ()),
+        Err(_) => Ok(()),
+    }
+}
+
+/// How many steps this run has reached.
+static REACHED: AtomicU32 = AtomicU32::new(0);
+
+// ANCHOR: step
+/// One fallible step, about to be taken: fails when `VKGL_FAIL_AT` names its number, as the
+/// driver might have refused it; prints it with `VKGL_FAIL_AT=list`; otherwise does nothing.
+pub fn step(what: &str) -> Result<()> {
+    let n = REACHED.fetch_add(1, Ordering::Relaxed) + 1;
+    match armed() {
+        Some(Armed::List) => eprintln!("fail step {n}: {what}"),
+        Some(Armed::At(at)) if at == n => bail!("injected failure at step {n}: {what} (VKGL_FAIL_AT={n})"),
+        _ => {}
     }
     Ok(())
 }
 
-/// Checks `VKGL_FAIL_AT` names a known point: a typo would otherwise test nothing.
-pub fn check_armed() -> Result<()> {
-    match armed() {
-        Some(point) if !POINTS.iter().any(|(name, _)| *name == point) => {
-            let known: Vec<_> = POINTS.iter().map(|(name, _)| *name).collect();
-            bail!("VKGL_FAIL_AT={point} names no fail point; known: {}", known.join(", "))
-        }
-        _ => Ok(()),
-    }
+/// A Vulkan or GL call as one fallible step: [`step`], then `call`, its error named by `what`
+/// (`"vkCreateBuffer for the vertex buffer"`).
+pub fn call<T, E>(what: &str, call: impl FnOnce() -> std::result::Result<T, E>) -> Result<T>
+where
+    E: std::fmt::Display + std::fmt::Debug + Send + Sync + 'static,
+{
+    step(what)?;
+    call().map_err(|error| anyhow::Error::msg(error).context(what.to_owned()))
 }
+// ANCHOR_END: step
 
-/// The open file descriptors and what each points at (`/proc/self/fd`), sorted.
-pub fn open_fds() -> Vec<String> {
-    let mut fds: Vec<String> = std::fs::read_dir("/proc/self/fd")
-        .map(|dir| {
-            dir.flatten()
-                .map(|entry| {
-                    let target = std::fs::read_link(entry.path()).unwrap_or_default();
-                    format!("{} -> {}", entry.file_name().to_string_lossy(), target.display())
-                })
-                .collect()
-        })
-        .unwrap_or_default();
-    fds.sort();
-    fds
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_three_forms_parse_and_anything_else_is_refused() {
+        assert_eq!(parse("none").unwrap(), Armed::Nothing);
+        assert_eq!(parse("list").unwrap(), Armed::List);
+        assert_eq!(parse("12").unwrap(), Armed::At(12));
+        for bad in ["0", "-1", "sumbit", ""] {
+            assert!(parse(bad).is_err(), "{bad:?}");
+        }
+    }
 }

@@ -1,7 +1,8 @@
-//! What a chapter created on the GPU, by kind: counted where each object is made, and listed in
-//! the report next to the extensions the chapter enabled. The snapshots pin the list, so a
-//! resource a scene does not need shows up in review (the numerics issue's "leave out what a
-//! scene does not need").
+//! Every count of what a chapter holds, in one place: what it created on the GPU, by kind (counted
+//! where each object is made, and listed in the report next to the extensions the chapter
+//! enabled; the snapshots pin the list, so a resource a scene does not need shows up in review),
+//! how many of the counted kinds are alive now (GL's objects among them, which die with their
+//! context and so show a leak only here), and the open file descriptors.
 
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -31,14 +32,44 @@ pub fn created(kind: &str, bytes: u64) {
     *LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).entry(kind.to_owned()).or_default() += 1;
 }
 
+/// One counted resource of `kind`: [`created`] when made, [`destroyed`] when dropped. Its owner
+/// holds it, so the count follows the resource out of every early return.
+#[must_use = "dropping it counts the resource as destroyed"]
+#[derive(Debug)]
+pub struct Counted(String);
+
+/// Counts one more resource of `kind`, holding `bytes`, until the returned token is dropped.
+pub fn count(kind: &str, bytes: u64) -> Counted {
+    created(kind, bytes);
+    Counted(kind.to_owned())
+}
+
+impl Drop for Counted {
+    fn drop(&mut self) {
+        destroyed(&self.0);
+    }
+}
+
+/// One more `kind` alive, counted for [`live`] only (not listed in the report): GL's objects,
+/// which die with their context and show a leak only here.
+pub fn alive(kind: &str) {
+    *LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).entry(kind.to_owned()).or_default() += 1;
+}
+
+/// One `kind` counted by [`alive`] is gone.
+pub fn gone(kind: &str) {
+    destroyed(kind);
+}
+
 /// One resource of `kind` is gone.
 pub fn destroyed(kind: &str) {
     *LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner()).entry(kind.to_owned()).or_default() -= 1;
 }
 
 /// How many of each kind exist now, for the kinds whose destruction is counted: exportable
-/// and host-visible memory, exportable images, GL's memory objects, imported textures and
-/// buffers, renderbuffers. (GL's own view of every kind: `GlContext::live_objects`.)
+/// and host-visible memory, exportable images, every GL object (those `base::gl::create` made,
+/// memory objects, semaphores, imported textures and buffers), renderbuffers. (GL's own view
+/// of every kind: `GlContext::live_objects`.)
 pub fn live() -> BTreeMap<String, i64> {
     let live = LIVE.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     live.iter()
@@ -47,7 +78,9 @@ pub fn live() -> BTreeMap<String, i64> {
         .collect()
 }
 
-const COUNTED_WHEN_DESTROYED: [&str; 9] = [
+const COUNTED_WHEN_DESTROYED: [&str; 11] = [
+    "gl_object",
+    "gl_semaphore",
     "vk_memory_exportable",
     "vk_memory_host",
     "vk_image_exportable",
@@ -63,4 +96,30 @@ const COUNTED_WHEN_DESTROYED: [&str; 9] = [
 pub fn list() -> Vec<Created> {
     let created = CREATED.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     created.iter().map(|(kind, &(count, bytes))| Created { kind: kind.clone(), count, bytes }).collect()
+}
+
+// ANCHOR: open_fd_count
+/// How many file descriptors this process has open: the chapters' leak check compares this
+/// before and after their work.
+pub fn open_fd_count() -> anyhow::Result<usize> {
+    use anyhow::Context as _;
+    Ok(std::fs::read_dir("/proc/self/fd").context("listing /proc/self/fd")?.count())
+}
+// ANCHOR_END: open_fd_count
+
+/// The open file descriptors and what each points at (`/proc/self/fd`), sorted: which fds a run
+/// left open, beyond a count.
+pub fn open_fds() -> Vec<String> {
+    let mut fds: Vec<String> = std::fs::read_dir("/proc/self/fd")
+        .map(|dir| {
+            dir.flatten()
+                .map(|entry| {
+                    let target = std::fs::read_link(entry.path()).unwrap_or_default();
+                    format!("{} -> {}", entry.file_name().to_string_lossy(), target.display())
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    fds.sort();
+    fds
 }

@@ -8,6 +8,7 @@
 //! time is read again, and Vulkan's stamp lies between the two readings.
 
 use super::commands::{Commands, Timestamps, median_p95};
+use super::gl::{Owned, create_n};
 use super::vulkan::VulkanContext;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
@@ -21,7 +22,7 @@ use std::rc::Rc;
 /// frame is in it.
 pub fn stamp(timeline: &Option<Timeline>, slot: Option<u32>, which: usize) {
     if let (Some(t), Some(slot)) = (timeline, slot) {
-        unsafe { t.gl.query_counter(t.queries[slot as usize][which], glow::TIMESTAMP) };
+        unsafe { t.gl.query_counter(*t.queries[slot as usize][which], glow::TIMESTAMP) };
     }
 }
 
@@ -41,7 +42,7 @@ pub struct Timeline {
     /// GL's two passes, as the report and the picture name them: the raster pass, the composite.
     passes: [&'static str; 2],
     /// Per frame: the raster pass (before, after), the composite and overlays (before, after).
-    queries: Vec<[glow::Query; 4]>,
+    queries: Vec<[Owned<glow::Query>; 4]>,
     vulkan: Vec<(u32, [f64; 2])>,
     gl: Rc<glow::Context>,
 }
@@ -52,11 +53,8 @@ impl Timeline {
         let mut timeline =
             Timeline { frames, passes, queries: Vec::new(), vulkan: Vec::new(), gl: gl.clone() };
         for _ in 0..frames {
-            let mut made = Vec::new();
-            for _ in 0..4 {
-                made.push(unsafe { gl.create_query() }.map_err(anyhow::Error::msg).context("glGenQueries")?);
-            }
-            timeline.queries.push(made.try_into().expect("four queries"));
+            let made = create_n(gl, "glGenQueries for the timeline", 4, |gl| unsafe { gl.create_query() })?;
+            timeline.queries.push(made.try_into().map_err(|_| ()).expect("four queries"));
         }
         Ok(timeline)
     }
@@ -107,7 +105,8 @@ impl Timeline {
         let (offset, uncertainty) = self.offset(vk, commands, stamps)?;
         let mut spans = Vec::new();
         for (slot, q) in self.queries.iter().enumerate() {
-            let read = |i: usize| unsafe { self.gl.get_query_parameter_u64(q[i], glow::QUERY_RESULT) } as f64;
+            let read =
+                |i: usize| unsafe { self.gl.get_query_parameter_u64(*q[i], glow::QUERY_RESULT) } as f64;
             let frame = slot as u32;
             spans.push(Span { frame, vulkan: false, pass: raster, start: read(0), end: read(1) });
             spans.push(Span { frame, vulkan: false, pass: composite, start: read(2), end: read(3) });
@@ -159,14 +158,6 @@ impl Timeline {
         draw(&path, &bars, self.passes).with_context(|| format!("drawing {}", path.display()))?;
         eprintln!("wrote {}.{{json,svg}}", out.display());
         Ok(summary)
-    }
-}
-
-impl Drop for Timeline {
-    fn drop(&mut self) {
-        for q in self.queries.iter().flatten() {
-            unsafe { self.gl.delete_query(*q) };
-        }
     }
 }
 

@@ -7,12 +7,14 @@
 //! already has ([`VkPassTimer`]).
 
 use crate::base::commands::{Timestamps, median_p95};
+use crate::base::gl::{Owned, create, create_n};
 use crate::base::report::Report;
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext as _;
 use std::collections::VecDeque;
+use std::rc::Rc;
 
 /// Every pass's GPU times, in the order the passes first ran, and the frames' wall-clock times.
 #[derive(Debug)]
@@ -111,7 +113,7 @@ pub fn read_after(
     times: &mut PassTimes,
 ) -> Result<()> {
     if let Some(stamps) = stamps {
-        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }?;
+        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
         times.add(pass, stamps.read_ms(vk)?);
     }
     Ok(())
@@ -127,8 +129,8 @@ pub struct GlPassTimer {
     current: Vec<(&'static str, glow::Query)>,
     /// Queries read and ready to use again.
     free: Vec<glow::Query>,
-    /// Every query made, to delete them all at the end.
-    all: Vec<glow::Query>,
+    /// Every query made, held only so that each deletes itself when the timer is dropped.
+    _all: Vec<Owned<glow::Query>>,
     /// Times read early (to free queries), handed over at the next `end_frame`.
     early: PassTimes,
     /// Emptied frame lists, kept so that a frame allocates nothing once the first few have run.
@@ -140,34 +142,35 @@ impl GlPassTimer {
     /// oldest frame's are read, waiting for them: the GPU is then 4 frames behind anyway.
     const QUERIES: usize = 32;
 
-    pub fn new(gl: &glow::Context) -> Result<Self> {
-        let mut all = Vec::with_capacity(Self::QUERIES);
-        for _ in 0..Self::QUERIES {
-            all.push(unsafe { gl.create_query() }.map_err(|e| anyhow::anyhow!("glGenQueries: {e}"))?);
-        }
-        let free = all.clone();
+    pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
+        let all = create_n(gl, "glGenQueries for the GL pass timer", Self::QUERIES, |gl| unsafe {
+            gl.create_query()
+        })?;
+        let free = all.iter().map(|q| **q).collect();
         let mut timer = GlPassTimer {
             pending: VecDeque::new(),
             current: Vec::new(),
             free,
-            all,
+            _all: all,
             early: PassTimes::new(),
             spare: Vec::new(),
         };
         // llvmpipe answers the first GL_TIME_ELAPSED query around a context's first drawing with
         // a time since boot: time a clear of a 1x1 target, and throw the answers away.
+        let target = create(gl, "glGenRenderbuffers for the timer's warm-up", |gl| unsafe {
+            gl.create_renderbuffer()
+        })?;
+        let framebuffer =
+            create(gl, "glGenFramebuffers for the timer's warm-up", |gl| unsafe { gl.create_framebuffer() })?;
         unsafe {
-            let target = gl.create_renderbuffer().map_err(|e| anyhow::anyhow!("glGenRenderbuffers: {e}"))?;
-            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(target));
+            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*target));
             gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, 1, 1);
-            let framebuffer =
-                gl.create_framebuffer().map_err(|e| anyhow::anyhow!("glGenFramebuffers: {e}"))?;
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*framebuffer));
             gl.framebuffer_renderbuffer(
                 glow::FRAMEBUFFER,
                 glow::COLOR_ATTACHMENT0,
                 glow::RENDERBUFFER,
-                Some(target),
+                Some(*target),
             );
             // Every query once: a name from glGenQueries becomes a query object at its first
             // use, and a leak check counting GL's objects would see them appear one by one.
@@ -176,9 +179,8 @@ impl GlPassTimer {
             }
             timer.finish(gl, &mut PassTimes::new());
             gl.bind_framebuffer(glow::FRAMEBUFFER, None);
-            gl.delete_framebuffer(framebuffer);
-            gl.delete_renderbuffer(target);
         }
+        drop((framebuffer, target)); // warmed up
         Ok(timer)
     }
 
@@ -256,12 +258,6 @@ impl GlPassTimer {
         }
         self.spare.push(frame);
     }
-
-    pub fn delete(self, gl: &glow::Context) {
-        for query in self.all {
-            unsafe { gl.delete_query(query) };
-        }
-    }
 }
 
 /// Vulkan passes timed with timestamps: two per pass, read after the frame's fence has signalled
@@ -311,10 +307,6 @@ impl VkPassTimer {
             times.add(pass, self.stamps.between_ms(vk, 2 * i, 2 * i + 1)?);
         }
         Ok(())
-    }
-
-    pub fn destroy(self, vk: &VulkanContext) {
-        self.stamps.destroy(vk);
     }
 }
 

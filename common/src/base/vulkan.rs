@@ -2,17 +2,19 @@
 //! installed), the physical device that has every extension the chapter asks for, a logical device
 //! with exactly those extensions, and one queue that can do graphics and compute.
 
-use crate::base::report::{ValidationReport, VulkanReport, uuid_hex};
-use anyhow::{Context as _, Result, bail};
+use crate::base::fail;
+use crate::base::report::{VulkanReport, uuid_hex};
+use crate::base::validation::{VALIDATION_LAYER, VALIDATION_ON, messenger_create_info, validation_wanted};
+use anyhow::{Context as _, Result};
 use ash::vk;
-use std::ffi::{CStr, c_char, c_void};
+use std::ffi::{CStr, c_char};
 use std::fmt;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::Ordering;
+
+pub use crate::base::validation::validation_counts;
 
 /// The Vulkan version every chapter is written against.
 pub const API_VERSION: u32 = vk::API_VERSION_1_3;
-
-const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
 
 /// What a chapter needs from the device. Later chapters add features here.
 #[derive(Default, Clone, Copy)]
@@ -60,9 +62,8 @@ pub struct DeviceInfo {
 }
 
 pub struct VulkanContext {
-    pub entry: ash::Entry,
-    pub instance: ash::Instance,
-    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    /// Destroyed after the device (fields drop after `Drop::drop`, which destroys the device).
+    pub instance: Instance,
     pub physical_device: vk::PhysicalDevice,
     pub info: DeviceInfo,
     pub memory_properties: vk::PhysicalDeviceMemoryProperties,
@@ -72,6 +73,8 @@ pub struct VulkanContext {
     pub enabled_extensions: Vec<String>,
     /// Buffers may be given device addresses (`Requirements::ray_tracing`).
     pub device_addresses: bool,
+    /// The Vulkan loader, unloaded last (fields drop in order): after the instance.
+    pub entry: ash::Entry,
 }
 
 impl VulkanContext {
@@ -98,25 +101,24 @@ impl VulkanContext {
             // Chained here too, so that vkCreateInstance/vkDestroyInstance are validated as well.
             instance_info = instance_info.push_next(&mut messenger_info);
         }
-        let instance = unsafe { entry.create_instance(&instance_info, None) }.context("vkCreateInstance")?;
+        let instance = Instance {
+            instance: fail::call("vkCreateInstance", || unsafe {
+                entry.create_instance(&instance_info, None)
+            })?,
+            debug: None,
+        };
         VALIDATION_ON.store(validation, Ordering::Relaxed);
-        let debug = if validation {
+        let mut instance = instance; // destroyed on every early return from here on
+        if validation {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
-            let messenger = unsafe { loader.create_debug_utils_messenger(&messenger_create_info(), None) }
-                .context("vkCreateDebugUtilsMessengerEXT")?;
-            Some((loader, messenger))
-        } else {
-            None
-        };
+            let messenger = fail::call("vkCreateDebugUtilsMessengerEXT", || unsafe {
+                loader.create_debug_utils_messenger(&messenger_create_info(), None)
+            })?;
+            instance.debug = Some((loader, messenger));
+        }
 
-        let chosen = match pick_physical_device(&instance, requirements) {
-            Ok(chosen) => chosen,
-            Err(error) => {
-                destroy_instance(&instance, &debug);
-                return Err(error);
-            }
-        };
-        let (physical_device, info, queue_family_index, enabled_extensions) = chosen;
+        let (physical_device, info, queue_family_index, enabled_extensions) =
+            pick_physical_device(&instance, requirements)?;
         eprintln!("vulkan: using {} ({})", info.name, info.driver);
 
         let priorities = [1.0];
@@ -142,20 +144,15 @@ impl VulkanContext {
             device_info =
                 device_info.push_next(&mut vulkan12).push_next(&mut acceleration).push_next(&mut pipelines);
         }
-        let device = match unsafe { instance.create_device(physical_device, &device_info, None) } {
-            Ok(device) => device,
-            Err(error) => {
-                destroy_instance(&instance, &debug);
-                bail!("vkCreateDevice on {}: {error}", info.name);
-            }
-        };
+        let device = fail::call(&format!("vkCreateDevice on {}", info.name), || unsafe {
+            instance.create_device(physical_device, &device_info, None)
+        })?;
         let queue = unsafe { device.get_device_queue(queue_family_index, 0) };
         let memory_properties = unsafe { instance.get_physical_device_memory_properties(physical_device) };
 
         Ok(VulkanContext {
             entry,
             instance,
-            debug,
             physical_device,
             info,
             memory_properties,
@@ -197,26 +194,43 @@ impl VulkanContext {
     }
 }
 
-impl Drop for VulkanContext {
-    fn drop(&mut self) {
-        unsafe {
-            // Chapters destroy their own objects first; this only waits out anything in flight.
-            let _ = self.device.device_wait_idle();
-            self.device.destroy_device(None);
-        }
-        destroy_instance(&self.instance, &self.debug);
+impl VulkanContext {
+    /// Waits until the device has finished all work: what a chapter does once, before its list
+    /// of `drop`s, so that no guard destroys what the GPU still uses.
+    pub fn wait_idle(&self) -> Result<()> {
+        unsafe { self.device.device_wait_idle() }.context("vkDeviceWaitIdle")
     }
 }
 
-fn destroy_instance(
-    instance: &ash::Instance,
-    debug: &Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
-) {
-    unsafe {
-        if let Some((loader, messenger)) = debug {
-            loader.destroy_debug_utils_messenger(*messenger, None);
+impl Drop for VulkanContext {
+    /// The device; then (a field) the instance. The chapter's objects are gone by now: it made
+    /// them after the context, so they were dropped before it.
+    fn drop(&mut self) {
+        unsafe { self.device.destroy_device(None) };
+    }
+}
+
+/// The instance and the validation layer's messenger, destroyed when dropped.
+pub struct Instance {
+    instance: ash::Instance,
+    debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+}
+
+impl std::ops::Deref for Instance {
+    type Target = ash::Instance;
+    fn deref(&self) -> &ash::Instance {
+        &self.instance
+    }
+}
+
+impl Drop for Instance {
+    fn drop(&mut self) {
+        unsafe {
+            if let Some((loader, messenger)) = &self.debug {
+                loader.destroy_debug_utils_messenger(*messenger, None);
+            }
+            self.instance.destroy_instance(None);
         }
-        instance.destroy_instance(None);
     }
 }
 
@@ -394,68 +408,4 @@ fn device_info(instance: &ash::Instance, physical_device: vk::PhysicalDevice) ->
         device_uuid: id.device_uuid,
         driver_uuid: id.driver_uuid,
     }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Validation
-
-static VALIDATION_ON: AtomicBool = AtomicBool::new(false);
-static VALIDATION_ERRORS: AtomicU32 = AtomicU32::new(0);
-static VALIDATION_WARNINGS: AtomicU32 = AtomicU32::new(0);
-
-/// The validation layer is on whenever it is installed, unless `VKGL_VALIDATION=0`.
-fn validation_wanted(entry: &ash::Entry) -> bool {
-    if std::env::var("VKGL_VALIDATION").is_ok_and(|v| v == "0") {
-        return false;
-    }
-    let layers = unsafe { entry.enumerate_instance_layer_properties() }.unwrap_or_default();
-    let found = layers.iter().any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER));
-    if !found {
-        eprintln!("vulkan: VK_LAYER_KHRONOS_validation is not installed; running without validation");
-    }
-    found
-}
-
-/// How many errors and warnings the validation layer reported in this process so far.
-pub fn validation_counts() -> ValidationReport {
-    ValidationReport {
-        layer: VALIDATION_ON.load(Ordering::Relaxed),
-        errors: VALIDATION_ERRORS.load(Ordering::Relaxed),
-        warnings: VALIDATION_WARNINGS.load(Ordering::Relaxed),
-        gl_errors: 0,
-    }
-}
-
-fn messenger_create_info() -> vk::DebugUtilsMessengerCreateInfoEXT<'static> {
-    vk::DebugUtilsMessengerCreateInfoEXT::default()
-        .message_severity(
-            vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-        )
-        .message_type(
-            vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-                | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
-        )
-        .pfn_user_callback(Some(on_validation_message))
-}
-
-unsafe extern "system" fn on_validation_message(
-    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
-    _types: vk::DebugUtilsMessageTypeFlagsEXT,
-    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
-    _user_data: *mut c_void,
-) -> vk::Bool32 {
-    // SAFETY: the layer passes a valid callback-data struct whose message is a C string or null.
-    let message = unsafe { data.as_ref() }
-        .filter(|d| !d.p_message.is_null())
-        .map(|d| unsafe { CStr::from_ptr(d.p_message) }.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
-        VALIDATION_ERRORS.fetch_add(1, Ordering::Relaxed);
-        eprintln!("validation error: {message}");
-    } else {
-        VALIDATION_WARNINGS.fetch_add(1, Ordering::Relaxed);
-        eprintln!("validation warning: {message}");
-    }
-    vk::FALSE
 }

@@ -8,7 +8,7 @@
 //! resizes and the close request. Rendering stays in the chapter's loop.
 
 use crate::base::cli::Size;
-use crate::base::gl::GlContext;
+use crate::base::gl::{GlContext, create};
 use anyhow::{Context as _, Result, anyhow, bail};
 use glutin::config::{Config, ConfigTemplateBuilder, GlConfig as _};
 use glutin::context::{ContextApi, ContextAttributesBuilder, GlProfile, PossiblyCurrentContext, Version};
@@ -265,14 +265,18 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
         let (w, h) = image.dimensions();
         // PNG rows start at the top, GL's at the bottom.
         let rows = crate::base::output::flip_rows(image.as_raw(), w, h);
+        let texture = create(gl, "glCreateTextures for a picture", |gl| unsafe {
+            gl.create_named_texture(glow::TEXTURE_2D)
+        })?;
+        let framebuffer =
+            create(gl, "glCreateFramebuffers for a picture", |gl| unsafe { gl.create_named_framebuffer() })?;
         unsafe {
-            let texture = gl.create_named_texture(glow::TEXTURE_2D).map_err(anyhow::Error::msg)?;
-            gl.texture_storage_2d(texture, 1, glow::RGBA8, w as i32, h as i32);
+            gl.texture_storage_2d(*texture, 1, glow::RGBA8, w as i32, h as i32);
             crate::base::resources::created("gl_texture: RGBA8", 4 * w as u64 * h as u64);
             let pixels = glow::PixelUnpackData::Slice(Some(&rows));
             gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
             gl.texture_sub_image_2d(
-                texture,
+                *texture,
                 0,
                 0,
                 0,
@@ -282,23 +286,24 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
                 glow::UNSIGNED_BYTE,
                 pixels,
             );
-            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
-            gl.named_framebuffer_texture(Some(framebuffer), glow::COLOR_ATTACHMENT0, Some(texture), 0);
-            shown.push((name.as_str(), texture, framebuffer, w as i32, h as i32));
+            gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, Some(*texture), 0);
         }
+        // Each framebuffer is deleted before its texture (tuple fields drop in order).
+        shown.push((name.as_str(), framebuffer, texture, w as i32, h as i32));
     }
     eprintln!("window: {} picture(s); Space/→ next, ← previous, Esc quits", shown.len());
     let (mut current, mut frame, mut seen) = (0, 0, false);
     while !window.close_requested() && (frames == 0 || frame < frames) {
         for key in window.poll(&gl_context).collect::<Vec<_>>() {
             match key.as_ref() {
-                Key::Named(NamedKey::Escape) => return finish(gl, &shown).map(|_| seen),
+                Key::Named(NamedKey::Escape) => return Ok(seen), // `shown` deletes the pictures
                 Key::Named(NamedKey::Space | NamedKey::ArrowRight) => current = (current + 1) % shown.len(),
                 Key::Named(NamedKey::ArrowLeft) => current = (current + shown.len() - 1) % shown.len(),
                 _ => {}
             }
         }
-        let (name, _, framebuffer, w, h) = shown[current];
+        let (name, ref framebuffer, _, w, h) = shown[current];
+        let framebuffer = **framebuffer;
         let (ww, wh) = window.size();
         // As large as fits, aspect kept, centred.
         let scale = (ww as f32 / w as f32).min(wh as f32 / h as f32);
@@ -338,17 +343,6 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
         window.swap_buffers(&gl_context)?;
         frame += 1;
     }
-    finish(gl, &shown).map(|_| seen)
-}
-
-fn finish(gl: &glow::Context, shown: &[(&str, glow::Texture, glow::Framebuffer, i32, i32)]) -> Result<()> {
-    use glow::HasContext;
-    for &(_, texture, framebuffer, _, _) in shown.iter().rev() {
-        unsafe {
-            gl.delete_framebuffer(framebuffer);
-            gl.delete_texture(texture);
-        }
-    }
-    Ok(())
+    Ok(seen) // `shown` deletes the pictures (before the window's context: declared after it)
 }
 // ANCHOR_END: show_pictures

@@ -2,11 +2,13 @@
 //! an offscreen colour buffer whose depth buffer is the G-buffer pass's.
 
 use super::overlay::Target;
+use crate::base::gl::{Owned, create};
 use crate::rt::ao::AoTracer;
 use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
 use glam::Vec3;
 use glow::HasContext;
+use std::rc::Rc;
 
 const FULLSCREEN: &str = include_str!("../../../shaders/gl/fullscreen.vert");
 const COMPOSITE: &str = include_str!("../../../shaders/gl/composite.frag");
@@ -53,33 +55,30 @@ pub struct Uniforms {
 /// buffer is the G-buffer pass's, so that overlays drawn next are tested against the scene.
 /// Deleted when dropped too, so that an early return from `run` leaves nothing behind.
 pub struct Composite {
-    program: glow::Program,
-    empty: glow::VertexArray,
-    framebuffer: glow::Framebuffer,
-    colour: glow::Renderbuffer,
+    framebuffer: Owned<glow::Framebuffer>,
+    colour: Owned<glow::Renderbuffer>,
+    empty: Owned<glow::VertexArray>,
+    program: Owned<glow::Program>,
     width: u32,
     height: u32,
-    gl: std::rc::Rc<glow::Context>,
 }
 
 impl Composite {
-    pub fn new(gl: &std::rc::Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
+    pub fn new(gl: &Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
         let program = crate::base::gl::program(gl, FULLSCREEN, COMPOSITE)?;
         // Core profile draws need a vertex array bound, even one that feeds nothing.
-        let empty = unsafe { gl.create_named_vertex_array() }.map_err(anyhow::Error::msg)?;
-        let (framebuffer, colour) = unsafe { new_target(gl, gbuffers)? };
+        let empty = create(gl, "glCreateVertexArrays for the composite", |gl| unsafe {
+            gl.create_named_vertex_array()
+        })?;
+        let (framebuffer, colour) = new_target(gl, gbuffers)?;
         let (width, height) = (gbuffers.extent.width, gbuffers.extent.height);
-        Ok(Composite { program, empty, framebuffer, colour, width, height, gl: gl.clone() })
+        Ok(Composite { framebuffer, colour, empty, program, width, height })
     }
 
     /// After the G-buffers were made anew: a colour buffer of their size, their depth buffer.
-    pub fn resize(&mut self, gl: &glow::Context, gbuffers: &GBuffers) -> Result<()> {
-        let (framebuffer, colour) = unsafe { new_target(gl, gbuffers)? };
-        unsafe {
-            gl.delete_framebuffer(std::mem::replace(&mut self.framebuffer, framebuffer));
-            gl.delete_renderbuffer(std::mem::replace(&mut self.colour, colour));
-            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
-        }
+    pub fn resize(&mut self, gl: &Rc<glow::Context>, gbuffers: &GBuffers) -> Result<()> {
+        // The old target is deleted as the new one takes its place.
+        (self.framebuffer, self.colour) = new_target(gl, gbuffers)?;
         (self.width, self.height) = (gbuffers.extent.width, gbuffers.extent.height);
         Ok(())
     }
@@ -88,18 +87,18 @@ impl Composite {
     /// Albedo x occlusion (or a debug view) into the offscreen target.
     pub fn draw(&self, gl: &glow::Context, gbuffers: &GBuffers, tracer: &AoTracer, u: &Uniforms) {
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*self.framebuffer));
             gl.viewport(0, 0, self.width as i32, self.height as i32);
             // A full-screen pass: it must neither be hidden by the scene's depth nor change it.
             gl.disable(glow::DEPTH_TEST);
             gl.depth_mask(false);
-            gl.use_program(Some(self.program));
+            gl.use_program(Some(*self.program));
             for (unit, texture) in
                 gbuffers.textures().into_iter().chain([tracer.image.texture.texture]).enumerate()
             {
                 gl.bind_texture_unit(unit as u32, Some(texture));
             }
-            let at = |name| gl.get_uniform_location(self.program, name);
+            let at = |name| gl.get_uniform_location(*self.program, name);
             gl.uniform_1_i32(at("blur_radius").as_ref(), u.blur_radius);
             gl.uniform_1_f32(at("depth_tolerance").as_ref(), u.depth_tolerance);
             gl.uniform_1_f32(at("normal_tolerance").as_ref(), u.normal_tolerance);
@@ -109,7 +108,7 @@ impl Composite {
             gl.uniform_3_f32(at("bounds_low").as_ref(), low.x, low.y, low.z);
             gl.uniform_3_f32(at("bounds_high").as_ref(), high.x, high.y, high.z);
             gl.uniform_1_f32(at("far_depth").as_ref(), u.far_depth);
-            gl.bind_vertex_array(Some(self.empty));
+            gl.bind_vertex_array(Some(*self.empty));
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
             gl.bind_vertex_array(None);
             gl.depth_mask(true);
@@ -119,14 +118,14 @@ impl Composite {
 
     /// Where overlays draw over the picture: this target, whose depth is the scene's.
     pub fn target(&self) -> Target {
-        Target { framebuffer: self.framebuffer, width: self.width, height: self.height }
+        Target { framebuffer: *self.framebuffer, width: self.width, height: self.height }
     }
 
     /// The target's RGBA8 pixels, bottom row first (memory order).
     pub fn read(&self, gl: &glow::Context) -> Vec<u8> {
         let mut pixels = vec![0u8; (self.width * self.height * 4) as usize];
         unsafe {
-            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(self.framebuffer));
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*self.framebuffer));
             gl.pixel_store_i32(glow::PACK_ALIGNMENT, 1);
             let data = glow::PixelPackData::Slice(Some(&mut pixels));
             gl.read_pixels(
@@ -147,7 +146,7 @@ impl Composite {
     pub fn show(&self, gl: &glow::Context, (width, height): (u32, u32)) {
         unsafe {
             gl.blit_named_framebuffer(
-                Some(self.framebuffer),
+                Some(*self.framebuffer),
                 None,
                 0,
                 0,
@@ -162,60 +161,44 @@ impl Composite {
             );
         }
     }
-
-    pub fn destroy(self, _gl: &glow::Context) {
-        drop(self); // Drop below
-    }
-}
-
-impl Drop for Composite {
-    fn drop(&mut self) {
-        let gl = &self.gl;
-        unsafe {
-            gl.delete_framebuffer(self.framebuffer);
-            gl.delete_renderbuffer(self.colour);
-            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
-            gl.delete_vertex_array(self.empty);
-            gl.delete_program(self.program);
-        }
-    }
 }
 
 // ANCHOR: target
 /// An RGBA8 colour buffer, with the G-buffer pass's depth buffer attached as this target's
 /// depth: the scene's depth, exactly as GL rasterised it.
-unsafe fn new_target(
-    gl: &glow::Context,
+fn new_target(
+    gl: &Rc<glow::Context>,
     gbuffers: &GBuffers,
-) -> Result<(glow::Framebuffer, glow::Renderbuffer)> {
+) -> Result<(Owned<glow::Framebuffer>, Owned<glow::Renderbuffer>)> {
+    let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
+    let colour =
+        create(gl, "glCreateRenderbuffers for the composite", |gl| unsafe { gl.create_renderbuffer() })?
+            .counted("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
+    let fb =
+        create(gl, "glCreateFramebuffers for the composite", |gl| unsafe { gl.create_named_framebuffer() })?;
     unsafe {
-        let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
-        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
-        let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
+        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*colour));
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-        crate::base::resources::created("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
-        let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         gl.named_framebuffer_renderbuffer(
-            Some(fb),
+            Some(*fb),
             glow::COLOR_ATTACHMENT0,
             glow::RENDERBUFFER,
-            Some(colour),
+            Some(*colour),
         );
         gl.named_framebuffer_renderbuffer(
-            Some(fb),
+            Some(*fb),
             glow::DEPTH_ATTACHMENT,
             glow::RENDERBUFFER,
-            Some(gbuffers.depth),
+            Some(*gbuffers.depth),
         );
-        let status = gl.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
-        if status != glow::FRAMEBUFFER_COMPLETE {
-            gl.delete_framebuffer(fb);
-            gl.delete_renderbuffer(colour);
-            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
-            anyhow::bail!("composite framebuffer incomplete: {status:#x}");
-        }
-        Ok((fb, colour))
+        let status = gl.check_named_framebuffer_status(Some(*fb), glow::FRAMEBUFFER);
+        // Incomplete: `fb` and `colour` are dropped on the way out, which deletes them.
+        anyhow::ensure!(
+            status == glow::FRAMEBUFFER_COMPLETE,
+            "composite framebuffer incomplete: {status:#x}"
+        );
     }
+    Ok((fb, colour))
 }
 // ANCHOR_END: target

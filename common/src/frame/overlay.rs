@@ -2,10 +2,12 @@
 //! scene's depth, so that the scene's surfaces hide them where they should. GL's own buffer:
 //! Vulkan never sees these.
 
+use crate::base::gl::{Owned, create};
 use crate::scene::{Camera, Scene};
 use anyhow::Result;
 use glam::{Mat4, Vec3, Vec4};
 use glow::HasContext;
+use std::rc::Rc;
 
 const LINES_VERTEX: &str = include_str!("../../../shaders/gl/lines.vert");
 const LINES_FRAGMENT: &str = include_str!("../../../shaders/gl/lines.frag");
@@ -76,18 +78,23 @@ impl Lines {
 /// Line vertices in a GL buffer, with the vertex array `lines.vert` reads them through
 /// (location 0 the position, 1 the colour).
 pub struct LineBuffer {
-    pub vertex_array: glow::VertexArray,
-    pub buffer: glow::Buffer,
+    pub vertex_array: Owned<glow::VertexArray>,
+    pub buffer: Owned<glow::Buffer>,
 }
 
 impl LineBuffer {
-    pub fn new(gl: &glow::Context, vertices: &[LineVertex]) -> Result<Self> {
+    pub fn new(gl: &Rc<glow::Context>, vertices: &[LineVertex]) -> Result<Self> {
         let bytes = crate::scene::gbuffer::as_bytes(vertices);
+        let buffer =
+            create(gl, "glCreateBuffers for the overlay lines", |gl| unsafe { gl.create_named_buffer() })?;
+        let vertex_array = create(gl, "glCreateVertexArrays for the overlay lines", |gl| unsafe {
+            gl.create_named_vertex_array()
+        })?;
+        let lines = LineBuffer { vertex_array, buffer };
+        let (vertex_array, buffer) = (*lines.vertex_array, *lines.buffer);
         unsafe {
-            let buffer = gl.create_named_buffer().map_err(anyhow::Error::msg)?;
             gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
             crate::base::resources::created("gl_buffer", bytes.len() as u64);
-            let vertex_array = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
             let stride = size_of::<LineVertex>() as i32;
             gl.vertex_array_vertex_buffer(vertex_array, 0, Some(buffer), 0, stride);
             for (location, offset) in [(0, 0), (1, 12)] {
@@ -95,23 +102,16 @@ impl LineBuffer {
                 gl.vertex_array_attrib_format_f32(vertex_array, location, 3, glow::FLOAT, false, offset);
                 gl.vertex_array_attrib_binding_f32(vertex_array, location, 0);
             }
-            Ok(LineBuffer { vertex_array, buffer })
         }
-    }
-
-    pub fn delete(self, gl: &glow::Context) {
-        unsafe {
-            gl.delete_vertex_array(self.vertex_array);
-            gl.delete_buffer(self.buffer);
-        }
+        Ok(lines)
     }
 }
 
 /// The overlay lines: an axis gizmo through the scene's centre, and the selected instance's
 /// oriented bounding box.
 pub struct Overlays {
-    program: glow::Program,
     lines: LineBuffer,
+    program: Owned<glow::Program>,
     count: i32,
     /// The gizmo's half-axes, for the checks.
     axes: Vec<HalfAxis>,
@@ -124,7 +124,7 @@ pub struct Probes {
 }
 
 impl Overlays {
-    pub fn new(gl: &glow::Context, scene: &Scene, select: usize) -> Result<Self> {
+    pub fn new(gl: &Rc<glow::Context>, scene: &Scene, select: usize) -> Result<Self> {
         // ANCHOR: lines
         let centre = (scene.bounds.0 + scene.bounds.1) / 2.0;
         // The negative halves go below the ground or behind the bunny: often hidden.
@@ -149,7 +149,7 @@ impl Overlays {
         let program = crate::base::gl::program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
         let count = lines.vertices.len() as i32;
         let lines = LineBuffer::new(gl, &lines.vertices)?;
-        Ok(Overlays { program, lines, count, axes })
+        Ok(Overlays { lines, program, count, axes })
     }
 
     // ANCHOR: draw_lines
@@ -162,10 +162,10 @@ impl Overlays {
             // LEQUAL: a line lying on a surface (an edge of the selected box) stays visible.
             gl.depth_func(glow::LEQUAL);
             gl.depth_mask(false);
-            gl.use_program(Some(self.program));
-            let at = gl.get_uniform_location(self.program, "view_projection");
+            gl.use_program(Some(*self.program));
+            let at = gl.get_uniform_location(*self.program, "view_projection");
             gl.uniform_matrix_4_f32_slice(at.as_ref(), false, &view_projection.to_cols_array());
-            gl.bind_vertex_array(Some(self.lines.vertex_array));
+            gl.bind_vertex_array(Some(*self.lines.vertex_array));
             gl.draw_arrays(glow::LINES, 0, self.count);
             gl.bind_vertex_array(None);
             gl.depth_mask(true);
@@ -208,10 +208,5 @@ impl Overlays {
             }
         }
         probes
-    }
-
-    pub fn destroy(self, gl: &glow::Context) {
-        self.lines.delete(gl);
-        unsafe { gl.delete_program(self.program) };
     }
 }

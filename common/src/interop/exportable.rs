@@ -3,6 +3,7 @@
 //! gpu-allocator cannot do this (it has no way to chain `VkExportMemoryAllocateInfo`), so every
 //! shared resource gets its own plain `vkAllocateMemory`, bound at offset 0.
 
+use crate::base::fail;
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -42,6 +43,8 @@ pub struct ExportableMemory {
     pub property_flags: vk::MemoryPropertyFlags,
     /// The memory types the resource allowed (`memoryTypeBits`): bit i set, type i allowed.
     pub allowed_types: u32,
+    /// Its count in `base::resources`: whoever frees `memory` drops this with it.
+    pub counted: Option<crate::base::resources::Counted>,
 }
 
 // ANCHOR: allocate
@@ -81,12 +84,12 @@ pub fn allocate(
     }
     // ANCHOR_END: device_address
     // ANCHOR: allocate_memory
-    let memory = unsafe { ctx.device.allocate_memory(&info, None) }
-        .with_context(|| format!("allocating {size} bytes of exportable memory ({properties:?})"))?;
-    crate::base::resources::created("vk_memory_exportable", size);
+    let what = format!("vkAllocateMemory: {size} bytes of exportable memory ({properties:?})");
+    let memory = fail::call(&what, || unsafe { ctx.device.allocate_memory(&info, None) })?;
+    let counted = Some(crate::base::resources::count("vk_memory_exportable", size));
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     let allowed_types = requirements.memory_type_bits;
-    Ok(ExportableMemory { memory, size, memory_type_index, property_flags, allowed_types })
+    Ok(ExportableMemory { memory, size, memory_type_index, property_flags, allowed_types, counted })
 }
 // ANCHOR_END: allocate_memory
 
@@ -139,8 +142,8 @@ pub fn create_image(
         // Some drivers corrupt shared images unless views of other formats are allowed.
         .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
         .push_next(&mut external);
-    let image = unsafe { ctx.device.create_image(&info, None) }
-        .with_context(|| format!("vkCreateImage ({format:?})"))?;
+    let what = format!("vkCreateImage (exportable, {format:?})");
+    let image = fail::call(&what, || unsafe { ctx.device.create_image(&info, None) })?;
     crate::base::resources::created("vk_image_exportable", 0);
     Ok(image)
 }
@@ -173,14 +176,15 @@ pub fn image_info<'a>(
 /// an import (GL's or Vulkan's) succeeds and takes it over.
 pub fn export_fd(loader: &ash::khr::external_memory_fd::Device, memory: vk::DeviceMemory) -> Result<OwnedFd> {
     let info = vk::MemoryGetFdInfoKHR::default().memory(memory).handle_type(HANDLE_TYPE);
-    let fd = unsafe { loader.get_memory_fd(&info) }.context("vkGetMemoryFdKHR")?;
+    let fd = fail::call("vkGetMemoryFdKHR", || unsafe { loader.get_memory_fd(&info) })?;
     // SAFETY: vkGetMemoryFdKHR returned a fresh fd that nothing else owns.
     Ok(unsafe { OwnedFd::from_raw_fd(fd) })
 }
 // ANCHOR_END: export_fd
 
 /// A buffer in exportable, host-visible memory, mapped for its lifetime (taught in chapters 01
-/// and 02): Vulkan's side of every buffer GL imports. Destroyed when dropped.
+/// and 02): Vulkan's side of every buffer GL imports. Destroyed when dropped; the GPU must be
+/// done with it.
 pub struct ExportedBuffer {
     pub buffer: vk::Buffer,
     pub memory: ExportableMemory,
@@ -212,7 +216,8 @@ impl ExportedBuffer {
             "{} cannot export a buffer with usage {usage:?} as an fd",
             ctx.info.name
         );
-        let buffer = unsafe { ctx.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
+        let buffer =
+            fail::call("vkCreateBuffer (exportable)", || unsafe { ctx.device.create_buffer(&info, None) })?;
         crate::base::resources::created("vk_buffer_exportable", 0);
         // The guard exists from the first object on: a failed allocation, bind or map below
         // destroys what was made before it.
@@ -233,10 +238,10 @@ impl ExportedBuffer {
         exported.memory = allocate(ctx, &requirements, host, dedicated)?;
         let memory = exported.memory.memory;
         unsafe { ctx.device.bind_buffer_memory(buffer, memory, 0) }.context("vkBindBufferMemory")?;
-        crate::base::fail::at("map")?; // `VKGL_FAIL_AT=map`: as if vkMapMemory had failed
-        exported.mapped = unsafe { ctx.device.map_memory(memory, 0, bytes, vk::MemoryMapFlags::empty()) }
-            .context("vkMapMemory")?
-            .cast::<u8>();
+        exported.mapped = fail::call("vkMapMemory (exportable)", || unsafe {
+            ctx.device.map_memory(memory, 0, bytes, vk::MemoryMapFlags::empty())
+        })?
+        .cast::<u8>();
         // SAFETY: `mapped` is `bytes` long, coherent, and nothing else uses it yet.
         unsafe { std::ptr::copy_nonoverlapping(data.as_ptr(), exported.mapped, data.len()) };
         Ok(exported)
@@ -248,24 +253,16 @@ impl ExportedBuffer {
         let info = vk::BufferDeviceAddressInfo::default().buffer(self.buffer);
         unsafe { ctx.device.get_buffer_device_address(&info) }
     }
-
-    /// Unmaps, frees the memory, destroys the buffer: what dropping it does.
-    pub fn destroy(self, _ctx: &VulkanContext) {
-        drop(self);
-    }
 }
 
 impl Drop for ExportedBuffer {
+    /// Unmaps, frees the memory, destroys the buffer.
     fn drop(&mut self) {
-        crate::base::commands::wait_idle(&self.device);
         unsafe {
             if !self.mapped.is_null() {
                 self.device.unmap_memory(self.memory.memory);
             }
-            if self.memory.memory != vk::DeviceMemory::null() {
-                self.device.free_memory(self.memory.memory, None);
-                crate::base::resources::destroyed("vk_memory_exportable");
-            }
+            self.device.free_memory(self.memory.memory, None); // and (a field) its count
             self.device.destroy_buffer(self.buffer, None);
         }
     }

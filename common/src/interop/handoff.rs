@@ -1,6 +1,7 @@
 //! How GL and Vulkan take turns on shared memory (taught in chapter 03): two exported
 //! semaphores where both drivers can share them, or the CPU waiting for each side where not.
 
+use crate::base::fail;
 use crate::base::gl::GlContext;
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
@@ -215,7 +216,7 @@ impl Handoff {
         layouts: &[u32],
     ) -> Result<()> {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
-        crate::base::fail::at("gl_acquire")?; // `VKGL_FAIL_AT=gl_acquire`, for the error-path tests
+        crate::base::fail::step("GL's acquire of the shared images")?;
         match self {
             Handoff::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -241,14 +242,6 @@ impl Handoff {
         }
     }
     // ANCHOR_END: gl_acquire
-
-    /// Destroys the semaphores on both sides (GL's first: it holds the imported payload).
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
-        if let Handoff::Semaphores { gl_done, vulkan_done } = self {
-            vulkan_done.destroy(vk, gl);
-            gl_done.destroy(vk, gl);
-        }
-    }
 }
 
 /// On the host path: how many of `textures` are not in the layout `layouts` names for them,
@@ -300,18 +293,23 @@ impl SharedSemaphore {
         let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
-        let semaphore = unsafe { vk.device.create_semaphore(&info, None) }.context("vkCreateSemaphore")?;
+        let semaphore = fail::call("vkCreateSemaphore (exportable)", || unsafe {
+            vk.device.create_semaphore(&info, None)
+        })?;
         crate::base::resources::created("vk_semaphore_exportable", 0);
         // From here on the guard destroys what exists on every early return.
         let mut shared =
             SharedSemaphore { vk: semaphore, gl: 0, device: vk.device.clone(), gl_fns: Some(*ext) };
         let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
         let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
-        let fd = unsafe { loader.get_semaphore_fd(&get) }.context("vkGetSemaphoreFdKHR")?;
+        let fd = fail::call("vkGetSemaphoreFdKHR", || unsafe { loader.get_semaphore_fd(&get) })?;
         // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns. Until the import
         // succeeds, `fd` closes it on every way out.
         let fd = unsafe { OwnedFd::from_raw_fd(fd) };
+        fail::step("glGenSemaphoresEXT")?;
         unsafe { (ext.GenSemaphoresEXT)(1, &mut shared.gl) };
+        crate::base::resources::alive("gl_semaphore");
+        fail::step("glImportSemaphoreFdEXT")?;
         unsafe {
             (ext.ImportSemaphoreFdEXT)(shared.gl, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
         };
@@ -323,18 +321,14 @@ impl SharedSemaphore {
         Ok(shared)
     }
     // ANCHOR_END: share_semaphore
-
-    /// GL's semaphore, then Vulkan's: what dropping it does.
-    pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {
-        drop(self);
-    }
 }
 
 impl Drop for SharedSemaphore {
+    /// GL's semaphore, then Vulkan's. No submission may still wait on or signal it.
     fn drop(&mut self) {
-        crate::base::commands::wait_idle(&self.device);
         if let (Some(ext), true) = (&self.gl_fns, self.gl != 0) {
             unsafe { (ext.DeleteSemaphoresEXT)(1, &self.gl) };
+            crate::base::resources::gone("gl_semaphore");
         }
         unsafe { self.device.destroy_semaphore(self.vk, None) };
     }

@@ -2,6 +2,7 @@
 //! in chapter 02) or a 2D texture (chapter 03) stored in it.
 
 use crate::base::commands::image_barrier;
+use crate::base::fail;
 use crate::base::gl::{
     DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MemoryObjectFns, OPTIMAL_TILING_EXT,
     TEXTURE_TILING_EXT,
@@ -16,7 +17,7 @@ use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
 use std::rc::Rc;
 
 /// A GL buffer whose storage is Vulkan memory. Deleted (buffer, then memory object) when
-/// dropped, so an early return leaks nothing; [`SharedBuffer::delete`] says so in the open.
+/// dropped, so an early return leaks nothing.
 pub struct SharedBuffer {
     pub buffer: glow::Buffer,
     pub memory_object: MemoryObject,
@@ -48,6 +49,7 @@ impl Drop for MemoryObject {
 /// On success GL owns the fd; on failure it is closed here, and the memory object deleted.
 pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) -> Result<MemoryObject> {
     let ext = gl.memory_fns()?;
+    fail::step("glCreateMemoryObjectsEXT")?;
     let mut name = 0;
     unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
     crate::base::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
@@ -58,8 +60,8 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
         let yes = glow::TRUE as i32;
         unsafe { (ext.MemoryObjectParameterivEXT)(name, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
     }
-    // (`VKGL_FAIL_AT=import` fails here, as a driver that refuses the import would.)
-    crate::base::fail::at("import")?;
+    // A step that can fail as a driver that refuses the import would.
+    fail::step("glImportMemoryFdEXT")?;
     // An error left by an earlier call would be read below as the import's own, and the fd then
     // closed although GL took it: report it now, while the fd is still only ours.
     gl.check_error("a GL call before glImportMemoryFdEXT")?;
@@ -83,12 +85,12 @@ pub fn import_buffer(
 ) -> Result<SharedBuffer> {
     let memory_object = import_memory(gl, fd, memory.size, false)?;
     // A failure from here on drops `memory_object`, which deletes it.
-    let buffer =
-        unsafe { gl.gl.create_named_buffer() }.map_err(anyhow::Error::msg).context("glCreateBuffers")?;
+    let buffer = fail::call("glCreateBuffers (imported)", || unsafe { gl.gl.create_named_buffer() })?;
     crate::base::resources::created("gl_buffer_imported", 0);
     let shared = SharedBuffer { buffer, memory_object, gl: gl.gl.clone() };
     // Like glNamedBufferStorage, but the storage already exists: it is the memory object.
     let ext = gl.memory_fns()?;
+    fail::step("glNamedBufferStorageMemEXT")?;
     unsafe { (ext.NamedBufferStorageMemEXT)(buffer.0.get(), bytes as isize, shared.memory_object.name, 0) };
     gl.check_error("glNamedBufferStorageMemEXT")?; // on failure `shared` deletes both
     Ok(shared)
@@ -124,14 +126,14 @@ pub fn import_texture_2d(
 ) -> Result<SharedTexture> {
     let memory_object = import_memory(gl, fd, memory.size, true)?;
     // The import succeeded: a failure from here on must still delete the memory object, and
-    // does, by dropping it. (`VKGL_FAIL_AT=texture` fails here.)
-    crate::base::fail::at("texture")?;
-    let texture = unsafe { gl.gl.create_named_texture(glow::TEXTURE_2D) }
-        .map_err(anyhow::Error::msg)
-        .context("glCreateTextures")?;
+    // does, by dropping it.
+    let texture = fail::call("glCreateTextures (imported)", || unsafe {
+        gl.gl.create_named_texture(glow::TEXTURE_2D)
+    })?;
     crate::base::resources::created("gl_texture_imported", 0);
     let shared = SharedTexture { texture, memory_object, gl: gl.gl.clone() };
     let ext = gl.memory_fns()?;
+    fail::step("glTextureStorageMem2DEXT")?;
     unsafe {
         // The Vulkan image was created with VK_IMAGE_TILING_OPTIMAL: the driver's private layout.
         gl.gl.texture_parameter_i32(texture, TEXTURE_TILING_EXT, OPTIMAL_TILING_EXT as i32);
@@ -150,15 +152,8 @@ pub fn import_texture_2d(
 }
 // ANCHOR_END: import_texture_2d
 
-impl SharedBuffer {
-    /// Deletes the buffer, then the memory object (which releases GL's hold on the memory):
-    /// what dropping it does, written where the reader sees the order.
-    pub fn delete(self, _gl: &GlContext) {
-        drop(self);
-    }
-}
-
 impl Drop for SharedBuffer {
+    /// Deletes the buffer, then the memory object (which releases GL's hold on the memory).
     fn drop(&mut self) {
         unsafe { self.gl.delete_buffer(self.buffer) };
         crate::base::resources::destroyed("gl_buffer_imported");
@@ -166,14 +161,8 @@ impl Drop for SharedBuffer {
     }
 }
 
-impl SharedTexture {
-    /// Deletes the texture, then the memory object.
-    pub fn delete(self, _gl: &GlContext) {
-        drop(self);
-    }
-}
-
 impl Drop for SharedTexture {
+    /// Deletes the texture, then (a field) the memory object.
     fn drop(&mut self) {
         crate::interop::handoff::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
         unsafe { self.gl.delete_texture(self.texture) };
@@ -182,8 +171,9 @@ impl Drop for SharedTexture {
 }
 
 /// A Vulkan image with its own exported memory and a view, and the GL texture that is the same
-/// memory (taught in chapter 03). Resizing means destroying it and making a new one. Dropped
-/// without [`SharedImage::destroy`] (an early return), it destroys itself the same way.
+/// memory (taught in chapter 03). Resizing means dropping it and making a new one. Dropped, it
+/// deletes GL's side first (texture, memory object), then Vulkan's (view, memory, image); the
+/// GPU must be done with it.
 pub struct SharedImage {
     pub image: vk::Image,
     pub memory: ExportableMemory,
@@ -218,13 +208,9 @@ fn destroy_vulkan_half(
     if image == vk::Image::null() {
         return; // nothing was made (or it has been handed on)
     }
-    crate::base::commands::wait_idle(device);
     unsafe {
         device.destroy_image_view(view, None);
-        if memory != vk::DeviceMemory::null() {
-            device.free_memory(memory, None);
-            crate::base::resources::destroyed("vk_memory_exportable");
-        }
+        device.free_memory(memory, None); // its count goes with the `ExportableMemory`
         if image != vk::Image::null() {
             device.destroy_image(image, None);
             crate::base::resources::destroyed("vk_image_exportable");
@@ -259,7 +245,9 @@ impl SharedImage {
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
             .subresource_range(crate::base::commands::COLOR_RANGE);
-        half.view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
+        half.view = fail::call("vkCreateImageView (exportable image)", || unsafe {
+            vk.device.create_image_view(&view_info, None)
+        })?;
         let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
         let fd = exportable::export_fd(&fd_loader, memory.memory)?;
         let texture = import_texture_2d(gl, &memory, fd, gl_format, extent.width, extent.height)?;
@@ -269,12 +257,6 @@ impl SharedImage {
         half.image = vk::Image::null();
         let device = vk.device.clone();
         Ok(SharedImage { image, memory, view, texture: ManuallyDrop::new(texture), extent, device })
-    }
-
-    /// GL's side first (texture, memory object), then Vulkan's (view, memory, image). Vulkan must
-    /// be idle with respect to the image.
-    pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {
-        drop(self); // Drop below, in that order
     }
 }
 

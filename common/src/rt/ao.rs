@@ -6,12 +6,12 @@ use crate::base::gl::GlContext;
 use crate::base::vulkan::VulkanContext;
 use crate::interop::handoff::{Apis, HandOver};
 use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
+use crate::rt::accel::GpuAllocator;
 use crate::rt::raytrace::{RayPipeline, push_bytes};
 use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
 use ash::vk;
 use glow::HasContext;
-use gpu_allocator::vulkan::Allocator;
 
 const RAYGEN: &[u8] = include_bytes!("../../../shaders/ao.rgen.spv");
 const MISS: &[u8] = include_bytes!("../../../shaders/miss.rmiss.spv");
@@ -77,11 +77,13 @@ pub fn nothing_to_trace(samples: u32, radius: f32) -> Option<&'static str> {
     }
 }
 
-/// The AO pipeline, the shared R32F image it accumulates into, and how far it has got.
+/// The AO pipeline, the shared R32F image it accumulates into, and how far it has got. Dropped,
+/// the image goes first (GL's side, then Vulkan's), then the pipeline; the GPU must be done
+/// with both.
 pub struct AoTracer {
-    pub pipeline: RayPipeline,
     /// The running mean of visibility: Vulkan writes it, GL samples it.
     pub image: SharedImage,
+    pub pipeline: RayPipeline,
     /// Rays per pixel already in the running mean; 0 starts it again.
     pub accumulated: u32,
     /// Has GL had the image yet? A new one starts undefined, never handed over.
@@ -94,7 +96,7 @@ impl AoTracer {
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
-        allocator: &mut Allocator,
+        allocator: &GpuAllocator,
         tlas: vk::AccelerationStructureKHR,
         gbuffers: &GBuffers,
     ) -> Result<Self> {
@@ -115,14 +117,8 @@ impl AoTracer {
         let pipeline = RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<AoRays>() as u32)?;
         pipeline.write_tlas(vk, 0, tlas);
         // ANCHOR_END: pipeline
-        let image = match Self::image(vk, gl, &pipeline, gbuffers) {
-            Ok(image) => image,
-            Err(error) => {
-                pipeline.destroy(vk, allocator);
-                return Err(error);
-            }
-        };
-        Ok(AoTracer { pipeline, image, accumulated: 0, gl_has_image: false, unoccluded: false })
+        let image = Self::image(vk, gl, &pipeline, gbuffers)?; // on failure `pipeline` is dropped
+        Ok(AoTracer { image, pipeline, accumulated: 0, gl_has_image: false, unoccluded: false })
     }
 
     // ANCHOR: image
@@ -153,20 +149,23 @@ impl AoTracer {
         }
         anyhow::ensure!(!self.gl_has_image, "fill_unoccluded: the AO image was already traced into");
         crate::interop::hand_new_images_to_gl(vk, &[&self.image])?;
+        let framebuffer =
+            crate::base::gl::create(&gl.gl, "glCreateFramebuffers to fill the AO image", |gl| unsafe {
+                gl.create_named_framebuffer()
+            })?;
         unsafe {
             let gl = &gl.gl;
-            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
             gl.named_framebuffer_texture(
-                Some(framebuffer),
+                Some(*framebuffer),
                 glow::COLOR_ATTACHMENT0,
                 Some(self.image.texture.texture),
                 0,
             );
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*framebuffer));
             gl.clear_buffer_f32_slice(glow::COLOR, 0, &[1.0, 0.0, 0.0, 0.0]);
             gl.bind_framebuffer(glow::FRAMEBUFFER, None);
-            gl.delete_framebuffer(framebuffer);
         }
+        drop(framebuffer); // filled: the image keeps the value
         self.gl_has_image = true;
         self.unoccluded = true;
         Ok(())
@@ -183,7 +182,7 @@ impl AoTracer {
     /// done with the old images.
     pub fn resize(&mut self, vk: &VulkanContext, gl: &GlContext, gbuffers: &GBuffers) -> Result<()> {
         let image = Self::image(vk, gl, &self.pipeline, gbuffers)?;
-        std::mem::replace(&mut self.image, image).destroy(vk, gl);
+        drop(std::mem::replace(&mut self.image, image));
         self.gl_has_image = false;
         self.unoccluded = false;
         self.accumulated = 0;
@@ -280,12 +279,6 @@ impl AoTracer {
         }
     }
     // ANCHOR_END: record
-
-    /// GL's side of the image first, then Vulkan's; then the pipeline.
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext, allocator: &mut Allocator) {
-        self.image.destroy(vk, gl);
-        self.pipeline.destroy(vk, allocator);
-    }
 }
 
 // ANCHOR: ao_rays

@@ -2,13 +2,17 @@
 //! shader binding table, and a storage image for results (taught in chapter 06; chapter 07
 //! traces its ambient occlusion rays through the same kind of pipeline).
 
+use crate::base::compute::shader_module;
+use crate::base::fail;
 use crate::base::vulkan::VulkanContext;
-use crate::rt::accel::DeviceBuffer;
+use crate::rt::accel::{DeviceBuffer, GpuAllocator, Memory};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
-use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme, Allocator};
+use gpu_allocator::vulkan::{AllocationCreateDesc, AllocationScheme};
 
+/// Dropped, it destroys the descriptor pool (and its set), the pipeline, its layouts, then (a
+/// field) the shader binding table. The GPU must be done with it.
 pub struct RayPipeline {
     pub loader: ash::khr::ray_tracing_pipeline::Device,
     pub pipeline: vk::Pipeline,
@@ -22,17 +26,11 @@ pub struct RayPipeline {
     device: ash::Device,
 }
 
-fn shader_module(vk: &VulkanContext, spirv: &[u8]) -> Result<vk::ShaderModule> {
-    let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv)).context("reading SPIR-V")?;
-    let info = vk::ShaderModuleCreateInfo::default().code(&words);
-    unsafe { vk.device.create_shader_module(&info, None) }.context("vkCreateShaderModule")
-}
-
 impl RayPipeline {
     /// `bindings`: descriptor set 0; `push_bytes`: the push constants both shaders may read.
     pub fn new(
         vk: &VulkanContext,
-        allocator: &mut Allocator,
+        allocator: &GpuAllocator,
         raygen: &[u8],
         miss: &[u8],
         bindings: &[vk::DescriptorSetLayoutBinding],
@@ -52,12 +50,12 @@ impl RayPipeline {
             regions: Default::default(),
             device: device.clone(),
         };
-        let set_layout = unsafe {
+        let set_layout = fail::call("vkCreateDescriptorSetLayout (ray tracing)", || unsafe {
             device.create_descriptor_set_layout(
                 &vk::DescriptorSetLayoutCreateInfo::default().bindings(bindings),
                 None,
             )
-        }?;
+        })?;
         this.set_layout = set_layout;
         let push = [vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR)
@@ -65,14 +63,15 @@ impl RayPipeline {
         let set_layouts = [set_layout];
         let layout_info =
             vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&push);
-        let layout = unsafe { device.create_pipeline_layout(&layout_info, None) }?;
+        let layout = fail::call("vkCreatePipelineLayout (ray tracing)", || unsafe {
+            device.create_pipeline_layout(&layout_info, None)
+        })?;
         this.layout = layout;
 
         // ANCHOR: pipeline
-        let raygen = shader_module(vk, raygen)?;
-        let miss =
-            shader_module(vk, miss).inspect_err(|_| unsafe { device.destroy_shader_module(raygen, None) })?;
-        let modules = [raygen, miss];
+        let raygen = shader_module(vk, raygen, "ray generation")?;
+        let miss = shader_module(vk, miss, "miss")?;
+        let modules = [raygen.module, miss.module];
         let stages = [
             vk::PipelineShaderStageCreateInfo::default()
                 .stage(vk::ShaderStageFlags::RAYGEN_KHR)
@@ -99,16 +98,17 @@ impl RayPipeline {
             .groups(&groups)
             .max_pipeline_ray_recursion_depth(1) // rays start in raygen only
             .layout(layout);
-        let pipeline = unsafe {
-            loader.create_ray_tracing_pipelines(
-                vk::DeferredOperationKHR::null(),
-                vk::PipelineCache::null(),
-                &[info],
-                None,
-            )
-        };
-        unsafe { modules.iter().for_each(|m| device.destroy_shader_module(*m, None)) };
-        let pipeline = pipeline.map_err(|(_, e)| e).context("vkCreateRayTracingPipelinesKHR")?[0];
+        let pipeline = fail::call("vkCreateRayTracingPipelinesKHR", || unsafe {
+            loader
+                .create_ray_tracing_pipelines(
+                    vk::DeferredOperationKHR::null(),
+                    vk::PipelineCache::null(),
+                    &[info],
+                    None,
+                )
+                .map_err(|(_, e)| e)
+        })?[0];
+        drop((raygen, miss)); // the pipeline keeps what it needs of them
         this.pipeline = pipeline;
         crate::base::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
@@ -123,15 +123,17 @@ impl RayPipeline {
                 descriptor_count: binding.descriptor_count,
             });
         }
-        this.pool = unsafe {
+        this.pool = fail::call("vkCreateDescriptorPool (ray tracing)", || unsafe {
             device.create_descriptor_pool(
                 &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes),
                 None,
             )
-        }?;
+        })?;
         let allocate =
             vk::DescriptorSetAllocateInfo::default().descriptor_pool(this.pool).set_layouts(&set_layouts);
-        this.set = unsafe { device.allocate_descriptor_sets(&allocate) }?[0];
+        this.set = fail::call("vkAllocateDescriptorSets (ray tracing)", || unsafe {
+            device.allocate_descriptor_sets(&allocate)
+        })?[0];
         Ok(this)
     }
 
@@ -175,27 +177,17 @@ impl RayPipeline {
         }
     }
     // ANCHOR_END: trace
-
-    /// Newest first: the descriptor pool (and its set), the pipeline, its layouts, the SBT.
-    pub fn destroy(mut self, vk: &VulkanContext, allocator: &mut Allocator) {
-        let sbt = self.sbt.take();
-        drop(self); // Drop below
-        if let Some(sbt) = sbt {
-            sbt.destroy(vk, allocator);
-        }
-    }
 }
 
 impl Drop for RayPipeline {
     fn drop(&mut self) {
-        crate::base::commands::wait_idle(&self.device);
         unsafe {
             self.device.destroy_descriptor_pool(self.pool, None);
             self.device.destroy_pipeline(self.pipeline, None);
             self.device.destroy_pipeline_layout(self.layout, None);
             self.device.destroy_descriptor_set_layout(self.set_layout, None);
         }
-        // `sbt`, if still here (an early return), is dropped next: it destroys its buffer.
+        // `sbt` is dropped next (a field): it destroys its buffer.
     }
 }
 
@@ -206,7 +198,7 @@ impl Drop for RayPipeline {
 fn shader_binding_table(
     vk: &VulkanContext,
     loader: &ash::khr::ray_tracing_pipeline::Device,
-    allocator: &mut Allocator,
+    allocator: &GpuAllocator,
     pipeline: vk::Pipeline,
     groups: u32,
 ) -> Result<(DeviceBuffer, [vk::StridedDeviceAddressRegionKHR; 4])> {
@@ -251,11 +243,10 @@ fn shader_binding_table(
 // ANCHOR_END: sbt
 
 /// An image only Vulkan uses (a ray tracer's output), in memory from gpu-allocator, with a view.
-/// Dropped without `destroy`, it destroys the view and image and leaves the memory to the
-/// allocator (as [`DeviceBuffer`] does).
+/// Dropped, it destroys the view and the image, then gives its memory back.
 pub struct StorageImage {
     pub image: vk::Image,
-    pub allocation: Allocation,
+    pub allocation: Memory,
     pub view: vk::ImageView,
     pub extent: vk::Extent2D,
     device: ash::Device,
@@ -264,7 +255,7 @@ pub struct StorageImage {
 impl StorageImage {
     pub fn new(
         vk: &VulkanContext,
-        allocator: &mut Allocator,
+        allocator: &GpuAllocator,
         format: vk::Format,
         usage: vk::ImageUsageFlags,
         extent: vk::Extent2D,
@@ -281,10 +272,10 @@ impl StorageImage {
             .tiling(vk::ImageTiling::OPTIMAL)
             .usage(usage | vk::ImageUsageFlags::STORAGE)
             .initial_layout(vk::ImageLayout::UNDEFINED);
-        let image = unsafe { vk.device.create_image(&info, None) }.context("vkCreateImage")?;
+        let image = fail::call("vkCreateImage (storage)", || unsafe { vk.device.create_image(&info, None) })?;
         let mut this = StorageImage {
             image,
-            allocation: Allocation::default(),
+            allocation: allocator.unallocated(),
             view: vk::ImageView::null(),
             extent,
             device: vk.device.clone(),
@@ -300,27 +291,22 @@ impl StorageImage {
         this.allocation = allocator.allocate(&description)?;
         let allocation = &this.allocation;
         crate::base::resources::created("vk_image: storage", allocation.size());
-        unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }?;
+        unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }
+            .context("vkBindImageMemory (storage)")?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
             .subresource_range(crate::base::commands::COLOR_RANGE);
-        this.view = unsafe { vk.device.create_image_view(&view_info, None) }.context("vkCreateImageView")?;
+        this.view = fail::call("vkCreateImageView (storage)", || unsafe {
+            vk.device.create_image_view(&view_info, None)
+        })?;
         Ok(this)
-    }
-
-    /// The view, the image, then its memory.
-    pub fn destroy(mut self, _vk: &VulkanContext, allocator: &mut Allocator) {
-        let allocation = std::mem::take(&mut self.allocation);
-        drop(self);
-        let _ = allocator.free(allocation);
     }
 }
 
 impl Drop for StorageImage {
     fn drop(&mut self) {
-        crate::base::commands::wait_idle(&self.device);
         unsafe {
             self.device.destroy_image_view(self.view, None);
             self.device.destroy_image(self.image, None);

@@ -2,7 +2,9 @@
 //! acceleration-structure builds, and the structures built from them. Here, above both the
 //! scene layer (GL's side of the buffers) and the Vulkan-only structures.
 
-use super::accel::{BlasLayout, BuildOptions, SceneAccel, TlasFlags, allocator, build_with, check_limits};
+use super::accel::{
+    BlasLayout, BuildOptions, GpuAllocator, SceneAccel, TlasFlags, allocator, build_with, check_limits,
+};
 use crate::base::commands::Commands;
 use crate::base::gl::GlContext;
 use crate::base::vulkan::VulkanContext;
@@ -10,16 +12,15 @@ use crate::scene::Scene;
 use crate::scene::gbuffer::SceneBuffers;
 use anyhow::Result;
 use ash::vk;
-use gpu_allocator::vulkan::Allocator;
 
 /// Chapters 05 and 06 in one call, for the chapters after them: the scene's buffers shared with
 /// GL and readable by acceleration-structure builds, the structures built from them, and the
-/// allocator and command buffer that took.
-/// (Fields are dropped in this order on an early return: newest first, as in `destroy`.)
+/// allocator their memory came from. Dropped, the structures go first, then the shared buffers
+/// (each GL side first). The builds are done (waited for): the chapter's own `Commands`, made
+/// after this, submits its frames.
 pub struct RayTracedScene {
     pub structures: SceneAccel,
-    pub commands: Commands,
-    pub allocator: Allocator,
+    pub allocator: GpuAllocator,
     pub buffers: SceneBuffers,
 }
 
@@ -47,22 +48,14 @@ impl RayTracedScene {
         layout: BlasLayout,
     ) -> Result<Self> {
         check_limits(vk, scene)?;
-        let mut allocator = allocator(vk)?;
+        let allocator = allocator(vk)?;
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let buffers = SceneBuffers::share(vk, gl, scene, usage)?;
+        // For the builds only (each waited for): dropped at the end of this call.
         let commands = Commands::new(vk)?;
         let structures =
-            build_with(vk, &mut allocator, &commands, scene, &buffers, BuildOptions { tlas_flags, layout })?;
-        Ok(RayTracedScene { allocator, buffers, commands, structures })
-    }
-
-    /// Newest first: the structures, the command buffer (after its last submission), the
-    /// allocator's memory, then the shared buffers, GL's side first.
-    pub fn destroy(mut self, vk: &VulkanContext, gl: &GlContext) {
-        self.structures.destroy(vk, &mut self.allocator);
-        self.commands.destroy(vk);
-        drop(self.allocator);
-        self.buffers.destroy(vk, gl);
+            build_with(vk, &allocator, &commands, scene, &buffers, BuildOptions { tlas_flags, layout })?;
+        Ok(RayTracedScene { structures, allocator, buffers })
     }
 }

@@ -1,7 +1,7 @@
 //! The scene's shared buffers and the G-buffers GL rasterises them into (taught in chapter 05;
 //! chapters 06-08 draw the same way).
 
-use crate::base::gl::GlContext;
+use crate::base::gl::{GlContext, Owned, create};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::ExportedBuffer;
 use crate::interop::{SharedBuffer, SharedImage, share_buffer};
@@ -27,9 +27,11 @@ const FRAGMENT_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.frag");
 
 /// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocated and GL
 /// imported: Vulkan's side (`.0`, for the acceleration structures) and GL's (`.1`, for drawing).
+/// Dropped, each buffer's GL side goes first (buffer, memory object), then Vulkan's.
 pub struct SceneBuffers {
     pub meshes: Vec<[(ExportedBuffer, SharedBuffer); 2]>,
-    pub instances: (ExportedBuffer, SharedBuffer),
+    /// Dropped by hand (in `Drop`), so that GL's side goes first here too.
+    pub instances: std::mem::ManuallyDrop<(ExportedBuffer, SharedBuffer)>,
 }
 
 impl SceneBuffers {
@@ -52,36 +54,38 @@ impl SceneBuffers {
         }
         let instances =
             share_buffer(vk, gl, as_bytes(&scene.instances), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
-        Ok(SceneBuffers { meshes, instances })
+        Ok(SceneBuffers { meshes, instances: std::mem::ManuallyDrop::new(instances) })
     }
     // ANCHOR_END: share_scene
 
     /// Bytes of Vulkan memory GL sees through these buffers.
     pub fn bytes(&self) -> u64 {
-        self.meshes.iter().flatten().chain([&self.instances]).map(|(v, _)| v.memory.size).sum()
+        self.meshes.iter().flatten().chain([&*self.instances]).map(|(v, _)| v.memory.size).sum()
     }
+}
 
-    /// GL's buffer, then its memory object, then Vulkan's buffer and memory, for each.
-    pub fn destroy(self, vk: &VulkanContext, gl: &GlContext) {
-        for (exported, shared) in self.meshes.into_iter().flatten().chain([self.instances]) {
-            shared.delete(gl);
-            exported.destroy(vk);
+impl Drop for SceneBuffers {
+    fn drop(&mut self) {
+        // SAFETY: taken once, here, and never used again.
+        let instances = unsafe { std::mem::ManuallyDrop::take(&mut self.instances) };
+        for (exported, shared) in std::mem::take(&mut self.meshes).into_iter().flatten().chain([instances]) {
+            drop(shared); // GL's buffer, then its memory object
+            drop(exported); // Vulkan's buffer and memory
         }
     }
 }
 
 /// The three G-buffer images (Vulkan's, imported by GL), GL's framebuffer over them with a
-/// depth buffer only GL needs, and what GL draws the scene with.
+/// depth buffer only GL needs, and what GL draws the scene with. Dropped, GL's own objects go
+/// first, then the images (each GL side first); the GPU must be done with them.
 pub struct GBuffers {
+    vertex_arrays: Vec<Owned<glow::VertexArray>>,
+    program: Owned<glow::Program>,
+    framebuffer: Owned<glow::Framebuffer>,
+    /// GL's depth of the scene, from the G-buffer pass: chapter 08 draws overlays against it.
+    pub depth: Owned<glow::Renderbuffer>,
     pub images: Vec<SharedImage>,
     pub extent: vk::Extent2D,
-    framebuffer: glow::Framebuffer,
-    /// GL's depth of the scene, from the G-buffer pass: chapter 08 draws overlays against it.
-    pub depth: glow::Renderbuffer,
-    program: glow::Program,
-    vertex_arrays: Vec<glow::VertexArray>,
-    /// For dropping: GL's objects go when the G-buffers do, on an early return too.
-    gl: std::rc::Rc<glow::Context>,
 }
 
 impl GBuffers {
@@ -114,7 +118,7 @@ impl GBuffers {
             .iter()
             .map(|[v, i]| unsafe { vertex_array(gl_, &v.1, &i.1, instances) })
             .collect::<Result<_>>()?;
-        Ok(GBuffers { images, extent, framebuffer, depth, program, vertex_arrays, gl: gl.gl.clone() })
+        Ok(GBuffers { vertex_arrays, program, framebuffer, depth, images, extent })
     }
 
     /// GL's textures, in `GBUFFERS` order, for the hand-overs.
@@ -140,11 +144,11 @@ impl GBuffers {
     unsafe fn bind(&self, gl: &glow::Context, camera: &Camera) {
         let (width, height) = (self.extent.width, self.extent.height);
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*self.framebuffer));
             gl.viewport(0, 0, width as i32, height as i32);
             gl.enable(glow::DEPTH_TEST);
-            gl.use_program(Some(self.program));
-            let uniform = |name| gl.get_uniform_location(self.program, name);
+            gl.use_program(Some(*self.program));
+            let uniform = |name| gl.get_uniform_location(*self.program, name);
             let projection = camera.projection(width as f32 / height as f32);
             gl.uniform_matrix_4_f32_slice(uniform("view").as_ref(), false, &camera.view().to_cols_array());
             gl.uniform_matrix_4_f32_slice(uniform("projection").as_ref(), false, &projection.to_cols_array());
@@ -157,7 +161,7 @@ impl GBuffers {
             for ((mesh, instances), vao) in
                 scene.meshes.iter().zip(&scene.mesh_instances).zip(&self.vertex_arrays)
             {
-                gl.bind_vertex_array(Some(*vao));
+                gl.bind_vertex_array(Some(**vao));
                 let (indices, count) = (mesh.indices.len() as i32, instances.len() as i32);
                 // base_instance: this mesh's instances start this many entries into the buffer.
                 let first = instances.start;
@@ -201,25 +205,6 @@ impl GBuffers {
         }
     }
     // ANCHOR_END: depth_first
-
-    /// GL's objects, then the images (each GL side first): what dropping them does.
-    pub fn destroy(self, _vk: &VulkanContext, _gl: &GlContext) {
-        drop(self);
-    }
-}
-
-impl Drop for GBuffers {
-    fn drop(&mut self) {
-        let gl = &self.gl;
-        unsafe {
-            self.vertex_arrays.drain(..).for_each(|v| gl.delete_vertex_array(v));
-            gl.delete_program(self.program);
-            gl.delete_framebuffer(self.framebuffer);
-            gl.delete_renderbuffer(self.depth);
-            crate::base::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
-        }
-        // `images` are dropped next, each GL side first.
-    }
 }
 
 /// Refuses a size the device cannot hold, naming the bytes, before anything is allocated: each
@@ -276,13 +261,15 @@ pub fn check_size(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> R
 /// # Safety
 /// GL's context must be current, and the three buffers GL's names for live shared buffers.
 pub unsafe fn vertex_array(
-    gl: &glow::Context,
+    gl: &std::rc::Rc<glow::Context>,
     vertices: &SharedBuffer,
     indices: &SharedBuffer,
     instances: &SharedBuffer,
-) -> Result<glow::VertexArray> {
+) -> Result<Owned<glow::VertexArray>> {
+    let owned =
+        create(gl, "glCreateVertexArrays for a mesh", |gl| unsafe { gl.create_named_vertex_array() })?;
+    let vao = *owned;
     unsafe {
-        let vao = gl.create_named_vertex_array().map_err(anyhow::Error::msg)?;
         gl.vertex_array_vertex_buffer(vao, 0, Some(vertices.buffer), 0, size_of::<Vertex>() as i32);
         gl.vertex_array_vertex_buffer(vao, 1, Some(instances.buffer), 0, size_of::<Instance>() as i32);
         gl.vertex_array_element_buffer(vao, Some(indices.buffer));
@@ -301,47 +288,48 @@ pub unsafe fn vertex_array(
         gl.bind_vertex_array(Some(vao));
         gl.vertex_binding_divisor(1, 1);
         gl.bind_vertex_array(None);
-        Ok(vao)
     }
+    Ok(owned)
 }
 // ANCHOR_END: vertex_array
 
 // ANCHOR: framebuffer
 /// One FBO over the three imported textures, plus a depth buffer only GL needs.
 unsafe fn framebuffer(
-    gl: &glow::Context,
+    gl: &std::rc::Rc<glow::Context>,
     images: &[SharedImage],
     extent: vk::Extent2D,
-) -> Result<(glow::Framebuffer, glow::Renderbuffer)> {
+) -> Result<(Owned<glow::Framebuffer>, Owned<glow::Renderbuffer>)> {
+    let (width, height) = (extent.width as i32, extent.height as i32);
+    let depth = create(gl, "glCreateRenderbuffers for the G-buffers' depth", |gl| unsafe {
+        gl.create_renderbuffer()
+    })?
+    .counted("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * width as u64 * height as u64);
+    let fb =
+        create(gl, "glCreateFramebuffers for the G-buffers", |gl| unsafe { gl.create_named_framebuffer() })?;
     unsafe {
-        let depth = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
-        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
-        let (width, height) = (extent.width as i32, extent.height as i32);
+        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*depth));
         gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, width, height);
-        crate::base::resources::created(
-            "gl_renderbuffer: DEPTH_COMPONENT32F",
-            4 * width as u64 * height as u64,
-        );
         gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-        let fb = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
         let mut draw_buffers = Vec::new();
         for (i, image) in images.iter().enumerate() {
             let attachment = glow::COLOR_ATTACHMENT0 + i as u32;
-            gl.named_framebuffer_texture(Some(fb), attachment, Some(image.texture.texture), 0);
+            gl.named_framebuffer_texture(Some(*fb), attachment, Some(image.texture.texture), 0);
             draw_buffers.push(attachment);
         }
         // Fragment output location i goes to attachment i.
-        gl.named_framebuffer_draw_buffers(Some(fb), &draw_buffers);
-        gl.named_framebuffer_renderbuffer(Some(fb), glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER, Some(depth));
-        let status = gl.check_named_framebuffer_status(Some(fb), glow::FRAMEBUFFER);
-        if status != glow::FRAMEBUFFER_COMPLETE {
-            gl.delete_framebuffer(fb);
-            gl.delete_renderbuffer(depth);
-            crate::base::resources::destroyed("gl_renderbuffer: DEPTH_COMPONENT32F");
-        }
+        gl.named_framebuffer_draw_buffers(Some(*fb), &draw_buffers);
+        gl.named_framebuffer_renderbuffer(
+            Some(*fb),
+            glow::DEPTH_ATTACHMENT,
+            glow::RENDERBUFFER,
+            Some(*depth),
+        );
+        let status = gl.check_named_framebuffer_status(Some(*fb), glow::FRAMEBUFFER);
+        // Incomplete: `fb` and `depth` are dropped on the way out, which deletes them.
         ensure!(status == glow::FRAMEBUFFER_COMPLETE, "G-buffer framebuffer incomplete: {status:#x}");
-        Ok((fb, depth))
     }
+    Ok((fb, depth))
 }
 // ANCHOR_END: framebuffer
 

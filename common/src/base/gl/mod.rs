@@ -167,6 +167,7 @@ impl GlContext {
     /// first EGL device when none matches (the chapter's UUID check then says why that is fatal).
     /// Fails, naming each one, when an extension in `required` is missing.
     pub fn headless(vulkan: &DeviceInfo, required: &[&str]) -> Result<Self> {
+        crate::base::fail::step("eglCreateContext (headless GL)")?;
         let devices: Vec<egl::device::Device> = egl::device::Device::query_devices()
             .context("EGL cannot list devices (EGL_EXT_device_enumeration): install libegl1 with Mesa's or the GPU vendor's EGL")?
             .collect();

@@ -1,11 +1,121 @@
-//! Small GL helpers every drawing chapter uses: programs compiled from GLSL, and an offscreen
-//! colour target.
+//! Small GL helpers every drawing chapter uses: GL objects that delete themselves, programs
+//! compiled from GLSL, and an offscreen colour target.
 
+use crate::base::fail;
 use anyhow::{Result, bail};
 use glow::HasContext;
+use std::rc::Rc;
+
+// ANCHOR: owned
+/// A GL object that deletes itself when dropped, with the `glDelete*` of its own type: a texture
+/// cannot be deleted as a buffer. `*object` is the glow name, for GL calls.
+pub struct Owned<T: Object> {
+    pub name: T,
+    gl: Rc<glow::Context>,
+    /// Its count in `base::resources`, for the kinds counted there (see [`Owned::counted`]).
+    counted: Option<crate::base::resources::Counted>,
+}
+
+/// A kind of GL object, and how it is deleted.
+pub trait Object: Copy {
+    /// Its kind in `base::resources`' live counts ("gl_object: buffer").
+    const KIND: &'static str;
+    /// # Safety
+    /// `self` is a live object of `gl`'s, and nothing uses it afterwards.
+    unsafe fn delete(self, gl: &glow::Context);
+}
+
+/// Creates a GL object with `create`, as one fallible step whose error names `what`
+/// (`"glCreateBuffers for the overlay lines"`), and owns it from then on.
+pub fn create<T: Object>(
+    gl: &Rc<glow::Context>,
+    what: &str,
+    create: impl FnOnce(&glow::Context) -> std::result::Result<T, String>,
+) -> Result<Owned<T>> {
+    let name = fail::call(what, || create(gl))?;
+    crate::base::resources::alive(T::KIND);
+    Ok(Owned { name, gl: gl.clone(), counted: None })
+}
+
+impl<T: Object> Owned<T> {
+    /// Counted in `base::resources` as one `kind` holding `bytes`, until it is deleted.
+    pub fn counted(mut self, kind: &str, bytes: u64) -> Self {
+        self.counted = Some(crate::base::resources::count(kind, bytes));
+        self
+    }
+}
+
+/// `n` GL objects of one kind, made as one fallible step (a timer's queries).
+pub fn create_n<T: Object>(
+    gl: &Rc<glow::Context>,
+    what: &str,
+    n: usize,
+    create: impl Fn(&glow::Context) -> std::result::Result<T, String>,
+) -> Result<Vec<Owned<T>>> {
+    fail::step(what)?;
+    let mut made = Vec::with_capacity(n);
+    for _ in 0..n {
+        let name = create(gl).map_err(|error| anyhow::Error::msg(error).context(what.to_owned()))?;
+        crate::base::resources::alive(T::KIND);
+        made.push(Owned { name, gl: gl.clone(), counted: None });
+    }
+    Ok(made)
+}
+
+impl<T: Object> Drop for Owned<T> {
+    fn drop(&mut self) {
+        // SAFETY: made by `create` on this context, and owned by nothing else.
+        unsafe { self.name.delete(&self.gl) };
+        crate::base::resources::gone(T::KIND);
+    }
+}
+// ANCHOR_END: owned
+
+impl<T: Object> std::ops::Deref for Owned<T> {
+    type Target = T;
+    fn deref(&self) -> &T {
+        &self.name
+    }
+}
+
+macro_rules! objects {
+    ($($ty:ident, $kind:literal => $delete:ident),* $(,)?) => {
+        $(impl Object for glow::$ty {
+            const KIND: &'static str = concat!("gl_object: ", $kind);
+            unsafe fn delete(self, gl: &glow::Context) {
+                unsafe { gl.$delete(self) }
+            }
+        })*
+    };
+}
+
+// glow's own types: its `glow::Buffer` ... are aliases through a trait, which Rust cannot tell apart.
+objects! {
+    NativeBuffer, "buffer" => delete_buffer,
+    NativeTexture, "texture" => delete_texture,
+    NativeFramebuffer, "framebuffer" => delete_framebuffer,
+    NativeRenderbuffer, "renderbuffer" => delete_renderbuffer,
+    NativeVertexArray, "vertex array" => delete_vertex_array,
+    NativeShader, "shader" => delete_shader,
+    NativeQuery, "query" => delete_query,
+}
+
+impl Object for glow::NativeProgram {
+    const KIND: &'static str = "gl_object: program";
+    unsafe fn delete(self, gl: &glow::Context) {
+        unsafe {
+            // The program in use is only flagged for deletion: unbind it first, so that it goes
+            // now, not whenever another program is bound.
+            if gl.get_parameter_i32(glow::CURRENT_PROGRAM) as u32 == self.0.get() {
+                gl.use_program(None);
+            }
+            gl.delete_program(self);
+        }
+    }
+}
 
 /// Compiles and links a program from GLSL sources; a failure carries GL's info log.
-pub fn program(gl: &glow::Context, vertex: &str, fragment: &str) -> Result<glow::Program> {
+pub fn program(gl: &Rc<glow::Context>, vertex: &str, fragment: &str) -> Result<Owned<glow::Program>> {
     program_from(
         gl,
         &[(glow::VERTEX_SHADER, vertex, "vertex"), (glow::FRAGMENT_SHADER, fragment, "fragment")],
@@ -14,11 +124,11 @@ pub fn program(gl: &glow::Context, vertex: &str, fragment: &str) -> Result<glow:
 
 /// As [`program`], with a geometry shader between the two.
 pub fn program_with_geometry(
-    gl: &glow::Context,
+    gl: &Rc<glow::Context>,
     vertex: &str,
     geometry: &str,
     fragment: &str,
-) -> Result<glow::Program> {
+) -> Result<Owned<glow::Program>> {
     let stages = [
         (glow::VERTEX_SHADER, vertex, "vertex"),
         (glow::GEOMETRY_SHADER, geometry, "geometry"),
@@ -28,100 +138,99 @@ pub fn program_with_geometry(
 }
 
 /// A program of one compute shader (chapter 12's composite).
-pub fn compute_program(gl: &glow::Context, compute: &str) -> Result<glow::Program> {
+pub fn compute_program(gl: &Rc<glow::Context>, compute: &str) -> Result<Owned<glow::Program>> {
     program_from(gl, &[(glow::COMPUTE_SHADER, compute, "compute")])
 }
 
-fn program_from(gl: &glow::Context, stages: &[(u32, &str, &str)]) -> Result<glow::Program> {
-    unsafe {
-        let program = gl.create_program().map_err(anyhow::Error::msg)?;
-        crate::base::resources::created("gl_program", 0);
-        let mut shaders = Vec::new();
-        for &(kind, source, name) in stages {
-            let shader = gl.create_shader(kind).map_err(anyhow::Error::msg)?;
-            gl.shader_source(shader, source);
-            gl.compile_shader(shader);
-            if !gl.get_shader_compile_status(shader) {
-                let log = gl.get_shader_info_log(shader);
-                gl.delete_shader(shader);
-                shaders.into_iter().for_each(|s| gl.delete_shader(s));
-                gl.delete_program(program);
-                bail!("the {name} shader does not compile:\n{log}");
-            }
-            gl.attach_shader(program, shader);
-            shaders.push(shader);
+/// Each stage's shader and the program are owned from creation on: a shader that does not
+/// compile, or a program that does not link, deletes what was made.
+fn program_from(gl: &Rc<glow::Context>, stages: &[(u32, &str, &str)]) -> Result<Owned<glow::Program>> {
+    let program = create(gl, "glCreateProgram", |gl| unsafe { gl.create_program() })?;
+    crate::base::resources::created("gl_program", 0);
+    let mut shaders = Vec::new();
+    for &(kind, source, name) in stages {
+        let shader = create(gl, &format!("glCreateShader for the {name} shader"), |gl| unsafe {
+            gl.create_shader(kind)
+        })?;
+        unsafe {
+            gl.shader_source(*shader, source);
+            gl.compile_shader(*shader);
         }
-        gl.link_program(program);
-        for shader in shaders {
-            gl.detach_shader(program, shader);
-            gl.delete_shader(shader);
+        // As if it had not compiled (a driver's compiler may refuse what another accepts).
+        fail::step(&format!("compiling the {name} shader"))?;
+        if !unsafe { gl.get_shader_compile_status(*shader) } {
+            let log = unsafe { gl.get_shader_info_log(*shader) };
+            bail!("the {name} shader does not compile:\n{log}");
         }
-        if !gl.get_program_link_status(program) {
-            let log = gl.get_program_info_log(program);
-            gl.delete_program(program);
-            bail!("the program does not link:\n{log}");
-        }
-        Ok(program)
+        unsafe { gl.attach_shader(*program, *shader) };
+        shaders.push(shader);
     }
+    unsafe { gl.link_program(*program) };
+    for shader in &shaders {
+        // Linked in, or not: the program needs its shaders no longer. (Dropped below.)
+        unsafe { gl.detach_shader(*program, **shader) };
+    }
+    drop(shaders);
+    fail::step("linking the program")?;
+    if !unsafe { gl.get_program_link_status(*program) } {
+        let log = unsafe { gl.get_program_info_log(*program) };
+        bail!("the program does not link:\n{log}");
+    }
+    Ok(program)
 }
 
 /// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::base::output`].
 /// Deleted when dropped.
 pub struct RenderTarget {
-    pub framebuffer: glow::Framebuffer,
-    pub colour: glow::Renderbuffer,
+    pub framebuffer: Owned<glow::Framebuffer>,
+    pub colour: Owned<glow::Renderbuffer>,
     pub width: u32,
     pub height: u32,
-    gl: std::rc::Rc<glow::Context>,
 }
 
 impl RenderTarget {
-    pub fn new(gl: &std::rc::Rc<glow::Context>, width: u32, height: u32) -> Result<Self> {
+    pub fn new(gl: &Rc<glow::Context>, width: u32, height: u32) -> Result<Self> {
+        let colour = create(gl, "glCreateRenderbuffers for the colour target", |gl| unsafe {
+            gl.create_renderbuffer()
+        })?
+        .counted("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
         unsafe {
-            let colour = gl.create_renderbuffer().map_err(anyhow::Error::msg)?;
-            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(colour));
+            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*colour));
             gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, width as i32, height as i32);
             gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-            crate::base::resources::created("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
-            let framebuffer = gl.create_named_framebuffer().map_err(anyhow::Error::msg)?;
+        }
+        let framebuffer = create(gl, "glCreateFramebuffers for the colour target", |gl| unsafe {
+            gl.create_named_framebuffer()
+        })?;
+        let target = RenderTarget { framebuffer, colour, width, height };
+        unsafe {
             gl.named_framebuffer_renderbuffer(
-                Some(framebuffer),
+                Some(*target.framebuffer),
                 glow::COLOR_ATTACHMENT0,
                 glow::RENDERBUFFER,
-                Some(colour),
+                Some(*target.colour),
             );
-            let status = gl.check_named_framebuffer_status(Some(framebuffer), glow::FRAMEBUFFER);
+            let status = gl.check_named_framebuffer_status(Some(*target.framebuffer), glow::FRAMEBUFFER);
             if status != glow::FRAMEBUFFER_COMPLETE {
-                gl.delete_framebuffer(framebuffer);
-                gl.delete_renderbuffer(colour);
-                crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
-                bail!("offscreen framebuffer incomplete: {status:#x}");
+                bail!("offscreen framebuffer incomplete: {status:#x}"); // `target` deletes both
             }
-            Ok(RenderTarget { framebuffer, colour, width, height, gl: gl.clone() })
         }
+        Ok(target)
     }
 
     /// Binds it for drawing and reading, with a viewport that covers it.
     pub fn bind(&self, gl: &glow::Context) {
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(self.framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*self.framebuffer));
             gl.viewport(0, 0, self.width as i32, self.height as i32);
         }
-    }
-
-    /// What dropping it does, where the reader sees it.
-    pub fn delete(self, _gl: &glow::Context) {
-        drop(self);
     }
 }
 
 impl Drop for RenderTarget {
+    /// The framebuffer, then its renderbuffer (fields drop in order); unbound first, so that
+    /// deleting it leaves no binding behind.
     fn drop(&mut self) {
-        unsafe {
-            self.gl.bind_framebuffer(glow::FRAMEBUFFER, None);
-            self.gl.delete_framebuffer(self.framebuffer);
-            self.gl.delete_renderbuffer(self.colour);
-            crate::base::resources::destroyed("gl_renderbuffer: RGBA8");
-        }
+        unsafe { self.framebuffer.gl.bind_framebuffer(glow::FRAMEBUFFER, None) };
     }
 }

@@ -1,7 +1,7 @@
 //! The scene's structures built in one go: one compacted BLAS per mesh (or one flat BLAS for
 //! the whole scene) and the TLAS over the shared instance buffer.
 
-use super::memory::{DeviceBuffer, Scratch, query_pool};
+use super::memory::{DeviceBuffer, GpuAllocator, Scratch, query_pool};
 use super::structure::{
     AccelerationStructure, build_barrier, build_sizes, instances_at, instances_geometry, set_blas_address,
     tlas_built_barrier, triangles_geometry,
@@ -13,15 +13,15 @@ use crate::scene::gbuffer::SceneBuffers;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
-use gpu_allocator::vulkan::Allocator;
 
-/// The scene's acceleration structures and what building them cost.
+/// The scene's acceleration structures and what building them cost. Dropped, the TLAS goes
+/// first (it refers to the BLASes), then its instance buffer, then the BLASes.
 pub struct SceneAccel {
     pub loader: ash::khr::acceleration_structure::Device,
-    pub blases: Vec<AccelerationStructure>,
     pub tlas: AccelerationStructure,
     /// [`BlasLayout::Flat`]: the TLAS's one instance.
     pub flat_instance: Option<DeviceBuffer>,
+    pub blases: Vec<AccelerationStructure>,
     pub stats: AccelStats,
 }
 
@@ -50,7 +50,7 @@ pub struct AccelStats {
 /// instance buffer, which the TLAS then reads as it is.
 pub fn build(
     vk: &VulkanContext,
-    allocator: &mut Allocator,
+    allocator: &GpuAllocator,
     commands: &Commands,
     scene: &Scene,
     buffers: &SceneBuffers,
@@ -103,7 +103,7 @@ impl BuildOptions {
 /// [`build`], as `options` say.
 pub fn build_with(
     vk: &VulkanContext,
-    allocator: &mut Allocator,
+    allocator: &GpuAllocator,
     commands: &Commands,
     scene: &Scene,
     buffers: &SceneBuffers,
@@ -204,7 +204,7 @@ pub fn build_with(
     })?;
     // ANCHOR_END: blas_build
     stats.blas_build_ms = timestamps.as_ref().map(|t| t.between_ms(vk, 0, 1)).transpose()?;
-    scratch.destroy(vk, allocator);
+    drop(scratch); // run_once waited: the builds are done with it
 
     // ANCHOR: compact
     // Compaction: a BLAS built with ALLOW_COMPACTION knows how small it can be; copy it into a
@@ -218,7 +218,7 @@ pub fn build_with(
             vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
         )
     }
-    .context("reading the compacted sizes")?;
+    .context("vkGetQueryPoolResults: the compacted sizes")?;
     drop(compacted_sizes); // destroys the query pool
     let mut compacted = Vec::new();
     for &size in &sizes {
@@ -249,9 +249,8 @@ pub fn build_with(
         }
     })?;
     stats.compaction_ms = timestamps.as_ref().map(|t| t.between_ms(vk, 0, 1)).transpose()?;
-    for original in std::mem::replace(&mut blases, compacted) {
-        original.destroy(vk, &loader, allocator);
-    }
+    // The copies are done (run_once waited): the originals go.
+    drop(std::mem::replace(&mut blases, compacted));
     // ANCHOR_END: compact
 
     // ANCHOR: instances
@@ -316,10 +315,6 @@ pub fn build_with(
     // ANCHOR_END: tlas
     stats.tlas_build_ms = timestamps.as_ref().map(|t| t.between_ms(vk, 0, 1)).transpose()?;
     stats.tlas_bytes = tlas.bytes;
-    scratch.destroy(vk, allocator);
-    if let Some(t) = timestamps {
-        t.destroy(vk);
-    }
     Ok(SceneAccel { loader, blases, tlas, flat_instance, stats })
 }
 
@@ -364,7 +359,7 @@ fn flat_geometries(
 /// One TLAS instance with the identity transform, pointing at `blas`, in a buffer of its own.
 fn one_instance(
     vk: &VulkanContext,
-    allocator: &mut Allocator,
+    allocator: &GpuAllocator,
     blas: vk::DeviceAddress,
 ) -> Result<DeviceBuffer> {
     let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR;
@@ -376,17 +371,4 @@ fn one_instance(
     let mapped = buffer.allocation.mapped_slice_mut().context("the instance buffer is mapped")?;
     mapped[..size as usize].copy_from_slice(crate::scene::gbuffer::as_bytes(std::slice::from_ref(&instance)));
     Ok(buffer)
-}
-
-impl SceneAccel {
-    /// The TLAS first (it refers to the BLASes), then the BLASes.
-    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
-        self.tlas.destroy(vk, &self.loader, allocator);
-        if let Some(instance) = self.flat_instance {
-            instance.destroy(vk, allocator);
-        }
-        for blas in self.blases {
-            blas.destroy(vk, &self.loader, allocator);
-        }
-    }
 }

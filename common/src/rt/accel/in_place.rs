@@ -1,12 +1,11 @@
 //! Structures that move (chapters 09 and 10): one structure rebuilt or updated in place every
 //! frame, with a persistent scratch buffer.
 
-use super::memory::Scratch;
+use super::memory::{GpuAllocator, Scratch};
 use super::structure::build_sizes;
 use crate::base::vulkan::VulkanContext;
 use anyhow::Result;
 use ash::vk;
-use gpu_allocator::vulkan::Allocator;
 
 /// How [`InPlace::record`] refreshes a structure: a full build, or an update of the one there.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -49,7 +48,7 @@ impl InPlace {
     /// For `inputs.handle`. Without ALLOW_UPDATE in `inputs.flags` it can only be rebuilt.
     pub fn new(
         vk: &VulkanContext,
-        allocator: &mut Allocator,
+        allocator: &GpuAllocator,
         loader: &ash::khr::acceleration_structure::Device,
         inputs: BuildInputs,
     ) -> Result<Self> {
@@ -98,11 +97,6 @@ impl InPlace {
             .scratch_data(vk::DeviceOrHostAddressKHR { device_address: self.scratch.address(0) });
         let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(*primitives);
         unsafe { loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]) };
-    }
-
-    /// The scratch buffer (the structure itself belongs to its owner).
-    pub fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
-        self.scratch.destroy(vk, allocator);
     }
 }
 // ANCHOR_END: in_place

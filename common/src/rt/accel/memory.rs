@@ -1,6 +1,7 @@
 //! Memory Vulkan keeps to itself: gpu-allocator, buffers in it with their device addresses,
 //! scratch space for builds, and query pools.
 
+use crate::base::fail;
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -8,26 +9,79 @@ use gpu_allocator::MemoryLocation;
 use gpu_allocator::vulkan::{
     Allocation, AllocationCreateDesc, AllocationScheme, Allocator, AllocatorCreateDesc,
 };
+use std::cell::RefCell;
+use std::rc::Rc;
+
+// ANCHOR: allocator
+/// gpu-allocator's allocator, shared by everything that holds memory from it: each owner keeps
+/// a handle and gives its memory back when dropped. The allocator itself, with the memory blocks
+/// it holds, goes with the last handle: so no chapter frees it by hand, and none can free it
+/// while memory from it is still in use.
+#[derive(Clone)]
+pub struct GpuAllocator(Rc<RefCell<Allocator>>);
 
 /// gpu-allocator for everything Vulkan keeps to itself, with device addresses on.
-pub fn allocator(vk: &VulkanContext) -> Result<Allocator> {
-    Allocator::new(&AllocatorCreateDesc {
-        instance: vk.instance.clone(),
+pub fn allocator(vk: &VulkanContext) -> Result<GpuAllocator> {
+    let allocator = Allocator::new(&AllocatorCreateDesc {
+        instance: (*vk.instance).clone(),
         device: vk.device.clone(),
         physical_device: vk.physical_device,
         debug_settings: Default::default(),
         buffer_device_address: vk.device_addresses,
         allocation_sizes: Default::default(),
     })
-    .context("creating gpu-allocator's allocator")
+    .context("creating gpu-allocator's allocator")?;
+    Ok(GpuAllocator(Rc::new(RefCell::new(allocator))))
 }
 
-/// A buffer in memory from gpu-allocator, with its device address. Dropped without
-/// [`DeviceBuffer::destroy`] (an early return), it destroys the buffer and leaves its memory to
-/// the allocator, which frees all of its memory when it is dropped.
+impl GpuAllocator {
+    /// Memory for `description`, as one fallible step; given back when dropped.
+    pub fn allocate(&self, description: &AllocationCreateDesc) -> Result<Memory> {
+        let what = format!("allocating {} bytes for {}", description.requirements.size, description.name);
+        let allocation = fail::call(&what, || self.0.borrow_mut().allocate(description))?;
+        Ok(Memory { allocation, allocator: self.clone() })
+    }
+
+    /// No memory yet: the placeholder of a guard being built, before its memory is allocated.
+    /// Dropping it frees nothing.
+    pub fn unallocated(&self) -> Memory {
+        Memory { allocation: Allocation::default(), allocator: self.clone() }
+    }
+}
+
+/// Memory from gpu-allocator, given back to it when dropped. The GPU must be done with it.
+pub struct Memory {
+    allocation: Allocation,
+    allocator: GpuAllocator,
+}
+
+impl std::ops::Deref for Memory {
+    type Target = Allocation;
+    fn deref(&self) -> &Allocation {
+        &self.allocation
+    }
+}
+
+impl std::ops::DerefMut for Memory {
+    fn deref_mut(&mut self) -> &mut Allocation {
+        &mut self.allocation
+    }
+}
+
+impl Drop for Memory {
+    fn drop(&mut self) {
+        // gpu-allocator frees nothing for a placeholder, and a failure to free leaves the block
+        // to the allocator, which frees every block when it goes.
+        let _ = self.allocator.0.borrow_mut().free(std::mem::take(&mut self.allocation));
+    }
+}
+// ANCHOR_END: allocator
+
+/// A buffer in memory from gpu-allocator, with its device address. Dropped, it destroys the
+/// buffer, then gives its memory back.
 pub struct DeviceBuffer {
     pub buffer: vk::Buffer,
-    pub allocation: Allocation,
+    pub allocation: Memory,
     pub address: vk::DeviceAddress,
     pub(super) device: ash::Device,
 }
@@ -35,7 +89,7 @@ pub struct DeviceBuffer {
 impl DeviceBuffer {
     pub fn new(
         vk: &VulkanContext,
-        allocator: &mut Allocator,
+        allocator: &GpuAllocator,
         name: &str,
         size: u64,
         usage: vk::BufferUsageFlags,
@@ -43,9 +97,14 @@ impl DeviceBuffer {
     ) -> Result<Self> {
         let usage = usage | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let info = vk::BufferCreateInfo::default().size(size).usage(usage);
-        let buffer = unsafe { vk.device.create_buffer(&info, None) }.context("vkCreateBuffer")?;
-        let mut guarded =
-            DeviceBuffer { buffer, allocation: Allocation::default(), address: 0, device: vk.device.clone() };
+        let what = format!("vkCreateBuffer for the {name}");
+        let buffer = fail::call(&what, || unsafe { vk.device.create_buffer(&info, None) })?;
+        let mut guarded = DeviceBuffer {
+            buffer,
+            allocation: allocator.unallocated(),
+            address: 0,
+            device: vk.device.clone(),
+        };
         let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
         let description = AllocationCreateDesc {
             name,
@@ -54,34 +113,26 @@ impl DeviceBuffer {
             linear: true,
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
-        guarded.allocation = allocator
-            .allocate(&description)
-            .with_context(|| format!("allocating {size} bytes for {name}"))?;
+        guarded.allocation = allocator.allocate(&description)?;
         let allocation = &guarded.allocation;
         crate::base::resources::created(&format!("vk_buffer: {name}"), allocation.size());
-        unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }?;
+        unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }
+            .with_context(|| format!("vkBindBufferMemory for the {name}"))?;
         guarded.address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
         };
         Ok(guarded)
     }
-
-    /// The buffer, then its memory, given back to the allocator.
-    pub fn destroy(mut self, _vk: &VulkanContext, allocator: &mut Allocator) {
-        let allocation = std::mem::take(&mut self.allocation);
-        drop(self); // destroys the buffer
-        let _ = allocator.free(allocation);
-    }
 }
 
 impl Drop for DeviceBuffer {
+    /// The buffer; then (a field) its memory goes back to the allocator.
     fn drop(&mut self) {
-        crate::base::commands::wait_idle(&self.device);
         unsafe { self.device.destroy_buffer(self.buffer, None) };
     }
 }
 
-/// A query pool, destroyed when dropped (also on an early return, once the device is idle).
+/// A query pool, destroyed when dropped.
 pub(super) struct QueryPool {
     pub(super) pool: vk::QueryPool,
     device: ash::Device,
@@ -89,14 +140,14 @@ pub(super) struct QueryPool {
 
 impl Drop for QueryPool {
     fn drop(&mut self) {
-        crate::base::commands::wait_idle(&self.device);
         unsafe { self.device.destroy_query_pool(self.pool, None) };
     }
 }
 
 pub(super) fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
-    let pool = unsafe { vk.device.create_query_pool(&info, None) }.context("vkCreateQueryPool")?;
+    let what = format!("vkCreateQueryPool ({ty:?})");
+    let pool = fail::call(&what, || unsafe { vk.device.create_query_pool(&info, None) })?;
     crate::base::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
     Ok(QueryPool { pool, device: vk.device.clone() })
 }
@@ -108,7 +159,7 @@ pub(super) struct Scratch {
 }
 
 impl Scratch {
-    pub(super) fn new(vk: &VulkanContext, allocator: &mut Allocator, sizes: &[u64]) -> Result<Self> {
+    pub(super) fn new(vk: &VulkanContext, allocator: &GpuAllocator, sizes: &[u64]) -> Result<Self> {
         let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
         let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
         unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
@@ -135,9 +186,5 @@ impl Scratch {
 
     pub(super) fn address(&self, i: usize) -> vk::DeviceAddress {
         self.buffer.address + self.offsets[i]
-    }
-
-    pub(super) fn destroy(self, vk: &VulkanContext, allocator: &mut Allocator) {
-        self.buffer.destroy(vk, allocator);
     }
 }

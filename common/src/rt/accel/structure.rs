@@ -1,16 +1,16 @@
 //! One acceleration structure in its own buffer, the geometries it is built from, and what a
 //! build needs around it: sizes, barriers, the device's limits, the instances' BLAS addresses.
 
-use super::memory::DeviceBuffer;
+use super::memory::{DeviceBuffer, GpuAllocator};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::ExportedBuffer;
 use crate::scene::{Instance, Scene};
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use gpu_allocator::MemoryLocation;
-use gpu_allocator::vulkan::Allocator;
 
-/// One acceleration structure and the buffer that holds it; destroyed when dropped.
+/// One acceleration structure and the buffer that holds it; destroyed when dropped (the
+/// structure, then its buffer). The GPU must be done with it.
 pub struct AccelerationStructure {
     pub handle: vk::AccelerationStructureKHR,
     pub buffer: DeviceBuffer,
@@ -25,7 +25,7 @@ impl AccelerationStructure {
     pub fn new(
         vk: &VulkanContext,
         loader: &ash::khr::acceleration_structure::Device,
-        allocator: &mut Allocator,
+        allocator: &GpuAllocator,
         ty: vk::AccelerationStructureTypeKHR,
         flags: vk::BuildAccelerationStructureFlagsKHR,
         bytes: u64,
@@ -41,8 +41,10 @@ impl AccelerationStructure {
         )?;
         let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(buffer.buffer).size(bytes).ty(ty);
         // On failure `buffer` is dropped, which destroys it.
-        let handle = unsafe { loader.create_acceleration_structure(&info, None) }
-            .context("vkCreateAccelerationStructureKHR")?;
+        let handle =
+            crate::base::fail::call(&format!("vkCreateAccelerationStructureKHR ({ty:?})"), || unsafe {
+                loader.create_acceleration_structure(&info, None)
+            })?;
         // Its bytes are counted with its buffer; the kind says what was built, and how.
         crate::base::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
@@ -50,23 +52,10 @@ impl AccelerationStructure {
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
         Ok(AccelerationStructure { handle, buffer, address, bytes, loader: loader.clone() })
     }
-
-    /// The structure, then its buffer and the buffer's memory.
-    pub fn destroy(
-        mut self,
-        _vk: &VulkanContext,
-        _loader: &ash::khr::acceleration_structure::Device,
-        allocator: &mut Allocator,
-    ) {
-        let allocation = std::mem::take(&mut self.buffer.allocation);
-        drop(self); // the structure, then (a field) its buffer
-        let _ = allocator.free(allocation);
-    }
 }
 
 impl Drop for AccelerationStructure {
     fn drop(&mut self) {
-        crate::base::commands::wait_idle(&self.buffer.device);
         unsafe { self.loader.destroy_acceleration_structure(self.handle, None) };
     }
 }
