@@ -279,7 +279,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(image); // vkDestroyImage
     drop(buffer); // vkDestroyBuffer
     // ANCHOR_END: cleanup
-    let open_fds_after = open_fd_count()?;
+    let open_fds_after = common::settled_fd_count(open_fds_before)?;
     eprintln!("open fds: {open_fds_before} before exporting, {open_fds_after} after cleaning up");
     report.check("no_fd_leaked", open_fds_after == open_fds_before);
     Ok(())

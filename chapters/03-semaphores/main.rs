@@ -215,7 +215,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     // Every fd (image memory, two semaphores) went to GL and was released with its object.
-    report.check("no_fd_leaked", common::open_fd_count()? == open_fds_before);
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     Ok(())
 }
 

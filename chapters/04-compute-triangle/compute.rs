@@ -1,12 +1,13 @@
-//! Chapter 04's compute pass: the pipeline that writes the shared image, and one frame's
-//! recording, with the two ownership barriers around the dispatch.
+//! Chapter 04's compute pass: the shared image it writes, the pipeline that writes it, and one
+//! frame's recording, with the two ownership barriers around the dispatch.
 
 use anyhow::Result;
 use ash::vk;
-use common::VulkanContext;
 use common::base::commands::{Timestamps, first_use};
 use common::base::fail;
 use common::interop::{SharedImage, acquire_from_gl, release_to_gl};
+use common::{GlContext, VulkanContext};
+use glow::HasContext;
 
 const COMPUTE_SPIRV: &[u8] = include_bytes!("../../shaders/compute_triangle.comp.spv");
 
@@ -173,3 +174,37 @@ impl Drop for ComputePipeline {
         }
     }
 }
+
+// ANCHOR: share_image
+/// The compute shader's output: a storage image that GL samples as a texture. Writes it into
+/// the descriptor set, so a resize is this call again.
+pub fn share_image(
+    vk: &VulkanContext,
+    gl: &GlContext,
+    set: vk::DescriptorSet,
+    extent: vk::Extent2D,
+) -> Result<SharedImage> {
+    // STORAGE: the compute shader's imageStore. SAMPLED: GL's texture().
+    let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
+    let image = SharedImage::new(vk, gl, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    let texture = image.texture.texture;
+    for (parameter, value) in [
+        (glow::TEXTURE_MIN_FILTER, glow::LINEAR), // one mip level: no mipmap filter
+        (glow::TEXTURE_MAG_FILTER, glow::LINEAR),
+        (glow::TEXTURE_WRAP_S, glow::CLAMP_TO_EDGE),
+        (glow::TEXTURE_WRAP_T, glow::CLAMP_TO_EDGE),
+    ] {
+        unsafe { gl.gl.texture_parameter_i32(texture, parameter, value as i32) };
+    }
+    // GENERAL: the only layout in which a shader may write a storage image.
+    let info =
+        [vk::DescriptorImageInfo::default().image_view(image.view).image_layout(vk::ImageLayout::GENERAL)];
+    let write = vk::WriteDescriptorSet::default()
+        .dst_set(set)
+        .dst_binding(0)
+        .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
+        .image_info(&info);
+    unsafe { vk.device.update_descriptor_sets(&[write], &[]) };
+    Ok(image)
+}
+// ANCHOR_END: share_image

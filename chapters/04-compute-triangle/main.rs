@@ -19,10 +19,10 @@ use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
 use common::base::output;
 use common::base::window::{self, Key, NamedKey, Window};
+use common::interop;
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
-use common::interop::{self, SharedImage};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
-use compute::ComputePipeline;
+use compute::{ComputePipeline, share_image};
 use glow::HasContext;
 use std::f32::consts::{FRAC_PI_2, TAU};
 use std::ffi::CStr;
@@ -83,40 +83,6 @@ struct Args {
 fn main() -> ExitCode {
     common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
 }
-
-// ANCHOR: share_image
-/// The compute shader's output: a storage image that GL samples as a texture. Writes it into
-/// the descriptor set, so a resize is this call again.
-fn share_image(
-    vk: &VulkanContext,
-    gl: &GlContext,
-    set: vk::DescriptorSet,
-    extent: vk::Extent2D,
-) -> Result<SharedImage> {
-    // STORAGE: the compute shader's imageStore. SAMPLED: GL's texture().
-    let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
-    let image = SharedImage::new(vk, gl, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
-    let texture = image.texture.texture;
-    for (parameter, value) in [
-        (glow::TEXTURE_MIN_FILTER, glow::LINEAR), // one mip level: no mipmap filter
-        (glow::TEXTURE_MAG_FILTER, glow::LINEAR),
-        (glow::TEXTURE_WRAP_S, glow::CLAMP_TO_EDGE),
-        (glow::TEXTURE_WRAP_T, glow::CLAMP_TO_EDGE),
-    ] {
-        unsafe { gl.gl.texture_parameter_i32(texture, parameter, value as i32) };
-    }
-    // GENERAL: the only layout in which a shader may write a storage image.
-    let info =
-        [vk::DescriptorImageInfo::default().image_view(image.view).image_layout(vk::ImageLayout::GENERAL)];
-    let write = vk::WriteDescriptorSet::default()
-        .dst_set(set)
-        .dst_binding(0)
-        .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
-        .image_info(&info);
-    unsafe { vk.device.update_descriptor_sets(&[write], &[]) };
-    Ok(image)
-}
-// ANCHOR_END: share_image
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     SMALLEST.check(CHAPTER, args.common.size)?;
@@ -363,7 +329,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(handoff); // the semaphores, GL's side first
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
-    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     Ok(())
 }
 

@@ -259,7 +259,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
-    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     Ok(())
 }
 

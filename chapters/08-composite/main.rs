@@ -16,19 +16,21 @@ use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::base::window::{Key, NamedKey, Window};
-use common::frame::{Composite, Overlays, Uniforms, View};
+use common::frame::{Composite, Overlays};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
-use common::rt::accel::{BlasLayout, TlasFlags};
-use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::rt::accel::TlasFlags;
+use common::rt::ao::{AoRays, AoTracer};
+use common::scene::Camera;
 use common::scene::gbuffer::GBuffers;
-use common::scene::{Camera, Scene, SceneArgs};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
 mod check;
+mod settings;
 use check::LastFrame;
+use settings::{Args, Settings};
 
 const CHAPTER: &str = "08-composite";
 /// The smallest picture this chapter can check, and why (the largest is the device's).
@@ -40,56 +42,8 @@ const SMALLEST: Smallest = Smallest {
     shape: Some((f32::INFINITY, 2.0, "framed taller, the gizmo's axes leave the picture")),
 };
 
-/// Chapter 08: albedo x ray-traced AO, composited by GL, with depth-correct overlays.
-#[derive(clap::Parser)]
-struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
-    scene: SceneArgs,
-    #[command(flatten)]
-    ao: AoArgs,
-    /// Blur radius in pixels (0 skips the blur).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
-    blur: u32,
-    /// Which picture to show.
-    #[arg(long, value_enum, default_value = "final")]
-    view: View,
-    /// Headless: also write every debug view.
-    #[arg(long)]
-    all_views: bool,
-    /// Headless: make every shared image anew at another size every K frames, as a window's
-    /// resize does (the leak test uses it).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
-    resize_every: Option<u32>,
-    /// The instance whose box is drawn [default: the first tetrahedron, or the first object].
-    #[arg(long)]
-    select: Option<usize>,
-    /// Start this many times closer to the scene's centre than the framing puts the camera (as
-    /// the mouse wheel does; from about 3000 on, the far plane is over 10^5 times the near one).
-    #[arg(long, default_value_t = 1.0)]
-    zoom: f32,
-    /// How the rays' structures hold the triangles: one BLAS per mesh under a TLAS of every
-    /// instance (chapter 06), or one flat BLAS of every instance's triangles (see the
-    /// performance page).
-    #[arg(long, value_enum, default_value = "per-mesh")]
-    blas: BlasLayout,
-}
-
 fn main() -> ExitCode {
     common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-/// What the keys change. Only the radius changes what the occlusion measures; the rest change how
-/// many rays a frame adds or how the mean is shown.
-#[derive(Clone, Copy, PartialEq)]
-struct Settings {
-    samples: u32,
-    radius: f32,
-    power: f32,
-    blur: u32,
-    view: View,
-    overlays: bool,
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
@@ -185,7 +139,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             }
             let before = (settings, camera.eye);
             for key in keys {
-                apply_key(&key, &mut settings);
+                settings::apply_key(&key, &mut settings);
             }
             let ((dx, dy), wheel) = window.take_mouse();
             if dx != 0.0 || dy != 0.0 || wheel != 0.0 {
@@ -261,7 +215,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             traced += samples as u64 * (size.width * size.height) as u64;
             trace_pending = timestamps.is_some();
         }
-        let uniforms = settings_uniforms(&settings, &scene, &camera);
+        let uniforms = settings::uniforms(&settings, &scene, &camera);
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(aspect);
@@ -308,7 +262,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             composite: &composite,
             overlays: settings.overlays.then_some(&overlays),
             camera: &camera,
-            uniforms: settings_uniforms(&settings, &scene, &camera),
+            uniforms: settings::uniforms(&settings, &scene, &camera),
         };
         for (name, ok) in last_frame.check(&overlays)? {
             report.check(name, ok);
@@ -345,37 +299,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
-    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);
     Ok(())
-}
-
-// ANCHOR: keys
-fn apply_key(key: &Key, s: &mut Settings) {
-    // Named keys do nothing here: Esc ends the loop before keys get here.
-    let Key::Character(c) = key.as_ref() else { return };
-    match c {
-        "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
-        "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
-        "-" => s.samples = (s.samples / 2).max(1),
-        "]" => s.radius *= 1.25,
-        "[" => s.radius /= 1.25,
-        "b" | "B" => s.blur = (s.blur + 1) % 5,
-        "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0, // 1, 2, 3, 1 ...
-        "o" | "O" => s.overlays = !s.overlays,
-        _ => {}
-    }
-}
-// ANCHOR_END: keys
-
-fn settings_uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> Uniforms {
-    Uniforms {
-        blur_radius: s.blur as i32,
-        depth_tolerance: 0.02,
-        normal_tolerance: 0.9,
-        power: s.power,
-        view: s.view,
-        bounds: scene.bounds,
-        far_depth: camera.far,
-    }
 }

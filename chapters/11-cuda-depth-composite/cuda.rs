@@ -145,13 +145,23 @@ impl RegisteredPbo {
             launched.map(|()| pointer)
         }
     }
+}
 
-    pub fn destroy(self) -> Result<()> {
-        unsafe { sys::cuGraphicsUnregisterResource(self.resource) }
-            .result()
-            .context("cuGraphicsUnregisterResource")?;
-        common::base::resources::destroyed("cuda_graphics_resource");
-        Ok(())
+impl Drop for RegisteredPbo {
+    /// Unregistered before GL deletes the buffer it names (its owner drops it later), once
+    /// CUDA's work is done. A failure is printed, and the registration stays counted alive, which
+    /// the chapter's `cuda_and_shared_resources_released` check then reports.
+    fn drop(&mut self) {
+        let released =
+            unsafe { sys::cuCtxSynchronize().result().context("cuCtxSynchronize") }.and_then(|()| {
+                unsafe { sys::cuGraphicsUnregisterResource(self.resource) }
+                    .result()
+                    .context("cuGraphicsUnregisterResource")
+            });
+        match released {
+            Ok(()) => common::base::resources::destroyed("cuda_graphics_resource"),
+            Err(error) => eprintln!("cuda: {error:#}"),
+        }
     }
 }
 // ANCHOR_END: registered_pbo
@@ -182,15 +192,27 @@ impl ImportedMemory {
             }
         }
     }
+}
 
-    /// The mapping is freed like any device allocation, then the external memory destroyed.
-    pub fn destroy(self) -> Result<()> {
-        unsafe {
-            cu::memory_free(self.pointer).context("cuMemFree")?;
-            cu::external_memory::destroy_external_memory(self.external).context("cuDestroyExternalMemory")?;
+impl Drop for ImportedMemory {
+    /// Once CUDA's work is done, the mapping is freed like any device allocation, then the
+    /// external memory destroyed: before Vulkan frees the allocation under it (its owner is
+    /// dropped later). A failure is printed, and the memory stays counted alive.
+    fn drop(&mut self) {
+        let released = unsafe {
+            sys::cuCtxSynchronize()
+                .result()
+                .context("cuCtxSynchronize")
+                .and_then(|()| cu::memory_free(self.pointer).context("cuMemFree"))
+                .and_then(|()| {
+                    cu::external_memory::destroy_external_memory(self.external)
+                        .context("cuDestroyExternalMemory")
+                })
+        };
+        match released {
+            Ok(()) => common::base::resources::destroyed("cuda_external_memory"),
+            Err(error) => eprintln!("cuda: {error:#}"),
         }
-        common::base::resources::destroyed("cuda_external_memory");
-        Ok(())
     }
 }
 // ANCHOR_END: imported_memory

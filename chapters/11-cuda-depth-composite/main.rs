@@ -15,9 +15,10 @@ use ash::vk;
 use common::base::cli::Smallest;
 use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::guard::guard;
+use common::interop;
 use common::interop::cuda::CudaDevice;
-use common::interop::exportable::{self, Dedicated, ExportableMemory, HANDLE_TYPE};
-use common::interop::{self, SharedBuffer};
+use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::scene::Camera;
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
@@ -115,7 +116,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extensions = [ash::khr::external_memory_fd::NAME];
     let vk = VulkanContext::new(&Requirements { extensions: &extensions, ..Default::default() })?;
     let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
-    let gl = &gl_context.gl;
     common::connect(report, &vk, &gl_context)?;
     common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
@@ -154,136 +154,26 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // process exits. The fds this chapter shares must all be closed again by step 8.
     let fds_before = common::base::resources::open_fds();
 
-    // Steps 4 to 7 put what they make in `made`; step 8 frees whatever is there, after success
-    // or failure alike (CUDA must let go of GL's and Vulkan's memory before they free it).
-    let mut made = Made::default();
-    let outcome = (|| -> Result<()> {
-        // 4. Path 1: a GL pixel buffer object, registered with CUDA
-        // ANCHOR: path1
-        let pbo = made.pbo.insert(PixelBuffer::new(gl, width, height)?);
-        if let Some(t) = &tracer {
-            made.registered = Some(RegisteredPbo::new(t, *pbo.pbo)?);
-        }
-        // ANCHOR_END: path1
-
-        // 5. Path 2: Vulkan memory, imported by CUDA and by GL
-        // ANCHOR: path2
-        let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
-        let buffer_info = vk::BufferCreateInfo::default()
-            .size(bytes)
-            .usage(vk::BufferUsageFlags::STORAGE_BUFFER)
-            .push_next(&mut external);
-        let buffer = *made.buffer.insert(fail::call("vkCreateBuffer (exportable)", || unsafe {
-            vk.device.create_buffer(&buffer_info, None)
-        })?);
-        let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
-        // CUDA writes it from the GPU: device-local. The CPU tracer writes it through a mapping.
-        let properties = match tracer {
-            Some(_) => vk::MemoryPropertyFlags::DEVICE_LOCAL,
-            None => vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
-        };
-        let memory = made.memory.insert(exportable::allocate(&vk, &requirements, properties, Dedicated::No)?);
-        unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
-        let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-        // One fd per importer: each import takes ownership of the fd it is given.
-        if tracer.is_some() {
-            let fd = exportable::export_fd(&fd_loader, memory.memory)?;
-            made.imported = Some(ImportedMemory::new(fd, memory.size, bytes)?);
-        }
-        let fd = exportable::export_fd(&fd_loader, memory.memory)?;
-        let shared = made.shared.insert(interop::import_buffer(&gl_context, memory, fd, bytes)?);
-        if tracer.is_none() {
-            let flags = vk::MemoryMapFlags::empty();
-            made.mapped = Some(fail::call("vkMapMemory", || unsafe {
-                vk.device.map_memory(memory.memory, 0, bytes, flags)
-            })?);
-        }
-        // ANCHOR_END: path2
-
-        // 6. Every frame: trace, hand the pixels to GL, composite, draw the lines
-        let composite = made.composite.insert(DepthComposite::new(gl, width, height, &spheres)?);
-        let mut pictures = Vec::new();
-        for &path in &paths {
-            let mut times: [Vec<f64>; 3] = Default::default(); // trace, upload, composite
-            for _ in 0..args.common.frame_count(false) {
-                // ANCHOR: frame
-                let started = Instant::now();
-                match (path, &tracer) {
-                    (Path::Pbo, Some(t)) => {
-                        made.registered.as_mut().unwrap().trace(t, &params, bytes)?;
-                        times[0].push(t.kernel_ms()?);
-                    }
-                    (Path::Pbo, None) => {
-                        pbo.write_with(gl, |traced| drop(scene::trace(&params, traced)));
-                        times[0].push(ms_since(started));
-                    }
-                    (Path::ZeroCopy, Some(t)) => {
-                        // No semaphores here: GL has finished reading the last frame before
-                        // CUDA writes, and CUDA has finished writing before GL reads.
-                        unsafe { gl.finish() };
-                        t.launch(made.imported.as_ref().unwrap().pointer, &params)?;
-                        times[0].push(t.kernel_ms()?);
-                        t.synchronize()?;
-                    }
-                    (Path::ZeroCopy, None) => {
-                        unsafe { gl.finish() };
-                        let words = bytes as usize / 4;
-                        // SAFETY: `mapped` is `bytes` bytes of host-coherent memory GL is not using now.
-                        let traced =
-                            unsafe { std::slice::from_raw_parts_mut(made.mapped.unwrap().cast(), words) };
-                        scene::trace(&params, traced);
-                        times[0].push(ms_since(started));
-                    }
-                }
-                let source = match path {
-                    Path::Pbo => {
-                        times[1].push(gl_time_ms(gl, || pbo.upload(gl))?);
-                        Source::Textures(pbo)
-                    }
-                    Path::ZeroCopy => Source::Buffer(shared.buffer),
-                };
-                times[2].push(gl_time_ms(gl, || {
-                    composite.draw_traced(gl, source, &depth);
-                    composite.draw_lines(gl, view_projection);
-                })?);
-                // ANCHOR_END: frame
-            }
-            check::report_times(report, path, tracer.is_some(), &times);
-
-            // 7. Check what this path drew
-            let (source, buffer) = match path {
-                Path::Pbo => (Source::Textures(pbo), *pbo.pbo),
-                Path::ZeroCopy => (Source::Buffer(shared.buffer), shared.buffer),
-            };
-            let traced = check::read_buffer(gl, buffer, bytes);
-            let frame =
-                check::Frame { gl, composite, source, depth: &depth, view_projection, camera: &camera };
-            pictures.push((path, frame.check(report, path, &params, &traced, tracer.is_some())?));
-        }
-        if let [(_, a), (_, b)] = &pictures[..] {
-            report.check("both_paths_show_the_same_picture", a == b);
-        }
-        let out_dir = args.common.out_dir(CHAPTER);
-        for (path, picture) in &pictures {
-            let name = match path {
-                Path::Pbo => CHAPTER.to_owned(),
-                Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
-            };
-            let upright = common::base::output::flip_rows(picture, width, height);
-            common::base::output::save_rgba8(report, &out_dir, &name, width, height, &upright)?;
-        }
-        gl_context.check_error("the frames")
-    })();
-
-    // 8. Clean up, newest first
-    // ANCHOR: cleanup
-    unsafe { gl.finish() };
-    let cleaned = made.destroy(&vk, tracer.as_ref());
+    // Steps 4 to 8: each object has its owner the moment it exists, so that an early return
+    // frees what was made, newest first, as step 8 does.
+    let setup = Setup {
+        vk: &vk,
+        gl: &gl_context,
+        args,
+        paths: &paths,
+        spheres: &spheres,
+        camera: &camera,
+        params,
+        depth,
+        view_projection,
+    };
+    let drawn = draw_paths(&setup, tracer.as_ref(), report);
     let fds_after = common::base::resources::open_fds();
+    // ANCHOR: release
+    // CUDA's own objects last: the module, the stream, the events, then the primary context.
     let released = tracer.map_or(Ok(()), CudaTracer::destroy);
-    // ANCHOR_END: cleanup
-    outcome?;
-    cleaned?;
+    // ANCHOR_END: release
+    drawn?;
     released?;
     gl_context.check_error("cleaning up")?;
     let live = common::base::resources::live();
@@ -296,51 +186,170 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
-// ANCHOR: made
-/// What steps 4 to 7 made, each `None` until made.
-#[derive(Default)]
-struct Made {
-    pbo: Option<PixelBuffer>,
-    registered: Option<RegisteredPbo>,
-    buffer: Option<vk::Buffer>,
-    memory: Option<ExportableMemory>,
-    imported: Option<ImportedMemory>,
-    shared: Option<SharedBuffer>,
-    mapped: Option<*mut std::ffi::c_void>,
-    composite: Option<DepthComposite>,
+/// What steps 4 to 7 draw with, from steps 1 to 3.
+struct Setup<'a> {
+    vk: &'a VulkanContext,
+    gl: &'a GlContext,
+    args: &'a Args,
+    paths: &'a [Path],
+    spheres: &'a [scene::Sphere],
+    camera: &'a Camera,
+    params: scene::TraceParams,
+    depth: DepthUniforms,
+    view_projection: glam::Mat4,
 }
 
-impl Made {
-    /// Frees what exists, newest first, once CUDA and GL are idle; every step runs even after
-    /// one fails, and the first failure is returned.
-    fn destroy(self, vk: &VulkanContext, tracer: Option<&CudaTracer>) -> Result<()> {
-        let mut first_error = tracer.map_or(Ok(()), CudaTracer::synchronize);
-        let mut keep = |result: Result<()>| {
-            if let (Ok(()), Err(error)) = (&first_error, result) {
-                first_error = Err(error);
+/// Steps 4 to 8: both paths made, drawn every frame, checked, and freed again.
+fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Result<()> {
+    let (vk, gl_context, gl) = (s.vk, s.gl, &s.gl.gl);
+    let (params, view_projection) = (s.params, s.view_projection);
+    let (width, height) = (params.width, params.height);
+    let bytes = traced_bytes(width, height);
+
+    // 4. Path 1: a GL pixel buffer object, registered with CUDA
+    // ANCHOR: path1
+    let pbo = PixelBuffer::new(gl, width, height)?;
+    let mut registered = match tracer {
+        Some(t) => Some(RegisteredPbo::new(t, *pbo.pbo)?),
+        None => None,
+    };
+    // ANCHOR_END: path1
+
+    // 5. Path 2: Vulkan memory, imported by CUDA and by GL
+    // ANCHOR: path2
+    let mut external = vk::ExternalMemoryBufferCreateInfo::default().handle_types(HANDLE_TYPE);
+    let buffer_info = vk::BufferCreateInfo::default()
+        .size(bytes)
+        .usage(vk::BufferUsageFlags::STORAGE_BUFFER)
+        .push_next(&mut external);
+    let buffer =
+        fail::call("vkCreateBuffer (exportable)", || unsafe { vk.device.create_buffer(&buffer_info, None) })?;
+    let buffer = guard(buffer, |&b| unsafe { vk.device.destroy_buffer(b, None) });
+    let requirements = unsafe { vk.device.get_buffer_memory_requirements(*buffer) };
+    // CUDA writes it from the GPU: device-local. The CPU tracer writes it through a mapping.
+    let properties = match tracer {
+        Some(_) => vk::MemoryPropertyFlags::DEVICE_LOCAL,
+        None => vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
+    };
+    let memory = exportable::allocate(vk, &requirements, properties, Dedicated::No)?;
+    // From here on the pair goes together: the buffer destroyed, then its memory freed (which
+    // also unmaps it, for the CPU tracer).
+    let path2 = guard((buffer.into_inner(), memory), |(b, m)| unsafe {
+        vk.device.destroy_buffer(*b, None);
+        vk.device.free_memory(m.memory, None);
+    });
+    let (buffer, memory) = (path2.0, &path2.1);
+    unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
+    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
+    // One fd per importer: each import takes ownership of the fd it is given.
+    let imported = match tracer {
+        Some(_) => {
+            Some(ImportedMemory::new(exportable::export_fd(&fd_loader, memory.memory)?, memory.size, bytes)?)
+        }
+        None => None,
+    };
+    let fd = exportable::export_fd(&fd_loader, memory.memory)?;
+    let shared = interop::import_buffer(gl_context, memory, fd, bytes)?;
+    let mapped = match tracer {
+        Some(_) => None,
+        None => Some(fail::call("vkMapMemory", || unsafe {
+            vk.device.map_memory(memory.memory, 0, bytes, vk::MemoryMapFlags::empty())
+        })?),
+    };
+    // ANCHOR_END: path2
+
+    // 6. Every frame: trace, hand the pixels to GL, composite, draw the lines
+    let composite = DepthComposite::new(gl, width, height, s.spheres)?;
+    let mut pictures = Vec::new();
+    for &path in s.paths {
+        let mut times: [Vec<f64>; 3] = Default::default(); // trace, upload, composite
+        for _ in 0..s.args.common.frame_count(false) {
+            // ANCHOR: frame
+            let started = Instant::now();
+            match (path, &tracer) {
+                (Path::Pbo, Some(t)) => {
+                    registered.as_mut().expect("registered with CUDA").trace(t, &params, bytes)?;
+                    times[0].push(t.kernel_ms()?);
+                }
+                (Path::Pbo, None) => {
+                    pbo.write_with(gl, |traced| drop(scene::trace(&params, traced)));
+                    times[0].push(ms_since(started));
+                }
+                (Path::ZeroCopy, Some(t)) => {
+                    // No semaphores here: GL has finished reading the last frame before
+                    // CUDA writes, and CUDA has finished writing before GL reads.
+                    unsafe { gl.finish() };
+                    t.launch(imported.as_ref().expect("imported by CUDA").pointer, &params)?;
+                    times[0].push(t.kernel_ms()?);
+                    t.synchronize()?;
+                }
+                (Path::ZeroCopy, None) => {
+                    unsafe { gl.finish() };
+                    let words = bytes as usize / 4;
+                    // SAFETY: `mapped` is `bytes` bytes of host-coherent memory GL is not using now.
+                    let traced = unsafe {
+                        std::slice::from_raw_parts_mut(mapped.expect("mapped for the CPU").cast(), words)
+                    };
+                    scene::trace(&params, traced);
+                    times[0].push(ms_since(started));
+                }
             }
+            let source = match path {
+                Path::Pbo => {
+                    times[1].push(gl_time_ms(gl, || pbo.upload(gl))?);
+                    Source::Textures(&pbo)
+                }
+                Path::ZeroCopy => Source::Buffer(shared.buffer),
+            };
+            times[2].push(gl_time_ms(gl, || {
+                composite.draw_traced(gl, source, &s.depth);
+                composite.draw_lines(gl, view_projection);
+            })?);
+            // ANCHOR_END: frame
+        }
+        check::report_times(report, path, tracer.is_some(), &times);
+
+        // 7. Check what this path drew
+        let (source, buffer) = match path {
+            Path::Pbo => (Source::Textures(&pbo), *pbo.pbo),
+            Path::ZeroCopy => (Source::Buffer(shared.buffer), shared.buffer),
         };
-        drop(self.composite); // GL only
-        if let (Some(memory), Some(_)) = (&self.memory, self.mapped) {
-            unsafe { vk.device.unmap_memory(memory.memory) };
-        }
-        // GL's import and CUDA's, before Vulkan frees the memory under them.
-        drop(self.shared); // the GL buffer, then its memory object
-        if let Some(imported) = self.imported {
-            keep(imported.destroy());
-        }
-        if let Some(buffer) = self.buffer {
-            unsafe { vk.device.destroy_buffer(buffer, None) };
-        }
-        if let Some(memory) = self.memory {
-            unsafe { vk.device.free_memory(memory.memory, None) }; // and (dropped) its count
-        }
-        // CUDA's registration, before GL deletes the buffer it names.
-        if let Some(registered) = self.registered {
-            keep(registered.destroy());
-        }
-        drop(self.pbo); // the textures, then the buffer
-        first_error
+        let traced = check::read_buffer(gl, buffer, bytes);
+        let frame = check::Frame {
+            gl,
+            composite: &composite,
+            source,
+            depth: &s.depth,
+            view_projection,
+            camera: s.camera,
+        };
+        pictures.push((path, frame.check(report, path, &params, &traced, tracer.is_some())?));
     }
+    if let [(_, a), (_, b)] = &pictures[..] {
+        report.check("both_paths_show_the_same_picture", a == b);
+    }
+    let out_dir = s.args.common.out_dir(CHAPTER);
+    for (path, picture) in &pictures {
+        let name = match path {
+            Path::Pbo => CHAPTER.to_owned(),
+            Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
+        };
+        let upright = common::base::output::flip_rows(picture, width, height);
+        common::base::output::save_rgba8(report, &out_dir, &name, width, height, &upright)?;
+    }
+    gl_context.check_error("the frames")?;
+
+    // 8. Clean up, newest first
+    // ANCHOR: cleanup
+    unsafe { gl.finish() };
+    drop(composite); // GL only
+    // GL's import and CUDA's (which waits for CUDA's work), before Vulkan frees the memory.
+    drop(shared); // the GL buffer, then its memory object
+    drop(imported); // CUDA's mapping, then its external memory
+    drop(path2); // the Vulkan buffer, then its memory (unmapped with it)
+    // CUDA's registration, before GL deletes the buffer it names.
+    drop(registered);
+    drop(pbo); // the textures, then the buffer
+    // ANCHOR_END: cleanup
+    Ok(())
 }
-// ANCHOR_END: made

@@ -8,14 +8,14 @@
 //!
 //! Both come from the same vertex stage, so they must cover the same pixels: that is checked.
 
-use crate::visibility::{MeshIds, VisibilityPass};
+use crate::overlap::Probe;
+use crate::visibility::VisibilityPass;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
-use common::GlContext;
 use common::base::gl::{Owned, create};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::scene::gbuffer::SceneBuffers;
-use common::scene::{Camera, Scene};
+use common::{GlContext, Report};
 use glow::HasContext;
 use std::rc::Rc;
 
@@ -76,26 +76,22 @@ impl Layout {
     }
 }
 
-/// The frame the layouts are drawn for.
-pub struct Frame<'a> {
-    pub visibility: &'a VisibilityPass,
-    pub buffers: &'a SceneBuffers,
-    pub scene: &'a Scene,
-    pub ids: &'a [MeshIds],
-    pub camera: &'a Camera,
-    pub extent: vk::Extent2D,
-}
-
-/// Median GPU milliseconds of the two layouts' passes over `rounds` rounds, and the number of
-/// pixels one covers and the other does not.
-pub fn measure(gl: &GlContext, f: Frame, rounds: u32) -> Result<(f64, f64, usize)> {
-    let g = &gl.gl;
-    let normal_depth = VisibilityPass::with_fragment_shader(gl, f.buffers, NORMAL_DEPTH)?;
-    let targets = [Layout::new(g, glow::R32UI, f.extent)?, Layout::new(g, glow::RG32UI, f.extent)?];
+/// The two layouts' passes over `rounds` rounds, for the frame `f` shows (drawn from `buffers`),
+/// into the report: their median GPU milliseconds, and whether they cover the same pixels.
+pub fn measure(
+    gl: &GlContext,
+    f: &Probe,
+    buffers: &SceneBuffers,
+    rounds: u32,
+    report: &mut Report,
+) -> Result<()> {
+    let (g, extent) = (&gl.gl, f.targets.extent);
+    let normal_depth = VisibilityPass::with_fragment_shader(gl, buffers, NORMAL_DEPTH)?;
+    let targets = [Layout::new(g, glow::R32UI, extent)?, Layout::new(g, glow::RG32UI, extent)?];
     let mut timer = GlPassTimer::new(g)?;
     let mut times = PassTimes::new();
     for _ in 0..rounds {
-        let at = |t: &Layout| (*t.framebuffer, f.extent);
+        let at = |t: &Layout| (*t.framebuffer, extent);
         timer.time(g, "ids", || f.visibility.draw_into(g, at(&targets[0]), f.scene, f.ids, f.camera))?;
         timer.time(g, "normal_depth", || {
             normal_depth.draw_into(g, at(&targets[1]), f.scene, f.ids, f.camera)
@@ -106,7 +102,11 @@ pub fn measure(gl: &GlContext, f: Frame, rounds: u32) -> Result<(f64, f64, usize
     gl.check_error("the layouts' passes").context("--layout-rounds")?;
     let median = |pass| common::base::commands::median_p95(times.samples(pass)).0;
     // Drawn or not: 0 where the clear left it, an id from 1, a view depth above 0 (its bits too).
-    let (ids, depths) = (targets[0].last_channel(1, f.extent), targets[1].last_channel(2, f.extent));
+    let (ids, depths) = (targets[0].last_channel(1, extent), targets[1].last_channel(2, extent));
     let differing = ids.iter().zip(&depths).filter(|(id, z)| (**id == 0) != (**z == 0)).count();
-    Ok((median("ids"), median("normal_depth"), differing))
+    let times =
+        serde_json::json!({ "ids_r32ui": median("ids"), "normal_depth_rg32ui": median("normal_depth") });
+    report.set("layout_raster_ms", times);
+    report.check("layouts_cover_the_same_pixels", differing == 0);
+    Ok(())
 }

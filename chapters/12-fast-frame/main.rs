@@ -249,46 +249,28 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (accumulated, scene_scale) = (tracer.accumulated, scene.size() / 2.0);
     let rays = settings.rays(if skipped.is_some() { 0 } else { settings.samples }, scene_scale);
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
+    // The measurements a flag asks for, on the last frame (overlap.rs, layouts.rs, vk_composite.rs).
+    let probe = overlap::Probe {
+        visibility: &visibility,
+        targets: &targets,
+        scene: &scene,
+        ids: &ids,
+        camera: &camera,
+        rays,
+    };
     if args.overlap_rounds > 0 {
-        let probe = overlap::Probe {
-            visibility: &visibility,
-            targets: &targets,
-            scene: &scene,
-            ids: &ids,
-            camera: &camera,
-            rays,
-        };
-        let (during, after, alone) = overlap::measure(apis, &mut tracer, probe, args.overlap_rounds)?;
+        let (during, after, alone) = overlap::measure(apis, &mut tracer, &probe, args.overlap_rounds)?;
         let overlap = serde_json::json!({ "gl_during_vulkan": during, "gl_after_vulkan": after, "gl_pass_alone": alone });
         report.set("overlap_ms", overlap);
         // The probe traced into the surface: the frames' rays again, for the checks.
         tracer.retrace(apis, &targets, &camera, rays, accumulated)?;
     }
     if args.layout_rounds > 0 {
-        let extent = targets.extent;
-        let f = layouts::Frame {
-            visibility: &visibility,
-            buffers: &shared.buffers,
-            scene: &scene,
-            ids: &ids,
-            camera: &camera,
-            extent,
-        };
-        let (ids_ms, normal_depth_ms, differing) = layouts::measure(&gl_context, f, args.layout_rounds)?;
-        report.set(
-            "layout_raster_ms",
-            serde_json::json!({ "ids_r32ui": ids_ms, "normal_depth_rg32ui": normal_depth_ms }),
-        );
-        report.check("layouts_cover_the_same_pixels", differing == 0);
+        layouts::measure(&gl_context, &probe, &shared.buffers, args.layout_rounds, report)?;
     }
     if args.vulkan_composite_rounds > 0 {
-        let (u, rounds) = (settings::uniforms(&settings, &camera), args.vulkan_composite_rounds);
-        let passes = (&targets, &composite);
-        let (ms, differs) = vk_composite::compare(apis, &shared.allocator, passes, &u, rounds)?;
-        report.set("composite_vulkan_compute_ms_median", ms);
-        report.set("composite_vulkan_largest_difference", differs);
-        // The same code, compiled by two drivers: rounding may differ (as the CPU check allows).
-        report.check("vulkan_composite_matches_gl", differs <= 2);
+        let settled = (&settings::uniforms(&settings, &camera), args.vulkan_composite_rounds);
+        vk_composite::compare(apis, &shared.allocator, (&targets, &composite), settled, report)?;
     }
     let surface = check::Surface::read(gl, &targets);
     if frame > 0 {
@@ -356,7 +338,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
-    report.check("no_fd_leaked", open_fd_count()? == open_fds_before);
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);
     Ok(())
 }

@@ -29,7 +29,7 @@ pub struct Probe<'a> {
 }
 
 /// Medians over `rounds` of each order, in milliseconds: (during, after, the second pass alone).
-pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: Probe, rounds: u32) -> Result<(f64, f64, f64)> {
+pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: &Probe, rounds: u32) -> Result<(f64, f64, f64)> {
     let Apis { vk, gl, commands, .. } = apis;
     let spare = Targets::new(vk, gl, p.targets.extent)?;
     let g = &gl.gl;

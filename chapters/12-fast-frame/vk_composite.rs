@@ -9,6 +9,7 @@ use crate::composite::{ComputeComposite, Uniforms};
 use crate::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::Report;
 use common::base::commands::{
     Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, transfers_to_host,
 };
@@ -135,19 +136,24 @@ pub fn measure(
     Ok(measured)
 }
 
-/// [`measure`], then GL's composite of the same surface with the same uniforms: Vulkan's median
-/// time, and the largest difference of any channel between the two pictures (in 1/255).
+/// [`measure`], then GL's composite of the same surface with the same uniforms, into the report:
+/// Vulkan's median time, and the largest difference of any channel between the two pictures
+/// (in 1/255), which must be rounding.
 pub fn compare(
     apis: Apis,
     allocator: &GpuAllocator,
     (targets, composite): (&Targets, &ComputeComposite),
-    u: &Uniforms,
-    rounds: u32,
-) -> Result<(f64, u8)> {
+    (u, rounds): (&Uniforms, u32),
+    report: &mut Report,
+) -> Result<()> {
     let measured = measure(apis, allocator, targets, u, rounds)?;
     let gl = &apis.gl.gl;
     composite.draw(gl, targets, u);
     let drawn = crate::check::read_picture(gl, targets);
     let largest = measured.picture.iter().zip(&drawn).map(|(a, b)| a.abs_diff(*b)).max().unwrap_or(0);
-    Ok((measured.median_ms, largest))
+    report.set("composite_vulkan_compute_ms_median", measured.median_ms);
+    report.set("composite_vulkan_largest_difference", largest);
+    // The same code, compiled by two drivers: rounding may differ (as the CPU check allows).
+    report.check("vulkan_composite_matches_gl", largest <= 2);
+    Ok(())
 }

@@ -288,7 +288,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("hand_over_layouts_agreed", zero_copy.layouts_agreed() && host.layouts_agreed());
     // Every scene's buffers, images and memory objects were made and destroyed since the count:
     // none may be left holding an fd.
-    report.check("no_fd_leaked", common::open_fd_count()? == open_fds_before);
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(host);
     drop(zero_copy); // the semaphores, if any
     gl.check_error("the bench")?;

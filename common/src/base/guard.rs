@@ -25,6 +25,19 @@ impl<T, F: FnOnce(&T)> Drop for Guard<T, F> {
 }
 // ANCHOR_END: guard
 
+impl<T, F: FnOnce(&T)> Guard<T, F> {
+    /// The value, no longer destroyed by this guard: for handing it to another owner, which
+    /// destroys it with what it is bound to (a buffer with its memory).
+    pub fn into_inner(mut self) -> T {
+        self.destroy = None;
+        // SAFETY: `self` is forgotten right after, so `value` is moved out exactly once, and
+        // `destroy` (now None) owns nothing that leaks.
+        let value = unsafe { std::ptr::read(&self.value) };
+        std::mem::forget(self);
+        value
+    }
+}
+
 impl<T, F: FnOnce(&T)> std::ops::Deref for Guard<T, F> {
     type Target = T;
     fn deref(&self) -> &T {

@@ -107,6 +107,21 @@ pub fn open_fd_count() -> anyhow::Result<usize> {
 }
 // ANCHOR_END: open_fd_count
 
+/// [`open_fd_count`] at the end of a run, for the leak check against `before`: while it is
+/// higher, counted again for up to a second. A driver's background thread (Mesa's shader cache
+/// writer, say) may hold a file open for a moment after the work is done; a leaked fd stays.
+pub fn settled_fd_count(before: usize) -> anyhow::Result<usize> {
+    let mut count = open_fd_count()?;
+    for _ in 0..20 {
+        if count <= before {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        count = open_fd_count()?;
+    }
+    Ok(count)
+}
+
 /// The open file descriptors and what each points at (`/proc/self/fd`), sorted: which fds a run
 /// left open, beyond a count.
 pub fn open_fds() -> Vec<String> {
