@@ -15,7 +15,7 @@ use common::base::commands::{Commands, Timestamps, timed};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{GlPassTimer, PassTimes};
-use common::frame::{Composite, Uniforms, View};
+use common::frame::{Composite, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BuildInputs, InPlace, Refresh, TlasFlags, instances_geometry};
@@ -116,15 +116,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let tlas_handle = shared.structures.tlas.handle;
     let mut tracer = AoTracer::new(&vk, &gl_context, &shared.allocator, tlas_handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
-    let uniforms = Uniforms {
-        blur_radius: 2,
-        depth_tolerance: 0.02,
-        normal_tolerance: 0.9,
-        power: args.ao.power,
-        view: View::Final,
-        bounds: scene.bounds,
-        far_depth: camera.far,
-    };
+    let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);
     let trace_timer = Timestamps::new(&vk)?;
     // Made after everything the traces use: an early return drops it first, and its Drop waits
     // for the last trace before the tracer or the G-buffers are destroyed.
@@ -205,18 +197,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: measure
     // The AO shader's rays depend only on the pixel and the sample index: with the running mean
     // restarted, both traces cast exactly the same rays, and must find the same occluders.
-    let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
-        tracer.reset();
-        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
-        let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
-        Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
-    };
     gbuffers.draw(gl, &scene, &camera);
-    let (after_updates, updated_ms) = trace_once(&mut tracer)?;
+    let (after_updates, updated_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     refresh_tlas(&vk, &updates, &shared.structures.loader, &tlas, Refresh::Rebuild, update_timer.as_ref())?;
     gbuffers.draw(gl, &scene, &camera);
-    let (after_rebuild, rebuilt_ms) = trace_once(&mut tracer)?;
+    let (after_rebuild, rebuilt_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     let differing = after_updates.iter().zip(&after_rebuild).filter(|(a, b)| a != b).count();
     report.set("pixels_differing_updated_vs_rebuilt", differing);
     // A stale or corrupted update would put occluders where the runners were, not where they are.

@@ -15,7 +15,7 @@ use common::base::commands::{Commands, Timestamps};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{self, GlPassTimer, PassTimes};
-use common::frame::{Composite, Uniforms, View};
+use common::frame::{Composite, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::accel::{self, AccelerationStructure, BuildInputs, DeviceBuffer, InPlace, Refresh};
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
@@ -166,15 +166,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, tlas.handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
-    let uniforms = Uniforms {
-        blur_radius: 2,
-        depth_tolerance: 0.02,
-        normal_tolerance: 0.9,
-        power: args.ao.power,
-        view: View::Final,
-        bounds: scene.bounds,
-        far_depth: camera.far,
-    };
+    let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);
     let animation_timer = Timestamps::with_count(&vk, 4)?;
     let trace_timer = Timestamps::new(&vk)?;
     // Made after everything their submissions use: an early return drops them first, and each
@@ -277,17 +269,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 7. Measure: the same rays through the refitted BLAS, then through a rebuilt one
     // ANCHOR: measure
-    let trace_once = |tracer: &mut AoTracer| -> Result<(Vec<f32>, Option<f64>)> {
-        tracer.reset();
-        let rays =
-            AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
-        let ms = trace_timer.as_ref().map(|t| t.read_ms(&vk)).transpose()?;
-        Ok((output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1), ms))
-    };
+    let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
     gbuffers.draw(gl, &scene, &camera);
-    let (after_refits, refitted_ms) = trace_once(&mut tracer)?;
+    let (after_refits, refitted_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     // The same time again (the vertices do not move), with the BLAS rebuilt.
     let cb = animation.begin(&vk)?;
     let parts = Animation {
@@ -303,7 +287,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
     vertices.to_gl(&vk, &gl_context, animation.fence)?;
     gbuffers.draw(gl, &scene, &camera);
-    let (after_rebuild, rebuilt_ms) = trace_once(&mut tracer)?;
+    let (after_rebuild, rebuilt_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     let differing = after_refits.iter().zip(&after_rebuild).filter(|(a, b)| a != b).count();
     report.set("pixels_differing_refitted_vs_rebuilt", differing);
     report.check("refitted_blas_traces_like_a_rebuilt_one", differing * 1000 <= (w * h) as usize);

@@ -51,6 +51,22 @@ pub struct Uniforms {
     pub far_depth: f32,
 }
 
+impl Uniforms {
+    /// Chapter 08's final picture as its flags start it (a blur of radius 2, a neighbour within
+    /// 2% of the depth and facing within about 25 degrees), for the chapters that show only that.
+    pub fn final_picture(power: f32, bounds: (Vec3, Vec3), far_depth: f32) -> Uniforms {
+        Uniforms {
+            blur_radius: 2,
+            depth_tolerance: 0.02,
+            normal_tolerance: 0.9,
+            power,
+            view: View::Final,
+            bounds,
+            far_depth,
+        }
+    }
+}
+
 /// The composite pass: a full-screen triangle into an offscreen colour buffer whose depth
 /// buffer is the G-buffer pass's, so that overlays drawn next are tested against the scene.
 /// Deleted when dropped too, so that an early return from `run` leaves nothing behind.

@@ -9,7 +9,7 @@ use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
 use crate::rt::raytrace::{RayPipeline, push_bytes};
 use crate::scene::gbuffer::GBuffers;
-use anyhow::Result;
+use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;
 
@@ -175,6 +175,27 @@ impl AoTracer {
     /// longer describes the picture. The next frame's samples get weight 1.
     pub fn reset(&mut self) {
         self.accumulated = 0;
+    }
+
+    /// The running mean restarted and one frame of `rays` traced and waited for, for measuring
+    /// (chapters 09 and 10 trace the same rays through two structures): the visibility GL reads
+    /// back, in memory order, and the trace's GPU time when there are `timestamps`.
+    pub fn trace_once(
+        &mut self,
+        apis: Apis,
+        gbuffers: &GBuffers,
+        rays: AoRays,
+        timestamps: Option<&Timestamps>,
+    ) -> Result<(Vec<f32>, Option<f64>)> {
+        self.reset();
+        self.trace(apis, gbuffers, rays, timestamps)?;
+        let vk = apis.vk;
+        unsafe { vk.device.wait_for_fences(&[apis.commands.fence], true, u64::MAX) }
+            .context("vkWaitForFences after a measured trace")?;
+        let ms = timestamps.map(|t| t.read_ms(vk)).transpose()?;
+        let extent = gbuffers.extent;
+        let texture = self.image.texture.texture;
+        Ok((crate::base::output::read_texture_f32(&apis.gl.gl, texture, extent.width, extent.height, 1), ms))
     }
 
     /// After the G-buffers were made anew (a resize): a new AO image of their size, the
