@@ -183,6 +183,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (mut blas_refits, mut blas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
     let vertex_buffer = buffers.meshes[1][0].0.buffer;
+    // What a frame's animation work uses; the wave is the frame's, and GL may have the vertices.
+    let parts = |wave| Animation {
+        loader: &loader,
+        vertices: vertex_buffer,
+        vertices_from_gl: vertices.with_gl(),
+        pipeline: &pipeline,
+        wave,
+        blases: &blases,
+        tlas: &tlas_in_place,
+    };
     for frame in 0..frames {
         // ANCHOR: frame
         wave.time = args.animation.at(frame);
@@ -196,16 +206,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if let (Some(done), Some(timer)) = (animated.take(), &animation_timer) {
             sphere::add_times(&vk, timer, done, &mut times)?;
         }
-        let parts = Animation {
-            loader: &loader,
-            vertices: vertex_buffer,
-            vertices_from_gl: vertices.with_gl(),
-            pipeline: &pipeline,
-            wave: &wave,
-            blases: &blases,
-            tlas: &tlas_in_place,
-        };
-        record_animation(&vk, cb, &parts, step, animation_timer.as_ref());
+        record_animation(&vk, cb, &parts(wave), step, animation_timer.as_ref());
         // Vulkan writes the vertices once GL's last draw has fetched them; GL fetches them again
         // once they are written.
         animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
@@ -274,16 +275,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (after_refits, refitted_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     // The same time again (the vertices do not move), with the BLAS rebuilt.
     let cb = animation.begin(&vk)?;
-    let parts = Animation {
-        loader: &loader,
-        vertices: vertex_buffer,
-        vertices_from_gl: vertices.with_gl(),
-        pipeline: &pipeline,
-        wave: &wave,
-        blases: &blases,
-        tlas: &tlas_in_place,
-    };
-    record_animation(&vk, cb, &parts, Step::Next(Refresh::Rebuild), animation_timer.as_ref());
+    record_animation(&vk, cb, &parts(wave), Step::Next(Refresh::Rebuild), animation_timer.as_ref());
     animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
     vertices.to_gl(&vk, &gl_context, animation.fence)?;
     gbuffers.draw(gl, &scene, &camera);

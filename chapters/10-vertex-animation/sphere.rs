@@ -217,7 +217,7 @@ pub struct Animation<'a> {
     pub vertices: vk::Buffer,
     pub vertices_from_gl: bool,
     pub pipeline: &'a WavePipeline,
-    pub wave: &'a Wave,
+    pub wave: Wave,
     pub blases: &'a [(AccelerationStructure, InPlace)],
     pub tlas: &'a InPlace,
 }
@@ -263,7 +263,7 @@ pub fn record_animation(
         if let Some(t) = timer {
             t.write(vk, cb, compute, 0);
         }
-        parts.pipeline.record(vk, cb, parts.wave);
+        parts.pipeline.record(vk, cb, &parts.wave);
         if let Some(t) = timer {
             t.write(vk, cb, compute, 1);
         }
