@@ -76,6 +76,15 @@ pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
     if meshes.is_empty() {
         bail!("{shown}: the file has no faces");
     }
+    // A scene with no size is refused by `Scene::new`, which sees the centred numbers: name the
+    // point in the file's own coordinates here instead.
+    let mut positions = meshes.iter().flat_map(|(m, _)| m.vertices.iter().map(|v| Vec3::from(v.position)));
+    if let Some(first) = positions.next()
+        && positions.all(|p| p == first)
+    {
+        let at = glam::DVec3::from(centre) + first.as_dvec3();
+        bail!("{shown}: all of the file's vertices coincide at {at}: it has no size to frame or trace");
+    }
     let instances = meshes.iter().map(|(_, albedo)| Instance::new(Mat4::IDENTITY, *albedo)).collect();
     let mesh_instances = (0..meshes.len() as u32).map(|i| i..i + 1).collect();
     let meshes = meshes.into_iter().map(|(m, _)| m).collect();
