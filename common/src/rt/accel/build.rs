@@ -326,9 +326,7 @@ fn flat_geometries(
     scene: &Scene,
     buffers: &SceneBuffers,
 ) -> Result<(Vec<vk::AccelerationStructureGeometryKHR<'static>>, Vec<u32>)> {
-    let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
-    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
-    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    let properties = super::structure::properties(vk);
     let (instances, triangles) = (scene.instances.len() as u64, scene.triangles());
     anyhow::ensure!(
         instances <= properties.max_geometry_count && triangles <= properties.max_primitive_count,

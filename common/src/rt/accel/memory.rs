@@ -160,9 +160,7 @@ pub(super) struct Scratch {
 
 impl Scratch {
     pub(super) fn new(vk: &VulkanContext, allocator: &GpuAllocator, sizes: &[u64]) -> Result<Self> {
-        let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
-        let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
-        unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+        let properties = super::structure::properties(vk);
         let alignment = properties.min_acceleration_structure_scratch_offset_alignment.max(1) as u64;
         let mut offsets = Vec::new();
         let mut total = 0;

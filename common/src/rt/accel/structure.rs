@@ -134,13 +134,19 @@ pub fn set_blas_address(instances: &ExportedBuffer, index: usize, address: vk::D
     unsafe { instances.mapped.add(offset).cast::<u64>().write_unaligned(address) };
 }
 
+/// The device's acceleration-structure limits (`VkPhysicalDeviceAccelerationStructurePropertiesKHR`).
+pub fn properties(vk: &VulkanContext) -> vk::PhysicalDeviceAccelerationStructurePropertiesKHR<'static> {
+    let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
+    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    properties
+}
+
 /// Refuses, before anything is allocated, a scene whose structures the device cannot build:
 /// more instances than a TLAS holds (`maxInstanceCount`), or a mesh with more triangles than a
 /// BLAS geometry holds (`maxPrimitiveCount`).
 pub fn check_limits(vk: &VulkanContext, scene: &Scene) -> Result<()> {
-    let mut properties = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
-    let mut properties2 = vk::PhysicalDeviceProperties2::default().push_next(&mut properties);
-    unsafe { vk.instance.get_physical_device_properties2(vk.physical_device, &mut properties2) };
+    let properties = properties(vk);
     let device = &vk.info.name;
     let instances = scene.instances.len() as u64;
     anyhow::ensure!(
