@@ -4,6 +4,8 @@
 //! flags a page quotes exist; no page runs a `./bin/` that does not exist or cites a tracker's
 //! "issue N" that the reader cannot see. Pure text: no GPU, no chapter run, a fraction of a second.
 
+mod harness;
+
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -71,21 +73,7 @@ impl Page {
 /// Every page under `book/src`, by name; `chapters`, `common` and `shaders` there are links to
 /// the sources, not pages.
 fn pages() -> Vec<Page> {
-    fn walk(dir: &Path, found: &mut Vec<PathBuf>) {
-        for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())).flatten() {
-            let path = entry.path();
-            if entry.file_type().is_ok_and(|t| t.is_symlink()) {
-                continue;
-            }
-            if path.is_dir() {
-                walk(&path, found);
-            } else if path.extension().is_some_and(|e| e == "md") {
-                found.push(path);
-            }
-        }
-    }
-    let mut files = Vec::new();
-    walk(&root().join("book/src"), &mut files);
+    let mut files = harness::markdown_files(&root().join("book/src"));
     files.sort();
     assert!(files.len() > 10, "book/src has only {} pages: was it moved?", files.len());
     files

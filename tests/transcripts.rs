@@ -334,21 +334,8 @@ fn diff(expected: &[String], actual: &[String]) -> String {
 
 /// The book's pages (`book/src/**/*.md`, not the links to the sources) and the README.
 fn pages() -> Vec<(String, String)> {
-    fn walk(dir: &Path, found: &mut Vec<PathBuf>) {
-        for entry in std::fs::read_dir(dir).unwrap().flatten() {
-            let path = entry.path();
-            if entry.file_type().is_ok_and(|t| t.is_symlink()) {
-                continue;
-            }
-            if path.is_dir() {
-                walk(&path, found);
-            } else if path.extension().is_some_and(|e| e == "md") {
-                found.push(path);
-            }
-        }
-    }
-    let mut files = vec![root().join("README.md")];
-    walk(&root().join("book/src"), &mut files);
+    let mut files = harness::markdown_files(&root().join("book/src"));
+    files.push(root().join("README.md"));
     files.sort();
     files
         .iter()
