@@ -71,7 +71,17 @@ impl Window {
     /// Opens a `size` window with a GL 4.5 core context current on it, and wraps the context as
     /// [`GlContext::new`] does (failing, naming each one, when an extension in `required` is missing).
     pub fn open(title: &str, size: Size, required: &[&str]) -> Result<(Window, GlContext)> {
-        let mut event_loop = EventLoop::new().context("connecting to the display (winit)")?;
+        let mut event_loop = EventLoop::new().map_err(|error| {
+            // winit loads libX11, libXcursor, libXi and libxkbcommon-x11 when it starts: a
+            // machine with no desktop may have only some of them.
+            let hint = if error.to_string().contains("shared librar") {
+                " (a library winit loads is missing: `bash .ci/deps` installs libxcursor1, libxi6 \
+                 and libxkbcommon-x11-0; or run with --headless)"
+            } else {
+                ""
+            };
+            anyhow::anyhow!("connecting to the display (winit): {error}{hint}")
+        })?;
         let mut app = App { title: title.to_owned(), size: Some(size), ..Default::default() };
         // ANCHOR: pump
         // winit allows windows only once its loop runs (`resumed`): pump until then.
