@@ -147,7 +147,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         })?;
         gl_context.check_error("drawing from the imported buffer")?;
         let pixels = output::read_gl_rgba8(gl, width, height);
-        output::save_rgba8(report, &out_dir, name, width, height, &pixels)?;
+        output::save_rgba8(report, &out_dir, name, (width, height), &pixels)?;
         Ok(pixels)
     };
     let first = draw(CHAPTER, report)?;

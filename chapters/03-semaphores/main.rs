@@ -11,12 +11,13 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, Timestamps, median_p95};
+use common::base::commands::{COLOR_RANGE, Commands, HostBuffer};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
+use common::base::timestamps::{Timestamps, median_p95};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
-use common::interop::{self, SharedImage};
+use common::interop::{self, SharedFormat, SharedImage};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
 use std::ffi::CStr;
@@ -47,7 +48,7 @@ fn main() -> ExitCode {
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     SMALLEST.check(CHAPTER, args.common.size)?;
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
-    let frames = args.common.frame_count(false);
+    let frames = args.common.headless_frames();
 
     // 1. Create both contexts and a shared image
     let vk = VulkanContext::new(&Requirements {
@@ -64,7 +65,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let usage = vk::ImageUsageFlags::COLOR_ATTACHMENT // GL draws into it
         | vk::ImageUsageFlags::TRANSFER_SRC // Vulkan copies GL's pixels out
         | vk::ImageUsageFlags::TRANSFER_DST; // Vulkan writes its own
-    let image = SharedImage::new(&vk, &gl_context, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    let image = SharedImage::new(&vk, &gl_context, SharedFormat::RGBA8, usage, extent)?;
     // GL draws into it first: Vulkan moves it out of UNDEFINED and hands it over before that.
     interop::hand_new_images_to_gl(&vk, &[&image])?;
     // ANCHOR_END: shared_image
@@ -181,8 +182,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report,
         &args.common.out_dir(CHAPTER),
         CHAPTER,
-        extent.width,
-        extent.height,
+        (extent.width, extent.height),
         &last_seen_by_gl,
     )?;
     let from_gl = gl_pixels_seen_by_vulkan.bytes().to_vec();
@@ -190,8 +190,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report,
         &args.common.out_dir(CHAPTER),
         &format!("{CHAPTER}-gl"),
-        extent.width,
-        extent.height,
+        (extent.width, extent.height),
         &from_gl,
     )?;
     times.record(report);

@@ -32,7 +32,7 @@ impl Checks {
         time: f32,
     ) {
         let lit = is_lit(pixel(&pixels, width, height, [0.0, 0.0]));
-        let shows = shows_compute_image(&pixels, width, height, triangle, image, time);
+        let shows = shows_compute_image(&pixels, (width, height), triangle, image, time);
         self.centre_lit = Some(self.centre_lit.unwrap_or(true) && lit);
         self.shows_image = Some(self.shows_image.unwrap_or(true) && shows);
         match self.first_seen {
@@ -41,8 +41,9 @@ impl Checks {
         }
     }
 
-    /// The checks, the fd counts across resizes, and the timings, into the report.
-    pub fn report(self, report: &mut Report, resized_every: bool) -> Result<()> {
+    /// The checks, the fd counts across resizes (when it resized every `resize_every` frames),
+    /// and the timings, into the report.
+    pub fn report(self, report: &mut Report, resize_every: Option<u32>) -> Result<()> {
         report.check("centre_pixel_inside_triangle", self.centre_lit.unwrap_or(true));
         report.check("triangle_shows_computed_image", self.shows_image.unwrap_or(true));
         match (&self.first_seen, &self.last_seen) {
@@ -58,7 +59,7 @@ impl Checks {
             }
             _ => {}
         }
-        if resized_every {
+        if resize_every.is_some() {
             let at_end = open_fd_count()?;
             report.check("no_fd_growth_across_resizes", self.fds_after_cycle == Some(at_end));
             report.set(
@@ -103,8 +104,7 @@ fn sampled_colour(uv: [f32; 2], size: vk::Extent2D, time: f32) -> [f32; 3] {
 /// to each corner, the pixel must be what the shader computed at that pixel's texture coordinate.
 fn shows_compute_image(
     pixels: &[u8],
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     triangle: &Triangle,
     size: vk::Extent2D,
     time: f32,

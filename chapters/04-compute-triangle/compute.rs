@@ -3,9 +3,10 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::base::commands::{Timestamps, first_use};
+use common::base::commands::first_use;
 use common::base::fail;
-use common::interop::{SharedImage, acquire_from_gl, release_to_gl};
+use common::base::timestamps::Timestamps;
+use common::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
 
@@ -69,7 +70,7 @@ impl ComputePipeline {
             device.create_pipeline_layout(&layout_info, None)
         })?;
         // SPIR-V to a shader module (common::base::compute), destroyed when dropped.
-        let module = common::base::compute::shader_module(vk, COMPUTE_SPIRV, "compute")?;
+        let module = common::base::pipeline::shader_module(vk, COMPUTE_SPIRV, "compute")?;
         let stage =
             vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module.module).name(c"main");
         let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(this.layout);
@@ -97,21 +98,20 @@ impl ComputePipeline {
     }
 
     // ANCHOR: record_compute
-    /// Takes the image from GL (or, when it is new, claims it), runs the compute shader over it at
-    /// `time`, and gives it back to GL.
+    /// Takes the image from its `previous` holder (GL, or nobody when it is new), runs the compute
+    /// shader over it at `time`, and gives it to GL.
     pub fn record(
         &self,
         vk: &VulkanContext,
         cb: vk::CommandBuffer,
-        image: &SharedImage,
-        image_is_new: bool,
+        (image, previous): (&SharedImage, Previous),
         time: f32,
         timestamps: Option<&Timestamps>,
     ) {
         let (compute, none) = (vk::PipelineStageFlags::COMPUTE_SHADER, vk::DependencyFlags::empty());
         let (read_only, general) = (vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL, vk::ImageLayout::GENERAL);
         let device = &vk.device;
-        let acquire = if image_is_new {
+        let acquire = if previous == Previous::Nobody {
             // Nothing to take over: UNDEFINED says the old contents may go, and the shader writes
             // every pixel anyway. No ownership transfer: Vulkan's first use claims it.
             first_use(image.image, general, vk::AccessFlags::SHADER_WRITE)
@@ -164,6 +164,15 @@ impl ComputePipeline {
     // ANCHOR_END: record_compute
 }
 
+/// Who had the compute image before this frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Previous {
+    /// Nobody: it was just made (the first frame, or a resize) and holds nothing yet.
+    Nobody,
+    /// GL, which drew from it last frame and hands it over now.
+    Gl,
+}
+
 impl Drop for ComputePipeline {
     fn drop(&mut self) {
         unsafe {
@@ -186,7 +195,7 @@ pub fn share_image(
 ) -> Result<SharedImage> {
     // STORAGE: the compute shader's imageStore. SAMPLED: GL's texture().
     let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
-    let image = SharedImage::new(vk, gl, vk::Format::R8G8B8A8_UNORM, glow::RGBA8, usage, extent)?;
+    let image = SharedImage::new(vk, gl, SharedFormat::RGBA8, usage, extent)?;
     let texture = image.texture.texture;
     for (parameter, value) in [
         (glow::TEXTURE_MIN_FILTER, glow::LINEAR), // one mip level: no mipmap filter

@@ -15,14 +15,15 @@ use anyhow::{Context as _, Result, bail};
 use ash::vk;
 use check::Checks;
 use common::base::cli::Smallest;
-use common::base::commands::{Commands, Timestamps};
+use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
 use common::base::output;
+use common::base::timestamps::Timestamps;
 use common::base::window::{self, Key, NamedKey, Window};
 use common::interop;
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
-use compute::{ComputePipeline, share_image};
+use compute::{ComputePipeline, Previous, share_image};
 use glow::HasContext;
 use std::f32::consts::{FRAC_PI_2, TAU};
 use std::ffi::CStr;
@@ -92,7 +93,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         eprintln!("no display (DISPLAY and WAYLAND_DISPLAY are unset): running headless");
     }
     // 0 frames: until the window is closed.
-    let frames = args.common.frame_count(windowed);
+    let frames = if windowed { args.common.window_frames() } else { args.common.headless_frames() };
     if let Some(k) = args.resize_every
         && frames != 0
         && frames <= 3 * k
@@ -138,7 +139,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut extent = vk::Extent2D { width: size.width, height: size.height };
     let mut image = share_image(&vk, &gl_context, compute.set, extent)?;
     // A new image has never been GL's: there is nothing to hand over yet (step 8).
-    let mut image_is_new = true;
+    let mut previous = Previous::Nobody;
     let largest = common::largest_size(&vk, &gl_context);
     let largest = largest.width.min(largest.height); // where '+' stops
 
@@ -220,7 +221,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 Err(error) => return Err(error),
             }
             if wanted != extent {
-                (extent, image_is_new, resizes) = (wanted, true, resizes + 1);
+                (extent, previous, resizes) = (wanted, Previous::Nobody, resizes + 1);
                 eprintln!("compute image: {}x{}", extent.width, extent.height);
             }
             if resizes == 3 && args.resize_every.is_some() {
@@ -249,12 +250,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: compute
         let texture = [image.texture.texture];
         // GL names the layout its release leaves the image in; Vulkan's barrier starts from the same.
-        let handed = if image_is_new { 0 } else { 1 };
+        let handed = if previous == Previous::Gl { 1 } else { 0 };
         handoff.gl_release(&gl_context, &texture[..handed], &[layout::SHADER_READ_ONLY][..handed]);
         if let Some(t) = &timestamps {
             t.reset(&vk, cb);
         }
-        compute.record(&vk, cb, &image, image_is_new, time, timestamps.as_ref());
+        compute.record(&vk, cb, (&image, previous), time, timestamps.as_ref());
         // Wait for GL at the compute stage: nothing before the dispatch touches the image.
         let wait = handoff.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::COMPUTE_SHADER));
         commands.submit(&vk, wait, handoff.vulkan_signals())?;
@@ -264,7 +265,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: draw
         // SHADER_READ_ONLY: where Vulkan's release barrier left it. GL must be told the same.
         handoff.gl_acquire(&vk, &gl_context, commands.fence, &texture, &[layout::SHADER_READ_ONLY])?;
-        image_is_new = false;
+        previous = Previous::Gl;
         let (width, height) = window.as_ref().map_or((size.width, size.height), |w| w.size());
         gl_timer.time(gl, "gl_draw", || unsafe {
             gl.bind_framebuffer(glow::FRAMEBUFFER, target.as_ref().map(|t| *t.framebuffer));
@@ -288,7 +289,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if (window.is_none() || frame == 0 || last) && width > 0 && height > 0 {
             let pixels = output::read_gl_rgba8(gl, width, height);
             let name = if frames == 1 { CHAPTER.to_owned() } else { format!("{CHAPTER}-frame{frame}") };
-            output::save_rgba8(report, &out_dir, &name, width, height, &pixels)?;
+            output::save_rgba8(report, &out_dir, &name, (width, height), &pixels)?;
             checks.frame(pixels, (width, height), &triangle, extent, time);
         }
         if let Some(window) = &mut window {
@@ -305,7 +306,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         checks.times.add("compute_gpu", t.read_ms(&vk)?); // the last frame's
     }
     gl_timer.finish(gl, &mut checks.times);
-    checks.report(report, args.resize_every.is_some())?;
+    checks.report(report, args.resize_every)?;
     report.set("frames", frame);
     report.set("resizes", resizes);
     report.set("compute_image", [extent.width, extent.height]);

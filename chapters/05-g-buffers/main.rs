@@ -15,7 +15,7 @@ use common::base::output;
 use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
-use common::scene::gbuffer::{GBUFFERS, GBuffers, SceneBuffers};
+use common::scene::gbuffer::{GBUFFERS, GBuffer, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
@@ -99,8 +99,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 6. Hand the G-buffers to Vulkan, which copies them out
     let mut readbacks = Vec::new();
-    for (_, _, _, bytes_per_pixel) in GBUFFERS {
-        let bytes = (extent.width * extent.height * bytes_per_pixel) as u64;
+    for GBuffer { format, .. } in GBUFFERS {
+        let bytes = (extent.width * extent.height * format.bytes_per_pixel) as u64;
         readbacks.push(HostBuffer::new(&vk, bytes, vk::BufferUsageFlags::TRANSFER_DST)?);
     }
     let mut vk_timer = VkPassTimer::new(&vk, 1)?;
@@ -175,7 +175,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     for (name, pixels) in pictures {
         // GL drew with its bottom row first in memory: flip, so the pictures are upright.
         let upright = output::flip_rows(&pixels, extent.width, extent.height);
-        output::save_rgba8(report, &out, &format!("{prefix}-{name}"), extent.width, extent.height, &upright)?;
+        output::save_rgba8(
+            report,
+            &out,
+            &format!("{prefix}-{name}"),
+            (extent.width, extent.height),
+            &upright,
+        )?;
     }
     report.set("draw_calls", meshes);
     report.set("instances", instances);

@@ -11,15 +11,16 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{
-    Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
+    Commands, HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
+use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel;
-use common::rt::raytrace::{PrimaryRays, RayPipeline, StorageImage, push_bytes};
+use common::rt::raytrace::{PrimaryRays, RayPipeline, RayShaders, StorageImage, push_bytes};
 use common::scene::gbuffer::{GBuffers, SceneBuffers};
 use common::scene::{Camera, SceneArgs};
 use common::{CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
@@ -137,8 +138,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             .stage_flags(stage),
     ];
     let push = PrimaryRays::new(&camera, aspect);
-    let pipeline =
-        RayPipeline::new(&vk, &allocator, RAYGEN, MISS, &bindings, size_of::<PrimaryRays>() as u32)?;
+    let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
+    let pipeline = RayPipeline::new(&vk, &allocator, shaders, &bindings, size_of::<PrimaryRays>() as u32)?;
     let mask = StorageImage::new(
         &vk,
         &allocator,
@@ -234,8 +235,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report,
         &args.common.out_dir(CHAPTER),
         &prefix,
-        extent.width,
-        extent.height,
+        (extent.width, extent.height),
         &upright,
     )?;
 

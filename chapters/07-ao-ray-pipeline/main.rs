@@ -10,9 +10,10 @@
 use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::commands::{Commands, Timestamps};
+use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
+use common::base::timestamps::Timestamps;
 use common::base::timing::{self, GlPassTimer, PassTimes};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
@@ -94,7 +95,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("ao_skipped", reason);
         tracer.fill_unoccluded(&vk, &gl_context)?;
     }
-    for frame in 0..args.common.frame_count(false) {
+    for frame in 0..args.common.headless_frames() {
         // ANCHOR: loop
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         let samples = args.ao.samples.min(args.ao.max_samples.saturating_sub(tracer.accumulated));
@@ -176,8 +177,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report,
         &args.common.out_dir(CHAPTER),
         &prefix,
-        extent.width,
-        extent.height,
+        (extent.width, extent.height),
         &upright,
     )?;
 

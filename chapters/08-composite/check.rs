@@ -53,18 +53,17 @@ impl LastFrame<'_> {
         Ok(checks)
     }
 
-    /// Headless: the picture of the last frame's view (the final picture by default), and with
-    /// `all_views` every debug view, as `prefix[-view].png` in `out_dir`; the mean AO shown.
+    /// Headless: a picture of each of `views` (the last frame's own, or with `--all-views` every
+    /// debug view), as `prefix[-view].png` in `out_dir`; the mean AO shown.
     pub fn write_pictures(
         &self,
         report: &mut Report,
         out_dir: &Path,
         prefix: &str,
-        all_views: bool,
+        views: &[View],
     ) -> Result<()> {
         let LastFrame { gl, gbuffers, tracer, composite, camera, .. } = *self;
         let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
-        let views: Vec<View> = if all_views { View::ALL.to_vec() } else { vec![self.uniforms.view] };
         let view_projection = camera.view_projection(w as f32 / h as f32);
         let ao_mean = {
             composite.draw(gl, gbuffers, tracer, &Uniforms { view: View::Ao, ..self.uniforms });
@@ -74,7 +73,7 @@ impl LastFrame<'_> {
             covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64
         };
         report.set("ao_mean", (ao_mean * 1e3).round() / 1e3);
-        for view in views {
+        for &view in views {
             composite.draw(gl, gbuffers, tracer, &Uniforms { view, ..self.uniforms });
             if let (View::Final, Some(overlays)) = (view, self.overlays) {
                 overlays.draw(gl, &composite.target(), view_projection);
@@ -84,7 +83,7 @@ impl LastFrame<'_> {
                 other => format!("{prefix}-{}", other.name()),
             };
             let upright = output::flip_rows(&composite.read(gl), w, h);
-            output::save_rgba8(report, out_dir, &name, w, h, &upright)?;
+            output::save_rgba8(report, out_dir, &name, (w, h), &upright)?;
         }
         Ok(())
     }

@@ -12,11 +12,12 @@
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::commands::{Commands, Timestamps};
+use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::base::window::{Key, NamedKey, Window};
-use common::frame::{Composite, Overlays};
+use common::frame::{Composite, Overlays, View};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
@@ -116,7 +117,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: setup
 
     // 5. Every frame: input, G-buffers, rays, composite, overlays
-    let frame_limit = args.common.frame_count(window.is_some());
+    let frame_limit =
+        if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
     let mut frame = 0;
     let mut drew_a_frame = false;
     let (mut new_size, mut resizes, mut fds_after_first_resize) = (None, 0, None);
@@ -278,7 +280,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("frames", frame);
         if window.is_none() {
             let out_dir = args.common.out_dir(CHAPTER);
-            last_frame.write_pictures(report, &out_dir, &args.scene.picture_name(CHAPTER), args.all_views)?;
+            let views = if args.all_views { View::ALL.to_vec() } else { vec![last_frame.uniforms.view] };
+            last_frame.write_pictures(report, &out_dir, &args.scene.picture_name(CHAPTER), &views)?;
         }
     }
 

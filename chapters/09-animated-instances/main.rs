@@ -11,9 +11,10 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
-use common::base::commands::{Commands, Timestamps, timed};
+use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
+use common::base::timestamps::{Timestamps, timed};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
@@ -124,7 +125,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
 
     // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
-    let frames = args.common.frame_count(false);
+    let frames = args.common.headless_frames();
     let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
     // Each pass's GPU time (common::base::timing): GL's read when they arrive, Vulkan's after the wait
     // at the top of the next frame, which the frame makes anyway.
@@ -190,8 +191,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 5. Check the last frame's occlusion, the motion, and write the frames
     let (w, h) = (extent.width, extent.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
-    let moved = frames > 1 && args.animation.step > 0.0;
-    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
+    if frames > 1 && args.animation.step > 0.0 {
+        output::check_frames_differ(report, (w, h), &pictures); // something moved: it must show
+    }
+    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures)?;
 
     // 6. Measure: the same rays through the updated TLAS, then through a rebuilt one
     // ANCHOR: measure

@@ -5,8 +5,8 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
-use common::base::commands::Timestamps;
 use common::base::fail;
+use common::base::timestamps::Timestamps;
 use common::base::timing::PassTimes;
 use common::interop::handoff::{Handoff, SharedSemaphore};
 use common::rt::accel::{AccelerationStructure, InPlace, Refresh};
@@ -93,7 +93,7 @@ impl WavePipeline {
         // The guard exists before its first object: a failure half-way destroys what was made.
         let null = (vk::PipelineLayout::null(), vk::Pipeline::null());
         let mut this = WavePipeline { layout: null.0, pipeline: null.1, device: vk.device.clone() };
-        let module = common::base::compute::shader_module(vk, SHADER, "wave")?;
+        let module = common::base::pipeline::shader_module(vk, SHADER, "wave")?;
         let range = vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::COMPUTE)
             .size(size_of::<Wave>() as u32);

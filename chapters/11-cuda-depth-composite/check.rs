@@ -23,15 +23,26 @@ pub fn read_buffer(gl: &glow::Context, buffer: glow::Buffer, bytes: u64) -> Vec<
     out.chunks_exact(4).map(|w| u32::from_ne_bytes(w.try_into().unwrap())).collect()
 }
 
+/// Who traced the spheres.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TracedBy {
+    Cuda,
+    /// `scene::trace`, the reference every CUDA picture is compared with.
+    Cpu,
+}
+
 /// Medians of the per-frame GPU times (CPU time for the CPU tracer), under `<path>.<what>`.
-pub fn report_times(report: &mut Report, path: Path, cuda: bool, times: &[Vec<f64>; 3]) {
-    let trace = if cuda { "cuda_kernel" } else { "cpu_trace" };
+pub fn report_times(report: &mut Report, path: Path, traced_by: TracedBy, times: &[Vec<f64>; 3]) {
+    let trace = match traced_by {
+        TracedBy::Cuda => "cuda_kernel",
+        TracedBy::Cpu => "cpu_trace",
+    };
     let mut line = format!("{:>9}:", path.name());
     for (what, samples) in [trace, "gl_upload", "gl_composite"].iter().zip(times) {
         if samples.is_empty() {
             continue;
         }
-        let (median, _) = common::base::commands::median_p95(samples);
+        let (median, _) = common::base::timestamps::median_p95(samples);
         report.time_ms(&format!("{}.{what}_median", path.name()), median);
         line += &format!("  {what} {median:.3} ms");
     }
@@ -46,6 +57,7 @@ pub struct Frame<'a> {
     pub depth: &'a DepthUniforms,
     pub view_projection: Mat4,
     pub camera: &'a Camera,
+    pub traced_by: TracedBy,
 }
 
 impl Frame<'_> {
@@ -56,16 +68,15 @@ impl Frame<'_> {
         path: Path,
         params: &TraceParams,
         traced: &[u32],
-        cuda: bool,
     ) -> Result<Vec<u8>> {
-        let Frame { gl, composite, .. } = *self;
+        let Frame { gl, composite, traced_by, .. } = *self;
         let (w, h) = (composite.width as usize, composite.height as usize);
         let name = |check: &str| format!("{}_{check}", path.name());
 
         // The CPU tracer's picture: the reference for CUDA's, and the scene's hits.
         let mut reference = vec![0u32; 2 * w * h];
         let hits = scene::trace(params, &mut reference);
-        if cuda {
+        if traced_by == TracedBy::Cuda {
             let differing = differing_pixels(traced, &reference, w * h);
             report.set(&name("pixels_differing_from_cpu"), differing);
             // Rounding may flip a pixel on a silhouette or a checker edge: at most 1 in 1,000.
@@ -86,7 +97,7 @@ impl Frame<'_> {
         for (i, hit) in hits.iter().enumerate().filter(|(_, hit)| hit.t > 0.0) {
             let (x, y) = ((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
             let (sx, sy) = (x / w as f32 * 2.0 - 1.0, y / h as f32 * 2.0 - 1.0);
-            let expected = scene::window_depth(hit.t, sx, sy, d.tan_half, d.near, d.far);
+            let expected = scene::window_depth(hit.t, (sx, sy), d.tan_half, (d.near, d.far));
             let steps = (expected as f64 * ((1 << 24) - 1) as f64).round() as u32;
             formula_worst = formula_worst.max(steps.abs_diff(traced_depth[i]));
         }

@@ -29,6 +29,7 @@ mod check;
 mod composite;
 mod cuda;
 mod scene;
+use check::TracedBy;
 use composite::{DepthComposite, DepthUniforms, PixelBuffer, Source, gl_time_ms, traced_bytes};
 use cuda::{CudaTracer, ImportedMemory, RegisteredPbo};
 
@@ -260,10 +261,11 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
 
     // 6. Every frame: trace, hand the pixels to GL, composite, draw the lines
     let composite = DepthComposite::new(gl, width, height, s.spheres)?;
+    let traced_by = if tracer.is_some() { TracedBy::Cuda } else { TracedBy::Cpu };
     let mut pictures = Vec::new();
     for &path in s.paths {
         let mut times: [Vec<f64>; 3] = Default::default(); // trace, upload, composite
-        for _ in 0..s.args.common.frame_count(false) {
+        for _ in 0..s.args.common.headless_frames() {
             // ANCHOR: frame
             let started = Instant::now();
             match (path, &tracer) {
@@ -307,7 +309,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             })?);
             // ANCHOR_END: frame
         }
-        check::report_times(report, path, tracer.is_some(), &times);
+        check::report_times(report, path, traced_by, &times);
 
         // 7. Check what this path drew
         let (source, buffer) = match path {
@@ -322,8 +324,9 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             depth: &s.depth,
             view_projection,
             camera: s.camera,
+            traced_by,
         };
-        pictures.push((path, frame.check(report, path, &params, &traced, tracer.is_some())?));
+        pictures.push((path, frame.check(report, path, &params, &traced)?));
     }
     if let [(_, a), (_, b)] = &pictures[..] {
         report.check("both_paths_show_the_same_picture", a == b);
@@ -335,7 +338,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
         };
         let upright = common::base::output::flip_rows(picture, width, height);
-        common::base::output::save_rgba8(report, &out_dir, &name, width, height, &upright)?;
+        common::base::output::save_rgba8(report, &out_dir, &name, (width, height), &upright)?;
     }
     gl_context.check_error("the frames")?;
 

@@ -211,7 +211,7 @@ pub fn trace(p: &TraceParams, traced: &mut [u32]) -> Vec<Hit> {
 /// (x, y) in -1..1: the view depth d = t / |forward + x right + y up| (forward is a unit vector
 /// at right angles to `right` and `up`), then the window depth of `perspective_rh_gl` with
 /// glDepthRange(0, 1): f (d - n) / ((f - n) d). `raytraced.frag` computes the same.
-pub fn window_depth(t: f32, x: f32, y: f32, tan_half: (f32, f32), near: f32, far: f32) -> f32 {
+pub fn window_depth(t: f32, (x, y): (f32, f32), tan_half: (f32, f32), (near, far): (f32, f32)) -> f32 {
     let view_depth = t / Vec3::new(x * tan_half.0, y * tan_half.1, 1.0).length();
     far * (view_depth - near) / ((far - near) * view_depth)
 }
@@ -256,7 +256,7 @@ mod tests {
                     + sy * Vec3::from_slice(&p.up[..3]))
                 .normalize();
                 let point = camera.eye + hit.t * dir;
-                let ours = window_depth(hit.t, sx, sy, tan_half, camera.near, camera.far);
+                let ours = window_depth(hit.t, (sx, sy), tan_half, (camera.near, camera.far));
                 let theirs = projected_depth(point, view_projection);
                 assert!((0.0..=1.0).contains(&ours));
                 // Float rounding of two different computations: a few parts in 10^6.
@@ -266,7 +266,7 @@ mod tests {
         }
         assert!(compared > 300, "the scene covers much of the picture: {compared} of 1200 pixels");
         // The ends of the range: the near plane is depth 0, the far plane 1.
-        let on_axis = |t| window_depth(t, 0.0, 0.0, tan_half, camera.near, camera.far);
+        let on_axis = |t| window_depth(t, (0.0, 0.0), tan_half, (camera.near, camera.far));
         assert!(on_axis(camera.near).abs() < 1e-6 && (on_axis(camera.far) - 1.0).abs() < 1e-6);
     }
 }

@@ -127,11 +127,11 @@ impl LastFrame<'_> {
         let mean =
             covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64;
         report.set("ao_mean", (mean * 1e3).round() / 1e3);
-        output::save_rgba8(report, out, &format!("{prefix}-ao"), w, h, &output::flip_rows(&ao, w, h))?;
+        output::save_rgba8(report, out, &format!("{prefix}-ao"), (w, h), &output::flip_rows(&ao, w, h))?;
         composite.draw(gl, targets, &Uniforms { view: View::Final, ..self.uniforms });
         overlays.draw(gl, &targets.overlay_target(), camera.view_projection(w as f32 / h as f32));
         let picture = output::flip_rows(&read_picture(gl, targets), w, h);
-        output::save_rgba8(report, out, prefix, w, h, &picture)?;
+        output::save_rgba8(report, out, prefix, (w, h), &picture)?;
         Ok(())
     }
 }
@@ -274,18 +274,21 @@ impl Chapter08 {
 }
 // ANCHOR_END: against_08
 
-/// Chapter 08's G-buffers drawn with `camera`, and its AO traced `per_frame` rays at a time to
-/// `total` rays per pixel, as the frames of this chapter traced them; read back, then destroyed.
-#[allow(clippy::too_many_arguments)] // the APIs, the scene's three parts, and the frame to repeat
-pub fn trace_chapter_08(
-    apis: Apis,
-    allocator: &common::rt::accel::GpuAllocator,
-    (buffers, tlas): (&common::scene::gbuffer::SceneBuffers, ash::vk::AccelerationStructureKHR),
-    scene: &common::scene::Scene,
-    camera: &Camera,
-    targets: &Targets,
-    (per_frame, total, radius): (u32, u32, f32),
-) -> Result<Chapter08> {
+/// What chapter 08 is asked to trace, to be compared with this chapter's frames: the same scene
+/// and camera, and the same rays, `per_frame` at a time up to `total` per pixel.
+pub struct Chapter08Run<'a> {
+    pub scene: &'a common::scene::Scene,
+    pub shared: &'a common::rt::RayTracedScene,
+    pub camera: &'a Camera,
+    pub per_frame: u32,
+    pub total: u32,
+    pub radius: f32,
+}
+
+/// Chapter 08's G-buffers and AO for `run`, at the size of `targets`: read back, then destroyed.
+pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Result<Chapter08> {
+    let Chapter08Run { scene, shared, camera, per_frame, total, radius } = run;
+    let (allocator, buffers, tlas) = (&shared.allocator, &shared.buffers, shared.structures.tlas.handle);
     let (vk, gl) = (apis.vk, apis.gl);
     let extent = targets.extent;
     use common::rt::ao::AoTracer;

@@ -13,9 +13,10 @@ use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::cli::Size;
 use common::base::cli::Smallest;
-use common::base::commands::{Commands, Timestamps};
+use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::{self, Timeline};
+use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::base::window::{Key, NamedKey, Window};
 use common::frame::Overlays;
@@ -116,7 +117,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: setup
 
     // 5. Every frame: input, ids, rays, composite, overlays
-    let frame_limit = args.common.frame_count(window.is_some());
+    let frame_limit =
+        if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
     let (mut frame, mut resizes, mut after_first_resize) = (0, 0, None);
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let timestamps = Timestamps::new(&vk)?;
@@ -309,10 +311,15 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         tracer.retrace(apis, &targets, &camera, Rays { pattern: Pattern::PerPixel, ..rays }, accumulated)?;
         Some(check::Surface::read(gl, &targets))
     };
-    let rays = (rays.samples, accumulated, settings.radius);
-    let parts = (&shared.buffers, shared.structures.tlas.handle);
-    let chapter_08 =
-        check::trace_chapter_08(apis, &shared.allocator, parts, &scene, &camera, &targets, rays)?;
+    let run = check::Chapter08Run {
+        scene: &scene,
+        shared: &shared,
+        camera: &camera,
+        per_frame: rays.samples,
+        total: accumulated,
+        radius: settings.radius,
+    };
+    let chapter_08 = check::trace_chapter_08(apis, &targets, run)?;
     chapter_08.compare(&surface, per_pixel.as_ref(), report);
     report.set("samples_per_pixel", accumulated);
     report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());

@@ -12,7 +12,7 @@
 use crate::trace::{Rays, SurfaceTracer};
 use crate::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::{Context as _, Result};
-use common::base::commands::median_p95;
+use common::base::timestamps::median_p95;
 use common::interop::handoff::Apis;
 use common::scene::{Camera, Scene};
 use glow::HasContext;

@@ -5,12 +5,13 @@ use crate::visibility::{MeshIds, Targets};
 use anyhow::Result;
 use ash::vk;
 use common::VulkanContext;
-use common::base::commands::{Timestamps, first_use, timed};
+use common::base::commands::first_use;
+use common::base::timestamps::{Timestamps, timed};
 use common::interop::handoff::{Apis, HandOver};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::RayTracedScene;
-use common::rt::accel::DeviceBuffer;
-use common::rt::raytrace::{RayPipeline, push_bytes};
+use common::rt::accel::{BufferDesc, DeviceBuffer};
+use common::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
 use common::scene::Camera;
 use gpu_allocator::MemoryLocation;
 
@@ -127,8 +128,8 @@ impl SurfaceTracer {
             binding(2, vk::DescriptorType::STORAGE_IMAGE), // the surface, for GL
         ];
         let allocator = &shared.allocator;
-        let pipeline =
-            RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<SurfaceRays>() as u32)?;
+        let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
+        let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<SurfaceRays>() as u32)?;
         pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
         // ANCHOR_END: pipeline
         // The mesh table, written once: the ray generation shader reads it by its address.
@@ -137,10 +138,12 @@ impl SurfaceTracer {
         let mut meshes = DeviceBuffer::new(
             vk,
             allocator,
-            "mesh ids",
-            bytes.len() as u64,
-            usage,
-            MemoryLocation::CpuToGpu,
+            BufferDesc {
+                name: "mesh ids",
+                size: bytes.len() as u64,
+                usage,
+                location: MemoryLocation::CpuToGpu,
+            },
         )?;
         let mapped =
             meshes.allocation.mapped_slice_mut().ok_or_else(|| anyhow::anyhow!("mesh ids unmapped"))?;

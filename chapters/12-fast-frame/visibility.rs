@@ -5,7 +5,7 @@
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::gl::{Owned, create};
-use common::interop::SharedImage;
+use common::interop::{SharedFormat, SharedImage};
 use common::scene::gbuffer::SceneBuffers;
 use common::scene::{Camera, Scene};
 use common::{GlContext, VulkanContext};
@@ -87,10 +87,9 @@ impl Targets {
         // GL draws the ids (COLOR_ATTACHMENT), Vulkan reads them (STORAGE); Vulkan writes the
         // surface (STORAGE), GL samples it (SAMPLED).
         let attachment = vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::STORAGE;
-        let visibility = SharedImage::new(vk, gl, vk::Format::R32_UINT, glow::R32UI, attachment, extent)?;
+        let visibility = SharedImage::new(vk, gl, SharedFormat::R32UI, attachment, extent)?;
         let sampled = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
-        let surface =
-            SharedImage::new(vk, gl, vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, sampled, extent)?;
+        let surface = SharedImage::new(vk, gl, SharedFormat::RGBA32F, sampled, extent)?;
         // GL draws the ids first: Vulkan hands the image over, in GENERAL, before it does.
         common::interop::hand_new_images_to_gl(vk, &[&visibility])?;
         // ANCHOR_END: images

@@ -10,10 +10,9 @@ use crate::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::Report;
-use common::base::commands::{
-    Commands, HostBuffer, Timestamps, copy_image_to_buffer, first_use, transfers_to_host,
-};
+use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, first_use, transfers_to_host};
 use common::base::compute::ComputePipeline;
+use common::base::timestamps::Timestamps;
 use common::interop::handoff::Apis;
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel::GpuAllocator;
@@ -127,7 +126,7 @@ pub fn measure(
         .context("vkWaitForFences after the Vulkan composite")?;
     let times: Vec<f64> =
         (0..rounds).map(|round| stamps.between_ms(vk, 2 * round, 2 * round + 1)).collect::<Result<_>>()?;
-    let median_ms = common::base::commands::median_p95(&times).0;
+    let median_ms = common::base::timestamps::median_p95(&times).0;
     let measured = Measured { median_ms, picture: read_back.bytes().to_vec() };
     drop(stamps);
     drop(read_back);

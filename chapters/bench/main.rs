@@ -14,14 +14,16 @@
 use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::{Size, Smallest, parse_size};
-use common::base::commands::{Commands, Timestamps};
+use common::base::commands::Commands;
 use common::base::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::Timeline;
+use common::base::timestamps::Timestamps;
+use common::interop::exportable::SceneMemory;
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, TlasFlags};
 use common::scene::Scene;
-use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
+use common::{Print, RAY_TRACED_INTEROP, Report, VulkanContext};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -30,7 +32,7 @@ mod frame;
 mod outputs;
 mod round_trip;
 
-use common::scene::builtin::SceneKind;
+use common::scene::builtin::{Ground, SceneKind};
 use frame::{Frame, Samples, Setting};
 
 /// Chapter 08's frame, zero-copy against host-synchronised against a CPU round trip.
@@ -127,7 +129,7 @@ fn main() -> ExitCode {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
-    common::finish(report, args.json)
+    common::finish(report, if args.json { Print::Json } else { Print::Summary })
 }
 
 /// Chapter 12's smallest picture, whose frame bench runs beside chapter 08's at every size (and
@@ -163,6 +165,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     ensure!(spps.iter().all(|s| (1..=256).contains(s)), "--spp: each must be 1 to 256");
     // Half in each of two rounds.
     let frames_per_run = args.frames.unwrap_or(if args.quick { 3 } else { 30 }).div_ceil(2);
+    let ground = if args.quick { Ground::Coarse } else { Ground::Fine };
 
     // 2. Vulkan, GL, and both ways to synchronise
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
@@ -173,7 +176,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         largest.check_flag("--sizes", "bench", size)?;
     }
     gl.set_debug_output(args.gl_debug);
-    common::interop::exportable::prefer_device_local_buffers(args.scene_memory == SceneMemory::Device);
+    common::interop::exportable::set_scene_memory(args.scene_memory);
     let settings = serde_json::json!({
         "gl_debug": args.gl_debug,
         "depth_prepass": args.depth_prepass,
@@ -202,7 +205,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (mut depth_first_differences, mut pixels_compared) = (0, 0);
     let mut covered_everywhere = true;
     for kind in scenes {
-        let scene = kind.build(args.quick)?;
+        let scene = kind.build(ground)?;
         let shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         // What the scene's memory turned out to be (`--scene-memory device` is a preference).
         let memory = &shared.buffers.instances.0.memory;
@@ -263,7 +266,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // Chapter 08's frame and chapter 12's, each on one clock: the last frames of as many as
         // a row measures, on the default scene at the ablation's setting.
         let (size, spp) = ablation_setting(&sizes, &spps);
-        let scene = SceneKind::Default.build(args.quick)?;
+        let scene = SceneKind::Default.build(ground)?;
         let shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         let extent = vk::Extent2D { width: size.width, height: size.height };
         let mut frame = Frame::new(&vk, &gl, &shared, &scene, extent, Mode::ZeroCopy)?;
@@ -357,11 +360,4 @@ fn checks(report: &mut Report, rows: &[Row], expected: usize) {
         rows.iter().all(|r| r.raster_ms > 0.0 && r.ao_ms > 0.0 && r.composite_ms > 0.0),
     );
     report.check("every_setting_has_a_row_per_mode", rows.len() == expected);
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-enum SceneMemory {
-    Host,
-    Device,
 }

@@ -10,8 +10,8 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::commands::{Commands, HostBuffer, transfers_to_host};
-use common::rt::accel::DeviceBuffer;
 use common::rt::accel::GpuAllocator;
+use common::rt::accel::{BufferDesc, DeviceBuffer};
 use common::scene::gbuffer::GBuffers;
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
@@ -46,13 +46,23 @@ impl RoundTrip {
         let gbuffers = DeviceBuffer::new(
             vk,
             allocator,
-            "round-trip G-buffers",
-            32 * pixels,
-            transfer,
-            MemoryLocation::GpuOnly,
+            BufferDesc {
+                name: "round-trip G-buffers",
+                size: 32 * pixels,
+                usage: transfer,
+                location: MemoryLocation::GpuOnly,
+            },
         )?;
-        let ao =
-            DeviceBuffer::new(vk, allocator, "round-trip AO", 4 * pixels, transfer, MemoryLocation::GpuOnly)?;
+        let ao = DeviceBuffer::new(
+            vk,
+            allocator,
+            BufferDesc {
+                name: "round-trip AO",
+                size: 4 * pixels,
+                usage: transfer,
+                location: MemoryLocation::GpuOnly,
+            },
+        )?;
         let readback = HostBuffer::new(vk, 4 * pixels, transfer)?;
         let texture =
             common::base::gl::create(&gl.gl, "glCreateTextures for the round trip's AO", |g| unsafe {

@@ -15,14 +15,15 @@ use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use cases::{Case, Placement};
 use clap::Parser;
-use common::base::commands::{Commands, Timestamps};
+use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
+use common::base::timestamps::Timestamps;
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoRays, AoTracer};
 use common::scene::gbuffer::GBuffers;
-use common::{RAY_TRACED_INTEROP, Report, VulkanContext};
+use common::{Print, RAY_TRACED_INTEROP, Report, VulkanContext};
 use glam::DVec3;
 use serde::Serialize;
 use std::process::ExitCode;
@@ -88,7 +89,7 @@ fn main() -> ExitCode {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
     }
-    common::finish(report, args.json)
+    common::finish(report, if args.json { Print::Json } else { Print::Summary })
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {

@@ -43,6 +43,6 @@ pub mod scene;
 pub use base::chapter::{connect, finish, largest_size, ms_since, run_chapter};
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
-pub use base::report::Report;
+pub use base::report::{Print, Report};
 pub use base::resources::{open_fd_count, settled_fd_count};
 pub use base::vulkan::{RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};

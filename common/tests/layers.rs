@@ -210,34 +210,52 @@ fn modules_of(layer: &Path) -> Vec<String> {
     names
 }
 
-/// The layers as an SVG: one band a layer, the highest on top, each naming its modules, and an
-/// arrow down the side for the one direction a module may look.
+/// The layers as an SVG: one band a layer, the highest on top, each naming its modules (on as
+/// many lines as they need), and an arrow down the side for the one direction a module may look.
 fn layers_picture(root: &Path) -> String {
-    let (width, band, gap, left) = (760, 64, 14, 40);
-    let height = LAYERS.len() * (band + gap) + gap;
+    let (width, gap, left, line) = (760, 14, 40, 18);
+    // A 12 px monospace character is about 7.2 px wide: this many fit inside a band.
+    let per_line = ((width - 2 * left - 24) as f64 / 7.2) as usize;
+    let bands: Vec<(&str, &str, Vec<String>)> = LAYERS
+        .iter()
+        .zip(ROLES)
+        .rev()
+        .map(|(layer, role)| (*layer, role, wrap(&modules_of(&root.join(layer)), per_line)))
+        .collect();
+    let band_height = |lines: usize| 64 + line * (lines - 1);
+    let height = bands.iter().map(|(_, _, lines)| band_height(lines.len()) + gap).sum::<usize>() + gap;
     let mut svg = format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{width}\" height=\"{height}\" \
          viewBox=\"0 0 {width} {height}\" font-family=\"sans-serif\" font-size=\"13\">\n\
          <rect width=\"{width}\" height=\"{height}\" fill=\"white\"/>\n"
     );
-    for (row, (layer, role)) in LAYERS.iter().zip(ROLES).rev().enumerate() {
-        let y = gap + row * (band + gap);
-        let modules = modules_of(&root.join(layer)).join("  ");
+    let mut y = gap;
+    let (mut top, mut bottom) = (0, 0);
+    for (row, (layer, role, lines)) in bands.iter().enumerate() {
+        let band = band_height(lines.len());
         svg += &format!(
             "<rect x=\"{left}\" y=\"{y}\" width=\"{}\" height=\"{band}\" rx=\"6\" fill=\"#eef3fb\" stroke=\"#5b7db1\"/>\n\
              <text x=\"{}\" y=\"{}\" font-weight=\"bold\">{layer}</text>\n\
-             <text x=\"{}\" y=\"{}\" fill=\"#333\">{role}</text>\n\
-             <text x=\"{}\" y=\"{}\" font-family=\"monospace\" font-size=\"12\" fill=\"#1a3d6e\">{modules}</text>\n",
+             <text x=\"{}\" y=\"{}\" fill=\"#333\">{role}</text>\n",
             width - left - 10,
             left + 12,
             y + 20,
             left + 90,
             y + 20,
-            left + 12,
-            y + 46,
         );
+        for (i, text) in lines.iter().enumerate() {
+            svg += &format!(
+                "<text x=\"{}\" y=\"{}\" font-family=\"monospace\" font-size=\"12\" fill=\"#1a3d6e\">{text}</text>\n",
+                left + 12,
+                y + 46 + i * line,
+            );
+        }
+        if row == 0 {
+            top = y + band / 2;
+        }
+        bottom = y + band / 2;
+        y += band + gap;
     }
-    let (top, bottom) = (gap + band / 2, height - gap - band / 2);
     svg += &format!(
         "<line x1=\"20\" y1=\"{top}\" x2=\"20\" y2=\"{}\" stroke=\"#5b7db1\" stroke-width=\"2\"/>\n\
          <polygon points=\"14,{} 26,{} 20,{bottom}\" fill=\"#5b7db1\"/>\n\
@@ -250,6 +268,23 @@ fn layers_picture(root: &Path) -> String {
         height / 2,
     );
     svg
+}
+
+/// `names`, two spaces apart, in lines of at most `width` characters.
+fn wrap(names: &[String], width: usize) -> Vec<String> {
+    let mut lines = vec![String::new()];
+    for name in names {
+        let last = lines.last_mut().expect("never empty");
+        if !last.is_empty() && last.len() + 2 + name.len() > width {
+            lines.push(name.clone());
+        } else {
+            if !last.is_empty() {
+                last.push_str("  ");
+            }
+            last.push_str(name);
+        }
+    }
+    lines
 }
 
 /// The book's picture of the layers is drawn from the folders as they are: a module added,

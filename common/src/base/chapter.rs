@@ -3,7 +3,7 @@
 
 use super::cli::{CommonArgs, Largest};
 use super::gl::{self, GlContext};
-use super::report::Report;
+use super::report::{Print, Report};
 use super::vulkan::{self, VulkanContext};
 use super::{fail, resources, window};
 use std::process::ExitCode;
@@ -28,7 +28,7 @@ pub fn run_chapter<A: clap::Parser>(
         return ExitCode::from(2);
     }
     show_pictures(chapter, common, &mut report);
-    finish(report, common.json)
+    finish(report, common.print())
 }
 
 /// Runs `run`, having checked `VKGL_FAIL_AT` (`base::fail`); when it is set, prints what `run`
@@ -55,11 +55,11 @@ pub fn accounted<T>(run: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T
 /// Fills in what the run left behind (the validation layer's and GL's error counts, the
 /// resources created), prints the report and decides the exit code. The report knows nothing
 /// of either API (no module cycle): the counts are gathered here.
-pub fn finish(mut report: Report, json: bool) -> ExitCode {
+pub fn finish(mut report: Report, print: Print) -> ExitCode {
     report.validation = vulkan::validation_counts();
     report.resources = resources::list();
     report.validation.gl_errors = gl::gl_error_count();
-    report.finish(json)
+    report.finish(print)
 }
 
 /// A chapter that computed its pictures headless shows them in a window when there is a
@@ -81,7 +81,7 @@ fn show_pictures(chapter: &str, common: &CommonArgs, report: &mut Report) {
     } else {
         let pictures: Vec<_> =
             report.images.iter().map(|i| (i.name.clone(), std::path::PathBuf::from(&i.path))).collect();
-        match window::show_pictures(chapter, &pictures, common.frame_count(true)) {
+        match window::show_pictures(chapter, &pictures, common.window_frames()) {
             Ok(seen) => {
                 report.check("window_shows_the_pictures", seen);
                 true

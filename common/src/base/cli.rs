@@ -1,5 +1,6 @@
 //! The flags every chapter accepts, so that scripts and tests can run them all alike.
 
+use super::report::Print;
 use std::path::PathBuf;
 
 /// Flags shared by every chapter. A chapter embeds these with `#[command(flatten)]` and adds its
@@ -29,15 +30,19 @@ pub struct CommonArgs {
 }
 
 impl CommonArgs {
-    /// Frames to run: `--frames N`, else 1 headless and 0 ("until closed") in a window. Headless,
-    /// at least 1: there is nothing to close.
-    pub fn frame_count(&self, windowed: bool) -> u32 {
-        match (self.frames, windowed) {
-            (Some(n), true) => n,
-            (Some(n), false) => n.max(1),
-            (None, true) => 0,
-            (None, false) => 1,
-        }
+    /// Frames to run headless: `--frames N`, at least 1 (there is nothing to close), else 1.
+    pub fn headless_frames(&self) -> u32 {
+        self.frames.map_or(1, |n| n.max(1))
+    }
+
+    /// Frames to show in a window: `--frames N`, else 0, "until the window is closed".
+    pub fn window_frames(&self) -> u32 {
+        self.frames.unwrap_or(0)
+    }
+
+    /// What the report prints: all of it as JSON on stdout with `--json`.
+    pub fn print(&self) -> Print {
+        if self.json { Print::Json } else { Print::Summary }
     }
 
     /// The folder images go to: `--out`, or `out/<chapter>/`.

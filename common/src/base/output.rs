@@ -40,8 +40,7 @@ pub fn save_rgba8(
     report: &mut Report,
     dir: &Path,
     name: &str,
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     pixels: &[u8],
 ) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
@@ -54,25 +53,27 @@ pub fn save_rgba8(
 }
 
 /// An animation's frames (frame number, RGBA8 pixels top row first), written as
-/// `<chapter>-frame-NNN.png`; when anything `moved`, the first and the last must differ in more
-/// than 1% of their pixels (`frames_differ_over_time`).
+/// `<chapter>-frame-NNN.png`.
 pub fn save_frames(
     report: &mut Report,
     dir: &Path,
     chapter: &str,
-    (width, height): (u32, u32),
+    size: (u32, u32),
     frames: &[(u32, Vec<u8>)],
-    moved: bool,
 ) -> Result<()> {
-    if let (true, Some(first), Some(last)) = (moved && frames.len() > 1, frames.first(), frames.last()) {
-        let changed = first.1.chunks_exact(4).zip(last.1.chunks_exact(4)).filter(|(a, b)| a != b).count();
-        report.set("pixels_changed_first_to_last", changed);
-        report.check("frames_differ_over_time", changed * 100 > width as usize * height as usize);
-    }
     for (frame, pixels) in frames {
-        save_rgba8(report, dir, &format!("{chapter}-frame-{frame:03}"), width, height, pixels)?;
+        save_rgba8(report, dir, &format!("{chapter}-frame-{frame:03}"), size, pixels)?;
     }
     Ok(())
+}
+
+/// For an animation in which something moved: the first and the last frame must differ in more
+/// than 1% of their pixels (`frames_differ_over_time`).
+pub fn check_frames_differ(report: &mut Report, (width, height): (u32, u32), frames: &[(u32, Vec<u8>)]) {
+    let (Some(first), Some(last)) = (frames.first(), frames.last()) else { return };
+    let changed = first.1.chunks_exact(4).zip(last.1.chunks_exact(4)).filter(|(a, b)| a != b).count();
+    report.set("pixels_changed_first_to_last", changed);
+    report.check("frames_differ_over_time", changed * 100 > width as usize * height as usize);
 }
 
 /// Reads a GL texture's level 0 as `components` floats per pixel (1 for R32F, 4 for RGBA32F),

@@ -114,7 +114,7 @@ impl Report {
 
     /// Prints the report and decides the exit code (see [`crate::base::chapter::run_chapter`]), from the checks
     /// and from `validation`, the layer's and GL's error counts that the caller filled in.
-    pub fn finish(self, json: bool) -> ExitCode {
+    pub fn finish(self, print: Print) -> ExitCode {
         let failed: Vec<&str> = self.checks.iter().filter(|(_, ok)| !**ok).map(|(n, _)| n.as_str()).collect();
         let mut ok = true;
         if self.checks.is_empty() {
@@ -133,7 +133,7 @@ impl Report {
             eprintln!("error: GL's debug output reported {} error(s) (above)", self.validation.gl_errors);
             ok = false;
         }
-        if json {
+        if print == Print::Json {
             println!("{}", serde_json::to_string_pretty(&self).expect("report serialises"));
         }
         if ok {
@@ -143,6 +143,15 @@ impl Report {
             ExitCode::from(1)
         }
     }
+}
+
+/// What [`Report::finish`] prints besides the checks and the verdict on stderr.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Print {
+    /// The whole report as one JSON document on stdout (`--json`).
+    Json,
+    /// Nothing more.
+    Summary,
 }
 
 /// Formats a UUID as Vulkan and GL both report it: 16 bytes, printed in hex.

@@ -7,8 +7,9 @@
 //! between them is measured once at the end: GL's time is read, Vulkan writes a timestamp, GL's
 //! time is read again, and Vulkan's stamp lies between the two readings.
 
-use super::commands::{Commands, Timestamps, median_p95};
+use super::commands::Commands;
 use super::gl::{Owned, create_n};
+use super::timestamps::{Timestamps, median_p95};
 use super::vulkan::VulkanContext;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;

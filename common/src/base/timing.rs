@@ -6,9 +6,9 @@
 //! says so ([`GlPassTimer`]), and Vulkan's timestamps are read after the fence wait the frame
 //! already has ([`VkPassTimer`]).
 
-use crate::base::commands::{Timestamps, median_p95};
 use crate::base::gl::{Owned, create, create_n};
 use crate::base::report::Report;
+use crate::base::timestamps::{Timestamps, median_p95};
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;

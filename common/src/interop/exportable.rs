@@ -4,6 +4,7 @@
 //! shared resource gets its own plain `vkAllocateMemory`, bound at offset 0.
 
 use crate::base::fail;
+use crate::base::image::image_info;
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -43,6 +44,9 @@ pub struct ExportableMemory {
     pub property_flags: vk::MemoryPropertyFlags,
     /// The memory types the resource allowed (`memoryTypeBits`): bit i set, type i allowed.
     pub allowed_types: u32,
+    /// Whether it was allocated for one buffer or image alone (`VkMemoryDedicatedAllocateInfo`):
+    /// an importer must say the same.
+    pub dedicated: bool,
     /// Its count in `base::resources`: whoever frees `memory` drops this with it.
     pub counted: Option<crate::base::resources::Counted>,
 }
@@ -89,7 +93,16 @@ pub fn allocate(
     let counted = Some(crate::base::resources::count("vk_memory_exportable", size));
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     let allowed_types = requirements.memory_type_bits;
-    Ok(ExportableMemory { memory, size, memory_type_index, property_flags, allowed_types, counted })
+    let dedicated = !matches!(dedicated, Dedicated::No);
+    Ok(ExportableMemory {
+        memory,
+        size,
+        memory_type_index,
+        property_flags,
+        allowed_types,
+        dedicated,
+        counted,
+    })
 }
 // ANCHOR_END: allocate_memory
 
@@ -148,28 +161,6 @@ pub fn create_image(
     Ok(image)
 }
 // ANCHOR_END: create_image
-
-// ANCHOR: image_info
-/// A 2D colour image: one mip level, one layer, one sample, in the driver's OPTIMAL layout. GL
-/// can use an OPTIMAL image only because it is the same driver (chapter 02 checks the UUIDs) and
-/// because it is told so (GL_OPTIMAL_TILING_EXT, chapter 03).
-pub fn image_info<'a>(
-    format: vk::Format,
-    usage: vk::ImageUsageFlags,
-    extent: vk::Extent2D,
-) -> vk::ImageCreateInfo<'a> {
-    vk::ImageCreateInfo::default()
-        .image_type(vk::ImageType::TYPE_2D)
-        .format(format)
-        .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
-        .mip_levels(1)
-        .array_layers(1)
-        .samples(vk::SampleCountFlags::TYPE_1)
-        .tiling(vk::ImageTiling::OPTIMAL)
-        .usage(usage)
-        .initial_layout(vk::ImageLayout::UNDEFINED)
-}
-// ANCHOR_END: image_info
 
 // ANCHOR: export_fd
 /// Exports `memory` as a new file descriptor. Each call makes a new fd, owned by the caller until
@@ -268,15 +259,24 @@ impl Drop for ExportedBuffer {
     }
 }
 
-/// Whether exported buffers prefer memory that is device-local as well as host-visible
-/// (`bench --scene-memory device`). Off in every chapter: the first host-visible, coherent type
-/// is the simplest to explain, but on a discrete GPU it is usually system memory, which GL then
-/// reads over PCIe every frame it draws the scene. Resizable-BAR GPUs offer a type that is both.
+/// Where exported buffers live (`bench --scene-memory`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SceneMemory {
+    /// Every chapter: the first host-visible, coherent type. The simplest to explain, but on a
+    /// discrete GPU it is usually system memory, which GL then reads over PCIe every frame.
+    Host,
+    /// Device-local as well as host-visible, where the GPU offers such a type (resizable-BAR
+    /// GPUs do); else as `Host`.
+    Device,
+}
+
+/// The [`SceneMemory`] choice in force: `Host` until [`set_scene_memory`] says otherwise.
 static PREFER_DEVICE_LOCAL: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
-/// See [`PREFER_DEVICE_LOCAL`]: applies to buffers made after the call.
-pub fn prefer_device_local_buffers(on: bool) {
-    PREFER_DEVICE_LOCAL.store(on, std::sync::atomic::Ordering::Relaxed);
+/// Chooses where exported buffers made after the call live.
+pub fn set_scene_memory(memory: SceneMemory) {
+    PREFER_DEVICE_LOCAL.store(memory == SceneMemory::Device, std::sync::atomic::Ordering::Relaxed);
 }
 
 // ANCHOR: scene_memory

@@ -45,9 +45,10 @@ impl Drop for MemoryObject {
 }
 
 // ANCHOR: import_memory
-/// Imports an exported fd as a GL memory object of `size` bytes (the Vulkan `allocationSize`).
-/// On success GL owns the fd; on failure it is closed here, and the memory object deleted.
-pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) -> Result<MemoryObject> {
+/// Imports `fd`, exported from `memory`, as a GL memory object of the same size (the Vulkan
+/// `allocationSize`). On success GL owns the fd; on failure it is closed here, and the memory
+/// object deleted.
+pub fn import_memory(gl: &GlContext, memory: &ExportableMemory, fd: OwnedFd) -> Result<MemoryObject> {
     let ext = gl.memory_fns()?;
     fail::step("glCreateMemoryObjectsEXT")?;
     let mut name = 0;
@@ -55,7 +56,7 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
     crate::base::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
     // From here on the guard deletes the memory object on every early return.
     let memory_object = MemoryObject { name, fns: *ext };
-    if dedicated {
+    if memory.dedicated {
         // Must match how Vulkan allocated it, and must be said before the import.
         let yes = glow::TRUE as i32;
         unsafe { (ext.MemoryObjectParameterivEXT)(name, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
@@ -65,7 +66,7 @@ pub fn import_memory(gl: &GlContext, fd: OwnedFd, size: u64, dedicated: bool) ->
     // An error left by an earlier call would be read below as the import's own, and the fd then
     // closed although GL took it: report it now, while the fd is still only ours.
     gl.check_error("a GL call before glImportMemoryFdEXT")?;
-    unsafe { (ext.ImportMemoryFdEXT)(name, size, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+    unsafe { (ext.ImportMemoryFdEXT)(name, memory.size, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
     // Some drivers list the extension yet fail the import: always look. On failure `fd` is
     // dropped, and so closed: the failed import did not take it.
     gl.check_error("glImportMemoryFdEXT")?;
@@ -83,7 +84,7 @@ pub fn import_buffer(
     fd: OwnedFd,
     bytes: u64,
 ) -> Result<SharedBuffer> {
-    let memory_object = import_memory(gl, fd, memory.size, false)?;
+    let memory_object = import_memory(gl, memory, fd)?;
     // A failure from here on drops `memory_object`, which deletes it.
     let buffer = fail::call("glCreateBuffers (imported)", || unsafe { gl.gl.create_named_buffer() })?;
     crate::base::resources::created("gl_buffer_imported", 0);
@@ -121,10 +122,9 @@ pub fn import_texture_2d(
     memory: &ExportableMemory,
     fd: OwnedFd,
     internal_format: u32,
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
 ) -> Result<SharedTexture> {
-    let memory_object = import_memory(gl, fd, memory.size, true)?;
+    let memory_object = import_memory(gl, memory, fd)?;
     // The import succeeded: a failure from here on must still delete the memory object, and
     // does, by dropping it.
     let texture = fail::call("glCreateTextures (imported)", || unsafe {
@@ -218,17 +218,36 @@ fn destroy_vulkan_half(
     }
 }
 
+/// A Vulkan format and GL's name for the same texels, which a shared image is made with: the
+/// two must agree, so they travel together.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SharedFormat {
+    pub vk: vk::Format,
+    /// The GL internal format (`GL_RGBA8` for `R8G8B8A8_UNORM`).
+    pub gl: u32,
+    pub bytes_per_pixel: u32,
+}
+
+impl SharedFormat {
+    pub const RGBA8: SharedFormat =
+        SharedFormat { vk: vk::Format::R8G8B8A8_UNORM, gl: glow::RGBA8, bytes_per_pixel: 4 };
+    pub const RGBA32F: SharedFormat =
+        SharedFormat { vk: vk::Format::R32G32B32A32_SFLOAT, gl: glow::RGBA32F, bytes_per_pixel: 16 };
+    pub const R32F: SharedFormat =
+        SharedFormat { vk: vk::Format::R32_SFLOAT, gl: glow::R32F, bytes_per_pixel: 4 };
+    pub const R32UI: SharedFormat =
+        SharedFormat { vk: vk::Format::R32_UINT, gl: glow::R32UI, bytes_per_pixel: 4 };
+}
+
 impl SharedImage {
-    /// `gl_format` is GL's name for the same `format` (GL_RGBA8 for R8G8B8A8_UNORM).
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
-        format: vk::Format,
-        gl_format: u32,
+        format: SharedFormat,
         usage: vk::ImageUsageFlags,
         extent: vk::Extent2D,
     ) -> Result<Self> {
-        let image = exportable::create_image(vk, format, usage, extent)?;
+        let image = exportable::create_image(vk, format.vk, usage, extent)?;
         let null = (vk::DeviceMemory::null(), vk::ImageView::null());
         let mut half = VulkanHalf { device: vk.device.clone(), image, memory: null.0, view: null.1 };
         let requirements = unsafe { vk.device.get_image_memory_requirements(image) };
@@ -243,14 +262,14 @@ impl SharedImage {
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)
             .view_type(vk::ImageViewType::TYPE_2D)
-            .format(format)
+            .format(format.vk)
             .subresource_range(crate::base::commands::COLOR_RANGE);
         half.view = fail::call("vkCreateImageView (exportable image)", || unsafe {
             vk.device.create_image_view(&view_info, None)
         })?;
         let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
         let fd = exportable::export_fd(&fd_loader, memory.memory)?;
-        let texture = import_texture_2d(gl, &memory, fd, gl_format, extent.width, extent.height)?;
+        let texture = import_texture_2d(gl, &memory, fd, format.gl, (extent.width, extent.height))?;
         // Everything exists: the SharedImage owns it now, and the half-made guard lets go.
         let view = std::mem::replace(&mut half.view, vk::ImageView::null());
         half.memory = vk::DeviceMemory::null();

@@ -1,13 +1,14 @@
 //! Ray-traced ambient occlusion from GL's G-buffers, accumulated over frames (taught in chapter
 //! 07; chapter 08 composites with it).
 
-use crate::base::commands::{Timestamps, first_use, timed};
+use crate::base::commands::first_use;
 use crate::base::gl::GlContext;
+use crate::base::timestamps::{Timestamps, timed};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::handoff::{Apis, HandOver};
-use crate::interop::{SharedImage, acquire_from_gl, release_to_gl};
+use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
-use crate::rt::raytrace::{RayPipeline, push_bytes};
+use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
 use crate::scene::gbuffer::GBuffers;
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -114,7 +115,8 @@ impl AoTracer {
             binding(2, vk::DescriptorType::STORAGE_IMAGE), // normals
             binding(3, vk::DescriptorType::STORAGE_IMAGE), // AO
         ];
-        let pipeline = RayPipeline::new(vk, allocator, RAYGEN, MISS, &bindings, size_of::<AoRays>() as u32)?;
+        let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
+        let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<AoRays>() as u32)?;
         pipeline.write_tlas(vk, 0, tlas);
         // ANCHOR_END: pipeline
         let image = Self::image(vk, gl, &pipeline, gbuffers)?; // on failure `pipeline` is dropped
@@ -131,7 +133,7 @@ impl AoTracer {
     ) -> Result<SharedImage> {
         // One float per pixel. Vulkan writes it (STORAGE), GL samples it (SAMPLED).
         let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
-        let image = SharedImage::new(vk, gl, vk::Format::R32_SFLOAT, glow::R32F, usage, gbuffers.extent)?;
+        let image = SharedImage::new(vk, gl, SharedFormat::R32F, usage, gbuffers.extent)?;
         pipeline.write_storage_image(vk, 1, gbuffers.images[0].view);
         pipeline.write_storage_image(vk, 2, gbuffers.images[1].view);
         pipeline.write_storage_image(vk, 3, image.view);

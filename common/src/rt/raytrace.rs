@@ -2,28 +2,33 @@
 //! shader binding table, and a storage image for results (taught in chapter 06; chapter 07
 //! traces its ambient occlusion rays through the same kind of pipeline).
 
-use crate::base::compute::shader_module;
 use crate::base::fail;
+use crate::base::image::image_info;
+use crate::base::pipeline::{ShaderInterface, shader_module};
 use crate::base::vulkan::VulkanContext;
-use crate::rt::accel::{DeviceBuffer, GpuAllocator, Memory};
+use crate::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator, Memory};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 use gpu_allocator::vulkan::{AllocationCreateDesc, AllocationScheme};
 
-/// Dropped, it destroys the descriptor pool (and its set), the pipeline, its layouts, then (a
-/// field) the shader binding table. The GPU must be done with it.
+/// Dropped, it destroys the pipeline, then (fields) its interface and the shader binding table.
+/// The GPU must be done with it.
 pub struct RayPipeline {
     pub loader: ash::khr::ray_tracing_pipeline::Device,
     pub pipeline: vk::Pipeline,
-    pub layout: vk::PipelineLayout,
-    pub set_layout: vk::DescriptorSetLayout,
-    pool: vk::DescriptorPool,
-    pub set: vk::DescriptorSet,
+    pub interface: ShaderInterface,
+    /// `None` only while the pipeline is being made.
     sbt: Option<DeviceBuffer>,
     /// Where the shader binding table's ray generation, miss, hit and callable records are.
     pub regions: [vk::StridedDeviceAddressRegionKHR; 4],
     device: ash::Device,
+}
+
+/// The two shaders of a [`RayPipeline`], as SPIR-V.
+pub struct RayShaders<'a> {
+    pub raygen: &'a [u8],
+    pub miss: &'a [u8],
 }
 
 impl RayPipeline {
@@ -31,46 +36,19 @@ impl RayPipeline {
     pub fn new(
         vk: &VulkanContext,
         allocator: &GpuAllocator,
-        raygen: &[u8],
-        miss: &[u8],
+        shaders: RayShaders,
         bindings: &[vk::DescriptorSetLayoutBinding],
         push_bytes: u32,
     ) -> Result<Self> {
         let loader = ash::khr::ray_tracing_pipeline::Device::new(&vk.instance, &vk.device);
-        let device = &vk.device;
-        // The guard holds each object as it is made: an early return destroys those that exist.
-        let mut this = RayPipeline {
-            loader: loader.clone(),
-            pipeline: vk::Pipeline::null(),
-            layout: vk::PipelineLayout::null(),
-            set_layout: vk::DescriptorSetLayout::null(),
-            pool: vk::DescriptorPool::null(),
-            set: vk::DescriptorSet::null(),
-            sbt: None,
-            regions: Default::default(),
-            device: device.clone(),
-        };
-        let set_layout = fail::call("vkCreateDescriptorSetLayout (ray tracing)", || unsafe {
-            device.create_descriptor_set_layout(
-                &vk::DescriptorSetLayoutCreateInfo::default().bindings(bindings),
-                None,
-            )
-        })?;
-        this.set_layout = set_layout;
-        let push = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR)
-            .size(push_bytes)];
-        let set_layouts = [set_layout];
-        let layout_info =
-            vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&push);
-        let layout = fail::call("vkCreatePipelineLayout (ray tracing)", || unsafe {
-            device.create_pipeline_layout(&layout_info, None)
-        })?;
-        this.layout = layout;
+        let stages = vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR;
+        let push = vk::PushConstantRange::default().stage_flags(stages).size(push_bytes);
+        let interface = ShaderInterface::new(vk, bindings, push, "ray tracing")?;
+        let layout = interface.layout;
 
         // ANCHOR: pipeline
-        let raygen = shader_module(vk, raygen, "ray generation")?;
-        let miss = shader_module(vk, miss, "miss")?;
+        let raygen = shader_module(vk, shaders.raygen, "ray generation")?;
+        let miss = shader_module(vk, shaders.miss, "miss")?;
         let modules = [raygen.module, miss.module];
         let stages = [
             vk::PipelineShaderStageCreateInfo::default()
@@ -109,31 +87,19 @@ impl RayPipeline {
                 .map_err(|(_, e)| e)
         })?[0];
         drop((raygen, miss)); // the pipeline keeps what it needs of them
-        this.pipeline = pipeline;
         crate::base::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
-
+        // From here on the guard destroys the pipeline and its interface on every early return.
+        let mut this = RayPipeline {
+            loader: loader.clone(),
+            pipeline,
+            interface,
+            sbt: None,
+            regions: Default::default(),
+            device: vk.device.clone(),
+        };
         let (sbt, regions) = shader_binding_table(vk, &loader, allocator, pipeline, groups.len() as u32)?;
         (this.sbt, this.regions) = (Some(sbt), regions);
-
-        let mut sizes: Vec<vk::DescriptorPoolSize> = Vec::new();
-        for binding in bindings {
-            sizes.push(vk::DescriptorPoolSize {
-                ty: binding.descriptor_type,
-                descriptor_count: binding.descriptor_count,
-            });
-        }
-        this.pool = fail::call("vkCreateDescriptorPool (ray tracing)", || unsafe {
-            device.create_descriptor_pool(
-                &vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes),
-                None,
-            )
-        })?;
-        let allocate =
-            vk::DescriptorSetAllocateInfo::default().descriptor_pool(this.pool).set_layouts(&set_layouts);
-        this.set = fail::call("vkAllocateDescriptorSets (ray tracing)", || unsafe {
-            device.allocate_descriptor_sets(&allocate)
-        })?[0];
         Ok(this)
     }
 
@@ -143,7 +109,7 @@ impl RayPipeline {
         let mut tlas_info =
             vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&structures);
         let mut write = vk::WriteDescriptorSet::default()
-            .dst_set(self.set)
+            .dst_set(self.interface.set)
             .dst_binding(binding)
             .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
             .push_next(&mut tlas_info);
@@ -153,41 +119,27 @@ impl RayPipeline {
 
     /// Points binding `binding` at a storage image view, used in the GENERAL layout.
     pub fn write_storage_image(&self, vk: &VulkanContext, binding: u32, view: vk::ImageView) {
-        let images =
-            [vk::DescriptorImageInfo::default().image_view(view).image_layout(vk::ImageLayout::GENERAL)];
-        let write = vk::WriteDescriptorSet::default()
-            .dst_set(self.set)
-            .dst_binding(binding)
-            .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
-            .image_info(&images);
-        unsafe { vk.device.update_descriptor_sets(&[write], &[]) };
+        self.interface.write_storage_image(vk, binding, view);
     }
 
     // ANCHOR: trace
     /// Records one ray generation invocation per pixel of `extent`.
     pub fn trace(&self, vk: &VulkanContext, cb: vk::CommandBuffer, push: &[u8], extent: vk::Extent2D) {
         let bind = vk::PipelineBindPoint::RAY_TRACING_KHR;
-        let stages = vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR;
         let [raygen, miss, hit, callable] = &self.regions;
+        unsafe { vk.device.cmd_bind_pipeline(cb, bind, self.pipeline) };
+        self.interface.bind(vk, cb, bind, push);
         unsafe {
-            vk.device.cmd_bind_pipeline(cb, bind, self.pipeline);
-            vk.device.cmd_bind_descriptor_sets(cb, bind, self.layout, 0, &[self.set], &[]);
-            vk.device.cmd_push_constants(cb, self.layout, stages, 0, push);
-            self.loader.cmd_trace_rays(cb, raygen, miss, hit, callable, extent.width, extent.height, 1);
-        }
+            self.loader.cmd_trace_rays(cb, raygen, miss, hit, callable, extent.width, extent.height, 1)
+        };
     }
     // ANCHOR_END: trace
 }
 
 impl Drop for RayPipeline {
     fn drop(&mut self) {
-        unsafe {
-            self.device.destroy_descriptor_pool(self.pool, None);
-            self.device.destroy_pipeline(self.pipeline, None);
-            self.device.destroy_pipeline_layout(self.layout, None);
-            self.device.destroy_descriptor_set_layout(self.set_layout, None);
-        }
-        // `sbt` is dropped next (a field): it destroys its buffer.
+        unsafe { self.device.destroy_pipeline(self.pipeline, None) };
+        // `interface` and `sbt` are dropped next (fields): the layouts, the pool, the buffer.
     }
 }
 
@@ -220,8 +172,11 @@ fn shader_binding_table(
     let usage = vk::BufferUsageFlags::SHADER_BINDING_TABLE_KHR;
     // One region per group, plus room to align the start to the base alignment.
     let bytes = region * groups as u64 + properties.shader_group_base_alignment as u64;
-    let mut buffer =
-        DeviceBuffer::new(vk, allocator, "shader binding table", bytes, usage, MemoryLocation::CpuToGpu)?;
+    let mut buffer = DeviceBuffer::new(
+        vk,
+        allocator,
+        BufferDesc { name: "shader binding table", size: bytes, usage, location: MemoryLocation::CpuToGpu },
+    )?;
     let start =
         buffer.address.next_multiple_of(properties.shader_group_base_alignment as u64) - buffer.address;
     let mapped = buffer.allocation.mapped_slice_mut().context("the SBT's memory is not mapped")?;
@@ -261,17 +216,8 @@ impl StorageImage {
         extent: vk::Extent2D,
     ) -> Result<Self> {
         // Written by a ray generation shader (STORAGE), and only ever by Vulkan: no external
-        // memory, so nothing binds it to the create-info an exported image must share with GL.
-        let info = vk::ImageCreateInfo::default()
-            .image_type(vk::ImageType::TYPE_2D)
-            .format(format)
-            .extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 })
-            .mip_levels(1)
-            .array_layers(1)
-            .samples(vk::SampleCountFlags::TYPE_1)
-            .tiling(vk::ImageTiling::OPTIMAL)
-            .usage(usage | vk::ImageUsageFlags::STORAGE)
-            .initial_layout(vk::ImageLayout::UNDEFINED);
+        // memory chained to the create-info, unlike an exported image's.
+        let info = image_info(format, usage | vk::ImageUsageFlags::STORAGE, extent);
         let image = fail::call("vkCreateImage (storage)", || unsafe { vk.device.create_image(&info, None) })?;
         let mut this = StorageImage {
             image,

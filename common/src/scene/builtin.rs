@@ -17,6 +17,15 @@ pub enum SceneKind {
     Ceiling,
 }
 
+/// How finely the large scene's ground is tessellated (the other scenes have one ground).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ground {
+    /// 720 x 720 quads: what `bench` measures.
+    Fine,
+    /// 32 x 32 quads, so that a test (`bench --quick`) builds it in a second on a CPU.
+    Coarse,
+}
+
 impl SceneKind {
     pub fn name(self) -> &'static str {
         match self {
@@ -26,14 +35,16 @@ impl SceneKind {
         }
     }
 
-    /// `quick`: the large scene with a coarse ground, so that a test builds it in a second on a CPU.
-    pub fn build(self, quick: bool) -> Result<Scene> {
+    pub fn build(self, ground: Ground) -> Result<Scene> {
         match self {
             SceneKind::Default => Ok(default_scene(10_000, 1)),
             SceneKind::Large => {
                 // 720 x 720 quads: 1,036,800 triangles of ground, plus the 40,000 of the tetrahedra.
                 let Scene { mut meshes, instances, mesh_instances, .. } = default_scene(10_000, 1);
-                meshes[0] = rippled_ground(if quick { 32 } else { 720 });
+                meshes[0] = rippled_ground(match ground {
+                    Ground::Fine => 720,
+                    Ground::Coarse => 32,
+                });
                 Scene::new(meshes, instances, mesh_instances)
             }
             SceneKind::Ceiling => {

@@ -4,20 +4,26 @@
 use crate::base::gl::{GlContext, Owned, create};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::ExportedBuffer;
-use crate::interop::{SharedBuffer, SharedImage, share_buffer};
+use crate::interop::{SharedBuffer, SharedFormat, SharedImage, share_buffer};
 use crate::scene::{Camera, Instance, Scene, Vertex};
 use anyhow::{Result, ensure};
 use ash::vk;
 use glow::HasContext;
 
 // ANCHOR: gbuffers
-/// The G-buffers: (name, Vulkan format, GL's name for it, bytes per pixel).
-pub const GBUFFERS: [(&str, vk::Format, u32, u32); 3] = [
+/// One G-buffer: its name (in pictures and reports) and its format in both APIs.
+pub struct GBuffer {
+    pub name: &'static str,
+    pub format: SharedFormat,
+}
+
+/// The G-buffers, in the order of the fragment shader's outputs.
+pub const GBUFFERS: [GBuffer; 3] = [
     // World position; w = view depth (0 where nothing was drawn), for chapter 08's filter.
-    ("position", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
+    GBuffer { name: "position", format: SharedFormat::RGBA32F },
     // xyz: the shading normal; w: the triangle's own normal, packed (gbuffer.frag, chapter 07).
-    ("normal", vk::Format::R32G32B32A32_SFLOAT, glow::RGBA32F, 16),
-    ("albedo", vk::Format::R8G8B8A8_UNORM, glow::RGBA8, 4),
+    GBuffer { name: "normal", format: SharedFormat::RGBA32F },
+    GBuffer { name: "albedo", format: SharedFormat::RGBA8 },
 ];
 // ANCHOR_END: gbuffers
 
@@ -102,8 +108,8 @@ impl GBuffers {
         // ANCHOR: images
         let usage = usage | vk::ImageUsageFlags::COLOR_ATTACHMENT; // GL draws into them
         let mut images = Vec::new();
-        for (_, format, gl_format, _) in GBUFFERS {
-            images.push(SharedImage::new(vk, gl, format, gl_format, usage, extent)?);
+        for GBuffer { format, .. } in GBUFFERS {
+            images.push(SharedImage::new(vk, gl, format, usage, extent)?);
         }
         // GL draws into them first: Vulkan hands them over, in GENERAL, before it does.
         crate::interop::hand_new_images_to_gl(vk, &images.iter().collect::<Vec<_>>())?;
@@ -223,7 +229,7 @@ pub fn check_size(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> R
         vk.info.name,
         limits.max_image_dimension2_d
     );
-    let per_pixel: u64 = GBUFFERS.iter().map(|g| g.3 as u64).sum::<u64>() + 4 + 4; // + depth, AO
+    let per_pixel: u64 = GBUFFERS.iter().map(|g| g.format.bytes_per_pixel as u64).sum::<u64>() + 4 + 4; // + depth, AO
     let needed = width * height * per_pixel;
     let heaps = &vk.memory_properties.memory_heaps[..vk.memory_properties.memory_heap_count as usize];
     let heap = heaps

@@ -29,7 +29,7 @@ impl SceneArgs {
     pub fn load(&self) -> Result<Scene> {
         match (&self.scene, self.builtin) {
             (Some(path), _) => load_obj(path, self.normals),
-            (None, Some(kind)) => kind.build(false),
+            (None, Some(kind)) => kind.build(super::builtin::Ground::Fine),
             (None, None) => Ok(default_scene(self.instances, 1)),
         }
     }

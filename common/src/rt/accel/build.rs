@@ -1,12 +1,13 @@
 //! The scene's structures built in one go: one compacted BLAS per mesh (or one flat BLAS for
 //! the whole scene) and the TLAS over the shared instance buffer.
 
-use super::memory::{DeviceBuffer, GpuAllocator, Scratch, query_pool};
+use super::memory::{BufferDesc, DeviceBuffer, GpuAllocator, Scratch, query_pool};
 use super::structure::{
     AccelerationStructure, build_barrier, build_sizes, instances_at, instances_geometry, set_blas_address,
     tlas_built_barrier, triangles_geometry,
 };
-use crate::base::commands::{Commands, Timestamps};
+use crate::base::commands::Commands;
+use crate::base::timestamps::Timestamps;
 use crate::base::vulkan::VulkanContext;
 use crate::scene::Scene;
 use crate::scene::gbuffer::SceneBuffers;
@@ -164,7 +165,6 @@ pub fn build_with(
         let sizes = build_sizes(&loader, &info, triangles);
         let blas = AccelerationStructure::new(
             vk,
-            &loader,
             allocator,
             info.ty,
             info.flags,
@@ -224,7 +224,6 @@ pub fn build_with(
     for &size in &sizes {
         compacted.push(AccelerationStructure::new(
             vk,
-            &loader,
             allocator,
             vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
             blas_flags,
@@ -283,14 +282,8 @@ pub fn build_with(
         .geometries(std::slice::from_ref(&geometry));
     let count = if flat_instance.is_some() { 1 } else { scene.instances.len() as u32 };
     let sizes = build_sizes(&loader, &info, &[count]);
-    let tlas = AccelerationStructure::new(
-        vk,
-        &loader,
-        allocator,
-        info.ty,
-        info.flags,
-        sizes.acceleration_structure_size,
-    )?;
+    let tlas =
+        AccelerationStructure::new(vk, allocator, info.ty, info.flags, sizes.acceleration_structure_size)?;
     let scratch = Scratch::new(vk, allocator, &[sizes.build_scratch_size])?;
     let info = info
         .dst_acceleration_structure(tlas.handle)
@@ -362,8 +355,11 @@ fn one_instance(
 ) -> Result<DeviceBuffer> {
     let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR;
     let size = size_of::<crate::scene::Instance>() as u64;
-    let mut buffer =
-        DeviceBuffer::new(vk, allocator, "flat TLAS instance", size, usage, MemoryLocation::CpuToGpu)?;
+    let mut buffer = DeviceBuffer::new(
+        vk,
+        allocator,
+        BufferDesc { name: "flat TLAS instance", size, usage, location: MemoryLocation::CpuToGpu },
+    )?;
     let mut instance = crate::scene::Instance::new(glam::Mat4::IDENTITY, [255, 255, 255]);
     instance.blas_address = blas;
     let mapped = buffer.allocation.mapped_slice_mut().context("the instance buffer is mapped")?;

@@ -86,15 +86,19 @@ pub struct DeviceBuffer {
     pub(super) device: ash::Device,
 }
 
+/// What a [`DeviceBuffer`] is for, as gpu-allocator's `AllocationCreateDesc` describes an
+/// allocation: a name (in errors and the resource counts), a size, the buffer's usage, and where
+/// its memory lives (`GpuOnly`, or `CpuToGpu` to write it from the CPU).
+pub struct BufferDesc<'a> {
+    pub name: &'a str,
+    pub size: u64,
+    pub usage: vk::BufferUsageFlags,
+    pub location: MemoryLocation,
+}
+
 impl DeviceBuffer {
-    pub fn new(
-        vk: &VulkanContext,
-        allocator: &GpuAllocator,
-        name: &str,
-        size: u64,
-        usage: vk::BufferUsageFlags,
-        location: MemoryLocation,
-    ) -> Result<Self> {
+    pub fn new(vk: &VulkanContext, allocator: &GpuAllocator, desc: BufferDesc) -> Result<Self> {
+        let BufferDesc { name, size, usage, location } = desc;
         let usage = usage | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let info = vk::BufferCreateInfo::default().size(size).usage(usage);
         let what = format!("vkCreateBuffer for the {name}");
@@ -173,10 +177,12 @@ impl Scratch {
         let buffer = DeviceBuffer::new(
             vk,
             allocator,
-            "build scratch",
-            total + alignment,
-            usage,
-            MemoryLocation::GpuOnly,
+            BufferDesc {
+                name: "build scratch",
+                size: total + alignment,
+                usage,
+                location: MemoryLocation::GpuOnly,
+            },
         )?;
         let start = buffer.address.next_multiple_of(alignment) - buffer.address;
         Ok(Scratch { buffer, offsets: offsets.into_iter().map(|o| o + start).collect() })

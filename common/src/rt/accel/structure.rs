@@ -1,7 +1,7 @@
 //! One acceleration structure in its own buffer, the geometries it is built from, and what a
 //! build needs around it: sizes, barriers, the device's limits, the instances' BLAS addresses.
 
-use super::memory::{DeviceBuffer, GpuAllocator};
+use super::memory::{BufferDesc, DeviceBuffer, GpuAllocator};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::ExportedBuffer;
 use crate::scene::{Instance, Scene};
@@ -24,20 +24,22 @@ impl AccelerationStructure {
     /// in a buffer of its own, not yet built.
     pub fn new(
         vk: &VulkanContext,
-        loader: &ash::khr::acceleration_structure::Device,
         allocator: &GpuAllocator,
         ty: vk::AccelerationStructureTypeKHR,
         flags: vk::BuildAccelerationStructureFlagsKHR,
         bytes: u64,
     ) -> Result<Self> {
+        let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR;
         let buffer = DeviceBuffer::new(
             vk,
             allocator,
-            "acceleration structure",
-            bytes,
-            usage,
-            MemoryLocation::GpuOnly,
+            BufferDesc {
+                name: "acceleration structure",
+                size: bytes,
+                usage,
+                location: MemoryLocation::GpuOnly,
+            },
         )?;
         let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(buffer.buffer).size(bytes).ty(ty);
         // On failure `buffer` is dropped, which destroys it.
@@ -50,7 +52,7 @@ impl AccelerationStructure {
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
-        Ok(AccelerationStructure { handle, buffer, address, bytes, loader: loader.clone() })
+        Ok(AccelerationStructure { handle, buffer, address, bytes, loader })
     }
 }
 
