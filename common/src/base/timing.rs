@@ -20,13 +20,15 @@ use std::rc::Rc;
 #[derive(Debug)]
 pub struct PassTimes {
     passes: Vec<(&'static str, Vec<f64>)>,
+    /// How many answers each pass had thrown away as impossible ([`PassTimes::reject`]).
+    rejected: Vec<(&'static str, u32)>,
     /// When the current frame started (for `frame_wall`).
     frame_started: std::time::Instant,
 }
 
 impl PassTimes {
     pub fn new() -> Self {
-        PassTimes { passes: Vec::new(), frame_started: std::time::Instant::now() }
+        PassTimes { passes: Vec::new(), rejected: Vec::new(), frame_started: std::time::Instant::now() }
     }
 
     /// Ends a frame: adds `frame_wall`, the wall-clock time since the last frame ended (or since
@@ -53,12 +55,28 @@ impl PassTimes {
         }
     }
 
+    /// Throws away an answer for `pass` that it cannot have taken: a GPU time longer than the
+    /// wall clock allowed. llvmpipe answers a GL time query that follows a compute dispatch with
+    /// the time since the machine booted; a median with those in it would mean nothing.
+    pub fn reject(&mut self, pass: &'static str) {
+        if !self.passes.iter().any(|(name, _)| *name == pass) {
+            self.passes.push((pass, Vec::new()));
+        }
+        match self.rejected.iter_mut().find(|(name, _)| *name == pass) {
+            Some((_, count)) => *count += 1,
+            None => self.rejected.push((pass, 1)),
+        }
+    }
+
     /// Moves every sample of `other` into these (keeping `other`'s lists for reuse).
     pub fn take_from(&mut self, other: &mut PassTimes) {
         for (pass, samples) in &mut other.passes {
             for ms in samples.drain(..) {
                 self.add(pass, ms);
             }
+        }
+        for (pass, count) in other.rejected.drain(..) {
+            (0..count).for_each(|_| self.reject(pass));
         }
     }
 
@@ -78,11 +96,21 @@ impl PassTimes {
             .collect()
     }
 
-    /// Writes `<pass>_median` and `<pass>_p95` into the report's `timings_ms`.
+    /// Writes `<pass>_median` and `<pass>_p95` into the report's `timings_ms`: `null` for a pass
+    /// whose every answer was rejected, and a line on stderr for each pass that had any.
     pub fn record(&self, report: &mut Report) {
         for (name, median, p95) in self.summary() {
-            report.time_ms(&format!("{name}_median"), median);
-            report.time_ms(&format!("{name}_p95"), p95);
+            // NaN is written as JSON's null: no time, rather than a made-up 0.
+            let timed = !self.samples(name).is_empty();
+            report.time_ms(&format!("{name}_median"), if timed { median } else { f64::NAN });
+            report.time_ms(&format!("{name}_p95"), if timed { p95 } else { f64::NAN });
+        }
+        for (name, count) in &self.rejected {
+            let of = *count as usize + self.samples(name).len();
+            eprintln!(
+                "timing: {count} of {of} GPU times for {name} were longer than the wall clock allowed, \
+                 and are left out (llvmpipe answers so for a GL pass after a compute dispatch)"
+            );
         }
     }
 
@@ -90,8 +118,14 @@ impl PassTimes {
     /// "raster 1.20 · ao 3.10 ms (GPU)".
     pub fn line(&self) -> String {
         let recent = |s: &[f64]| median_p95(&s[s.len().saturating_sub(60)..]).0;
-        let parts: Vec<String> =
-            self.passes.iter().map(|(name, samples)| format!("{name} {:.2}", recent(samples))).collect();
+        let parts: Vec<String> = self
+            .passes
+            .iter()
+            .map(|(name, samples)| match samples.is_empty() {
+                true => format!("{name} -"), // every answer rejected
+                false => format!("{name} {:.2}", recent(samples)),
+            })
+            .collect();
         if parts.is_empty() { "no GPU times yet".into() } else { format!("{} ms (GPU)", parts.join(" · ")) }
     }
 }
@@ -124,9 +158,9 @@ pub fn read_after(
 /// queries are made once, up front, so that a long run makes no more GL objects as it goes.
 pub struct GlPassTimer {
     /// Queries whose results are not read yet, oldest frame first.
-    pending: VecDeque<Vec<(&'static str, glow::Query)>>,
+    pending: VecDeque<Vec<Pass>>,
     /// The frame being recorded.
-    current: Vec<(&'static str, glow::Query)>,
+    current: Vec<Pass>,
     /// Queries read and ready to use again.
     free: Vec<glow::Query>,
     /// Every query made, held only so that each deletes itself when the timer is dropped.
@@ -134,7 +168,15 @@ pub struct GlPassTimer {
     /// Times read early (to free queries), handed over at the next `end_frame`.
     early: PassTimes,
     /// Emptied frame lists, kept so that a frame allocates nothing once the first few have run.
-    spare: Vec<Vec<(&'static str, glow::Query)>>,
+    spare: Vec<Vec<Pass>>,
+}
+
+/// A timed GL pass: its name, its query, and when the CPU began it (no GPU time measured by the
+/// query can be longer than the wall clock from there until its answer is read).
+struct Pass {
+    name: &'static str,
+    query: glow::Query,
+    began: std::time::Instant,
 }
 
 impl GlPassTimer {
@@ -197,7 +239,7 @@ impl GlPassTimer {
         }
         let query = self.free.pop().expect("a query was freed above");
         unsafe { gl.begin_query(glow::TIME_ELAPSED, query) };
-        self.current.push((pass, query));
+        self.current.push(Pass { name: pass, query, began: std::time::Instant::now() });
         Ok(())
     }
 
@@ -221,8 +263,8 @@ impl GlPassTimer {
         times.take_from(&mut self.early);
         while let Some(frame) = self.pending.front() {
             // A frame's queries finish in order: when its last one is available, all are.
-            let available = frame.last().is_none_or(|&(_, query)| unsafe {
-                gl.get_query_parameter_u32(query, glow::QUERY_RESULT_AVAILABLE) != 0
+            let available = frame.last().is_none_or(|pass| unsafe {
+                gl.get_query_parameter_u32(pass.query, glow::QUERY_RESULT_AVAILABLE) != 0
             });
             if !available {
                 break;
@@ -244,17 +286,17 @@ impl GlPassTimer {
     }
 
     /// Reads a frame's queries into `times` (waiting for them if need be) and frees them.
-    fn read(
-        &mut self,
-        gl: &glow::Context,
-        mut frame: Vec<(&'static str, glow::Query)>,
-        times: &mut PassTimes,
-    ) {
-        for (pass, query) in frame.drain(..) {
+    fn read(&mut self, gl: &glow::Context, mut frame: Vec<Pass>, times: &mut PassTimes) {
+        for pass in frame.drain(..) {
             // GL_QUERY_RESULT of a GL_TIME_ELAPSED query: nanoseconds, 64 bits.
-            let ns = unsafe { gl.get_query_parameter_u64(query, glow::QUERY_RESULT) };
-            times.add(pass, ns as f64 / 1e6);
-            self.free.push(query);
+            let ns = unsafe { gl.get_query_parameter_u64(pass.query, glow::QUERY_RESULT) };
+            let (ms, wall_ms) = (ns as f64 / 1e6, pass.began.elapsed().as_secs_f64() * 1e3);
+            if ms <= wall_ms {
+                times.add(pass.name, ms)
+            } else {
+                times.reject(pass.name)
+            }
+            self.free.push(pass.query);
         }
         self.spare.push(frame);
     }
@@ -335,5 +377,26 @@ mod tests {
         assert_eq!(times.samples("ao").len(), PassTimes::KEEP / 2 + 20, "the oldest half forgotten");
         assert_eq!(times.line(), "raster 11.00 · ao 2.00 ms (GPU)");
         assert!(times.samples("blur").is_empty());
+    }
+
+    /// An impossible answer is left out, not averaged in; a pass with no answer left is null in
+    /// the report (not 0), and the rejections survive `take_from`, as a frame's early reads do.
+    #[test]
+    fn rejected_times_are_left_out_and_a_pass_without_any_is_null() {
+        let mut early = PassTimes::default();
+        early.add("composite", 0.5);
+        early.reject("overlays");
+        let mut times = PassTimes::default();
+        times.take_from(&mut early);
+        times.reject("composite");
+        assert_eq!(times.samples("composite"), [0.5]);
+        assert_eq!(times.rejected, [("overlays", 1), ("composite", 1)]);
+        assert_eq!(times.line(), "composite 0.50 · overlays - ms (GPU)");
+        let mut report = Report::new("timing-test");
+        times.record(&mut report);
+        let json = serde_json::to_value(&report).unwrap();
+        assert_eq!(json["timings_ms"]["composite_median"], 0.5);
+        assert!(json["timings_ms"]["overlays_median"].is_null());
+        assert!(json["timings_ms"]["overlays_p95"].is_null());
     }
 }
