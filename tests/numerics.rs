@@ -357,9 +357,11 @@ fn the_blur_holds_at_near_far_ratios_of_1e5() {
         assert!(report["near_far_ratio"].as_f64().unwrap() >= 1e5, "{}", report["near_far_ratio"]);
         assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
     }
-    for zoom in ["0", "NaN", "1e7"] {
-        let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &["--size", "32x32", "--zoom", zoom], &[]);
-        assert_eq!(run.output.status.code(), Some(2), "--zoom {zoom}: {}", run.stderr);
+    // Both chapters that take --zoom refuse what the planes cannot hold, with one message.
+    let zooming = [env!("CARGO_BIN_EXE_08-composite"), env!("CARGO_BIN_EXE_12-fast-frame")];
+    for (chapter, zoom) in zooming.iter().flat_map(|c| ["0", "NaN", "1e7", "-2"].map(|z| (c, z))) {
+        let run = run_chapter(chapter, &["--size", "32x32", "--zoom", zoom], &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{chapter} --zoom {zoom}: {}", run.stderr);
         assert!(run.stderr.contains("choose between 0.001 and 1000000"), "{}", run.stderr);
     }
 }

@@ -35,7 +35,7 @@ pub struct Args {
     pub select: Option<usize>,
     /// Start this many times closer to the scene's centre than the framing puts the camera (as
     /// the mouse wheel does; from about 3000 on, the far plane is over 10^5 times the near one).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = common::scene::parse_zoom, allow_negative_numbers = true)]
     pub zoom: f32,
     /// How the rays' structures hold the triangles: one BLAS per mesh under a TLAS of every
     /// instance (chapter 06), or one flat BLAS of every instance's triangles (see the

@@ -34,7 +34,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "flat")]
     pub blas: BlasLayout,
     /// Start this many times closer to the scene's centre than the framing puts the camera.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = common::scene::parse_zoom, allow_negative_numbers = true)]
     pub zoom: f32,
     /// After the frames: trace this many rays per pixel more, and report how far the last
     /// frame's occlusion was from that converged one, before and after the blur (0: don't).

@@ -14,6 +14,18 @@ pub struct Camera {
     pub far: f32,
 }
 
+/// `--zoom`'s parser (chapters 08 and 12): a factor the camera starts closer by, between 0.001
+/// and 10^6. Beyond those the near and far planes lose the scene (tests/numerics.rs walks up to
+/// 10^5).
+pub fn parse_zoom(text: &str) -> Result<f32, String> {
+    let zoom: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if zoom.is_finite() && (1e-3..=1e6).contains(&zoom) {
+        Ok(zoom)
+    } else {
+        Err("choose between 0.001 and 1000000".into())
+    }
+}
+
 impl Camera {
     /// Looks at the bounds' centre from above and in front, far enough that they fit; near and
     /// far hug the bounds, so depth precision follows the scene's scale.
