@@ -14,7 +14,7 @@ use common::base::cli::Smallest;
 use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
-use common::base::timestamps::{Timestamps, timed};
+use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
@@ -146,7 +146,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             k if k > 0 && frame > 0 && frame % k == 0 => Refresh::Rebuild,
             _ => Refresh::Update,
         };
-        refresh_tlas(&vk, &updates, &shared.structures.loader, &tlas, refresh, update_timer.as_ref())?;
+        tlas.submit(&vk, &updates, &shared.structures.loader, refresh, update_timer.as_ref())?;
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         // Anything that moved changes the occlusion around it: the running mean is of a
         // picture that is gone. Start it again (with --step 0 it accumulates).
@@ -202,7 +202,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // restarted, both traces cast exactly the same rays, and must find the same occluders.
     gbuffers.draw(gl, &scene, &camera);
     let (after_updates, updated_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
-    refresh_tlas(&vk, &updates, &shared.structures.loader, &tlas, Refresh::Rebuild, update_timer.as_ref())?;
+    tlas.submit(&vk, &updates, &shared.structures.loader, Refresh::Rebuild, update_timer.as_ref())?;
     gbuffers.draw(gl, &scene, &camera);
     let (after_rebuild, rebuilt_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     let differing = after_updates.iter().zip(&after_rebuild).filter(|(a, b)| a != b).count();
@@ -244,53 +244,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     Ok(())
 }
-
-// ANCHOR: refresh
-/// Records and submits the TLAS's update (or rebuild), in its own command buffer, ahead of the
-/// frame's trace on the same queue. Queue order and the barriers below order it against the
-/// traces before and after it.
-fn refresh_tlas(
-    vk: &VulkanContext,
-    updates: &Commands,
-    loader: &ash::khr::acceleration_structure::Device,
-    tlas: &InPlace,
-    refresh: Refresh,
-    timer: Option<&Timestamps>,
-) -> Result<()> {
-    let cb = updates.begin(vk)?;
-    let build = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
-    let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-    // Before: everything the update reads or overwrites must be ready.
-    // - HOST / HOST_WRITE: the transforms the CPU just wrote, which the build reads as
-    //   SHADER_READ. vkQueueSubmit already makes earlier host writes visible to the work it
-    //   submits; the barrier states the dependency where the reader can see it.
-    // - ACCELERATION_STRUCTURE_BUILD / _WRITE: the previous update wrote the TLAS and the
-    //   scratch, which this one reads (src = dst) and writes again.
-    // - RAY_TRACING_SHADER: the previous frame's rays read the TLAS this overwrites; a
-    //   write-after-read needs only the execution dependency, no access flags.
-    let before = vk::MemoryBarrier::default()
-        .src_access_mask(vk::AccessFlags::HOST_WRITE | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
-        .dst_access_mask(
-            vk::AccessFlags::SHADER_READ
-                | vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR
-                | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
-        );
-    // After: the trace, submitted next, reads the TLAS from the ray tracing shaders. (A barrier
-    // orders everything later in submission order on this queue, the next submission included.)
-    let after = vk::MemoryBarrier::default()
-        .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
-        .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
-    let none = vk::DependencyFlags::empty();
-    unsafe {
-        let host = vk::PipelineStageFlags::HOST;
-        vk.device.cmd_pipeline_barrier(cb, host | build | rays, build, none, &[before], &[], &[]);
-        timed(vk, cb, timer, build, || tlas.record(loader, cb, refresh));
-        vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[after], &[], &[]);
-    }
-    // No semaphore: the update reads nothing GL writes. It may run while GL draws.
-    updates.submit(vk, None, None)
-}
-// ANCHOR_END: refresh
 
 /// Adds the GPU times of the frame whose fence has signalled: its TLAS refresh and its trace.
 fn read_times(

@@ -103,8 +103,6 @@ pub struct SurfaceTracer {
     instances: u64,
     /// Rays per pixel already in the running mean; 0 starts it again.
     pub accumulated: u32,
-    /// Has GL had the surface image yet? A new one starts undefined, never handed over.
-    gl_has_surface: bool,
 }
 
 impl SurfaceTracer {
@@ -155,10 +153,14 @@ impl SurfaceTracer {
             mesh_count: ids.len() as u32,
             instances,
             accumulated: 0,
-            gl_has_surface: false,
         };
         tracer.point_at(vk, targets);
         Ok(tracer)
+    }
+
+    /// The mesh table's device address and its number of meshes (chapter 13's tracer reads it too).
+    pub fn mesh_table(&self) -> (u64, u32) {
+        (self.meshes.address, self.mesh_count)
     }
 
     /// The descriptors at one size's images (after a resize too: accumulation starts again).
@@ -169,7 +171,6 @@ impl SurfaceTracer {
 
     pub fn resized(&mut self, vk: &VulkanContext, targets: &Targets) {
         self.point_at(vk, targets);
-        self.gl_has_surface = false;
         self.accumulated = 0;
     }
 
@@ -200,21 +201,6 @@ impl SurfaceTracer {
         timestamps: Option<&Timestamps>,
         between: impl FnOnce(),
     ) -> Result<()> {
-        let Apis { vk, gl, handoff, commands } = apis;
-        // The ids come to Vulkan in GENERAL (storage images) and go back as GL's attachment; the
-        // surface is sampled by GL. On the host path both stay GENERAL (`Handoff::hand_over`).
-        let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
-        let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-        let layouts = (
-            handoff.hand_over(vk::ImageLayout::GENERAL, attachment),
-            handoff.hand_over(read_only, read_only),
-        );
-        let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) =
-            (layouts.0.gl(), layouts.1.gl());
-        let textures = [targets.visibility.texture.texture, targets.surface.texture.texture];
-        let handed = if self.gl_has_surface { 2 } else { 1 };
-        handoff.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
-        let cb = commands.begin(vk)?;
         let aspect = targets.extent.width as f32 / targets.extent.height as f32;
         let push = SurfaceRays {
             inverse_view_projection: camera.view_projection(aspect).inverse().to_cols_array(),
@@ -229,58 +215,12 @@ impl SurfaceTracer {
             meshes: self.meshes.address,
             instances: self.instances,
         };
-        unsafe { self.record(vk, cb, targets, layouts, &push, timestamps) };
-        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-        commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
-        between();
-        handoff.gl_acquire(vk, gl, commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
-        self.gl_has_surface = true;
+        let (vk, pipeline) = (apis.vk, &self.pipeline);
+        let trace = |cb| pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+        hand_over_around(apis, targets, timestamps, between, trace)?;
         self.accumulated += rays.samples;
         Ok(())
     }
-
-    // ANCHOR: record
-    /// Take the ids and the surface from GL, trace, give them back: two images, where chapter
-    /// 08 hands over three and reads 32 bytes a pixel.
-    unsafe fn record(
-        &self,
-        vk: &VulkanContext,
-        cb: vk::CommandBuffer,
-        targets: &Targets,
-        (ids_layouts, surface_layouts): (HandOver, HandOver),
-        push: &SurfaceRays,
-        timestamps: Option<&Timestamps>,
-    ) {
-        let general = vk::ImageLayout::GENERAL;
-        let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
-        let surface = if self.gl_has_surface {
-            // The running mean so far: read and updated.
-            acquire_from_gl(vk, &targets.surface, surface_layouts.to_vulkan, general, read | write)
-        } else {
-            // Never GL's yet: undefined, and the first frame overwrites every pixel.
-            first_use(targets.surface.image, general, read | write)
-        };
-        let acquire =
-            [acquire_from_gl(vk, &targets.visibility, ids_layouts.to_vulkan, general, read), surface];
-        // Back to GL: the ids for the next frame's draw (nothing written here), the surface to
-        // sample, its writes made available.
-        let release = [
-            release_to_gl(vk, &targets.visibility, general, ids_layouts.to_gl, vk::AccessFlags::NONE),
-            release_to_gl(vk, &targets.surface, general, surface_layouts.to_gl, write),
-        ];
-        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-        let none = vk::DependencyFlags::empty();
-        unsafe {
-            // From the stage the submission waits for GL at: the acquire must follow GL's signal.
-            vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
-            timed(vk, cb, timestamps, stage, || {
-                self.pipeline.trace(vk, cb, push_bytes(push), targets.extent)
-            });
-            let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
-            vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
-        }
-    }
-    // ANCHOR_END: record
 
     /// `total` rays per pixel from scratch, `rays.samples` at a time, as that many frames would
     /// trace them (for the checks, after the frames).
@@ -300,6 +240,80 @@ impl SurfaceTracer {
         Ok(())
     }
 }
+
+// ANCHOR: hand_over
+/// One frame of Vulkan work between GL's passes: GL hands over the ids it just drew (and the
+/// surface, once it has had it), Vulkan records `work` between the barriers that take both from
+/// GL and give them back, and GL is told to wait for that before it composites. `between` runs
+/// once Vulkan's work is submitted and before GL is told to wait (`overlap.rs`). Chapter 13's
+/// tracer hands the same two images over around its own work.
+pub fn hand_over_around(
+    apis: Apis,
+    targets: &Targets,
+    timestamps: Option<&Timestamps>,
+    between: impl FnOnce(),
+    work: impl FnOnce(vk::CommandBuffer),
+) -> Result<()> {
+    let Apis { vk, gl, handoff, commands } = apis;
+    // The ids come to Vulkan in GENERAL (storage images) and go back as GL's attachment; the
+    // surface is sampled by GL. On the host path both stay GENERAL (`Handoff::hand_over`).
+    let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
+    let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
+    let layouts =
+        (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only));
+    let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) = (layouts.0.gl(), layouts.1.gl());
+    let textures = [targets.visibility.texture.texture, targets.surface.texture.texture];
+    let handed = if targets.gl_has_surface.get() { 2 } else { 1 };
+    handoff.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
+    let cb = commands.begin(vk)?;
+    unsafe { record(vk, cb, targets, layouts, timestamps, work) };
+    let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
+    between();
+    handoff.gl_acquire(vk, gl, commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
+    targets.gl_has_surface.set(true);
+    Ok(())
+}
+// ANCHOR_END: hand_over
+
+// ANCHOR: record
+/// Take the ids and the surface from GL, trace, give them back: two images, where chapter
+/// 08 hands over three and reads 32 bytes a pixel.
+unsafe fn record(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    targets: &Targets,
+    (ids_layouts, surface_layouts): (HandOver, HandOver),
+    timestamps: Option<&Timestamps>,
+    work: impl FnOnce(vk::CommandBuffer),
+) {
+    let general = vk::ImageLayout::GENERAL;
+    let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
+    let surface = if targets.gl_has_surface.get() {
+        // The running mean so far: read and updated.
+        acquire_from_gl(vk, &targets.surface, surface_layouts.to_vulkan, general, read | write)
+    } else {
+        // Never GL's yet: undefined, and the first frame overwrites every pixel.
+        first_use(targets.surface.image, general, read | write)
+    };
+    let acquire = [acquire_from_gl(vk, &targets.visibility, ids_layouts.to_vulkan, general, read), surface];
+    // Back to GL: the ids for the next frame's draw (nothing written here), the surface to
+    // sample, its writes made available.
+    let release = [
+        release_to_gl(vk, &targets.visibility, general, ids_layouts.to_gl, vk::AccessFlags::NONE),
+        release_to_gl(vk, &targets.surface, general, surface_layouts.to_gl, write),
+    ];
+    let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    let none = vk::DependencyFlags::empty();
+    unsafe {
+        // From the stage the submission waits for GL at: the acquire must follow GL's signal.
+        vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
+        timed(vk, cb, timestamps, stage, || work(cb));
+        let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+        vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
+    }
+}
+// ANCHOR_END: record
 
 #[cfg(test)]
 mod tests {

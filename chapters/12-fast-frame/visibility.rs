@@ -77,6 +77,9 @@ pub struct Targets {
     /// RGBA32F: visibility, view depth, packed normal, albedo (visibility_ao.rgen).
     pub surface: SharedImage,
     pub extent: vk::Extent2D,
+    /// Has GL had `surface` yet? A new one starts undefined, never handed over: Vulkan's first
+    /// frame takes it as it is and overwrites every pixel (`trace::hand_over_around`).
+    pub gl_has_surface: std::cell::Cell<bool>,
 }
 // ANCHOR_END: targets
 
@@ -111,6 +114,7 @@ impl Targets {
             visibility,
             surface,
             extent,
+            gl_has_surface: std::cell::Cell::new(false),
         };
         let (depth, picture) = (*targets.depth, *targets.picture);
         let (visibility_framebuffer, picture_framebuffer) =

@@ -4,6 +4,8 @@
 use super::memory::{GpuAllocator, Scratch};
 use super::structure::build_sizes;
 use crate::base::vulkan::VulkanContext;
+use crate::base::commands::Commands;
+use crate::base::timestamps::{Timestamps, timed};
 use anyhow::Result;
 use ash::vk;
 
@@ -98,5 +100,52 @@ impl InPlace {
         let range = vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(*primitives);
         unsafe { loader.cmd_build_acceleration_structures(cb, &[info], &[&[range]]) };
     }
+
+    // ANCHOR: refresh
+    /// Records and submits the update (or rebuild), in its own command buffer, ahead of the
+    /// frame's trace on the same queue (chapter 09's; chapter 13 moves an instance with it too).
+    /// Queue order and the barriers below order it against the traces before and after it.
+    pub fn submit(
+        &self,
+        vk: &VulkanContext,
+        updates: &Commands,
+        loader: &ash::khr::acceleration_structure::Device,
+        refresh: Refresh,
+        timer: Option<&Timestamps>,
+    ) -> Result<()> {
+        let cb = updates.begin(vk)?;
+        let build = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
+        let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+        // Before: everything the update reads or overwrites must be ready.
+        // - HOST / HOST_WRITE: the transforms the CPU just wrote, which the build reads as
+        //   SHADER_READ. vkQueueSubmit already makes earlier host writes visible to the work it
+        //   submits; the barrier states the dependency where the reader can see it.
+        // - ACCELERATION_STRUCTURE_BUILD / _WRITE: the previous update wrote the TLAS and the
+        //   scratch, which this one reads (src = dst) and writes again.
+        // - RAY_TRACING_SHADER: the previous frame's rays read the TLAS this overwrites; a
+        //   write-after-read needs only the execution dependency, no access flags.
+        let before = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::HOST_WRITE | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+            .dst_access_mask(
+                vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR
+                    | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
+            );
+        // After: the trace, submitted next, reads the TLAS from the ray tracing shaders. (A barrier
+        // orders everything later in submission order on this queue, the next submission included.)
+        let after = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+            .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
+        let none = vk::DependencyFlags::empty();
+        unsafe {
+            let host = vk::PipelineStageFlags::HOST;
+            vk.device.cmd_pipeline_barrier(cb, host | build | rays, build, none, &[before], &[], &[]);
+            timed(vk, cb, timer, build, || self.record(loader, cb, refresh));
+            vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[after], &[], &[]);
+        }
+        // No semaphore: the update reads nothing GL writes. It may run while GL draws.
+        updates.submit(vk, None, None)
+    }
+    // ANCHOR_END: refresh
 }
 // ANCHOR_END: in_place

@@ -1,0 +1,229 @@
+//! Chapter 13: temporal reuse.
+//!
+//! Chapter 12's frame traces 16 new occlusion rays per pixel every frame and forgets them. Here
+//! each pixel finds where the previous frame saw the same point (the previous camera, the moving
+//! instance's previous transform), keeps that frame's occlusion if it saw the same surface, and
+//! adds one or two new rays to it; a pixel just uncovered traces more, and a pixel whose history
+//! is full traces less. The camera orbits, cuts to another view once, and one instance runs in a
+//! circle; every frame's error is measured against a converged trace of that frame.
+//!
+//! Run: `cargo run --release --bin 13-temporal-reuse` (keys: H history on/off, Esc quits).
+
+use anyhow::{Context as _, Result, ensure};
+use ash::vk;
+use common::base::cli::{Size, Smallest};
+use common::base::commands::Commands;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::timestamps::Timestamps;
+use common::base::window::Window;
+use common::frame::Overlays;
+use common::interop::handoff::{Apis, Handoff};
+use common::rt::RayTracedScene;
+use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
+use common::rt::ao::AoArgs;
+use common::scene::{Camera, Instance};
+use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use glow::HasContext;
+use std::process::ExitCode;
+
+// Chapter 12's passes, compiled here as they are: the ids, the surface tracer (for the fresh
+// frames and the converged references), the composite and its checks.
+#[allow(dead_code)] // what chapter 13 does not call of them
+#[path = "../12-fast-frame/check.rs"]
+mod check;
+#[allow(dead_code)]
+#[path = "../12-fast-frame/composite.rs"]
+mod composite;
+#[allow(dead_code)]
+#[path = "../12-fast-frame/trace.rs"]
+mod trace;
+#[allow(dead_code)]
+#[path = "../12-fast-frame/visibility.rs"]
+mod visibility;
+
+mod frame;
+mod history_check;
+mod measure;
+mod path;
+mod settings;
+mod temporal;
+mod walk;
+
+use composite::{ComputeComposite, Uniforms};
+use frame::{Drawn, Motion, Passes, Sized};
+use settings::{Args, Method};
+use temporal::{Budget, TemporalTracer};
+use trace::SurfaceTracer;
+use visibility::{Targets, VisibilityPass};
+
+const CHAPTER: &str = "13-temporal-reuse";
+/// The smallest picture this chapter can check, and why (the largest is the device's).
+const SMALLEST: Smallest = Smallest {
+    width: 24,
+    height: 24,
+    why: "chapter 12's composite and overlay checks, and a cut that leaves pixels both seen and unseen",
+    shape: None,
+};
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+}
+
+fn run(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
+    let size = args.common.size;
+
+    // 1. The scene, the path the camera and one instance follow, and the rays' budget
+    let mut scene = args.scene.load()?;
+    let start = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    let path = path::Path::new(&scene, start, args);
+    if let Some(moving) = &path.moving {
+        ensure!(
+            args.blas == BlasLayout::PerMesh,
+            "--blas flat holds every instance in one tree, so none can move: use --blas per-mesh, or --mover none"
+        );
+        // Where it stands at frame 0, before the scene is shared and its structures built.
+        scene.instances[moving.index].transform = Instance::new(moving.at(0), [0; 3]).transform;
+    }
+    let ao = AoArgs { samples: args.samples, radius: args.radius, power: args.power, max_samples: 1 };
+    let radius = ao.radius(&scene)?;
+    let budget = Budget::new(args, radius, scene.size() / 2.0);
+    if let Some(reason) = common::rt::ao::nothing_to_trace(budget.fresh, radius) {
+        eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
+    }
+    report.set("path", args.path);
+    report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
+
+    // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
+    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
+    let headless = args.common.headless || !common::base::window::display_available();
+    let (mut window, gl_context) = if headless {
+        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
+    } else {
+        let (window, gl) = Window::open("13 · temporal reuse", size, &MEMORY_EXTENSIONS)?;
+        (Some(window), gl)
+    };
+    let gl = &gl_context.gl;
+    common::connect(report, &vk, &gl_context)?;
+    common::largest_size(&vk, &gl_context).check(CHAPTER, size)?;
+    report.set("window", window.is_some());
+    let handoff = Handoff::new(&vk, &gl_context)?;
+    report.sync = Some(handoff.name());
+    let open_fds_before = open_fd_count()?;
+
+    // 3. The shared scene and its structures; a TLAS that can be updated where an instance moves
+    // ANCHOR: structures
+    let flags = if path.moving.is_some() { TlasFlags::UPDATABLE } else { TlasFlags::STATIC };
+    let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, flags, args.blas)?;
+    let ids = visibility::number_triangles(&vk, &scene, &shared.buffers)?;
+    let loader = &shared.structures.loader;
+    let tlas = match path.moving {
+        Some(_) => {
+            let inputs = BuildInputs {
+                handle: shared.structures.tlas.handle,
+                ty: vk::AccelerationStructureTypeKHR::TOP_LEVEL,
+                flags: flags.0,
+                geometry: instances_geometry(&vk, &shared.buffers.instances.0),
+                primitives: scene.instances.len() as u32,
+            };
+            Some(InPlace::new(&vk, &shared.allocator, loader, inputs)?)
+        }
+        None => None,
+    };
+    // ANCHOR_END: structures
+
+    // 4. Chapter 12's images and passes, the history, and the command buffers
+    let extent = |size: Size| vk::Extent2D { width: size.width, height: size.height };
+    let targets = Targets::new(&vk, &gl_context, extent(size))?;
+    let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
+    let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
+    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets)?;
+    let mut sized = Sized { targets, fresh, temporal };
+    let composite = ComputeComposite::new(gl)?;
+    let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
+    let timestamps = Timestamps::new(&vk)?;
+    let updates = Commands::new(&vk)?;
+    // Made after everything the frames use: an early return drops it first, and its Drop waits
+    // for the last frame's Vulkan work before any of that is destroyed.
+    let commands = Commands::new(&vk)?;
+    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
+    let uniforms = Uniforms {
+        blur_radius: args.blur as i32,
+        depth_tolerance: 0.02,
+        normal_tolerance: 0.9,
+        power: args.power,
+        view: args.view,
+        far_depth: start.far,
+    };
+    let passes = Passes {
+        apis,
+        scene: &scene,
+        shared: &shared,
+        ids: &ids,
+        visibility: &visibility,
+        composite: &composite,
+        overlays: Some(&overlays),
+        path: &path,
+        motion: tlas.as_ref().map(|tlas| Motion {
+            instances: &shared.buffers.instances.0,
+            tlas,
+            loader,
+            updates: &updates,
+        }),
+        timestamps: timestamps.as_ref(),
+        uniforms,
+        radius,
+    };
+    let chosen = match args.method {
+        Method::Temporal => Drawn::Temporal(budget),
+        Method::Fresh => Drawn::Fresh(args.samples),
+    };
+
+    // 5. The frames: in a window until it closes, else the path, once per method compared
+    if let Some(window) = window.as_mut() {
+        walk::in_window(&passes, &mut sized, window, chosen, args.common.window_frames(), report)?;
+    } else {
+        let walks = walk::headless(&passes, &mut sized, chosen, args, report)?;
+        if args.compare {
+            let table = measure::write(&args.common.out_dir(CHAPTER), &walks, path.cut(), &vk.info.name)?;
+            eprint!("{table}");
+        }
+        report.set("walks", &walks);
+    }
+    gl_context.check_error("the frames")?;
+    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+
+    // 6. Clean up, newest first
+    // ANCHOR: cleanup
+    unsafe { gl.finish() };
+    vk.wait_idle()?; // once: no guard below waits
+    drop(passes);
+    drop(commands);
+    drop(updates);
+    drop(timestamps);
+    drop(overlays);
+    drop(composite);
+    drop(sized); // the tracers' pipelines and history, then the images of one size
+    drop(visibility);
+    drop(tlas);
+    drop(shared); // the structures, then the shared buffers, each GL side first
+    drop(handoff);
+    // ANCHOR_END: cleanup
+    gl_context.check_error("cleaning up")?;
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
+    drop(window);
+    Ok(())
+}
+
+/// A new window size: every image of the old size goes, once neither API uses it, and the
+/// tracers point at the new ones (the history starts again).
+pub fn resize(passes: &Passes, sized: &mut Sized, size: Size) -> Result<()> {
+    let Apis { vk, gl, commands, .. } = passes.apis;
+    unsafe { gl.gl.finish() };
+    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
+        .context("vkWaitForFences before a resize")?;
+    let extent = vk::Extent2D { width: size.width, height: size.height };
+    drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, extent)?));
+    sized.fresh.resized(vk, &sized.targets);
+    sized.temporal.resized(vk, &passes.shared.allocator, &sized.targets)
+}

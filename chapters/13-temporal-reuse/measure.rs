@@ -1,0 +1,251 @@
+//! Chapter 13's measurements along the path: each frame's error after the blur against a
+//! converged trace of that same frame, its GPU times, and the comparison of methods as a
+//! table, a CSV and two plots.
+
+use crate::check::read_picture;
+use crate::composite::{ComputeComposite, Uniforms, View};
+use crate::trace::{Pattern, Rays, SurfaceTracer};
+use crate::visibility::Targets;
+use anyhow::{Context as _, Result};
+use common::interop::handoff::Apis;
+use common::scene::Camera;
+use plotters::prelude::*;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// One frame of a walk along the path.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FrameRecord {
+    pub frame: u32,
+    /// GPU time of the frame's passes (ids, rays, composite, overlays), ms.
+    pub gpu_ms: Option<f64>,
+    pub ao_ms: Option<f64>,
+    /// RMS error of the blurred occlusion against the converged trace, over covered pixels.
+    pub rmse: Option<f64>,
+}
+
+/// A whole walk: one method along the path, and what it sums up to.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Walk {
+    pub method: String,
+    pub frames: Vec<FrameRecord>,
+    pub frame_wall_median_ms: Option<f64>,
+    pub gpu_median_ms: Option<f64>,
+    pub ao_median_ms: Option<f64>,
+    pub error_mean: Option<f64>,
+    pub error_worst: Option<f64>,
+}
+
+pub fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
+    v.sort_by(f64::total_cmp);
+    (!v.is_empty()).then(|| v[v.len() / 2])
+}
+
+impl Walk {
+    pub fn new(method: String, frames: Vec<FrameRecord>, frame_wall_median_ms: Option<f64>) -> Walk {
+        let errors: Vec<f64> = frames.iter().filter_map(|f| f.rmse).collect();
+        Walk {
+            method,
+            gpu_median_ms: median(frames.iter().filter_map(|f| f.gpu_ms)),
+            ao_median_ms: median(frames.iter().filter_map(|f| f.ao_ms)),
+            error_mean: (!errors.is_empty()).then(|| errors.iter().sum::<f64>() / errors.len() as f64),
+            error_worst: errors.iter().copied().reduce(f64::max),
+            frames,
+            frame_wall_median_ms,
+        }
+    }
+
+    /// How many frames after `cut` the error takes to come back within `within` (None: never,
+    /// or not measured).
+    pub fn frames_to_recover(&self, cut: u32, within: f64) -> Option<u32> {
+        self.frames
+            .iter()
+            .filter(|f| f.frame >= cut)
+            .find(|f| f.rmse.is_some_and(|e| e <= within))
+            .map(|f| f.frame - cut)
+    }
+}
+
+/// Whether a frame's error is measured: every `every`th frame, and every frame just after a cut
+/// (where the error changes fastest).
+pub fn measured(frame: u32, every: u32, cut: Option<u32>) -> bool {
+    frame % every == 0 || cut.is_some_and(|c| (c.saturating_sub(1)..c + 16).contains(&frame))
+}
+
+// ANCHOR: error
+/// The converged trace of a frame, kept for the other methods walking the same path: the
+/// blurred occlusion as the composite shows it, and which pixels are covered.
+#[derive(Default)]
+pub struct References(BTreeMap<u32, (Vec<u8>, Vec<bool>)>);
+
+/// What measuring a frame's error uses: the composite (to blur the two alike), chapter 12's
+/// tracer (for the converged trace: per-pixel rotations of another salt, so that its errors are
+/// independent of every method's) and the frame's settings.
+pub struct ErrorProbe<'a> {
+    pub composite: &'a ComputeComposite,
+    pub uniforms: Uniforms,
+    pub reference: u32,
+    pub radius: f32,
+    pub scene_scale: f32,
+}
+
+impl ErrorProbe<'_> {
+    /// The RMS difference of the frame's blurred occlusion (the surface as the frame left it)
+    /// from the converged one's, over the covered pixels. Overwrites the surface.
+    pub fn measure(
+        &self,
+        apis: Apis,
+        (targets, tracer): (&Targets, &mut SurfaceTracer),
+        (camera, frame): (&Camera, u32),
+        references: &mut References,
+    ) -> Result<f64> {
+        let gl = &apis.gl.gl;
+        let shown = |composite: &ComputeComposite| {
+            let uniforms = Uniforms { view: View::Ao, ..self.uniforms };
+            composite.draw(gl, targets, &uniforms);
+            read_picture(gl, targets)
+        };
+        let ours = shown(self.composite);
+        if !references.0.contains_key(&frame) {
+            let rays = Rays {
+                samples: self.reference.min(256),
+                radius: self.radius,
+                scene_scale: self.scene_scale,
+                pattern: Pattern::PerPixel,
+                salt: 1,
+            };
+            tracer.retrace(apis, targets, camera, rays, self.reference)?;
+            let covered = crate::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
+            references.0.insert(frame, (shown(self.composite), covered));
+        }
+        let (converged, covered) = &references.0[&frame];
+        let (mut sum, mut n) = (0.0, 0usize);
+        for (i, _) in covered.iter().enumerate().filter(|(_, c)| **c) {
+            sum += ((ours[i * 4] as f64 - converged[i * 4] as f64) / 255.0).powi(2);
+            n += 1;
+        }
+        anyhow::ensure!(n > 0, "frame {frame}: the scene covers no pixel, so it has no error to measure");
+        Ok((sum / n as f64).sqrt())
+    }
+}
+// ANCHOR_END: error
+
+/// compare.md, compare.csv and compare.svg (error per frame) and compare-time.svg (mean error
+/// against median GPU time per frame), for every walk.
+pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Result<String> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut csv = String::from("method,frame,gpu_ms,ao_ms,rmse\n");
+    for w in walks {
+        for f in &w.frames {
+            let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
+            writeln!(csv, "{},{},{},{},{}", w.method, f.frame, o(f.gpu_ms), o(f.ao_ms), o(f.rmse))?;
+        }
+    }
+    let base = walks.first().and_then(|w| w.error_mean);
+    let mut table = format!("Measured on {device}.\n\n");
+    table.push_str("| method | frame ms (wall) | GPU ms | AO ms | mean error | worst error | frames back within 1.5x |\n");
+    table.push_str("|---|---:|---:|---:|---:|---:|---:|\n");
+    for w in walks {
+        let o = |v: Option<f64>, d: usize| v.map_or("-".into(), |v| format!("{v:.d$}"));
+        let back = match (cut, base) {
+            (Some(c), Some(e)) => w.frames_to_recover(c, 1.5 * e).map_or("never".into(), |k| k.to_string()),
+            _ => "-".into(),
+        };
+        writeln!(
+            table,
+            "| {} | {} | {} | {} | {} | {} | {back} |",
+            w.method,
+            o(w.frame_wall_median_ms, 2),
+            o(w.gpu_median_ms, 2),
+            o(w.ao_median_ms, 2),
+            o(w.error_mean, 4),
+            o(w.error_worst, 4)
+        )?;
+    }
+    let write = |name: &str, text: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))
+    };
+    write("compare.csv", &csv)?;
+    write("compare.md", &table)?;
+    if walks.iter().any(|w| w.error_mean.is_some()) {
+        let path = dir.join("compare.svg");
+        plot_per_frame(&path, walks, device).with_context(|| format!("drawing {}", path.display()))?;
+        let path = dir.join("compare-time.svg");
+        plot_against_time(&path, walks, device).with_context(|| format!("drawing {}", path.display()))?;
+    }
+    eprintln!("wrote {}/compare.{{md,csv,svg}}", dir.display());
+    Ok(table)
+}
+
+const COLOURS: [RGBColor; 6] = [RED, MAGENTA, RGBColor(230, 140, 0), BLUE, CYAN, GREEN];
+
+// ANCHOR: plot
+/// Error after the blur at every measured frame, one line per method.
+fn plot_per_frame(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
+    let points = |w: &Walk| -> Vec<(f64, f64)> {
+        w.frames.iter().filter_map(|f| f.rmse.map(|e| (f.frame as f64, e))).collect()
+    };
+    let last = walks.iter().flat_map(|w| &w.frames).map(|f| f.frame).max().unwrap_or(1) as f64;
+    let worst = walks.iter().filter_map(|w| w.error_worst).fold(0.0, f64::max).max(1e-3);
+    let root = SVGBackend::new(path, (720, 420)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(format!("AO error after the blur, frame by frame ({device})"), ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..last, 0.0..worst * 1.1)?;
+    chart.configure_mesh().x_desc("frame along the path").y_desc("RMSE of visibility").draw()?;
+    for (i, w) in walks.iter().enumerate() {
+        let colour = COLOURS[i % COLOURS.len()];
+        chart
+            .draw_series(LineSeries::new(points(w), colour.stroke_width(2)))?
+            .label(w.method.clone())
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+
+/// Mean error over the path against the median GPU time of a frame: one point per method.
+fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
+    let points: Vec<(f64, f64, usize)> = walks
+        .iter()
+        .enumerate()
+        .filter_map(|(i, w)| Some((w.gpu_median_ms?, w.error_mean?, i)))
+        .filter(|(t, e, _)| *t > 0.0 && *e > 0.0)
+        .collect();
+    anyhow::ensure!(!points.is_empty(), "nothing to plot (no GPU timestamps?)");
+    let (t0, t1) = points.iter().fold((f64::MAX, 0f64), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (e0, e1) = points.iter().fold((f64::MAX, 0f64), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let root = SVGBackend::new(path, (720, 420)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(format!("Mean AO error against GPU time per frame ({device})"), ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.5..e1 * 1.5).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("GPU time per frame, ms")
+        .y_desc("mean RMSE over the path")
+        .x_label_formatter(&|v| format!("{v:.2}"))
+        .y_label_formatter(&|v| format!("{v:.3}"))
+        .draw()?;
+    for (t, e, i) in points {
+        let colour = COLOURS[i % COLOURS.len()];
+        chart
+            .draw_series([Circle::new((t, e), 5, colour.filled())])?
+            .label(walks[i].method.clone())
+            .legend(move |(x, y)| Circle::new((x + 8, y), 4, colour.filled()));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
+// ANCHOR_END: plot

@@ -1,0 +1,152 @@
+//! Chapter 13's path: where the camera and the one moving instance are at every frame. The
+//! same on every run and for every method, so that errors and times along it compare.
+
+use common::interop::exportable::ExportedBuffer;
+use common::scene::{Camera, Instance, Scene};
+use glam::{Mat4, Vec3, Vec4};
+use std::f32::consts::TAU;
+
+/// What the camera does (`--path`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PathKind {
+    /// Turns about the scene's centre, and once (`--cut-at`) jumps to another view.
+    Orbit,
+    /// Slides sideways, looking the same way.
+    Pan,
+    /// Stands still.
+    Still,
+}
+
+/// Whether an instance moves (`--mover`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mover {
+    /// One instance runs in a circle (a scene of one instance: it turns where it stands).
+    Circle,
+    None,
+}
+
+/// Frames per lap of the moving instance.
+const LAP_FRAMES: f32 = 240.0;
+/// The cut: how far round the camera jumps, how much it tilts and how much closer it comes.
+const CUT: (f32, f32, f32) = (2.2, -0.25, 1.6);
+
+pub struct Path {
+    kind: PathKind,
+    start: Camera,
+    bounds: (Vec3, Vec3),
+    /// Radians per frame.
+    speed: f32,
+    cut_at: u32,
+    pub moving: Option<Moving>,
+}
+
+/// The instance that moves: where it started, about which point it turns, how far it runs.
+pub struct Moving {
+    pub index: usize,
+    start: Mat4,
+    centre: Vec3,
+    radius: f32,
+}
+
+impl Path {
+    pub fn new(scene: &Scene, start: Camera, args: &crate::settings::Args) -> Path {
+        let moving = (args.mover == Mover::Circle).then(|| Moving::choose(scene));
+        let (kind, cut_at) = (args.path, if args.path == PathKind::Orbit { args.cut_at } else { 0 });
+        Path { kind, start, bounds: scene.bounds, speed: args.orbit_speed.to_radians(), cut_at, moving }
+    }
+
+    // ANCHOR: camera
+    /// The camera at `frame`: worked out from the start every time, never step by step, so that
+    /// any frame can be drawn again exactly.
+    pub fn camera(&self, frame: u32) -> Camera {
+        let mut camera = self.start;
+        let turned = self.speed * frame as f32;
+        match self.kind {
+            PathKind::Still => {}
+            PathKind::Orbit if self.is_after_cut(frame) => {
+                let (yaw, pitch, zoom) = CUT;
+                camera.orbit(yaw + turned, pitch, zoom, self.bounds);
+            }
+            PathKind::Orbit => camera.orbit(turned, 0.0, 1.0, self.bounds),
+            PathKind::Pan => {
+                // Sideways by as much as the orbit would turn the view at the target.
+                let forward = (camera.target - camera.eye).normalize();
+                let right = forward.cross(Vec3::Y).normalize_or(Vec3::X);
+                let step = right * (camera.target - camera.eye).length() * turned.tan();
+                camera.eye += step;
+                camera.target += step;
+            }
+        }
+        camera
+    }
+    // ANCHOR_END: camera
+
+    pub fn is_after_cut(&self, frame: u32) -> bool {
+        self.cut_at > 0 && frame >= self.cut_at
+    }
+
+    /// The frame the camera jumps at, if the path has one.
+    pub fn cut(&self) -> Option<u32> {
+        (self.cut_at > 0).then_some(self.cut_at)
+    }
+}
+
+impl Moving {
+    /// The instance nearest the scene's centre, other than the ground (instance 0) where there
+    /// are others; grown four times where there are, so that it and its shadow cover pixels
+    /// enough to see at any size (a tetrahedron of the default scene is a few pixels across).
+    fn choose(scene: &Scene) -> Moving {
+        let matrix = |i: usize| {
+            let [r0, r1, r2] = scene.instances[i].transform;
+            Mat4::from_cols(Vec4::from(r0), Vec4::from(r1), Vec4::from(r2), Vec4::W).transpose()
+        };
+        let centre = (scene.bounds.0 + scene.bounds.1) / 2.0;
+        let mesh_of = |i: usize| scene.mesh_instances.iter().position(|r| r.contains(&(i as u32))).unwrap_or(0);
+        let middle = |i: usize| {
+            let mesh = &scene.meshes[mesh_of(i)];
+            let (low, high) = mesh.vertices.iter().fold((Vec3::MAX, Vec3::MIN), |(l, h), v| {
+                (l.min(Vec3::from(v.position)), h.max(Vec3::from(v.position)))
+            });
+            let m = matrix(i);
+            (m.transform_point3((low + high) / 2.0), (m.transform_vector3(high - low)).length())
+        };
+        let candidates = if scene.instances.len() > 1 { 1..scene.instances.len() } else { 0..1 };
+        let index = candidates
+            .min_by(|&a, &b| (middle(a).0 - centre).length().total_cmp(&(middle(b).0 - centre).length()))
+            .unwrap_or(0);
+        let (at, size) = middle(index);
+        let alone = scene.instances.len() == 1;
+        let grow = if alone { 1.0 } else { 4.0 };
+        let start = Mat4::from_translation(at) * Mat4::from_scale(Vec3::splat(grow)) * Mat4::from_translation(-at);
+        Moving { index, start: start * matrix(index), centre: at, radius: if alone { 0.0 } else { 2.0 * grow * size } }
+    }
+
+    // ANCHOR: mover
+    /// Object to world at `frame`: round a circle of `radius` about where it started, turning
+    /// as it goes (one lap in LAP_FRAMES frames).
+    pub fn at(&self, frame: u32) -> Mat4 {
+        let angle = TAU * frame as f32 / LAP_FRAMES;
+        let offset = Vec3::new(angle.cos() - 1.0, 0.0, angle.sin()) * self.radius;
+        let turn = Mat4::from_rotation_y(angle);
+        Mat4::from_translation(self.centre + offset) * turn * Mat4::from_translation(-self.centre) * self.start
+    }
+
+    /// Writes the transform at `frame` into `instances` (the shared buffer GL draws with and
+    /// the TLAS is built from) and the one it had at the frame before into `previous` (which
+    /// only the ray generation shader reads). Only the 48 transform bytes are written. No GPU
+    /// work may be reading either buffer (the caller waited for the previous frame).
+    pub fn write(&self, instances: &ExportedBuffer, previous: &mut [u8], frame: u32) {
+        let offset = self.index * size_of::<Instance>() + std::mem::offset_of!(Instance, transform);
+        let before = Instance::new(self.at(frame.saturating_sub(1)), [0; 3]).transform;
+        let now = Instance::new(self.at(frame), [0; 3]).transform;
+        let bytes = size_of_val(&now);
+        assert!(offset + bytes <= instances.bytes as usize && offset + bytes <= previous.len());
+        previous[offset..offset + bytes].copy_from_slice(common::scene::gbuffer::as_bytes(&before));
+        // SAFETY: in bounds of the coherent mapping (checked above), and no GPU work reads the
+        // buffer now.
+        unsafe { instances.mapped.add(offset).cast::<[[f32; 4]; 3]>().write_unaligned(now) };
+    }
+    // ANCHOR_END: mover
+}

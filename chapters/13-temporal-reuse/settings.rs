@@ -1,0 +1,113 @@
+//! Chapter 13's flags: chapter 12's frame, the rays each pixel traces and what its history
+//! keeps, the path the camera and one instance follow, and what to measure along it.
+
+use crate::composite::View;
+use crate::path::{Mover, PathKind};
+use common::CommonArgs;
+use common::rt::accel::BlasLayout;
+use common::scene::SceneArgs;
+
+/// The frames a headless run draws unless `--frames` says otherwise: the whole path.
+pub const PATH_FRAMES: u32 = 120;
+
+/// Chapter 13: chapter 12's frame, its ambient occlusion reused from frame to frame.
+#[derive(clap::Parser)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: CommonArgs,
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    /// Rays per pixel per frame where the history is still filling (1-64).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub samples: u32,
+    /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub fresh: u32,
+    /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
+    /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub cap: u32,
+    /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(0..=64))]
+    pub settled_every: u32,
+    /// Which tests a remembered texel must pass to be reused (`none`: every texel is reused, so
+    /// moving things leave ghosts; for measuring what the tests are worth).
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "instance,plane,normal")]
+    pub accept: Vec<Accept>,
+    /// `temporal`: this chapter's frame; `fresh`: chapter 12's, new rays every frame and nothing
+    /// kept, drawn along the same path for comparison.
+    #[arg(long, value_enum, default_value = "temporal")]
+    pub method: Method,
+    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
+    #[arg(long, allow_negative_numbers = true)]
+    pub radius: Option<f32>,
+    /// Contrast: the picture shows visibility to this power (1-3).
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    pub power: f32,
+    /// Blur radius in pixels (0 skips the blur), as chapter 12's.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    pub blur: u32,
+    /// Which picture to show.
+    #[arg(long, value_enum, default_value = "final")]
+    pub view: View,
+    /// What the camera does: `orbit` (turns about the scene, with one cut), `pan` (slides
+    /// sideways), `still`.
+    #[arg(long, value_enum, default_value = "orbit")]
+    pub path: PathKind,
+    /// The orbit's speed, in degrees per frame (0-30).
+    #[arg(long, default_value_t = 0.5, value_parser = parse_speed)]
+    pub orbit_speed: f32,
+    /// The frame at which the orbiting camera jumps to another view (0: no cut).
+    #[arg(long, default_value_t = 60)]
+    pub cut_at: u32,
+    /// Whether one instance moves while the camera does (`circle`) or not (`none`).
+    #[arg(long, value_enum, default_value = "circle")]
+    pub mover: Mover,
+    /// As chapter 12's `--blas`; only the per-mesh layout lets an instance move.
+    #[arg(long, value_enum, default_value = "per-mesh")]
+    pub blas: BlasLayout,
+    /// Headless: after every `--error-every`th frame, trace this many rays per pixel of the
+    /// same frame with no history, and report the frame's error against them after the blur
+    /// (0: don't; 1024 is the book's reference).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 16))]
+    pub error_against: u32,
+    /// Measure the error on every Kth frame of the path (the frames around the cut always).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub error_every: u32,
+    /// Headless: draw the path again with chapter 12's frame at 16, 8 and 4 rays and this
+    /// chapter's at 1, 2 and 4, each timed and (with --error-against) measured, and write
+    /// compare.md, compare.csv and compare.svg to --out.
+    #[arg(long)]
+    pub compare: bool,
+}
+
+/// A test a remembered texel must pass (`--accept`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Accept {
+    /// The texel saw the same instance.
+    Instance,
+    /// The point the texel saw lies on this point's plane.
+    Plane,
+    /// The texel's normal is this point's.
+    Normal,
+    /// No test: everything remembered is reused.
+    None,
+}
+
+/// How a frame's occlusion is made (`--method`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    Temporal,
+    Fresh,
+}
+
+fn parse_speed(text: &str) -> Result<f32, String> {
+    let speed: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if speed.is_finite() && (0.0..=30.0).contains(&speed) {
+        Ok(speed)
+    } else {
+        Err("choose between 0 and 30 degrees per frame".into())
+    }
+}

@@ -1,0 +1,336 @@
+//! Chapter 13's Vulkan side: the ray tracing pipeline that reuses the previous frame's
+//! occlusion, the two history images it reads and writes in turn, the cameras and previous
+//! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
+
+use crate::settings::{Accept, Args};
+use crate::trace::hand_over_around;
+use crate::visibility::Targets;
+use anyhow::{Context as _, Result};
+use ash::vk;
+use common::VulkanContext;
+use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, transfers_to_host};
+use common::base::timestamps::Timestamps;
+use common::interop::handoff::Apis;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
+use common::rt::raytrace::{RayPipeline, RayShaders, StorageImage, push_bytes};
+use common::scene::Camera;
+use gpu_allocator::MemoryLocation;
+
+const RAYGEN: &[u8] = include_bytes!("../../shaders/temporal_ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+const HISTORY_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
+
+// ANCHOR: push
+/// The push constants of `shaders/temporal_ao.rgen` (std430, 80 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct TemporalRays {
+    pub cameras: u64,
+    pub meshes: u64,
+    pub instances: u64,
+    pub previous_instances: u64,
+    pub radius: f32,
+    pub scene_scale: f32,
+    pub mesh_count: u32,
+    pub samples: u32,
+    pub fresh: u32,
+    pub cap: u32,
+    pub settled_every: u32,
+    pub frame: u32,
+    pub accept: u32,
+    pub plane_tolerance: f32,
+    pub normal_tolerance: f32,
+    pub unused: u32,
+}
+
+/// The shader's `Cameras` (std430, 256 bytes): this frame's and the previous frame's.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+struct Cameras {
+    inverse_view_projection: [f32; 16],
+    previous_view_projection: [f32; 16],
+    previous_inverse_view_projection: [f32; 16],
+    eye: [f32; 4],
+    forward: [f32; 4],
+    previous_eye: [f32; 4],
+    previous_forward: [f32; 4],
+}
+// ANCHOR_END: push
+
+/// The shader's `accept` bits (`HAS_HISTORY`, then one per test).
+const HAS_HISTORY: u32 = 1;
+fn accept_bits(accept: &[Accept]) -> u32 {
+    accept.iter().fold(0, |bits, a| {
+        bits | match a {
+            Accept::Instance => 2,
+            Accept::Plane => 4,
+            Accept::Normal => 8,
+            Accept::None => 0,
+        }
+    })
+}
+
+/// What every frame's rays are asked to do, from the flags.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Budget {
+    pub samples: u32,
+    pub fresh: u32,
+    pub cap: u32,
+    pub settled_every: u32,
+    pub accept: u32,
+    pub radius: f32,
+    pub scene_scale: f32,
+}
+
+impl Budget {
+    pub fn new(args: &Args, radius: f32, scene_scale: f32) -> Budget {
+        let (samples, fresh) = if radius > 0.0 { (args.samples, args.fresh) } else { (0, 0) };
+        let (cap, settled_every, accept) = (args.cap, args.settled_every, accept_bits(&args.accept));
+        Budget { samples, fresh, cap, settled_every, accept, radius, scene_scale }
+    }
+}
+
+/// The pipeline, its two history images and the buffers it reprojects with. Dropped, the
+/// pipeline goes first, then the images and buffers; the GPU must be done with all of them.
+pub struct TemporalTracer {
+    pipeline: RayPipeline,
+    history: [StorageImage; 2],
+    cameras: DeviceBuffer,
+    /// The instance transforms the previous frame was drawn with (a copy of the shared buffer,
+    /// updated where an instance moved).
+    pub previous_instances: DeviceBuffer,
+    /// Which history image this frame writes; the other holds the previous frame's.
+    written: usize,
+    /// Whether the image not written this frame holds a frame of this size and this camera's
+    /// scene: false at first, after a resize and after `forget`.
+    remembers: bool,
+    /// Whether the history images have been used since they were made (undefined before).
+    images_used: bool,
+    previous_camera: Option<Camera>,
+    /// Chapter 12's mesh table (address, meshes) and the shared instance buffer's address.
+    meshes: (u64, u32),
+    instances: u64,
+}
+
+impl TemporalTracer {
+    pub fn new(
+        vk: &VulkanContext,
+        shared: &RayTracedScene,
+        meshes: (u64, u32),
+        targets: &Targets,
+    ) -> Result<Self> {
+        // ANCHOR: bindings
+        let binding = |binding, ty| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(binding)
+                .descriptor_type(ty)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR)
+        };
+        let image = vk::DescriptorType::STORAGE_IMAGE;
+        let bindings = [
+            binding(0, vk::DescriptorType::ACCELERATION_STRUCTURE_KHR),
+            binding(1, image), // the ids, from GL
+            binding(2, image), // the surface, for GL's composite
+            binding(3, image), // the history read: the previous frame's
+            binding(4, image), // the history written: this frame's
+        ];
+        // ANCHOR_END: bindings
+        let allocator = &shared.allocator;
+        let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
+        let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<TemporalRays>() as u32)?;
+        pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
+        let history = Self::history_images(vk, allocator, targets.extent)?;
+        let host = |name, size| BufferDesc {
+            name,
+            size,
+            usage: vk::BufferUsageFlags::STORAGE_BUFFER,
+            location: MemoryLocation::CpuToGpu,
+        };
+        let cameras = DeviceBuffer::new(vk, allocator, host("cameras", size_of::<Cameras>() as u64))?;
+        let instance_bytes = shared.buffers.instances.0.bytes;
+        let mut previous_instances = DeviceBuffer::new(vk, allocator, host("previous instances", instance_bytes))?;
+        // At first the previous transforms are the transforms: nothing has moved yet.
+        let copy = previous_instances.allocation.mapped_slice_mut().context("previous instances unmapped")?;
+        let shared_instances = &shared.buffers.instances.0;
+        // SAFETY: the shared buffer's mapping is `bytes` long and nothing writes it now.
+        let now = unsafe { std::slice::from_raw_parts(shared_instances.mapped, instance_bytes as usize) };
+        copy[..now.len()].copy_from_slice(now);
+        let tracer = TemporalTracer {
+            pipeline,
+            history,
+            cameras,
+            previous_instances,
+            written: 0,
+            remembers: false,
+            images_used: false,
+            previous_camera: None,
+            meshes,
+            instances: shared_instances.device_address(vk),
+        };
+        tracer.point_at(vk, targets);
+        Ok(tracer)
+    }
+
+    fn history_images(vk: &VulkanContext, allocator: &GpuAllocator, extent: vk::Extent2D) -> Result<[StorageImage; 2]> {
+        let usage = vk::ImageUsageFlags::TRANSFER_SRC; // read back by the checks
+        let first = StorageImage::new(vk, allocator, HISTORY_FORMAT, usage, extent)?;
+        Ok([first, StorageImage::new(vk, allocator, HISTORY_FORMAT, usage, extent)?])
+    }
+
+    /// The descriptors at this size's images, the history read and written as `written` says.
+    fn point_at(&self, vk: &VulkanContext, targets: &Targets) {
+        self.pipeline.write_storage_image(vk, 1, targets.visibility.view);
+        self.pipeline.write_storage_image(vk, 2, targets.surface.view);
+        self.pipeline.write_storage_image(vk, 3, self.history[1 - self.written].view);
+        self.pipeline.write_storage_image(vk, 4, self.history[self.written].view);
+    }
+
+    /// New images of the new size: nothing is remembered. The GPU must be done with the old.
+    pub fn resized(&mut self, vk: &VulkanContext, allocator: &GpuAllocator, targets: &Targets) -> Result<()> {
+        self.history = Self::history_images(vk, allocator, targets.extent)?;
+        (self.written, self.remembers, self.images_used) = (0, false, false);
+        self.point_at(vk, targets);
+        Ok(())
+    }
+
+    /// The next frame starts with no history (a method switch, a new setting).
+    pub fn forget(&mut self) {
+        self.remembers = false;
+    }
+
+    // ANCHOR: frame
+    /// One frame: the cameras written, then, between chapter 12's hand-overs, the history made
+    /// visible to this frame's rays and the rays traced; then the two history images swap.
+    pub fn trace(
+        &mut self,
+        apis: Apis,
+        targets: &Targets,
+        (camera, frame): (&Camera, u32),
+        budget: &Budget,
+        timestamps: Option<&Timestamps>,
+    ) -> Result<()> {
+        // The previous frame's work must be done before its descriptors and cameras change.
+        let vk = apis.vk;
+        unsafe { vk.device.wait_for_fences(&[apis.commands.fence], true, u64::MAX) }
+            .context("vkWaitForFences before a frame's cameras")?;
+        self.point_at(vk, targets);
+        let aspect = targets.extent.width as f32 / targets.extent.height as f32;
+        let previous = self.previous_camera.unwrap_or(*camera);
+        let (now, then) = (camera.view_projection(aspect), previous.view_projection(aspect));
+        let forward = |c: &Camera| (c.target - c.eye).normalize().extend(0.0).to_array();
+        let cameras = Cameras {
+            inverse_view_projection: now.inverse().to_cols_array(),
+            previous_view_projection: then.to_cols_array(),
+            previous_inverse_view_projection: then.inverse().to_cols_array(),
+            eye: camera.eye.extend(1.0).to_array(),
+            forward: forward(camera),
+            previous_eye: previous.eye.extend(1.0).to_array(),
+            previous_forward: forward(&previous),
+        };
+        let mapped = self.cameras.allocation.mapped_slice_mut().context("cameras unmapped")?;
+        mapped[..size_of::<Cameras>()].copy_from_slice(common::scene::gbuffer::as_bytes(&[cameras]));
+        let push = TemporalRays {
+            cameras: self.cameras.address,
+            meshes: self.meshes.0,
+            instances: self.instances,
+            previous_instances: self.previous_instances.address,
+            radius: budget.radius,
+            scene_scale: budget.scene_scale,
+            mesh_count: self.meshes.1,
+            samples: budget.samples,
+            fresh: budget.fresh,
+            cap: budget.cap,
+            settled_every: budget.settled_every,
+            frame,
+            accept: budget.accept | if self.remembers { HAS_HISTORY } else { 0 },
+            plane_tolerance: 0.01,
+            normal_tolerance: 0.9,
+            unused: 0,
+        };
+        let history = self.history_barriers();
+        let work = |cb| {
+            let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+            // The previous frame wrote the image read now and read the image written now: its
+            // writes must be visible, and its reads done, before these rays start.
+            unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, vk::DependencyFlags::empty(), &history.0, &[], &history.1) };
+            self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+        };
+        hand_over_around(apis, targets, timestamps, || {}, work)?;
+        self.images_used = true;
+        self.previous_camera = Some(*camera);
+        self.remembers = true;
+        self.written = 1 - self.written;
+        Ok(())
+    }
+    // ANCHOR_END: frame
+
+    /// Before a frame: the first time, both images from undefined; after, one global barrier.
+    fn history_barriers(&self) -> (Vec<vk::MemoryBarrier<'static>>, Vec<vk::ImageMemoryBarrier<'static>>) {
+        let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
+        if self.images_used {
+            let barrier = vk::MemoryBarrier::default().src_access_mask(write).dst_access_mask(read | write);
+            (vec![barrier], vec![])
+        } else {
+            let general = vk::ImageLayout::GENERAL;
+            (vec![], self.history.iter().map(|h| first_use(h.image, general, read | write)).collect())
+        }
+    }
+
+    /// The history the last frame wrote, read back (for the checks): per pixel the mean
+    /// visibility, the rays it holds, and the instance + 1 (0: background).
+    pub fn read_history(&self, vk: &VulkanContext, commands: &common::base::commands::Commands) -> Result<Vec<Texel>> {
+        let last = &self.history[1 - self.written];
+        let extent = last.extent;
+        let bytes = extent.width as u64 * extent.height as u64 * 16;
+        let host = HostBuffer::new(vk, bytes, vk::BufferUsageFlags::TRANSFER_DST)?;
+        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+        let transfer = vk::PipelineStageFlags::TRANSFER;
+        let none = vk::DependencyFlags::empty();
+        commands.run_once(vk, |cb| unsafe {
+            let written = vk::MemoryBarrier::default()
+                .src_access_mask(vk::AccessFlags::SHADER_WRITE)
+                .dst_access_mask(vk::AccessFlags::TRANSFER_READ);
+            vk.device.cmd_pipeline_barrier(cb, stage, transfer, none, &[written], &[], &[]);
+            copy_image_to_buffer(vk, cb, last.image, vk::ImageLayout::GENERAL, extent, host.buffer);
+            transfers_to_host(vk, cb);
+            // The next frame writes this image again: after the copy has read it.
+            vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[], &[]);
+        })?;
+        let word = |b: &[u8]| u32::from_ne_bytes(b.try_into().unwrap());
+        Ok(host
+            .bytes()
+            .chunks_exact(16)
+            .map(|t| {
+                let x = word(&t[0..4]);
+                Texel { mean: (x >> 16) as f32 / 65535.0, rays: x & 0xFFFF, instance: word(&t[12..16]) }
+            })
+            .collect())
+    }
+}
+
+/// One pixel of the history, as [`TemporalTracer::read_history`] reads it.
+#[derive(Clone, Copy, Debug)]
+pub struct Texel {
+    pub mean: f32,
+    pub rays: u32,
+    pub instance: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::offset_of;
+
+    #[test]
+    fn temporal_rays_match_the_glsl_block() {
+        assert_eq!(offset_of!(TemporalRays, radius), 32);
+        assert_eq!(offset_of!(TemporalRays, samples), 44);
+        assert_eq!(offset_of!(TemporalRays, accept), 64);
+        assert_eq!(offset_of!(TemporalRays, normal_tolerance), 72);
+        assert_eq!(size_of::<TemporalRays>(), 80);
+        assert_eq!(offset_of!(Cameras, eye), 192);
+        assert_eq!(size_of::<Cameras>(), 256);
+    }
+}

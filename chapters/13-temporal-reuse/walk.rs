@@ -1,0 +1,213 @@
+//! Chapter 13's frame loops: headless along the path (each method of a comparison in turn, its
+//! error measured where asked, the checks on the chosen method's walk), or in a window.
+
+use crate::check::{self, LastFrame, Surface};
+use crate::composite::View;
+use crate::frame::{Clock, Drawn, Passes, Sized};
+use crate::history_check::{self, Seen};
+use crate::measure::{ErrorProbe, FrameRecord, References, Walk, measured, median};
+use crate::path::PathKind;
+use crate::settings::{Args, PATH_FRAMES};
+use crate::temporal::Budget;
+use crate::trace::{Pattern, Rays};
+use anyhow::Result;
+use common::Report;
+use common::base::cli::Size;
+use common::base::window::{Key, NamedKey, Window};
+use common::scene::Camera;
+
+/// The methods `--compare` walks: chapter 12's frame at 16, 8 and 4 rays, then this chapter's
+/// at 1, 2 and 4 (and the one the flags chose, if it is none of those).
+fn compared(chosen: Drawn, budget: Budget) -> Vec<Drawn> {
+    let mut methods: Vec<Drawn> = [16, 8, 4].map(Drawn::Fresh).into();
+    methods.extend([1, 2, 4].map(|samples| Drawn::Temporal(Budget { samples, ..budget })));
+    if !methods.contains(&chosen) {
+        methods.push(chosen);
+    }
+    methods
+}
+
+/// Every walk along the path headless, and the checks of the chosen method's.
+pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, report: &mut Report) -> Result<Vec<Walk>> {
+    let frames = args.common.frames.unwrap_or(PATH_FRAMES).max(1);
+    let budget = match chosen {
+        Drawn::Temporal(budget) => budget,
+        Drawn::Fresh(_) => crate::temporal::Budget::new(args, p.radius, p.scene.size() / 2.0),
+    };
+    let methods = if args.compare { compared(chosen, budget) } else { vec![chosen] };
+    let probe = ErrorProbe {
+        composite: p.composite,
+        uniforms: p.uniforms,
+        reference: args.error_against,
+        radius: p.radius,
+        scene_scale: p.scene.size() / 2.0,
+    };
+    let mut references = References::default();
+    let mut walks = Vec::new();
+    let mut checked = false;
+    for drawn in methods {
+        let checking = drawn == chosen && !checked;
+        sized.temporal.forget();
+        let mut clock = Clock::new(&p.apis.gl.gl)?;
+        let (mut records, mut before_cut) = (Vec::new(), None);
+        for frame in 0..frames {
+            let camera = p.draw(sized, drawn, frame, &mut clock)?;
+            if checking {
+                before_cut = watch_the_cut(p, sized, (&camera, frame), before_cut, (budget, report))?;
+                if frame + 1 == frames {
+                    check_last_frame(p, sized, &camera, (drawn, args), report)?;
+                }
+            }
+            let rmse = match args.error_against {
+                0 => None,
+                _ if !measured(frame, args.error_every, p.path.cut()) => None,
+                _ => Some(probe.measure(p.apis, (&sized.targets, &mut sized.fresh), (&camera, frame), &mut references)?),
+            };
+            records.push(FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse });
+        }
+        clock.finish(p)?;
+        // The passes' GPU times, frame by frame where every frame has one of each.
+        let times = &clock.times;
+        let per_frame = |pass: &str| Some(times.samples(pass)).filter(|s| s.len() == records.len());
+        let ao = per_frame("ao_trace");
+        let gl: Vec<_> = ["visibility", "composite", "overlays"].iter().map(|&pass| per_frame(pass)).collect();
+        for (i, record) in records.iter_mut().enumerate() {
+            record.ao_ms = ao.map(|a| a[i]);
+            let gl_ms: Option<f64> = gl.iter().map(|pass| pass.map(|s| s[i])).sum();
+            record.gpu_ms = record.ao_ms.zip(gl_ms).map(|(a, g)| a + g);
+        }
+        let wall = median(times.samples("frame_wall").iter().copied());
+        if checking {
+            times.record(report);
+            checked = true;
+        }
+        eprintln!("walk: {} done ({frames} frames)", drawn.name());
+        walks.push(Walk::new(drawn.name(), records, wall.filter(|_| args.error_against == 0)));
+    }
+    report.set("frames", frames);
+    Ok(walks)
+}
+
+/// The frames around the cut, read back for the cut check: the one before it kept, the one at
+/// it checked against it.
+fn watch_the_cut(
+    p: &Passes,
+    sized: &Sized,
+    (camera, frame): (&Camera, u32),
+    before: Option<Seen>,
+    (budget, report): (Budget, &mut Report),
+) -> Result<Option<Seen>> {
+    let Some(cut) = p.path.cut().filter(|&c| c > 0) else { return Ok(None) };
+    let gl = &p.apis.gl.gl;
+    let seen = || Seen {
+        surface: Surface::read(gl, &sized.targets),
+        ids: check::read_ids(gl, &sized.targets),
+        camera: *camera,
+        frame,
+    };
+    if frame + 1 == cut {
+        return Ok(Some(seen()));
+    }
+    if let (true, Some(before)) = (frame == cut, before.as_ref()) {
+        let history = sized.temporal.read_history(p.apis.vk, p.apis.commands)?;
+        if budget.cap > budget.fresh && budget.samples > 0 {
+            history_check::cut(before, &seen(), &history, (p.path, p.ids, budget.fresh), report);
+        }
+    }
+    Ok(before)
+}
+
+/// The last frame of the chosen walk: chapter 12's checks of the surface, the composite and the
+/// overlays, the pictures, and what the path makes checkable.
+fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Args), report: &mut Report) -> Result<()> {
+    let gl = &p.apis.gl.gl;
+    let surface = Surface::read(gl, &sized.targets);
+    surface.check_values(report);
+    let Some(overlays) = p.overlays else { return Ok(()) };
+    let last = LastFrame {
+        gl,
+        targets: &sized.targets,
+        composite: p.composite,
+        overlays,
+        camera,
+        uniforms: p.uniforms(camera, View::Final),
+    };
+    for (name, ok) in last.check(&surface) {
+        report.check(name, ok);
+    }
+    let prefix = args.scene.picture_name(crate::CHAPTER);
+    last.write_pictures(report, &surface, &args.common.out_dir(crate::CHAPTER), &prefix)?;
+    let Drawn::Temporal(budget) = drawn else { return Ok(()) };
+    if budget.samples == 0 {
+        return Ok(()); // nothing traced: nothing to compare
+    }
+    let frames = args.common.frames.unwrap_or(PATH_FRAMES).max(1);
+    match args.path {
+        // ANCHOR: still
+        // A still camera and nothing moving: every pixel's history holds all its rays, the
+        // same points of the same sequence chapter 08 traces, while they fit under the cap.
+        PathKind::Still if p.path.moving.is_none() => {
+            let total = budget.fresh + (frames - 1) * budget.samples;
+            if total <= budget.cap {
+                let run = check::Chapter08Run {
+                    scene: p.scene,
+                    shared: p.shared,
+                    camera,
+                    per_frame: budget.samples,
+                    total,
+                    radius: p.radius,
+                };
+                let chapter_08 = check::trace_chapter_08(p.apis, &sized.targets, run)?;
+                chapter_08.compare(&surface, None, report);
+            } else {
+                eprintln!("history: {total} rays a pixel pass the cap of {}; chapter 08 is not compared", budget.cap);
+            }
+        }
+        // ANCHOR_END: still
+        PathKind::Pan => {
+            let history = sized.temporal.read_history(p.apis.vk, p.apis.commands)?;
+            let rays = 256;
+            let scene_scale = p.scene.size() / 2.0;
+            let reference = Rays { samples: rays, radius: p.radius, scene_scale, pattern: Pattern::PerPixel, salt: 1 };
+            sized.fresh.retrace(p.apis, &sized.targets, camera, reference, rays)?;
+            let traced = Surface::read(gl, &sized.targets);
+            history_check::pan(&history, &traced, (rays, budget.cap, budget.fresh), report);
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// Frames in a window until it closes (or `frames`, if not 0): the path plays on, H switches
+/// between this chapter's frame and chapter 12's, and a new window size remakes the images.
+pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Drawn, frames: u32, report: &mut Report) -> Result<()> {
+    let mut clock = Clock::new(&p.apis.gl.gl)?;
+    let mut drawn = chosen;
+    let fresh = Drawn::Fresh(16);
+    let mut frame = 0;
+    while frames == 0 || frame < frames {
+        let keys: Vec<Key> = window.poll(p.apis.gl).collect();
+        if keys.contains(&Key::Named(NamedKey::Escape)) || window.close_requested() {
+            break;
+        }
+        if keys.iter().any(|k| matches!(k.as_ref(), Key::Character("h" | "H"))) {
+            drawn = if drawn == fresh { chosen } else { fresh };
+            sized.temporal.forget();
+            eprintln!("window: {}", drawn.name());
+        }
+        let (width, height) = window.size();
+        let smallest = crate::SMALLEST.width;
+        if (width, height) != (sized.targets.extent.width, sized.targets.extent.height) && width >= smallest && height >= smallest {
+            crate::resize(p, sized, Size { width, height })?;
+        }
+        p.draw(sized, drawn, frame, &mut clock)?;
+        window.show_times(&clock.times);
+        sized.targets.show(&p.apis.gl.gl, window.size());
+        window.swap_buffers(p.apis.gl)?;
+        frame += 1;
+    }
+    clock.finish(p)?;
+    clock.times.record(report);
+    report.set("frames", frame);
+    Ok(())
+}

@@ -1,0 +1,152 @@
+// Chapters 12 and 13: what a ray generation shader needs to rebuild a pixel's hit from the id GL
+// drew there, and to trace its occlusion. Included by visibility_ao.rgen and temporal_ao.rgen
+// (both need GL_EXT_buffer_reference and GL_EXT_buffer_reference_uvec2, and declare the
+// acceleration structure `scene` and the payload `hit` before including it).
+
+// The scene's buffers, read through their device addresses: GL's vertex, index and instance
+// buffers are Vulkan buffers, so the ray tracer reads the very bytes GL rasterised.
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Floats { float f[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Uints { uint u[]; };
+
+// ANCHOR: mesh_ids
+// chapter 12's `MeshIds`, byte for byte (32 bytes; its unit test checks the offsets). Mesh m's
+// instances own the ids [first_id, first_id + instances * triangles), instance by instance.
+struct MeshIds {
+    uvec2 vertices;      // device address of common::scene::Vertex[] (24 bytes each)
+    uvec2 indices;       // device address of uint[3 * triangles]
+    uint first_id;       // the id of instance 0's triangle 0, less one
+    uint triangles;      // per instance
+    uint first_instance; // into the shared instance buffer
+    uint instances;
+};
+layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer Meshes { MeshIds m[]; };
+// ANCHOR_END: mesh_ids
+
+// As in ao.rgen (chapter 07): the relative ray offset, the R2 sequence, a per-pixel hash, a basis.
+float ray_offset(vec3 p, float scene_scale, float radius) {
+    float largest = max(max(abs(p.x), abs(p.y)), max(abs(p.z), scene_scale));
+    return min(largest * (1.0 / 65536.0), 1e-3 * radius);
+}
+
+uint pcg(uint v) {
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+vec2 r2(uint index, uvec2 rotation) {
+    uvec2 fixed_point = uvec2(index * 3242174889u, index * 2447445414u) + 2147483648u + rotation;
+    return vec2(fixed_point >> 8u) * (1.0 / 16777216.0);
+}
+
+void basis(vec3 n, out vec3 t, out vec3 b) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+vec2 sign_not_zero(vec2 v) {
+    return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
+}
+
+// gbuffer.frag's pack_normal (chapter 07): octahedral, 12 + 12 bits, exact in a float.
+float pack_normal(vec3 n) {
+    vec2 p = n.xy / (abs(n.x) + abs(n.y) + abs(n.z));
+    if (n.z < 0.0) {
+        p = (1.0 - abs(p.yx)) * sign_not_zero(p);
+    }
+    uvec2 q = uvec2(round(clamp(p * 0.5 + 0.5, 0.0, 1.0) * 4095.0));
+    return float(q.x * 4096u + q.y);
+}
+
+vec3 unpack_normal(uint packed) {
+    vec2 p = vec2(packed >> 12u, packed & 4095u) / 4095.0 * 2.0 - 1.0;
+    vec3 n = vec3(p, 1.0 - abs(p.x) - abs(p.y));
+    if (n.z < 0.0) {
+        n.xy = (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
+    }
+    return normalize(n);
+}
+
+// ANCHOR: decode
+// Which mesh, instance and triangle an id names: the last mesh whose first id is not above it
+// (a binary search over the few meshes), then a division.
+void decode(Meshes meshes, uint mesh_count, uint id, out MeshIds mesh, out uint instance, out uint triangle) {
+    uint low = 0u, high = mesh_count;
+    while (high - low > 1u) {
+        uint middle = (low + high) / 2u;
+        if (meshes.m[middle].first_id <= id) {
+            low = middle;
+        } else {
+            high = middle;
+        }
+    }
+    mesh = meshes.m[low];
+    uint local = id - mesh.first_id;
+    instance = mesh.first_instance + local / mesh.triangles;
+    triangle = local % mesh.triangles;
+}
+// ANCHOR_END: decode
+
+// ANCHOR: corner
+// A corner of the triangle in world space, transformed exactly as gbuffer.vert and
+// visibility.vert transform it: the instance's three rows (from the instance buffer at
+// `instances`) dotted with (position, 1).
+vec3 corner(MeshIds mesh, uvec2 instances, uint instance, uint triangle, uint k) {
+    uint v = Uints(mesh.indices).u[3u * triangle + k];
+    Floats vertices = Floats(mesh.vertices);
+    vec4 p = vec4(vertices.f[6u * v], vertices.f[6u * v + 1u], vertices.f[6u * v + 2u], 1.0);
+    Floats rows = Floats(instances);
+    uint at = 16u * instance;
+    vec4 row0 = vec4(rows.f[at], rows.f[at + 1u], rows.f[at + 2u], rows.f[at + 3u]);
+    vec4 row1 = vec4(rows.f[at + 4u], rows.f[at + 5u], rows.f[at + 6u], rows.f[at + 7u]);
+    vec4 row2 = vec4(rows.f[at + 8u], rows.f[at + 9u], rows.f[at + 10u], rows.f[at + 11u]);
+    return vec3(dot(row0, p), dot(row1, p), dot(row2, p));
+}
+// ANCHOR_END: corner
+
+// ANCHOR: barycentrics
+// Where the ray from `eye` along `direction` meets the triangle (a, a + e1, a + e2), as
+// barycentrics (Moeller-Trumbore). GL covered this pixel's centre with this triangle, so they lie
+// inside it but for rounding: clamped, the point stays on the triangle.
+vec2 barycentrics(vec3 eye, vec3 direction, vec3 a, vec3 e1, vec3 e2) {
+    vec3 p_vec = cross(direction, e2);
+    float det = dot(e1, p_vec);
+    vec3 to_eye = eye - a;
+    float u = det != 0.0 ? dot(to_eye, p_vec) / det : 1.0 / 3.0;
+    float v = det != 0.0 ? dot(direction, cross(to_eye, e1)) / det : 1.0 / 3.0;
+    u = clamp(u, 0.0, 1.0);
+    return vec2(u, clamp(v, 0.0, 1.0 - u));
+}
+// ANCHOR_END: barycentrics
+
+// The triangle's own unit normal, scaled before normalising (gbuffer.geom); zero for a triangle
+// with no plane, which GL covers no pixel with.
+vec3 plane_normal(vec3 e1, vec3 e2) {
+    vec3 n = cross(e1, e2);
+    float largest = max(max(abs(n.x), abs(n.y)), abs(n.z));
+    return largest > 0.0 ? normalize(n / largest) : vec3(0.0);
+}
+
+// `samples` occlusion rays from `origin` over the hemisphere about `n`, cosine-weighted, taking
+// the R2 points [first, first + samples) of the sequence turned by `rotation`, each moved by
+// `jitter`; returns how many found an occluder within `radius`.
+uint occluded_rays(vec3 origin, vec3 n, float radius, uint first, uint samples,
+                   uvec2 rotation, vec2 jitter) {
+    vec3 t, b;
+    basis(n, t, b);
+    uint flags = gl_RayFlagsOpaqueEXT | gl_RayFlagsTerminateOnFirstHitEXT | gl_RayFlagsSkipClosestHitShaderEXT;
+    uint hits = 0u;
+    for (uint s = 0u; s < samples; s++) {
+        vec2 r = fract(r2(first + s, rotation) + jitter);
+        float radial = sqrt(r.x);
+        float phi = 6.28318530718 * r.y;
+        vec3 dir = t * (radial * cos(phi)) + b * (radial * sin(phi)) + n * sqrt(max(0.0, 1.0 - r.x));
+        hit = 1u; // "occluded" until the miss shader says otherwise
+        traceRayEXT(scene, flags, 0xFF, 0, 0, 0, origin, 0.0, dir, radius, 0);
+        hits += hit;
+    }
+    return hits;
+}
