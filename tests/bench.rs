@@ -47,7 +47,10 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
         values.dedup();
         values
     };
-    assert_eq!(set("mode"), [r#""cpu-round-trip""#, r#""fast-frame""#, r#""host-sync""#, r#""zero-copy""#]);
+    assert_eq!(
+        set("mode"),
+        [r#""cpu-round-trip""#, r#""fast-frame""#, r#""host-sync""#, r#""temporal-reuse""#, r#""zero-copy""#]
+    );
     assert_eq!(set("scene"), [r#""ceiling""#, r#""default""#, r#""large""#]);
     assert_eq!(set("spp"), ["1", "4"]);
     // The large scene's acceleration structures: sizes and GPU build times.

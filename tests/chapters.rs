@@ -747,3 +747,73 @@ fn ch11_refuses_sizes_it_cannot_hold_or_check() {
         assert!(!run.stderr.contains("panicked"), "{size}: no panic\n{}", run.stderr);
     }
 }
+
+/// The arguments chapter 13's tests share: a small picture, few frames, fewer tetrahedra (a
+/// TLAS of 10,001 instances traces slowly on a CPU), and the cut early in the path.
+const CH13: [&str; 8] = ["--size", "64x48", "--frames", "6", "--cut-at", "4", "--instances", "400"];
+
+/// Chapter 13: along its path (an orbit, a cut, a moving instance) the reused frame passes
+/// chapter 12's checks and its own, the cut's among them.
+#[test]
+fn ch13_temporal_reuse_orbit_with_a_cut() {
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &CH13, &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY);
+    assert_eq!(report["checks"]["no_history_kept_across_the_cut_from_unseen_surfaces"], true);
+    assert!(report["cut_pixels_kept"].as_u64().unwrap() > 0, "some of the view is seen before and after the cut");
+    assert_report_snapshot("13-temporal-reuse", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+/// With a still camera and nothing moving, each pixel's history holds every ray it traced, the
+/// same rays chapter 08 traces: the two agree pixel by pixel.
+#[test]
+fn ch13_still_camera_traces_chapter_08s_rays() {
+    let args = ["--size", "64x48", "--frames", "8", "--path", "still", "--mover", "none", "--instances", "400"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = run.succeeded();
+    for check in ["ao_mean_agrees_with_chapter_08", "ao_per_pixel_agrees_with_chapter_08"] {
+        assert_eq!(report["checks"][check], true, "{check}");
+    }
+}
+
+/// On a pan, what the pixels keep agrees with a new trace of the same frame within its noise.
+#[test]
+fn ch13_pan_keeps_what_a_new_trace_finds() {
+    let args = ["--size", "64x48", "--frames", "8", "--path", "pan", "--mover", "none", "--instances", "400"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["checks"]["pan_history_agrees_with_a_new_trace"], true);
+    assert!(report["pan_pixels_kept"].as_u64().unwrap() > 1000, "most of the view is kept: {}", report["pan_pixels_kept"]);
+}
+
+/// A case built to ghost: every remembered texel reused, whatever it saw (`--accept none`). The
+/// cut check fails, and the error measured after the cut is larger than with the tests on: the
+/// metric sees the ghosts.
+#[test]
+fn ch13_ghosts_fail_the_cut_check_and_raise_the_error() {
+    let run = |accept: &str| {
+        let mut args = CH13.to_vec();
+        args.extend(["--frames", "10", "--accept", accept, "--error-against", "64", "--error-every", "100"]);
+        run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[])
+    };
+    let after_cut = |report: &serde_json::Value| -> f64 {
+        let frames = report["walks"][0]["frames"].as_array().unwrap();
+        let errors: Vec<f64> = frames
+            .iter()
+            .filter(|f| f["frame"].as_u64().unwrap() >= 4)
+            .filter_map(|f| f["rmse"].as_f64())
+            .collect();
+        assert!(errors.len() >= 5, "the frames after the cut are measured: {errors:?}");
+        errors.iter().sum::<f64>() / errors.len() as f64
+    };
+    let tested = run("instance,plane,normal");
+    let tested = after_cut(tested.succeeded());
+    let ghosting = run("none");
+    assert_eq!(ghosting.output.status.code(), Some(1), "a failed check:\n{}", ghosting.stderr);
+    let report = ghosting.report.as_ref().unwrap();
+    assert_eq!(report["checks"]["no_history_kept_across_the_cut_from_unseen_surfaces"], false);
+    assert!(report["cut_pixels_kept_unseen"].as_u64().unwrap() > 0);
+    let ghosted = after_cut(report);
+    assert!(ghosted > tested * 1.2, "ghosts are errors: {ghosted} with none of the tests, {tested} with all");
+}

@@ -66,6 +66,11 @@ const CASES: &[Case] = &[
         env!("CARGO_BIN_EXE_12-fast-frame"),
         &["--size", "64x48", "--frames", "3", "--samples", "2", "--resize-every", "2"],
     ),
+    chapter(
+        "13-temporal-reuse",
+        env!("CARGO_BIN_EXE_13-temporal-reuse"),
+        &["--size", "64x48", "--frames", "4", "--cut-at", "2", "--instances", "50", "--error-against", "8"],
+    ),
     Case {
         name: "bench",
         bin: env!("CARGO_BIN_EXE_bench"),

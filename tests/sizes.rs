@@ -40,6 +40,11 @@ const PROGRAMS: &[(&str, &str, &[&str])] = &[
     ),
     ("11-cuda-depth-composite", env!("CARGO_BIN_EXE_11-cuda-depth-composite"), &["--tracer", "cpu"]),
     ("12-fast-frame", env!("CARGO_BIN_EXE_12-fast-frame"), &["--frames", "2", "--samples", "2"]),
+    (
+        "13-temporal-reuse",
+        env!("CARGO_BIN_EXE_13-temporal-reuse"),
+        &["--frames", "3", "--cut-at", "2", "--instances", "50"],
+    ),
 ];
 
 /// What one size did.
@@ -235,6 +240,11 @@ fn sizes_11() {
 #[test]
 fn sizes_12() {
     walk_sizes("12-fast-frame");
+}
+
+#[test]
+fn sizes_13() {
+    walk_sizes("13-temporal-reuse");
 }
 
 /// bench takes `--sizes`: each is refused alike, before anything runs, or measured.

@@ -86,7 +86,10 @@ pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (
     if kept > 0 && started_over > 0 {
         report.check("no_history_kept_across_the_cut_from_unseen_surfaces", unseen == 0);
     } else {
-        eprintln!("history: the cut kept {kept} pixels and started {started_over} over; the cut check needs both");
+        eprintln!(
+            "no_history_kept_across_the_cut_from_unseen_surfaces is not checked at this size: the cut kept \
+             {kept} pixels and started {started_over} over, and the check needs both"
+        );
     }
 }
 // ANCHOR_END: cut

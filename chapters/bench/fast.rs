@@ -12,21 +12,30 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// Chapter 12's binary, built beside this one (`cargo build --release` builds both).
-fn program() -> Result<PathBuf> {
+/// Chapter 12's program and chapter 13's, which the bench runs as they are.
+const FAST: &str = "12-fast-frame";
+const TEMPORAL: &str = "13-temporal-reuse";
+
+/// A chapter's binary, built beside this one (`cargo build --release` builds them all).
+fn program(chapter: &str) -> Result<PathBuf> {
     let exe = std::env::current_exe().context("finding the bench's own path")?;
-    let fast = exe.with_file_name("12-fast-frame");
+    let program = exe.with_file_name(chapter);
     ensure!(
-        fast.exists(),
-        "bench runs chapter 12's program, {}, which is not built: cargo build --release --bin 12-fast-frame",
-        fast.display()
+        program.exists(),
+        "bench runs chapter {chapter}'s program, {}, which is not built: cargo build --release --bin {chapter}",
+        program.display()
     );
-    Ok(fast)
+    Ok(program)
 }
 
 /// Runs chapter 12 with `args` and returns its report; a failed run (a check included) is an error.
 fn run(args: &[String], out: &Path) -> Result<Value> {
-    let fast = program()?;
+    run_chapter(FAST, args, out)
+}
+
+/// Runs `chapter` headless with `args` and returns its report.
+fn run_chapter(chapter: &str, args: &[String], out: &Path) -> Result<Value> {
+    let fast = program(chapter)?;
     let output = Command::new(&fast)
         // The bench's own steps are the ones an injected failure numbers; chapter 12's own are
         // failed when it runs alone.
@@ -40,13 +49,13 @@ fn run(args: &[String], out: &Path) -> Result<Value> {
         let stderr = String::from_utf8_lossy(&output.stderr);
         let tail: Vec<&str> = stderr.lines().rev().take(12).collect();
         bail!(
-            "12-fast-frame {} exited with {}:\n{}",
+            "{chapter} {} exited with {}:\n{}",
             args.join(" "),
             output.status,
             tail.into_iter().rev().collect::<Vec<_>>().join("\n")
         );
     }
-    serde_json::from_slice(&output.stdout).context("reading 12-fast-frame's JSON report")
+    serde_json::from_slice(&output.stdout).with_context(|| format!("reading {chapter}'s JSON report"))
 }
 
 /// The arguments that put chapter 12 at a bench setting. (With `--quick`, chapter 08's rows
@@ -86,6 +95,30 @@ pub fn row(scene: SceneKind, size: Size, spp: u32, frames: u32, covered: u64, ou
         ao_ms,
         composite_ms,
         grays_per_s: if ao_ms > 0.0 { rays / (ao_ms * 1e-3) / 1e9 } else { 0.0 },
+    })
+}
+
+/// One `temporal-reuse` row: chapter 13's defaults along its path (the camera orbiting and
+/// cutting, one instance moving) at one setting, `spp` rays per pixel whose history is filling.
+/// Its frames trace fewer rays than `spp` per covered pixel, so no ray rate is given.
+pub fn temporal_row(scene: SceneKind, size: Size, spp: u32, frames: u32, out: &Path) -> Result<Row> {
+    let report = run_chapter(TEMPORAL, &setting(scene, size, spp, frames), out)?;
+    let frame_ms = median(&report, "frame_wall");
+    let (raster_ms, ao_ms) = (median(&report, "visibility"), median(&report, "ao_trace"));
+    let composite_ms = median(&report, "composite") + median(&report, "overlays");
+    Ok(Row {
+        mode: Mode::TemporalReuse,
+        scene: scene.name(),
+        width: size.width,
+        height: size.height,
+        spp,
+        frame_ms,
+        p95_ms: report["timings_ms"]["frame_wall_p95"].as_f64().unwrap_or(0.0),
+        raster_ms,
+        handoff_ms: (frame_ms - raster_ms - ao_ms - composite_ms).max(0.0),
+        ao_ms,
+        composite_ms,
+        grays_per_s: 0.0,
     })
 }
 

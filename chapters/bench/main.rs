@@ -91,6 +91,8 @@ pub enum Mode {
     CpuRoundTrip,
     /// Chapter 12's frame, run as its own program (`fast.rs`).
     FastFrame,
+    /// Chapter 13's frame along its moving path, run as its own program (`fast.rs`).
+    TemporalReuse,
 }
 
 impl Mode {
@@ -253,6 +255,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 // Chapter 12's frame at the same setting, as many frames as each mode ran.
                 let out = args.out.join("fast-frame");
                 rows.push(fast::row(kind, size, spp, 2 * frames_per_run, covered, &out)?);
+                if spp <= 64 {
+                    let out = args.out.join("temporal-reuse");
+                    rows.push(fast::temporal_row(kind, size, spp, 2 * frames_per_run, &out)?);
+                }
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
             unsafe { glow::HasContext::finish(&*gl.gl) };

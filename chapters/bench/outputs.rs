@@ -74,6 +74,7 @@ fn mode_name(mode: Mode) -> &'static str {
         Mode::HostSync => "host-sync",
         Mode::CpuRoundTrip => "cpu-round-trip",
         Mode::FastFrame => "fast-frame (12)",
+        Mode::TemporalReuse => "temporal-reuse (13)",
     }
 }
 
@@ -92,7 +93,7 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
     let root = SVGBackend::new(path, (360 * scenes.len().max(1) as u32, 420)).into_drawing_area();
     root.fill(&WHITE)?;
     let root = root.titled(&format!("Frame time by mode and size ({device})"), ("sans-serif", 18))?;
-    let colours = [RED, BLUE, BLACK, GREEN];
+    let colours = [RED, BLUE, BLACK, GREEN, MAGENTA];
     for (panel, scene) in root.split_evenly((1, scenes.len().max(1))).iter().zip(&scenes) {
         let mut chart = ChartBuilder::on(panel)
             .caption(format!("{scene} scene"), ("sans-serif", 15))
@@ -110,7 +111,7 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
             .x_label_formatter(&|v| format!("{v:.0}"))
             .y_label_formatter(&|v| three_figures(*v))
             .draw()?;
-        for (m, mode) in Mode::ALL.iter().chain([&Mode::FastFrame]).enumerate() {
+        for (m, mode) in Mode::ALL.iter().chain([&Mode::FastFrame, &Mode::TemporalReuse]).enumerate() {
             let colour = colours[m];
             for (s, size) in sizes.iter().enumerate() {
                 let points: Vec<(f64, f64)> = rows
