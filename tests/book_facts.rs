@@ -1261,3 +1261,128 @@ fn the_file_checker_catches_a_missing_file() {
     assert_eq!(file_name("NN-slug.png"), None);
     assert_eq!(file_name("vk::Format"), None);
 }
+
+/// One number on one page: the first number right after `before` (on one line) that is followed
+/// by `after`.
+struct Quoted {
+    page: &'static str,
+    before: &'static str,
+    after: &'static str,
+}
+
+/// The number quoted, as written (`10.9`), if the page has it.
+fn quoted(quote: &Quoted) -> Option<String> {
+    let text = std::fs::read_to_string(root().join("book/src").join(quote.page)).ok()?;
+    let mut rest = text.as_str();
+    while let Some(at) = rest.find(quote.before) {
+        rest = &rest[at + quote.before.len()..];
+        let end = rest.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(rest.len());
+        let number = rest[..end].trim_end_matches('.');
+        if !number.is_empty() && rest[number.len()..].starts_with(quote.after) {
+            return Some(number.to_owned());
+        }
+    }
+    None
+}
+
+/// Measurements quoted on more than one page, each with the table it comes from: the
+/// performance page's tables (each carries its run and date) or, for chapter 12's own
+/// ablation, the deeper page's. A general test (any number, any two pages) cannot tell "the same
+/// measurement" from two that share a value and a unit, so this is an explicit list, made from
+/// the quantities once quoted with different numbers; add to it when a page quotes a table.
+/// Numbers that come from different runs on purpose (chapter 12's pattern table, 60 frames,
+/// beside `bench`'s ablation, 100 frames) are not listed: each page names its run and date.
+const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
+    (
+        "chapter 08's trace, 4K, 16 rays (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| 2.50 / 8.99 | 9.67 / ", after: " |" },
+        &[
+            Quoted { page: "12-fast-frame.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" },
+            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08 (zero-copy) | 26.88 | 8.99 | ", after: " |" },
+        ],
+    ),
+    (
+        "chapter 08's frame, 4K, 16 rays (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| default | 3840×2160 | ", after: " ms | 12.81 ms" },
+        &[
+            Quoted { page: "12-fast-frame.md", before: "08's frame takes ", after: " ms: " },
+            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08, zero-copy | ", after: " ms |" },
+            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08 (zero-copy) | ", after: " | 8.99" },
+        ],
+    ),
+    (
+        "chapter 08's G-buffers, 4K (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| 26.88 ms | 12.81 ms | 2.50 / ", after: " |" },
+        &[Quoted { page: "12-fast-frame.md", before: "26.9 ms: ", after: " ms of G-buffers" }],
+    ),
+    (
+        "chapter 12's trace of the ceiling scene, 4K, 16 rays (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| ceiling | 3840×2160 | 12.76 ms | 3.06 ms | 1.71 / 6.83 | ", after: " / " },
+        &[Quoted { page: "12-fast-frame.md", before: "trace takes ", after: " ms at 4K" }],
+    ),
+    (
+        "a flat BLAS, per-pixel pattern, 16 rays, in bench's ablation (2026-11-25)",
+        Quoted { page: "12-fast-frame-deeper.md", before: "| + one flat BLAS | 12.93 | 2.50 | ", after: " |" },
+        &[Quoted { page: "12-fast-frame.md", before: "10.97 → ", after: " ms" }],
+    ),
+    (
+        "the gain of a flat BLAS for chapter 08's trace (first sweep, 2026-11-23)",
+        Quoted { page: "performance.md", before: "**A flat BLAS traces ", after: "% faster" },
+        &[Quoted { page: "12-fast-frame.md", before: "layout traces about ", after: "% faster" }],
+    ),
+    (
+        "chapter 08's hand-over, 4K, 16 rays (first sweep, 2026-11-23)",
+        Quoted { page: "performance.md", before: "| zero-copy | default | 3840x2160 | 16 | 26.87 | 26.98 | 8.99 | ", after: " |" },
+        &[Quoted { page: "performance.md", before: "**missed**: ", after: " ms in the first sweep" }],
+    ),
+    (
+        "the best combination's frame, 4K, 16 rays (second run, 2026-11-23)",
+        Quoted { page: "performance.md", before: "| zero-copy | default | 3840x2160 | 16 | ", after: " | 25.07 |" },
+        &[Quoted { page: "performance.md", before: "26.9 ms, ", after: " ms with the pre-pass and a flat BLAS" }],
+    ),
+];
+
+/// `10.93` as a page with `decimals` decimals writes it.
+fn rounded(value: &str, decimals: usize) -> String {
+    format!("{:.decimals$}", value.parse::<f64>().unwrap() + 1e-9)
+}
+
+/// A measurement quoted on several pages has one value, its source table's, rounded as each
+/// page writes it.
+#[test]
+fn a_measurement_quoted_twice_has_one_value() {
+    let mut errors = Vec::new();
+    for (what, source, quotes) in SAME_MEASUREMENT {
+        let Some(value) = quoted(source) else {
+            errors.push(format!("{what}: {} no longer has `{}<n>{}`", source.page, source.before, source.after));
+            continue;
+        };
+        for quote in quotes.iter() {
+            match quoted(quote) {
+                None => errors.push(format!(
+                    "{what}: {} no longer quotes it as `{}<n>{}`: update SAME_MEASUREMENT with the page",
+                    quote.page, quote.before, quote.after
+                )),
+                Some(number) => {
+                    let decimals = number.split_once('.').map_or(0, |(_, d)| d.len());
+                    if rounded(&value, decimals) != number {
+                        errors.push(format!(
+                            "{what}: {} says {number}, but its source, {}, says {value}",
+                            quote.page, source.page
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    assert!(errors.is_empty(), "measurements quoted with different numbers:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn rounding_is_the_pages() {
+    assert_eq!(rounded("10.93", 1), "10.9");
+    assert_eq!(rounded("26.88", 1), "26.9");
+    assert_eq!(rounded("0.53", 2), "0.53");
+    assert_eq!(rounded("11", 0), "11");
+    assert_ne!(rounded("10.93", 1), "11.1");
+}
