@@ -470,7 +470,7 @@ const NAMES_FROM_ELSEWHERE: &[&str] = &[
     "NativeTexture",
 ];
 
-/// Rust names a page quotes: `common::sync::HandOver`, `Sync::hand_over`, `SharedImage`,
+/// Rust names a page quotes: `common::interop::handoff::HandOver`, `Sync::hand_over`, `SharedImage`,
 /// `BUFFER_IMPORT_SLACK`. Each part must be an identifier the sources use (or a name from the
 /// specification, `Vk...`, or from the list above).
 fn rust_name_errors(page: &Page, sources: &Sources) -> Vec<String> {
@@ -847,4 +847,542 @@ fn words_count_prose_not_code() {
         "# Title here\n\nTwo words.\n\n```rust\n{{#include x.rs:a}}\nlet x = 1;\n```\n\n| a | b |\n{{#include y.md}}\n",
     );
     assert_eq!(words(&page), 2 + 2 + 2);
+}
+
+/// What an `{{#include path[:anchor]}}` in `page` (a file under `book/src`) pulls in, as mdBook
+/// shows it (every ANCHOR line left out), or `None` when it names nothing (tests/book.rs fails
+/// on that).
+fn included(page: &Path, target: &str) -> Option<(PathBuf, String)> {
+    let (path, anchor) = match target.split_once(':') {
+        Some((path, anchor)) => (path, Some(anchor)),
+        None => (target, None),
+    };
+    let file = page.parent()?.join(path);
+    let text = std::fs::read_to_string(&file).ok()?;
+    let lines: Vec<&str> = text.lines().collect();
+    let body = match anchor {
+        None => &lines[..],
+        Some(anchor) => {
+            let marker = |line: &str, kind: &str| {
+                line.trim_start().trim_start_matches("//").trim_start_matches('#').trim()
+                    == format!("{kind}: {anchor}")
+            };
+            let start = lines.iter().position(|l| marker(l, "ANCHOR"))?;
+            let end = start + lines[start..].iter().position(|l| marker(l, "ANCHOR_END"))?;
+            &lines[start + 1..end]
+        }
+    };
+    let kept: Vec<&str> =
+        body.iter().copied().filter(|l| !l.contains("ANCHOR:") && !l.contains("ANCHOR_END:")).collect();
+    Some((file, kept.join("\n")))
+}
+
+/// Every `{{#include}}` of every page: (page name, line, the file, what it pulls in).
+fn includes() -> Vec<(String, usize, PathBuf, String)> {
+    let mut found = Vec::new();
+    let src = root().join("book/src");
+    for file in harness::markdown_files(&src) {
+        let name = file.strip_prefix(&src).unwrap().to_string_lossy().into_owned();
+        for (number, line) in std::fs::read_to_string(&file).unwrap().lines().enumerate() {
+            let Some(target) = line.trim().strip_prefix("{{#include ").and_then(|t| t.strip_suffix("}}")) else {
+                continue;
+            };
+            if let Some((path, text)) = included(&file, target.trim()) {
+                found.push((name.clone(), number + 1, path, text));
+            }
+        }
+    }
+    found
+}
+
+/// The comment of a source line (after `//`), if it has one.
+fn comment_of(line: &str) -> Option<&str> {
+    line.find("//").map(|at| &line[at + 2..])
+}
+
+/// Every `common::a::b` a text names (`common::{...}` and `common::*` are imports, not names).
+fn common_paths(text: &str) -> Vec<String> {
+    let mut found = Vec::new();
+    let mut rest = text;
+    while let Some(at) = rest.find("common::") {
+        let before = rest[..at].chars().next_back();
+        let after = &rest[at..];
+        rest = &rest[at + "common::".len()..];
+        if before.is_some_and(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/') {
+            continue;
+        }
+        let end = after
+            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == ':'))
+            .unwrap_or(after.len());
+        let path = after[..end].trim_end_matches(':');
+        if path != "common" {
+            found.push(path.to_owned());
+        }
+    }
+    found
+}
+
+/// A module of `common`: its file, and the folder its child modules live in.
+struct Module {
+    file: PathBuf,
+    text: String,
+}
+
+impl Module {
+    fn at(file: PathBuf) -> Module {
+        let text = std::fs::read_to_string(&file).unwrap_or_default();
+        Module { file, text }
+    }
+
+    /// `pub mod name;` here (a private module is no path a reader can write).
+    fn child(&self, name: &str) -> Option<Module> {
+        let lines = || self.text.lines().map(str::trim);
+        // `pub mod layout { ... }`: a module inside this file.
+        if lines().any(|l| l == format!("pub mod {name} {{")) {
+            return Some(Module::at(self.file.clone()));
+        }
+        if !lines().any(|l| l == format!("pub mod {name};")) {
+            return None;
+        }
+        let stem = self.file.file_stem().unwrap().to_string_lossy();
+        let dir = if stem == "lib" || stem == "mod" {
+            self.file.parent().unwrap().to_owned()
+        } else {
+            self.file.with_extension("")
+        };
+        [dir.join(format!("{name}.rs")), dir.join(name).join("mod.rs")]
+            .into_iter()
+            .find(|f| f.is_file())
+            .map(Module::at)
+    }
+
+    /// The module a `use` path starting here leads to (`crate::a::b`, or `a::b` below this one).
+    fn module_at(&self, path: &[&str]) -> Option<Module> {
+        let (mut module, path) = match path.split_first() {
+            Some((&"crate", rest)) => (Module::at(root().join("common/src/lib.rs")), rest),
+            Some((&"self", rest)) => (Module::at(self.file.clone()), rest),
+            _ => (Module::at(self.file.clone()), path),
+        };
+        for part in path {
+            module = module.child_any(part)?;
+        }
+        Some(module)
+    }
+
+    /// A child module, public or not (for `use` paths inside the crate).
+    fn child_any(&self, name: &str) -> Option<Module> {
+        let declared = self.text.lines().map(str::trim).any(|l| {
+            l == format!("mod {name};") || l == format!("pub mod {name};") || l == format!("pub(crate) mod {name};")
+        });
+        if !declared {
+            return None;
+        }
+        let stem = self.file.file_stem().unwrap().to_string_lossy();
+        let dir = if stem == "lib" || stem == "mod" {
+            self.file.parent().unwrap().to_owned()
+        } else {
+            self.file.with_extension("")
+        };
+        [dir.join(format!("{name}.rs")), dir.join(name).join("mod.rs")]
+            .into_iter()
+            .find(|f| f.is_file())
+            .map(Module::at)
+    }
+
+    /// The module defining item `name`, here or through a `pub use`.
+    fn item(&self, name: &str, depth: usize) -> Option<Module> {
+        if depth > 8 {
+            return None;
+        }
+        const KINDS: [&str; 8] = ["fn", "struct", "enum", "trait", "const", "static", "type", "macro_rules!"];
+        let defines = self.text.lines().any(|line| {
+            let words: Vec<&str> = line
+                .split(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '!'))
+                .filter(|w| !w.is_empty())
+                .collect();
+            words.windows(2).any(|w| KINDS.contains(&w[0]) && w[1] == name)
+        });
+        if defines {
+            return Some(Module::at(self.file.clone()));
+        }
+        for line in self.text.lines().map(str::trim) {
+            let Some(used) = line.strip_prefix("pub use ").and_then(|l| l.strip_suffix(';')) else { continue };
+            let (path, names): (&str, Vec<&str>) = match used.split_once("::{") {
+                Some((path, names)) => (path, names.trim_end_matches('}').split(',').map(str::trim).collect()),
+                None => match used.rsplit_once("::") {
+                    Some((path, name)) => (path, vec![name]),
+                    None => continue,
+                },
+            };
+            let parts: Vec<&str> = path.split("::").collect();
+            if names.contains(&name) || names.contains(&"*") {
+                if let Some(module) = self.module_at(&parts)
+                    && let Some(found) = module.item(name, depth + 1)
+                {
+                    return Some(found);
+                }
+            }
+        }
+        None
+    }
+}
+
+/// Why `common::a::b::C` names nothing in `common/src`, if it does: each part a public module,
+/// then an item of the last module (defined there or re-exported), then names inside that
+/// item's file (a method, a variant).
+fn unresolved(path: &str) -> Option<String> {
+    let parts: Vec<&str> = path.split("::").skip(1).collect();
+    let mut module = Module::at(root().join("common/src/lib.rs"));
+    let mut trail = String::from("common");
+    let mut rest = &parts[..];
+    while let Some((first, tail)) = rest.split_first() {
+        match module.child(first) {
+            Some(child) => {
+                module = child;
+                trail = format!("{trail}::{first}");
+                rest = tail;
+            }
+            None => break,
+        }
+    }
+    let Some((item, inner)) = rest.split_first() else { return None };
+    let Some(defined) = module.item(item, 0) else {
+        return Some(format!("{trail} has no public module or item `{item}`"));
+    };
+    let words: BTreeSet<String> = identifiers(&defined.text).collect();
+    for name in inner {
+        if !words.contains(*name) {
+            return Some(format!("`{item}` ({}) has no `{name}`", defined.file.display()));
+        }
+    }
+    None
+}
+
+/// The sources whose comments may name `common::` paths: every file of `chapters/`,
+/// `common/src/` and `shaders/` (not the compiled `.spv` and `.ptx`).
+fn commented_sources() -> Vec<PathBuf> {
+    fn walk(dir: &Path, found: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                walk(&path, found);
+            } else if path.extension().is_none_or(|e| e != "spv" && e != "ptx" && e != "lock") {
+                found.push(path);
+            }
+        }
+    }
+    let mut found = Vec::new();
+    for dir in ["chapters", "common/src", "shaders"] {
+        walk(&root().join(dir), &mut found);
+    }
+    found
+}
+
+/// Every `common::...` path the book names, in its prose, in the comments of the code it
+/// includes, and in any comment of the chapters, `common` and the shaders, is a module or item
+/// of `common/src`, reachable as written: `common::base::timing::PassTimes`, not
+/// `common::timing::PassTimes`.
+#[test]
+fn common_paths_the_book_and_comments_name_exist() {
+    let mut named: Vec<(String, String)> = Vec::new();
+    for page in pages() {
+        for (number, line) in &page.prose {
+            named.extend(common_paths(line).into_iter().map(|p| (format!("{}:{number}", page.name), p)));
+        }
+    }
+    for (page, line, file, text) in includes() {
+        for comment in text.lines().filter_map(comment_of) {
+            named.extend(
+                common_paths(comment)
+                    .into_iter()
+                    .map(|p| (format!("{page}:{line} (from {})", file.display()), p)),
+            );
+        }
+    }
+    for file in commented_sources() {
+        let Ok(text) = std::fs::read_to_string(&file) else { continue };
+        let name = file.strip_prefix(root()).unwrap().display().to_string();
+        for (number, line) in text.lines().enumerate() {
+            if let Some(comment) = comment_of(line) {
+                named.extend(common_paths(comment).into_iter().map(|p| (format!("{name}:{}", number + 1), p)));
+            }
+        }
+    }
+    assert!(named.len() > 20, "only {} common:: paths found: did the pages move?", named.len());
+    let errors: Vec<String> = named
+        .iter()
+        .filter_map(|(at, path)| unresolved(path).map(|why| format!("{at}: `{path}`: {why}")))
+        .collect();
+    assert!(errors.is_empty(), "paths into common that do not exist:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn the_path_checker_catches_a_wrong_path() {
+    assert_eq!(unresolved("common::base::timing::PassTimes"), None);
+    assert_eq!(unresolved("common::rt::ao::AoTracer::trace"), None);
+    assert_eq!(unresolved("common::interop::import_memory"), None); // through `pub use import::*`
+    assert_eq!(unresolved("common::connect"), None); // through the crate root's re-export
+    assert_eq!(unresolved("common::frame::Composite"), None);
+    assert_eq!(unresolved("common::interop::exportable::Dedicated::No"), None);
+    for wrong in [
+        "common::timing::PassTimes",
+        "common::ao::AoTracer",
+        "common::gl::layout",
+        "common::interop::import::import_memory", // a private module
+        "common::rt::ao::AoTracer::frobnicate",
+    ] {
+        assert!(unresolved(wrong).is_some(), "{wrong} resolved");
+    }
+    assert_eq!(
+        common_paths("use common::{A, B}; (`common::base::gl::program`), vk_common::x"),
+        vec!["common::base::gl::program"]
+    );
+}
+
+/// Every file of the project (not `target/`, `.git/`, the built book or the links in
+/// `book/src` to the sources), relative to the root.
+fn project_files() -> Vec<String> {
+    fn walk(dir: &Path, found: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let path = entry.path();
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if entry.file_type().is_ok_and(|t| t.is_symlink()) || name == "target" || name == ".git" {
+                continue;
+            }
+            if path.is_dir() {
+                if path != root().join("book/book") {
+                    walk(&path, found);
+                }
+            } else {
+                found.push(path);
+            }
+        }
+    }
+    let mut found = Vec::new();
+    walk(root(), &mut found);
+    found.iter().map(|f| f.strip_prefix(root()).unwrap().to_string_lossy().into_owned()).collect()
+}
+
+/// The kinds of file a page or a comment names by name.
+const FILE_KINDS: &[&str] = &[
+    "rs", "md", "txt", "glsl", "rgen", "rmiss", "rchit", "comp", "vert", "frag", "cu", "ptx", "spv", "json",
+    "toml", "diff", "obj", "snap", "lock",
+];
+
+/// `base/gl/mod.rs` in `span` (`base/commands.rs:29` -> `base/commands.rs`), if it names a file.
+fn file_name(span: &str) -> Option<&str> {
+    let span = span.trim().trim_start_matches("../../").trim_end_matches(['.', ',', ')', ':']);
+    let span = match span.split_once(".rs:") {
+        Some((file, line)) if line.chars().all(|c| c.is_ascii_digit()) => &span[..file.len() + 3],
+        _ => span,
+    };
+    let (_, extension) = span.rsplit_once('.')?;
+    let plain = span.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.' | '/'));
+    (plain && FILE_KINDS.contains(&extension) && !span.starts_with('.') && !span.contains("NN")).then_some(span)
+}
+
+/// Does `name` name a file of the project? A path with a `/` is one relative to the root, to
+/// `book/src`, or the end of one (`rt/ao.rs`, `base/gl/mod.rs`); a bare name (`trace.rs`) is a
+/// file in one of `folders`, or, with no folders given, anywhere.
+fn file_exists(files: &[String], name: &str, folders: &[String]) -> bool {
+    if name.contains('/') {
+        return files.iter().any(|f| {
+            f == name || f.strip_prefix("book/src/") == Some(name) || f.ends_with(&format!("/{name}"))
+        });
+    }
+    files.iter().any(|f| {
+        let (folder, file) = f.rsplit_once('/').unwrap_or(("", f));
+        file == name && (folders.is_empty() || folders.iter().any(|d| format!("{folder}/").starts_with(d.as_str())))
+    })
+}
+
+/// Every file a page names in its prose (`gl.rs`, `common/src/rt/ao.rs`, `shaders/ao.rgen`), and
+/// every file the comments of the code it includes name, exists. A chapter's page names a bare
+/// file of its own folder (or of the folders every chapter shares: `common`, `shaders`,
+/// `tests`, `xtask`, the book); other pages, and comments, a file anywhere.
+#[test]
+fn files_the_book_names_exist() {
+    let files = project_files();
+    assert!(files.len() > 100, "only {} files found", files.len());
+    let shared: Vec<String> =
+        ["common/", "shaders/", "tests/", "xtask/", "book/", "assets/"].iter().map(|s| s.to_string()).collect();
+    let mut errors = Vec::new();
+    let mut checked = 0;
+    for page in pages() {
+        let folders: Vec<String> = match page.chapter() {
+            Some(chapter) => {
+                let mut folders = shared.clone();
+                folders.push(format!("chapters/{chapter}"));
+                // The folders of other chapters it builds from (`#[path = "../NN-slug/..."]`).
+                let own = std::fs::read_dir(root().join("chapters").join(chapter)).into_iter().flatten().flatten();
+                for file in own {
+                    let text = std::fs::read_to_string(file.path()).unwrap_or_default();
+                    for piece in text.split("#[path = \"../").skip(1) {
+                        folders.push(format!("chapters/{}", piece.split('/').next().unwrap()));
+                    }
+                }
+                folders
+            }
+            None => Vec::new(),
+        };
+        for (number, line) in &page.prose {
+            for name in code_spans(line).into_iter().filter_map(file_name) {
+                checked += 1;
+                if !file_exists(&files, name, &folders) {
+                    errors.push(format!("{}:{number}: `{name}`: no such file", page.name));
+                }
+            }
+        }
+    }
+    for (page, line, file, text) in includes() {
+        for comment in text.lines().filter_map(comment_of) {
+            let words = comment.split(|c: char| c.is_whitespace() || matches!(c, '`' | '(' | ')' | ',' | ';'));
+            for name in words.filter_map(file_name) {
+                checked += 1;
+                if !file_exists(&files, name, &[]) {
+                    errors.push(format!("{page}:{line}: the comment in {} names `{name}`: no such file", file.display()));
+                }
+            }
+        }
+    }
+    assert!(checked > 50, "only {checked} file names found in the book");
+    assert!(errors.is_empty(), "files the book names that do not exist:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn the_file_checker_catches_a_missing_file() {
+    let files: Vec<String> =
+        ["common/src/base/gl/mod.rs", "chapters/11-x/scene.rs", "book/src/images/a.png"].map(String::from).into();
+    assert!(file_exists(&files, "base/gl/mod.rs", &[]));
+    assert!(!file_exists(&files, "gl.rs", &[]));
+    assert!(file_exists(&files, "scene.rs", &[]));
+    assert!(!file_exists(&files, "scene.rs", &["chapters/05-y".to_owned(), "common/".to_owned()]));
+    assert_eq!(file_name("base/commands.rs:29"), Some("base/commands.rs"));
+    assert_eq!(file_name("NN-slug.png"), None);
+    assert_eq!(file_name("vk::Format"), None);
+}
+
+/// One number on one page: the first number right after `before` (on one line) that is followed
+/// by `after`.
+struct Quoted {
+    page: &'static str,
+    before: &'static str,
+    after: &'static str,
+}
+
+/// The number quoted, as written (`10.9`), if the page has it.
+fn quoted(quote: &Quoted) -> Option<String> {
+    let text = std::fs::read_to_string(root().join("book/src").join(quote.page)).ok()?;
+    let mut rest = text.as_str();
+    while let Some(at) = rest.find(quote.before) {
+        rest = &rest[at + quote.before.len()..];
+        let end = rest.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(rest.len());
+        let number = rest[..end].trim_end_matches('.');
+        if !number.is_empty() && rest[number.len()..].starts_with(quote.after) {
+            return Some(number.to_owned());
+        }
+    }
+    None
+}
+
+/// Measurements quoted on more than one page, each with the table it comes from: the
+/// performance page's tables (each carries its run and date) or, for chapter 12's own
+/// ablation, the deeper page's. A general test (any number, any two pages) cannot tell "the same
+/// measurement" from two that share a value and a unit, so this is an explicit list, made from
+/// the quantities once quoted with different numbers; add to it when a page quotes a table.
+/// Numbers that come from different runs on purpose (chapter 12's pattern table, 60 frames,
+/// beside `bench`'s ablation, 100 frames) are not listed: each page names its run and date.
+const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
+    (
+        "chapter 08's trace, 4K, 16 rays (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| 2.50 / 8.99 | 9.67 / ", after: " |" },
+        &[
+            Quoted { page: "12-fast-frame.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" },
+            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08 (zero-copy) | 26.88 | 8.99 | ", after: " |" },
+        ],
+    ),
+    (
+        "chapter 08's frame, 4K, 16 rays (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| default | 3840×2160 | ", after: " ms | 12.81 ms" },
+        &[
+            Quoted { page: "12-fast-frame.md", before: "08's frame takes ", after: " ms: " },
+            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08, zero-copy | ", after: " ms |" },
+            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08 (zero-copy) | ", after: " | 8.99" },
+        ],
+    ),
+    (
+        "chapter 08's G-buffers, 4K (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| 26.88 ms | 12.81 ms | 2.50 / ", after: " |" },
+        &[Quoted { page: "12-fast-frame.md", before: "26.9 ms: ", after: " ms of G-buffers" }],
+    ),
+    (
+        "chapter 12's trace of the ceiling scene, 4K, 16 rays (bench, 2026-11-25)",
+        Quoted { page: "performance.md", before: "| ceiling | 3840×2160 | 12.76 ms | 3.06 ms | 1.71 / 6.83 | ", after: " / " },
+        &[Quoted { page: "12-fast-frame.md", before: "trace takes ", after: " ms at 4K" }],
+    ),
+    (
+        "a flat BLAS, per-pixel pattern, 16 rays, in bench's ablation (2026-11-25)",
+        Quoted { page: "12-fast-frame-deeper.md", before: "| + one flat BLAS | 12.93 | 2.50 | ", after: " |" },
+        &[Quoted { page: "12-fast-frame.md", before: "10.97 → ", after: " ms" }],
+    ),
+    (
+        "the gain of a flat BLAS for chapter 08's trace (first sweep, 2026-11-23)",
+        Quoted { page: "performance.md", before: "**A flat BLAS traces ", after: "% faster" },
+        &[Quoted { page: "12-fast-frame.md", before: "layout traces about ", after: "% faster" }],
+    ),
+    (
+        "chapter 08's hand-over, 4K, 16 rays (first sweep, 2026-11-23)",
+        Quoted { page: "performance.md", before: "| zero-copy | default | 3840x2160 | 16 | 26.87 | 26.98 | 8.99 | ", after: " |" },
+        &[Quoted { page: "performance.md", before: "**missed**: ", after: " ms in the first sweep" }],
+    ),
+    (
+        "the best combination's frame, 4K, 16 rays (second run, 2026-11-23)",
+        Quoted { page: "performance.md", before: "| zero-copy | default | 3840x2160 | 16 | ", after: " | 25.07 |" },
+        &[Quoted { page: "performance.md", before: "26.9 ms, ", after: " ms with the pre-pass and a flat BLAS" }],
+    ),
+];
+
+/// `10.93` as a page with `decimals` decimals writes it.
+fn rounded(value: &str, decimals: usize) -> String {
+    format!("{:.decimals$}", value.parse::<f64>().unwrap() + 1e-9)
+}
+
+/// A measurement quoted on several pages has one value, its source table's, rounded as each
+/// page writes it.
+#[test]
+fn a_measurement_quoted_twice_has_one_value() {
+    let mut errors = Vec::new();
+    for (what, source, quotes) in SAME_MEASUREMENT {
+        let Some(value) = quoted(source) else {
+            errors.push(format!("{what}: {} no longer has `{}<n>{}`", source.page, source.before, source.after));
+            continue;
+        };
+        for quote in quotes.iter() {
+            match quoted(quote) {
+                None => errors.push(format!(
+                    "{what}: {} no longer quotes it as `{}<n>{}`: update SAME_MEASUREMENT with the page",
+                    quote.page, quote.before, quote.after
+                )),
+                Some(number) => {
+                    let decimals = number.split_once('.').map_or(0, |(_, d)| d.len());
+                    if rounded(&value, decimals) != number {
+                        errors.push(format!(
+                            "{what}: {} says {number}, but its source, {}, says {value}",
+                            quote.page, source.page
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    assert!(errors.is_empty(), "measurements quoted with different numbers:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn rounding_is_the_pages() {
+    assert_eq!(rounded("10.93", 1), "10.9");
+    assert_eq!(rounded("26.88", 1), "26.9");
+    assert_eq!(rounded("0.53", 2), "0.53");
+    assert_eq!(rounded("11", 0), "11");
+    assert_ne!(rounded("10.93", 1), "11.1");
 }

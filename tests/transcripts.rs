@@ -538,3 +538,44 @@ fn printed_commands_run_as_printed() {
     );
     assert!(failed.is_empty(), "printed commands that fail as printed:\n\n{}", failed.join("\n\n"));
 }
+
+/// The run a chapter's page shows under "## What you should see" (its first transcript there) is
+/// the output of a command the page prints at its top, where the reader copies commands from:
+/// not the same program at another size, whose numbers differ. Pure text: no program runs.
+#[test]
+fn each_page_shows_the_run_of_a_command_it_prints_at_the_top() {
+    let mut errors = Vec::new();
+    let mut checked = 0;
+    for (page, text) in pages() {
+        let Some(name) = page.strip_prefix("book/src/") else { continue };
+        if !name.as_bytes()[..2].iter().all(u8::is_ascii_digit) || name.ends_with("-deeper.md") {
+            continue;
+        }
+        let top: Vec<String> = blocks(&text)
+            .into_iter()
+            .find(|(info, _, _)| info == "sh")
+            .map(|(_, _, lines)| {
+                lines.iter().filter(|l| !l.trim().is_empty() && !l.trim().starts_with('#')).map(|l| bare(l)).collect()
+            })
+            .unwrap_or_default();
+        let Some(section) = text.split("\n## What you should see").nth(1) else { continue };
+        let Some(file) = section
+            .split("{{#include transcripts/")
+            .nth(1)
+            .and_then(|rest| rest.split("}}").next())
+        else {
+            continue;
+        };
+        let transcript = std::fs::read_to_string(transcripts_dir().join(file)).unwrap();
+        let Some(command) = transcript.lines().find_map(|l| l.strip_prefix("$ ")) else { continue };
+        checked += 1;
+        if !top.contains(&bare(command)) {
+            errors.push(format!(
+                "{page}: \"What you should see\" shows transcripts/{file}, the output of `{command}`, \
+                 which is not among the commands at the top of the page: {top:?}"
+            ));
+        }
+    }
+    assert!(checked >= 10, "only {checked} chapter pages show a run under \"What you should see\"");
+    assert!(errors.is_empty(), "{}", errors.join("\n"));
+}

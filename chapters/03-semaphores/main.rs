@@ -99,7 +99,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let commands = Commands::new(&vk)?;
 
     let (mut vulkan_saw_gl, mut gl_saw_vulkan) = (true, true);
-    // Each frame's GL clear and Vulkan copies (GPU), handshake and whole frame (CPU): common::timing.
+    // Each frame's GL clear and Vulkan copies (GPU), handshake and whole frame (CPU): common::base::timing.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_seen_by_gl = Vec::new();
     for frame in 0..frames {

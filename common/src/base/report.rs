@@ -10,7 +10,7 @@ pub struct Report {
     pub chapter: String,
     pub vulkan: Option<VulkanReport>,
     pub gl: Option<GlReport>,
-    /// What the chapter created on the GPU, by kind (`common::resources`), beside the extensions.
+    /// What the chapter created on the GPU, by kind (`common::base::resources`), beside the extensions.
     pub resources: Vec<crate::base::resources::Created>,
     /// Do GL and Vulkan run on the same device and driver? `None` when the chapter uses no GL.
     pub uuids_match: Option<bool>,

@@ -51,6 +51,7 @@ pub struct ExportableMemory {
     pub counted: Option<crate::base::resources::Counted>,
 }
 
+// ANCHOR: allocate_whole
 // ANCHOR: allocate
 /// Allocates memory for `requirements` that can be exported as an opaque fd.
 pub fn allocate(
@@ -105,6 +106,7 @@ pub fn allocate(
     })
 }
 // ANCHOR_END: allocate_memory
+// ANCHOR_END: allocate_whole
 
 // ANCHOR: create_image
 /// A 2D image, one mip level, whose memory may be exported. Every image this tutorial shares
@@ -186,6 +188,7 @@ pub struct ExportedBuffer {
 }
 
 impl ExportedBuffer {
+    // ANCHOR: exported_buffer
     /// A buffer of `data.len()` bytes holding `data`.
     pub fn new(ctx: &VulkanContext, data: &[u8], usage: vk::BufferUsageFlags) -> Result<Self> {
         let bytes = data.len() as u64;
@@ -237,6 +240,7 @@ impl ExportedBuffer {
         unsafe { std::ptr::copy_nonoverlapping(data.as_ptr(), exported.mapped, data.len()) };
         Ok(exported)
     }
+    // ANCHOR_END: exported_buffer
 
     /// The buffer's GPU address (needs SHADER_DEVICE_ADDRESS usage and a context with
     /// `Requirements::ray_tracing`).

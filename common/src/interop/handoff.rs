@@ -73,7 +73,7 @@ pub(crate) fn vulkan_left(texture: u32, layout: Option<u32>) {
 // ANCHOR: hand_over
 /// The layouts of one shared image at the two hand-overs of a frame. Vulkan's acquire barrier
 /// starts from `to_vulkan` and its release barrier ends in `to_gl`; GL's signal and wait name the
-/// same two (`common::gl::layout::of`).
+/// same two (`common::base::gl::layout::of`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct HandOver {
     /// Where GL leaves the image for Vulkan.
@@ -153,8 +153,8 @@ impl Handoff {
     }
 
     // ANCHOR: gl_release
-    /// GL has finished with `textures`; Vulkan may start. `layouts` are the Vulkan layouts
-    /// (`common::gl::layout`) Vulkan's first barrier will find the textures in.
+    /// GL has finished with `textures`; Vulkan may start. `layouts` are GL's names
+    /// (`common::base::gl::layout`) for the layouts Vulkan's first barrier will find them in.
     pub fn gl_release(&self, gl: &GlContext, textures: &[glow::Texture], layouts: &[u32]) {
         // GL reads one layout per texture from the pointer: a shorter slice would be read past.
         assert_eq!(textures.len(), layouts.len(), "one layout per texture");

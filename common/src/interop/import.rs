@@ -240,6 +240,7 @@ impl SharedFormat {
 }
 
 impl SharedImage {
+    // ANCHOR: shared_image_new
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
@@ -277,6 +278,7 @@ impl SharedImage {
         let device = vk.device.clone();
         Ok(SharedImage { image, memory, view, texture: ManuallyDrop::new(texture), extent, device })
     }
+    // ANCHOR_END: shared_image_new
 }
 
 impl Drop for SharedImage {
