@@ -8,7 +8,7 @@ use crate::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
-use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, transfers_to_host};
+use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
 use common::base::timestamps::Timestamps;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
@@ -288,15 +288,17 @@ impl TemporalTracer {
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         let transfer = vk::PipelineStageFlags::TRANSFER;
         let none = vk::DependencyFlags::empty();
+        let (general, source) = (vk::ImageLayout::GENERAL, vk::ImageLayout::TRANSFER_SRC_OPTIMAL);
+        let ignored = vk::QUEUE_FAMILY_IGNORED;
+        let (write, read) = (vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::TRANSFER_READ);
+        // To the copy's layout once the rays have written it, and back before the next frame's.
+        let to_copy = image_barrier(last.image, (general, source), (write, read), (ignored, ignored));
+        let back = image_barrier(last.image, (source, general), (vk::AccessFlags::NONE, vk::AccessFlags::NONE), (ignored, ignored));
         commands.run_once(vk, |cb| unsafe {
-            let written = vk::MemoryBarrier::default()
-                .src_access_mask(vk::AccessFlags::SHADER_WRITE)
-                .dst_access_mask(vk::AccessFlags::TRANSFER_READ);
-            vk.device.cmd_pipeline_barrier(cb, stage, transfer, none, &[written], &[], &[]);
-            copy_image_to_buffer(vk, cb, last.image, vk::ImageLayout::GENERAL, extent, host.buffer);
+            vk.device.cmd_pipeline_barrier(cb, stage, transfer, none, &[], &[], &[to_copy]);
+            copy_image_to_buffer(vk, cb, last.image, source, extent, host.buffer);
             transfers_to_host(vk, cb);
-            // The next frame writes this image again: after the copy has read it.
-            vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[], &[]);
+            vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[], &[back]);
         })?;
         let word = |b: &[u8]| u32::from_ne_bytes(b.try_into().unwrap());
         Ok(host
