@@ -750,13 +750,15 @@ fn ch11_refuses_sizes_it_cannot_hold_or_check() {
 
 /// The arguments chapter 13's tests share: a small picture, few frames, fewer tetrahedra (a
 /// TLAS of 10,001 instances traces slowly on a CPU), and the cut early in the path.
-const CH13: [&str; 8] = ["--size", "64x48", "--frames", "6", "--cut-at", "4", "--instances", "400"];
+const CH13: [&str; 6] = ["--size", "64x48", "--cut-at", "4", "--instances", "400"];
 
 /// Chapter 13: along its path (an orbit, a cut, a moving instance) the reused frame passes
 /// chapter 12's checks and its own, the cut's among them.
 #[test]
 fn ch13_temporal_reuse_orbit_with_a_cut() {
-    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &CH13, &[]);
+    let mut args = CH13.to_vec();
+    args.extend(["--frames", "6"]);
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY);
     assert_eq!(report["checks"]["no_history_kept_across_the_cut_from_unseen_surfaces"], true);
@@ -769,7 +771,9 @@ fn ch13_temporal_reuse_orbit_with_a_cut() {
 /// same rays chapter 08 traces: the two agree pixel by pixel.
 #[test]
 fn ch13_still_camera_traces_chapter_08s_rays() {
-    let args = ["--size", "64x48", "--frames", "8", "--path", "still", "--mover", "none", "--instances", "400"];
+    let still = ["--size", "64x48", "--frames", "8", "--path", "still", "--mover", "none", "--instances", "400"];
+    let mut args = still.to_vec();
+    args.extend(["--pattern", "per-pixel"]);
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     let report = run.succeeded();
     for check in ["ao_mean_agrees_with_chapter_08", "ao_per_pixel_agrees_with_chapter_08"] {
@@ -784,7 +788,8 @@ fn ch13_pan_keeps_what_a_new_trace_finds() {
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(report["checks"]["pan_history_agrees_with_a_new_trace"], true);
-    assert!(report["pan_pixels_kept"].as_u64().unwrap() > 1000, "most of the view is kept: {}", report["pan_pixels_kept"]);
+    let (kept, covered) = (report["pan_pixels_kept"].as_u64().unwrap(), report["pan_pixels_covered"].as_u64().unwrap());
+    assert!(kept * 4 > covered * 3, "most of the view is kept: {kept} of {covered} pixels");
 }
 
 /// A case built to ghost: every remembered texel reused, whatever it saw (`--accept none`). The

@@ -101,8 +101,13 @@ pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (
 /// the mean difference must be within four standard errors (no drift).
 pub fn pan(history: &[Texel], reference: &Surface, (rays, cap, fresh): (u32, u32, u32), report: &mut Report) {
     let (mut n, mut z2, mut sum, mut variance) = (0usize, 0.0f64, 0.0f64, 0.0f64);
+    let mut covered = 0usize;
     for (i, texel) in history.iter().enumerate() {
-        if texel.instance == 0 || texel.rays <= fresh || reference.depth(i) <= 0.0 {
+        if texel.instance == 0 || reference.depth(i) <= 0.0 {
+            continue;
+        }
+        covered += 1;
+        if texel.rays <= fresh {
             continue;
         }
         let (ours, theirs) = (texel.mean as f64, reference.texels[i * 4] as f64);
@@ -117,6 +122,7 @@ pub fn pan(history: &[Texel], reference: &Surface, (rays, cap, fresh): (u32, u32
     let rms_z = (z2 / n.max(1) as f64).sqrt();
     let drift = sum / n.max(1) as f64;
     let tolerance = 4.0 * (variance / n.max(1) as f64 / n.max(1) as f64).sqrt() + 1e-3;
+    report.set("pan_pixels_covered", covered);
     report.set("pan_pixels_kept", n);
     report.set("pan_rms_noise_units", (rms_z * 1e3).round() / 1e3);
     report.set("pan_mean_difference", (drift * 1e4).round() / 1e4);

@@ -142,7 +142,7 @@ pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Resu
     for w in walks {
         for f in &w.frames {
             let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
-            writeln!(csv, "{},{},{},{},{}", w.method, f.frame, o(f.gpu_ms), o(f.ao_ms), o(f.rmse))?;
+            writeln!(csv, "\"{}\",{},{},{},{}", w.method, f.frame, o(f.gpu_ms), o(f.ao_ms), o(f.rmse))?;
         }
     }
     let base = walks.first().and_then(|w| w.error_mean);

@@ -18,22 +18,27 @@ pub struct Args {
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Rays per pixel per frame where the history is still filling (1-64).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub samples: u32,
     /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=256))]
     pub fresh: u32,
     /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
     /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub cap: u32,
     /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
-    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(0..=64))]
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=64))]
     pub settled_every: u32,
     /// Which tests a remembered texel must pass to be reused (`none`: every texel is reused, so
     /// moving things leave ghosts; for measuring what the tests are worth).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "instance,plane,normal")]
     pub accept: Vec<Accept>,
+    /// Which points of the sample sequence each pixel takes: chapter 12's 4x4 blocks, carried on
+    /// from frame to frame, or chapter 07's rotation per pixel (a still camera then traces
+    /// chapter 08's very rays).
+    #[arg(long, value_enum, default_value = "tile4x4")]
+    pub pattern: Pattern,
     /// `temporal`: this chapter's frame; `fresh`: chapter 12's, new rays every frame and nothing
     /// kept, drawn along the same path for comparison.
     #[arg(long, value_enum, default_value = "temporal")]
@@ -93,6 +98,14 @@ pub enum Accept {
     Normal,
     /// No test: everything remembered is reused.
     None,
+}
+
+/// Which points of the sequence a pixel's rays take (`--pattern`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Pattern {
+    Tile4x4,
+    PerPixel,
 }
 
 /// How a frame's occlusion is made (`--method`).

@@ -41,7 +41,7 @@ pub struct TemporalRays {
     pub accept: u32,
     pub plane_tolerance: f32,
     pub normal_tolerance: f32,
-    pub unused: u32,
+    pub per_pixel: u32,
 }
 
 /// The shader's `Cameras` (std430, 256 bytes): this frame's and the previous frame's.
@@ -81,13 +81,16 @@ pub struct Budget {
     pub accept: u32,
     pub radius: f32,
     pub scene_scale: f32,
+    /// Chapter 07's rotation per pixel instead of chapter 12's 4x4 blocks (`--pattern`).
+    pub per_pixel: bool,
 }
 
 impl Budget {
     pub fn new(args: &Args, radius: f32, scene_scale: f32) -> Budget {
         let (samples, fresh) = if radius > 0.0 { (args.samples, args.fresh) } else { (0, 0) };
         let (cap, settled_every, accept) = (args.cap, args.settled_every, accept_bits(&args.accept));
-        Budget { samples, fresh, cap, settled_every, accept, radius, scene_scale }
+        let per_pixel = args.pattern == crate::settings::Pattern::PerPixel;
+        Budget { samples, fresh, cap, settled_every, accept, radius, scene_scale, per_pixel }
     }
 }
 
@@ -247,7 +250,7 @@ impl TemporalTracer {
             accept: budget.accept | if self.remembers { HAS_HISTORY } else { 0 },
             plane_tolerance: 0.01,
             normal_tolerance: 0.9,
-            unused: 0,
+            per_pixel: budget.per_pixel as u32,
         };
         let history = self.history_barriers();
         let work = |cb| {

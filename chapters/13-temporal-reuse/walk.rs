@@ -159,8 +159,19 @@ fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args
                     total,
                     radius: p.radius,
                 };
+                // With the 4x4 blocks, chapter 08's rays are traced again per pixel for the
+                // pixel-by-pixel comparison (chapter 12 does the same); the means are this frame's.
+                let per_pixel = match budget.per_pixel {
+                    true => None,
+                    false => {
+                        let scene_scale = p.scene.size() / 2.0;
+                        let rays = Rays { samples: budget.samples, radius: p.radius, scene_scale, pattern: Pattern::PerPixel, salt: 0 };
+                        sized.fresh.retrace(p.apis, &sized.targets, camera, rays, total)?;
+                        Some(Surface::read(gl, &sized.targets))
+                    }
+                };
                 let chapter_08 = check::trace_chapter_08(p.apis, &sized.targets, run)?;
-                chapter_08.compare(&surface, None, report);
+                chapter_08.compare(&surface, per_pixel.as_ref(), report);
             } else {
                 eprintln!("history: {total} rays a pixel pass the cap of {}; chapter 08 is not compared", budget.cap);
             }
