@@ -91,19 +91,35 @@ void decode(Meshes meshes, uint mesh_count, uint id, out MeshIds mesh, out uint 
 // ANCHOR_END: decode
 
 // ANCHOR: corner
-// A corner of the triangle in world space, transformed exactly as gbuffer.vert and
-// visibility.vert transform it: the instance's three rows (from the instance buffer at
-// `instances`) dotted with (position, 1).
-vec3 corner(MeshIds mesh, uvec2 instances, uint instance, uint triangle, uint k) {
+// A corner of the triangle in the mesh's own coordinates, as (x, y, z, 1).
+vec4 object_corner(MeshIds mesh, uint triangle, uint k) {
     uint v = Uints(mesh.indices).u[3u * triangle + k];
     Floats vertices = Floats(mesh.vertices);
-    vec4 p = vec4(vertices.f[6u * v], vertices.f[6u * v + 1u], vertices.f[6u * v + 2u], 1.0);
+    return vec4(vertices.f[6u * v], vertices.f[6u * v + 1u], vertices.f[6u * v + 2u], 1.0);
+}
+
+// An instance's object-to-world transform: the top three rows of its matrix.
+struct Rows {
+    vec4 r0, r1, r2;
+};
+
+Rows instance_rows(uvec2 instances, uint instance) {
     Floats rows = Floats(instances);
     uint at = 16u * instance;
-    vec4 row0 = vec4(rows.f[at], rows.f[at + 1u], rows.f[at + 2u], rows.f[at + 3u]);
-    vec4 row1 = vec4(rows.f[at + 4u], rows.f[at + 5u], rows.f[at + 6u], rows.f[at + 7u]);
-    vec4 row2 = vec4(rows.f[at + 8u], rows.f[at + 9u], rows.f[at + 10u], rows.f[at + 11u]);
-    return vec3(dot(row0, p), dot(row1, p), dot(row2, p));
+    return Rows(vec4(rows.f[at], rows.f[at + 1u], rows.f[at + 2u], rows.f[at + 3u]),
+                vec4(rows.f[at + 4u], rows.f[at + 5u], rows.f[at + 6u], rows.f[at + 7u]),
+                vec4(rows.f[at + 8u], rows.f[at + 9u], rows.f[at + 10u], rows.f[at + 11u]));
+}
+
+// The corner in world space, transformed exactly as gbuffer.vert and visibility.vert transform
+// it: the instance's three rows dotted with (position, 1).
+vec3 placed(vec4 p, Rows rows) {
+    return vec3(dot(rows.r0, p), dot(rows.r1, p), dot(rows.r2, p));
+}
+
+// Both, for instance `instance` of the instance buffer at `instances`.
+vec3 corner(MeshIds mesh, uvec2 instances, uint instance, uint triangle, uint k) {
+    return placed(object_corner(mesh, triangle, k), instance_rows(instances, instance));
 }
 // ANCHOR_END: corner
 

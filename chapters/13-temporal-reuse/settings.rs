@@ -21,11 +21,11 @@ pub struct Args {
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub samples: u32,
     /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=256))]
+    #[arg(long, default_value_t = 14, value_parser = clap::value_parser!(u32).range(1..=256))]
     pub fresh: u32,
     /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
     /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub cap: u32,
     /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=64))]
