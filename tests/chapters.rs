@@ -822,3 +822,28 @@ fn ch13_ghosts_fail_the_cut_check_and_raise_the_error() {
     let ghosted = after_cut(report);
     assert!(ghosted > tested * 1.2, "ghosts are errors: {ghosted} with none of the tests, {tested} with all");
 }
+
+/// New images of another size every other frame, as a window's resize makes them: the history
+/// starts again, and nothing is left behind.
+#[test]
+fn ch13_resizing_leaks_nothing() {
+    let mut args = CH13.to_vec();
+    args.extend(["--frames", "8", "--resize-every", "2"]);
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["resizes"], 3);
+    assert_eq!(report["checks"]["nothing_grows_across_resizes"], true);
+}
+
+#[test]
+fn ch13_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch13_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "96x72", "--frames", "3", "--instances", "100"];
+    let run =
+        harness::run_chapter_with(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["frames"], 3);
+    assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+}

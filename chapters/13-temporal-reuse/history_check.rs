@@ -46,6 +46,9 @@ fn instance_of(ids: &[MeshIds], id: u32) -> Option<u32> {
 /// twice as tolerant of the plane (2% of the depth), so that only a real miss counts.
 pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (&Path, &[MeshIds], u32), report: &mut Report) {
     let (w, h) = (after.surface.width, after.surface.height);
+    if (before.surface.width, before.surface.height) != (w, h) {
+        return; // resized at the cut: nothing was kept, and the frames do not line up
+    }
     let aspect = w as f32 / h as f32;
     let then = before.camera.view_projection(aspect);
     let (mut kept, mut started_over, mut unseen) = (0usize, 0usize, 0usize);

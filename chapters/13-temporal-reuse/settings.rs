@@ -79,6 +79,10 @@ pub struct Args {
     /// Measure the error on every Kth frame of the path (the frames around the cut always).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub error_every: u32,
+    /// Headless: make the images of one size anew every K frames, as a window's resize does
+    /// (the history starts again).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub resize_every: Option<u32>,
     /// Headless: draw the path again with chapter 12's frame at 16, 8 and 4 rays and this
     /// chapter's at 1, 2 and 4, each timed and (with --error-against) measured, and write
     /// compare.md, compare.csv and compare.svg to --out.

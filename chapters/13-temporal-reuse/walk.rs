@@ -50,7 +50,19 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
         sized.temporal.forget();
         let mut clock = Clock::new(&p.apis.gl.gl)?;
         let (mut records, mut before_cut) = (Vec::new(), None);
+        let (mut resizes, mut after_first_resize) = (0, None);
         for frame in 0..frames {
+            if let Some(every) = args.resize_every.filter(|&k| checking && frame > 0 && frame % k == 0) {
+                // Three quarters, whole, half, as chapter 12's `--resize-every`.
+                let smallest = crate::SMALLEST.width;
+                let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(smallest);
+                let (w, h) = (args.common.size.width, args.common.size.height);
+                crate::resize(p, sized, Size { width: scale(w), height: scale(h) })?;
+                resizes += 1;
+                if after_first_resize.is_none() {
+                    after_first_resize = Some(alive(p)?);
+                }
+            }
             let camera = p.draw(sized, drawn, frame, &mut clock)?;
             if checking {
                 before_cut = watch_the_cut(p, sized, (&camera, frame), before_cut, (budget, report))?;
@@ -82,6 +94,10 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
         if checking {
             times.record(report);
             checked = true;
+            if let Some(first) = after_first_resize {
+                report.check("nothing_grows_across_resizes", alive(p)? == first);
+                report.set("resizes", resizes);
+            }
         }
         eprintln!("walk: {} done ({frames} frames)", drawn.name());
         walks.push(Walk::new(drawn.name(), records, (wall, gpu)));
@@ -123,22 +139,19 @@ fn watch_the_cut(
 /// overlays, the pictures, and what the path makes checkable.
 fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Args), report: &mut Report) -> Result<()> {
     let gl = &p.apis.gl.gl;
-    let surface = Surface::read(gl, &sized.targets);
-    surface.check_values(report);
-    let Some(overlays) = p.overlays else { return Ok(()) };
-    let last = LastFrame {
-        gl,
-        targets: &sized.targets,
-        composite: p.composite,
-        overlays,
-        camera,
-        uniforms: p.uniforms(camera, View::Final),
-    };
-    for (name, ok) in last.check(&surface) {
-        report.check(name, ok);
+    let surface = chapter_12_checks(p, sized, camera, report);
+    if let Some(overlays) = p.overlays {
+        let last = LastFrame {
+            gl,
+            targets: &sized.targets,
+            composite: p.composite,
+            overlays,
+            camera,
+            uniforms: p.uniforms(camera, View::Final),
+        };
+        let prefix = args.scene.picture_name(crate::CHAPTER);
+        last.write_pictures(report, &surface, &args.common.out_dir(crate::CHAPTER), &prefix)?;
     }
-    let prefix = args.scene.picture_name(crate::CHAPTER);
-    last.write_pictures(report, &surface, &args.common.out_dir(crate::CHAPTER), &prefix)?;
     let Drawn::Temporal(budget) = drawn else { return Ok(()) };
     if budget.samples == 0 {
         return Ok(()); // nothing traced: nothing to compare
@@ -191,13 +204,43 @@ fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args
     Ok(())
 }
 
+/// Chapter 12's checks of the last frame: the surface's values, the composite and the overlays.
+/// Returns the surface, as read.
+fn chapter_12_checks(p: &Passes, sized: &Sized, camera: &Camera, report: &mut Report) -> Surface {
+    let gl = &p.apis.gl.gl;
+    let surface = Surface::read(gl, &sized.targets);
+    surface.check_values(report);
+    if let Some(overlays) = p.overlays {
+        let last = LastFrame {
+            gl,
+            targets: &sized.targets,
+            composite: p.composite,
+            overlays,
+            camera,
+            uniforms: p.uniforms(camera, View::Final),
+        };
+        for (name, ok) in last.check(&surface) {
+            report.check(name, ok);
+        }
+    }
+    surface
+}
+
+/// What exists that a resize could leak: open fds, counted resources (a kind none of which is
+/// alive, such as the buffer the history is read back through, counts as none), GL objects.
+fn alive(p: &Passes) -> Result<impl PartialEq + use<>> {
+    let counted: std::collections::BTreeMap<String, i64> =
+        common::base::resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
+    Ok((common::open_fd_count()?, counted, p.apis.gl.live_objects()))
+}
+
 /// Frames in a window until it closes (or `frames`, if not 0): the path plays on, H switches
 /// between this chapter's frame and chapter 12's, and a new window size remakes the images.
 pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Drawn, frames: u32, report: &mut Report) -> Result<()> {
     let mut clock = Clock::new(&p.apis.gl.gl)?;
     let mut drawn = chosen;
     let fresh = Drawn::Fresh(16);
-    let mut frame = 0;
+    let (mut frame, mut camera, mut resizes, mut after_first_resize) = (0, None, 0, None);
     while frames == 0 || frame < frames {
         let keys: Vec<Key> = window.poll(p.apis.gl).collect();
         if keys.contains(&Key::Named(NamedKey::Escape)) || window.close_requested() {
@@ -212,8 +255,12 @@ pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Dra
         let smallest = crate::SMALLEST.width;
         if (width, height) != (sized.targets.extent.width, sized.targets.extent.height) && width >= smallest && height >= smallest {
             crate::resize(p, sized, Size { width, height })?;
+            resizes += 1;
+            if after_first_resize.is_none() {
+                after_first_resize = Some(alive(p)?);
+            }
         }
-        p.draw(sized, drawn, frame, &mut clock)?;
+        camera = Some(p.draw(sized, drawn, frame, &mut clock)?);
         window.show_times(&clock.times);
         sized.targets.show(&p.apis.gl.gl, window.size());
         window.swap_buffers(p.apis.gl)?;
@@ -222,5 +269,12 @@ pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Dra
     clock.finish(p)?;
     clock.times.record(report);
     report.set("frames", frame);
+    report.set("resizes", resizes);
+    if let Some(first) = after_first_resize {
+        report.check("nothing_grows_across_resizes", alive(p)? == first);
+    }
+    if let Some(camera) = camera {
+        chapter_12_checks(p, sized, &camera, report);
+    }
     Ok(())
 }
