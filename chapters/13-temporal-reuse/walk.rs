@@ -124,6 +124,7 @@ fn watch_the_cut(
 fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Args), report: &mut Report) -> Result<()> {
     let gl = &p.apis.gl.gl;
     let surface = Surface::read(gl, &sized.targets);
+    surface.require_covered()?;
     surface.check_values(report);
     let Some(overlays) = p.overlays else { return Ok(()) };
     let last = LastFrame {
