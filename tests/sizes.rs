@@ -1,12 +1,16 @@
 //! Every program, at tiny, odd and too large sizes: it either draws and passes every check it
 //! makes at a usual size (exit 0), or refuses up front with exit 2 and a message naming the
 //! smallest size, the widest or tallest shape, or the largest size and the device limit behind
-//! it. Never a failed check (exit 1), never a panic.
+//! it. Never a failed check (exit 1), never a panic. A size the scene covers no pixel of is
+//! refused too (exit 2, "the scene covers no pixel"), once drawn: every mean, minimum and check over
+//! the covered pixels would be over none, so a run that passes must have covered some.
 //!
 //! The walk, per program: 1x1, 2x2, 3x1, 16x200 and 200x16; the smallest size it names (run, and
 //! it must pass); the widest and the tallest shape it names at that smallest size (run); a side of
 //! 16384, the device's largest on the software stack, where the program takes so wide a picture
-//! (run); and 16385x16385, one past that limit (refused, naming the limit). Chapter 01 also
+//! (run); 16384x1 and 1x16384, a single row and column through the middle of the picture, which
+//! the framed scene covers no pixel of (refused by every program that draws a scene); and
+//! 16385x16385, one past that limit (refused, naming the limit). Chapter 01 also
 //! runs at 16384x16384, the largest it accepts; the others would take 10 to 30 seconds and 4 to 6
 //! GiB each at their largest on llvmpipe (chapters 02-04 at 16384x16384; 05-12 stop at the
 //! G-buffer read-back limit, 11585x11585, minutes of ray tracing): `largest_pictures` runs 02-04
@@ -57,6 +61,23 @@ enum Outcome {
     TooTall(f32),
     /// Refused for being too large: the largest size named.
     TooLarge(u32, u32),
+    /// Refused because the scene, drawn, covered no pixel of it.
+    Uncovered,
+}
+
+/// The programs that draw the framed scene and measure or check its covered pixels.
+fn draws_a_scene(name: &str) -> bool {
+    !matches!(name, "01-exportable-memory" | "02-gl-buffer-import" | "03-semaphores" | "04-compute-triangle")
+}
+
+/// What a passed run reports about the pixels it covered, where it reports it (07's rays, 05's and
+/// 06's fraction), must be more than none: a mean or a check over no pixel means nothing.
+fn covered_something(label: &str, report: &serde_json::Value, stderr: &str) {
+    for key in ["rays_traced", "covered_fraction"] {
+        if let Some(value) = report.get(key).and_then(|v| v.as_f64()) {
+            assert!(value > 0.0, "{label}: passed with {key} {value}: the scene covered no pixel\n{stderr}");
+        }
+    }
 }
 
 /// Runs one program at one size and says what happened; panics on anything else (exit 1, a
@@ -77,6 +98,7 @@ fn walk(name: &str, size: &str, run: &Run, usual: &BTreeSet<String>) -> Outcome 
                 "{label}: passed, but without the checks {missing:?}\n{}",
                 run.stderr
             );
+            covered_something(&label, report, &run.stderr);
             Outcome::Passed
         }
         Some(2) => {
@@ -95,7 +117,9 @@ fn walk(name: &str, size: &str, run: &Run, usual: &BTreeSet<String>) -> Outcome 
             let refused = format!("error: --size {size} is too ");
             assert!(error.starts_with(&refused), "{label}: exit 2 for another reason: {error}");
             assert!(error.contains(&format!(" for {name}: ")), "{label}: names the program: {error}");
-            if let Some(rest) = after("its checks need at least ") {
+            if after(": the scene covers no pixel of it").is_some() {
+                Outcome::Uncovered
+            } else if let Some(rest) = after("its checks need at least ") {
                 Outcome::TooSmall(dimensions(rest).0, dimensions(rest).1)
             } else if let Some(rest) = after("its checks need a width of at most ") {
                 Outcome::TooWide(ratio(rest))
@@ -158,6 +182,25 @@ fn walk_sizes(name: &str) {
                 assert!(matches!(at(&tallest), Outcome::Passed), "{name}: its tallest shape, {tallest}");
             }
             Outcome::TooLarge(..) => panic!("{name} {w}x{h}: refused as too large"),
+            Outcome::Uncovered => panic!("{name} {w}x{h}: the scene covers part of so square a picture"),
+        }
+    }
+
+    // A single row and a single column through the middle: the framed scene covers none of their
+    // pixels, so a program that draws it refuses them (too small, or once drawn); one that does
+    // not may draw them.
+    for (w, h) in [(16384, 1), (1, 16384)] {
+        let size = format!("{w}x{h}");
+        let run = run_at(bin, flags, &size);
+        match walk(name, &size, &run, &usual) {
+            Outcome::Passed => assert!(
+                !draws_a_scene(name),
+                "{name} {size}: passed, though the scene covers no pixel of it\n{}",
+                run.stderr
+            ),
+            Outcome::TooSmall(sw, sh) => assert!(w < sw || h < sh, "{name} {size}: not under {sw}x{sh}"),
+            Outcome::TooWide(_) | Outcome::TooTall(_) | Outcome::Uncovered => {}
+            Outcome::TooLarge(..) => panic!("{name} {size}: refused as too large"),
         }
     }
 
@@ -176,6 +219,11 @@ fn walk_sizes(name: &str) {
     match at(&widest) {
         Outcome::Passed => {}
         Outcome::TooWide(ratio) => assert!(16384.0 > ratio * sh as f32, "{name} {widest}"),
+        // So thin a picture that the scene covers none of it (07's 16384x1): a row more draws it.
+        Outcome::Uncovered => {
+            let wider = format!("16384x{}", sh + 1);
+            assert!(matches!(at(&wider), Outcome::Passed), "{name}: {widest} refused as uncovered, {wider}");
+        }
         _ => panic!("{name} {widest}: neither drawn nor refused as too wide"),
     }
 }

@@ -9,7 +9,7 @@
 
 use anyhow::Result;
 use ash::vk;
-use common::base::cli::Smallest;
+use common::base::cli::{Smallest, check_covered};
 use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
@@ -25,7 +25,8 @@ use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
 /// Any size: the one check that counts pixels, `accumulation_reduces_noise`, is made only where
-/// enough of them lie on the scene (`NOISE_PAIRS`), and the chapter says so where they do not.
+/// enough of them lie on the scene (`NOISE_PAIRS`), and the chapter says so where they do not. A
+/// size the scene covers no pixel of (16384x1) is refused once GL has drawn it.
 const SMALLEST: Smallest = Smallest::ANY;
 /// Pairs of neighbouring pixels on the scene that the noise check needs: with fewer, the
 /// difference between two frames' noise is itself mostly chance (a 24x24 picture fails it).
@@ -88,7 +89,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     let (mut trace_pending, mut rays) = (false, 0u64);
     let mut first_noise = None;
-    let mut positions = Vec::new();
+    let (mut positions, mut covered_pixels) = (Vec::new(), 0u64);
     let nothing_to_trace = common::rt::ao::nothing_to_trace(args.ao.samples, radius);
     if let Some(reason) = nothing_to_trace {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
@@ -118,10 +119,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let ao =
                 output::read_texture_f32(gl, tracer.image.texture.texture, extent.width, extent.height, 1);
             positions = output::read_texture_f32(gl, gbuffers.textures()[0], extent.width, extent.height, 4);
+            // No pixel on the scene: no ray traced, and the mean and checks below would be over none.
+            covered_pixels = positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64;
+            check_covered("--size", CHAPTER, args.common.size, covered_pixels)?;
             first_noise = Some(noise(&ao, &positions, extent.width as usize).0);
         }
         if traced {
-            rays += positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64 * samples as u64;
+            rays += covered_pixels * samples as u64;
         }
     }
     if trace_pending {

@@ -6,6 +6,7 @@ use crate::composite::{ComputeComposite, Uniforms, View};
 use crate::visibility::Targets;
 use anyhow::{Context as _, Result};
 use common::Report;
+use common::base::cli::{Size, check_covered};
 use common::base::output;
 use common::frame::{Overlays, shows_colour};
 use common::interop::handoff::Apis;
@@ -35,6 +36,13 @@ impl Surface {
 
     pub fn covered(&self) -> impl Iterator<Item = usize> + '_ {
         (0..self.width * self.height).filter(|&i| self.depth(i) > 0.0)
+    }
+
+    /// Refuses the size when the scene covers no pixel of it: every mean and check over the
+    /// covered pixels (the occlusion's mean, its error, chapter 08's comparison) would be over none.
+    pub fn require_covered(&self) -> Result<()> {
+        let size = Size { width: self.width as u32, height: self.height as u32 };
+        check_covered("--size", crate::CHAPTER, size, self.covered().count() as u64)
     }
 
     /// Every visibility a fraction of rays, and exactly 1 where GL drew no id.

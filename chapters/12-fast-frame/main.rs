@@ -270,6 +270,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         vk_composite::compare(apis, &shared.allocator, (&targets, &composite), settled, report)?;
     }
     let surface = check::Surface::read(gl, &targets);
+    surface.require_covered()?;
     if frame > 0 {
         let uniforms = settings::uniforms(&settings, &camera);
         let last = check::LastFrame {

@@ -139,7 +139,7 @@ fn watch_the_cut(
 /// overlays, the pictures, and what the path makes checkable.
 fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Args), report: &mut Report) -> Result<()> {
     let gl = &p.apis.gl.gl;
-    let surface = chapter_12_checks(p, sized, camera, report);
+    let surface = chapter_12_checks(p, sized, camera, report)?;
     if let Some(overlays) = p.overlays {
         let last = LastFrame {
             gl,
@@ -205,10 +205,11 @@ fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args
 }
 
 /// Chapter 12's checks of the last frame: the surface's values, the composite and the overlays.
-/// Returns the surface, as read.
-fn chapter_12_checks(p: &Passes, sized: &Sized, camera: &Camera, report: &mut Report) -> Surface {
+/// Returns the surface, as read; a frame whose scene covers no pixel is refused.
+fn chapter_12_checks(p: &Passes, sized: &Sized, camera: &Camera, report: &mut Report) -> Result<Surface> {
     let gl = &p.apis.gl.gl;
     let surface = Surface::read(gl, &sized.targets);
+    surface.require_covered()?;
     surface.check_values(report);
     if let Some(overlays) = p.overlays {
         let last = LastFrame {
@@ -223,7 +224,7 @@ fn chapter_12_checks(p: &Passes, sized: &Sized, camera: &Camera, report: &mut Re
             report.check(name, ok);
         }
     }
-    surface
+    Ok(surface)
 }
 
 /// What exists that a resize could leak: open fds, counted resources (a kind none of which is
@@ -274,7 +275,7 @@ pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Dra
         report.check("nothing_grows_across_resizes", alive(p)? == first);
     }
     if let Some(camera) = camera {
-        chapter_12_checks(p, sized, &camera, report);
+        chapter_12_checks(p, sized, &camera, report)?;
     }
     Ok(())
 }

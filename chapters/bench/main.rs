@@ -13,7 +13,7 @@
 
 use anyhow::{Result, ensure};
 use ash::vk;
-use common::base::cli::{Size, Smallest, parse_size};
+use common::base::cli::{Size, Smallest, check_covered, parse_size};
 use common::base::commands::Commands;
 use common::base::gl::{DebugOutput, GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::Timeline;
@@ -235,6 +235,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 depth_first_differences += frames[0].depth_first_differences(&gl.gl);
             }
             let covered = frames[0].covered_pixels(&gl.gl);
+            // No pixel on the scene: no ray to count, and no rate or comparison means anything.
+            check_covered("--sizes", "bench", size, covered)?;
             pixels_compared += covered;
             covered_everywhere &= covered > 0;
             for &spp in &spps {

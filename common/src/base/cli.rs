@@ -166,6 +166,23 @@ impl Smallest {
 }
 // ANCHOR_END: smallest
 
+/// Refuses a size the scene covers no pixel of (an error, which `run_chapter` turns into exit 2),
+/// found once GL has drawn it: every mean, minimum and check over the covered pixels would be
+/// over none, and a mean of nothing is not a number. `flag` is `--size` (the bench's `--sizes`).
+pub fn check_covered(flag: &str, program: &str, size: Size, covered: u64) -> anyhow::Result<()> {
+    let shape = match size.width.cmp(&size.height) {
+        std::cmp::Ordering::Greater => "wide",
+        std::cmp::Ordering::Less => "tall",
+        std::cmp::Ordering::Equal => "small",
+    };
+    anyhow::ensure!(
+        covered > 0,
+        "{flag} {size} is too {shape} for {program}: the scene covers no pixel of it, and a mean or a \
+         check over no pixel means nothing (a shape nearer the scene's, such as 800x600, shows it)"
+    );
+    Ok(())
+}
+
 // ANCHOR: largest
 /// The largest picture a device allows, and the limits that set it.
 #[derive(Debug, Clone)]
@@ -235,6 +252,20 @@ mod tests {
         assert!(smallest.check("p", at(32, 16)).is_ok());
         assert!(smallest.check("p", at(33, 16)).unwrap_err().to_string().contains("too wide"));
         assert!(Smallest::ANY.check("p", at(1, 1)).is_ok());
+        assert!(check_covered("--size", "p", at(16384, 1), 1).is_ok());
+        let uncovered = check_covered("--size", "p", at(16384, 1), 0).unwrap_err().to_string();
+        assert_eq!(
+            uncovered,
+            "--size 16384x1 is too wide for p: the scene covers no pixel of it, and a mean or a check over \
+             no pixel means nothing (a shape nearer the scene's, such as 800x600, shows it)"
+        );
+        assert!(check_covered("--size", "p", at(1, 16384), 0).unwrap_err().to_string().contains("too tall"));
+        assert!(
+            check_covered("--sizes", "p", at(2, 2), 0)
+                .unwrap_err()
+                .to_string()
+                .starts_with("--sizes 2x2 is too small")
+        );
         let largest = Largest { width: 100, height: 50, pixels: 4000, limits: "limit 100".into() };
         assert!(largest.check("p", at(80, 50)).is_ok());
         assert!(largest.check("p", at(100, 40)).is_ok());

@@ -194,18 +194,46 @@ impl App {
 
 /// The error for a display that offers no GL for this GPU: it names the display and the way out.
 /// It happens where the X server has no GLX for the GPU's driver and that driver's EGL has no X11
-/// platform: an NVIDIA GPU without NVIDIA's X driver (a headless server, Xvfb), for example.
+/// platform: an NVIDIA GPU without NVIDIA's X driver (a headless server, Xvfb), for example,
+/// where `__GLX_VENDOR_LIBRARY_NAME=nvidia` loads NVIDIA's GLX and the window opens (H100,
+/// 2026-11-26): the error suggests it there.
 fn no_window_config(cause: &str) -> anyhow::Error {
-    let display = std::env::var("WAYLAND_DISPLAY")
-        .map(|d| format!("Wayland display {d}"))
-        .or_else(|_| std::env::var("DISPLAY").map(|d| format!("X display {d}")))
-        .unwrap_or_else(|_| "the display".into());
-    anyhow!(
-        "no GL configuration for a window on {display}: {cause}\n  \
-         neither EGL nor GLX offers this GPU's GL there (an X server without the GPU's own X \
-         driver, such as Xvfb beside an NVIDIA GPU, has none); run with --headless, which checks \
-         the same things"
-    )
+    let wayland = std::env::var("WAYLAND_DISPLAY").ok().filter(|d| !d.is_empty());
+    let display = match (&wayland, std::env::var("DISPLAY")) {
+        (Some(d), _) => format!("Wayland display {d}"),
+        (None, Ok(d)) => format!("X display {d}"),
+        (None, Err(_)) => "the display".into(),
+    };
+    // NVIDIA's kernel driver is loaded: the GPU whose GL the window needs is NVIDIA's.
+    let nvidia = std::path::Path::new("/proc/driver/nvidia/version").exists();
+    let vendor = std::env::var("__GLX_VENDOR_LIBRARY_NAME").ok();
+    anyhow!("{}", no_window_config_message(&display, cause, wayland.is_none() && nvidia, vendor.as_deref()))
+}
+
+/// The text of [`no_window_config`]. `nvidia_on_x`: the display is X's and the GPU is NVIDIA's;
+/// `glx_vendor`: `__GLX_VENDOR_LIBRARY_NAME`, which makes glvnd load that vendor's GLX whatever
+/// the X server names for its screen (Xvfb names Mesa, whose GL does not drive an NVIDIA GPU).
+fn no_window_config_message(
+    display: &str,
+    cause: &str,
+    nvidia_on_x: bool,
+    glx_vendor: Option<&str>,
+) -> String {
+    let headless = "run with --headless, which checks the same things";
+    if nvidia_on_x && glx_vendor != Some("nvidia") {
+        format!(
+            "no GL configuration for a window on {display}: {cause}\n  \
+             the GPU is NVIDIA's, but this X server's GLX is another vendor's (Xvfb's is Mesa's), so \
+             glvnd loads a GL that does not drive it: run with __GLX_VENDOR_LIBRARY_NAME=nvidia, \
+             which loads NVIDIA's GLX there, or {headless}"
+        )
+    } else {
+        format!(
+            "no GL configuration for a window on {display}: {cause}\n  \
+             neither EGL nor GLX offers this GPU's GL there (an X server without the GPU's own X \
+             driver, such as Xvfb, offers Mesa's GLX only); {headless}"
+        )
+    }
 }
 
 /// A single-sampled configuration if there is one: the chapters read the back buffer back.
@@ -356,3 +384,29 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
     Ok(seen) // `shown` deletes the pictures (before the window's context: declared after it)
 }
 // ANCHOR_END: show_pictures
+
+#[cfg(test)]
+mod tests {
+    use super::no_window_config_message as message;
+
+    /// On X beside an NVIDIA GPU the error suggests NVIDIA's GLX; elsewhere, or once the variable
+    /// is set, it keeps to --headless.
+    #[test]
+    fn no_window_config_suggests_nvidias_glx_where_it_helps() {
+        let variable = "__GLX_VENDOR_LIBRARY_NAME=nvidia";
+        let nvidia = message("X display :99", "no config", true, None);
+        assert!(
+            nvidia.starts_with("no GL configuration for a window on X display :99: no config\n"),
+            "{nvidia}"
+        );
+        assert!(nvidia.contains(variable) && nvidia.contains("--headless"), "{nvidia}");
+        assert!(message("X display :99", "c", true, Some("mesa")).contains(variable));
+        for other in [
+            message("X display :99", "c", false, None),
+            message("X display :99", "c", true, Some("nvidia")),
+            message("Wayland display wayland-0", "c", false, None),
+        ] {
+            assert!(!other.contains(variable) && other.contains("run with --headless"), "{other}");
+        }
+    }
+}
