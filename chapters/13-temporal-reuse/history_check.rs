@@ -40,10 +40,11 @@ fn instance_of(ids: &[MeshIds], id: u32) -> Option<u32> {
 
 // ANCHOR: cut
 /// At the cut: every pixel that kept history (it holds more rays than a fresh pixel traces)
-/// must show a point the frame before saw: its own point moved back to where it was then lands
-/// within a texel of a pixel that showed the same instance on the same plane. Worked out here
-/// from the two frames' read-back depths, normals and ids, independently of the shader's tests;
-/// twice as tolerant of the plane (2% of the depth), so that only a real miss counts.
+/// must show a point the frame before saw: its own point, moved back to where it was then, lands
+/// within a texel of a pixel that showed the same instance, at a point on its plane (its normal
+/// moved back alike). Worked out here from the two frames' depths, normals and ids as GL reads
+/// them back, apart from the shader's own reading of its history; twice as tolerant of the plane
+/// (2% of the depth), so that only a real miss counts.
 pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (&Path, &[MeshIds], u32), report: &mut Report) {
     let (w, h) = (after.surface.width, after.surface.height);
     if (before.surface.width, before.surface.height) != (w, h) {
@@ -62,8 +63,11 @@ pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (
             }
             kept += 1;
             let mut point = after.point((x, y), after.surface.depth(i));
+            let mut normal = unpack_normal(after.surface.texels[i * 4 + 2]);
             if let Some(moving) = path.moving.as_ref().filter(|m| m.index as u32 == instance) {
-                point = moving.at(before.frame).transform_point3(moving.at(after.frame).inverse().transform_point3(point));
+                let back = moving.at(before.frame) * moving.at(after.frame).inverse();
+                point = back.transform_point3(point);
+                normal = back.transform_vector3(normal).normalize();
             }
             let clip = then * point.extend(1.0);
             let at = (clip.xy() / clip.w * 0.5 + 0.5) * Vec2::new(w as f32, h as f32) - 0.5;
@@ -75,7 +79,6 @@ pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (
                         return false;
                     }
                     let j = ty as usize * w + tx as usize;
-                    let normal = unpack_normal(before.surface.texels[j * 4 + 2]);
                     let there = before.point((tx as usize, ty as usize), before.surface.depth(j));
                     instance_of(ids, before.ids[j]) == Some(instance)
                         && (there - point).dot(normal).abs() <= 0.02 * depth_then
