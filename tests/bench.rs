@@ -14,8 +14,9 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     assert!(report["device"].as_str().is_some_and(|d| !d.is_empty()));
     assert!(report["driver"].as_str().is_some_and(|d| !d.is_empty()));
     let rows = report["rows"].as_array().expect("rows");
-    // 3 modes of chapter 08's frame and chapter 12's, x 3 scenes x 2 sizes x 2 ray counts.
-    assert_eq!(rows.len(), 48);
+    // 3 modes of chapter 08's frame, chapter 12's and chapter 13's, x 3 scenes x 2 sizes x 2 ray
+    // counts.
+    assert_eq!(rows.len(), 60);
     let fields = [
         "mode",
         "scene",
