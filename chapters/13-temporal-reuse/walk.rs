@@ -140,15 +140,7 @@ fn watch_the_cut(
 fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Args), report: &mut Report) -> Result<()> {
     let gl = &p.apis.gl.gl;
     let surface = chapter_12_checks(p, sized, camera, report)?;
-    if let Some(overlays) = p.overlays {
-        let last = LastFrame {
-            gl,
-            targets: &sized.targets,
-            composite: p.composite,
-            overlays,
-            camera,
-            uniforms: p.uniforms(camera, View::Final),
-        };
+    if let Some(last) = last_frame(p, sized, camera) {
         let prefix = args.scene.picture_name(crate::CHAPTER);
         last.write_pictures(report, &surface, &args.common.out_dir(crate::CHAPTER), &prefix)?;
     }
@@ -211,20 +203,24 @@ fn chapter_12_checks(p: &Passes, sized: &Sized, camera: &Camera, report: &mut Re
     let surface = Surface::read(gl, &sized.targets);
     surface.require_covered()?;
     surface.check_values(report);
-    if let Some(overlays) = p.overlays {
-        let last = LastFrame {
-            gl,
-            targets: &sized.targets,
-            composite: p.composite,
-            overlays,
-            camera,
-            uniforms: p.uniforms(camera, View::Final),
-        };
+    if let Some(last) = last_frame(p, sized, camera) {
         for (name, ok) in last.check(&surface) {
             report.check(name, ok);
         }
     }
     Ok(surface)
+}
+
+/// What chapter 12's last-frame checks and pictures draw with (none without overlays).
+fn last_frame<'a>(p: &'a Passes, sized: &'a Sized, camera: &'a Camera) -> Option<LastFrame<'a>> {
+    Some(LastFrame {
+        gl: &p.apis.gl.gl,
+        targets: &sized.targets,
+        composite: p.composite,
+        overlays: p.overlays?,
+        camera,
+        uniforms: p.uniforms(camera, View::Final),
+    })
 }
 
 /// What exists that a resize could leak: open fds, counted resources (a kind none of which is

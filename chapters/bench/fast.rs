@@ -78,24 +78,10 @@ fn median(report: &Value, pass: &str) -> f64 {
 /// rays, counted by the bench from chapter 08's G-buffers with the same camera.
 pub fn row(scene: SceneKind, size: Size, spp: u32, frames: u32, covered: u64, out: &Path) -> Result<Row> {
     let report = run(&setting(scene, size, spp, frames), out)?;
-    let frame_ms = median(&report, "frame_wall");
-    let (raster_ms, ao_ms) = (median(&report, "visibility"), median(&report, "ao_trace"));
-    let composite_ms = median(&report, "composite") + median(&report, "overlays");
+    let row = row_of(&report, Mode::FastFrame, (scene, size, spp));
     let rays = spp as f64 * covered as f64;
-    Ok(Row {
-        mode: Mode::FastFrame,
-        scene: scene.name(),
-        width: size.width,
-        height: size.height,
-        spp,
-        frame_ms,
-        p95_ms: report["timings_ms"]["frame_wall_p95"].as_f64().unwrap_or(0.0),
-        raster_ms,
-        handoff_ms: (frame_ms - raster_ms - ao_ms - composite_ms).max(0.0),
-        ao_ms,
-        composite_ms,
-        grays_per_s: if ao_ms > 0.0 { rays / (ao_ms * 1e-3) / 1e9 } else { 0.0 },
-    })
+    let grays_per_s = if row.ao_ms > 0.0 { rays / (row.ao_ms * 1e-3) / 1e9 } else { 0.0 };
+    Ok(Row { grays_per_s, ..row })
 }
 
 /// One `temporal-reuse` row: chapter 13's defaults along its path (the camera orbiting and
@@ -103,11 +89,17 @@ pub fn row(scene: SceneKind, size: Size, spp: u32, frames: u32, covered: u64, ou
 /// Its frames trace fewer rays than `spp` per covered pixel, so no ray rate is given.
 pub fn temporal_row(scene: SceneKind, size: Size, spp: u32, frames: u32, out: &Path) -> Result<Row> {
     let report = run_chapter(TEMPORAL, &setting(scene, size, spp, frames), out)?;
-    let frame_ms = median(&report, "frame_wall");
-    let (raster_ms, ao_ms) = (median(&report, "visibility"), median(&report, "ao_trace"));
-    let composite_ms = median(&report, "composite") + median(&report, "overlays");
-    Ok(Row {
-        mode: Mode::TemporalReuse,
+    Ok(row_of(&report, Mode::TemporalReuse, (scene, size, spp)))
+}
+
+/// A row from a chapter's report: its GPU medians of the ids, the trace and the composite with
+/// the overlays, and its frame's wall clock; the hand-overs are what the passes leave of it.
+fn row_of(report: &Value, mode: Mode, (scene, size, spp): (SceneKind, Size, u32)) -> Row {
+    let frame_ms = median(report, "frame_wall");
+    let (raster_ms, ao_ms) = (median(report, "visibility"), median(report, "ao_trace"));
+    let composite_ms = median(report, "composite") + median(report, "overlays");
+    Row {
+        mode,
         scene: scene.name(),
         width: size.width,
         height: size.height,
@@ -119,7 +111,7 @@ pub fn temporal_row(scene: SceneKind, size: Size, spp: u32, frames: u32, out: &P
         ao_ms,
         composite_ms,
         grays_per_s: 0.0,
-    })
+    }
 }
 
 /// Chapter 12's `--timeline last` of `frames` frames at one setting of the default scene: the
