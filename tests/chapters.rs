@@ -847,3 +847,17 @@ fn ch13_in_a_window_under_xvfb() {
     assert_eq!(report["frames"], 3);
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
+
+/// `--timeline N`: the last N frames' passes, GL's and Vulkan's, on one clock, as chapter 12's.
+#[test]
+fn ch13_timeline_puts_both_apis_on_one_clock() {
+    let mut args = CH13.to_vec();
+    args.extend(["--frames", "5", "--timeline", "3"]);
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["timeline"]["frames"], 3);
+    for file in ["timeline.json", "timeline.svg"] {
+        let path = run.out_dir.path().join(file);
+        assert!(std::fs::metadata(&path).is_ok_and(|m| m.len() > 0), "{} written", path.display());
+    }
+}

@@ -9,6 +9,7 @@ use crate::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::{Context as _, Result};
 use common::base::commands::Commands;
 use common::base::timestamps::Timestamps;
+use common::base::timeline::{Timeline, stamp_into as stamp};
 use common::base::timing::{GlPassTimer, PassTimes, read_after};
 use common::frame::Overlays;
 use common::interop::exportable::ExportedBuffer;
@@ -66,22 +67,28 @@ pub struct Sized {
     pub temporal: TemporalTracer,
 }
 
-/// The GPU times of one walk, and whether the last frame's trace time is still to be read.
+/// The GPU times of one walk, whether the last frame's trace time is still to be read, and the
+/// last frames' passes on one clock (chapter 12's `--timeline`), with the walk's length.
 pub struct Clock {
     pub gl: GlPassTimer,
     pub times: PassTimes,
-    traced: bool,
+    traced: Option<Option<u32>>,
+    pub timeline: Option<(Timeline, u32)>,
 }
 
 impl Clock {
-    pub fn new(gl: &std::rc::Rc<glow::Context>) -> Result<Clock> {
-        Ok(Clock { gl: GlPassTimer::new(gl)?, times: PassTimes::new(), traced: false })
+    pub fn new(gl: &std::rc::Rc<glow::Context>, timeline: Option<(Timeline, u32)>) -> Result<Clock> {
+        Ok(Clock { gl: GlPassTimer::new(gl)?, times: PassTimes::new(), traced: None, timeline })
     }
 
-    /// Waits for the last frame's Vulkan work and reads its trace time.
+    /// Waits for the last frame's Vulkan work and reads its trace time (into the timeline too,
+    /// where that frame has a slot in it).
     fn read_trace(&mut self, p: &Passes) -> Result<()> {
-        if std::mem::take(&mut self.traced) {
+        if let Some(slot) = self.traced.take() {
             read_after(p.apis.vk, p.apis.commands.fence, p.timestamps, "ao_trace", &mut self.times)?;
+            if let (Some((t, _)), Some(slot), Some(stamps)) = (self.timeline.as_mut(), slot, p.timestamps) {
+                t.trace_done(p.apis.vk, slot, stamps)?;
+            }
         }
         Ok(())
     }
@@ -91,6 +98,13 @@ impl Clock {
         self.read_trace(p)?;
         self.gl.finish(&p.apis.gl.gl, &mut self.times);
         Ok(())
+    }
+
+    /// The timeline, read and written to `<out>.json` and `<out>.svg` (both APIs idle).
+    pub fn finish_timeline(&mut self, p: &Passes, out: &std::path::Path) -> Result<Option<serde_json::Value>> {
+        let (Some((timeline, _)), Some(stamps)) = (self.timeline.take(), p.timestamps) else { return Ok(None) };
+        unsafe { glow::HasContext::finish(&*p.apis.gl.gl) };
+        Ok(Some(timeline.finish(p.apis.vk, p.apis.commands, stamps, out)?.into()))
     }
 }
 
@@ -110,6 +124,8 @@ impl Passes<'_> {
         unsafe { vk.device.wait_for_fences(&[self.apis.commands.fence], true, u64::MAX) }
             .context("vkWaitForFences at the top of a frame")?;
         clock.read_trace(self)?;
+        let slot = clock.timeline.as_ref().and_then(|(t, frames)| t.slot(frame, *frames));
+        let timeline = clock.timeline.as_ref().map(|(t, _)| t);
         if let (Some(motion), Some(moving)) = (&self.motion, &self.path.moving) {
             let previous = sized.temporal.previous_instances.allocation.mapped_slice_mut();
             let previous = previous.context("the previous instances are not mapped")?;
@@ -118,7 +134,9 @@ impl Passes<'_> {
         }
         let camera = self.path.camera(frame);
         let targets = &sized.targets;
+        stamp(timeline, slot, 0);
         clock.gl.time(g, "visibility", || self.visibility.draw(g, targets, self.scene, self.ids, &camera))?;
+        stamp(timeline, slot, 1);
         match drawn {
             Drawn::Temporal(budget) => {
                 sized.temporal.trace(self.apis, targets, (&camera, frame), &budget, self.timestamps)?
@@ -131,14 +149,16 @@ impl Passes<'_> {
                 sized.fresh.trace(self.apis, targets, &camera, rays, self.timestamps)?;
             }
         }
-        clock.traced = true;
+        clock.traced = Some(slot);
         let uniforms = self.uniforms(&camera, self.uniforms.view);
+        stamp(timeline, slot, 2);
         clock.gl.time(g, "composite", || self.composite.draw(g, targets, &uniforms))?;
         if let Some(overlays) = self.overlays {
             let (w, h) = (targets.extent.width as f32, targets.extent.height as f32);
             let target = targets.overlay_target();
             clock.gl.time(g, "overlays", || overlays.draw(g, &target, camera.view_projection(w / h)))?;
         }
+        stamp(timeline, slot, 3);
         clock.gl.end_frame(g, &mut clock.times);
         clock.times.frame_done();
         Ok(camera)

@@ -79,6 +79,10 @@ pub struct Args {
     /// Measure the error on every Kth frame of the path (the frames around the cut always).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub error_every: u32,
+    /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into timeline.json
+    /// and timeline.svg in --out, as chapter 12's (0: none).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
+    pub timeline: u32,
     /// Headless: make the images of one size anew every K frames, as a window's resize does
     /// (the history starts again).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]

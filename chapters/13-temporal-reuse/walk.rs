@@ -13,6 +13,7 @@ use crate::trace::{Pattern, Rays};
 use anyhow::Result;
 use common::Report;
 use common::base::cli::Size;
+use common::base::timeline::Timeline;
 use common::base::window::{Key, NamedKey, Window};
 use common::scene::Camera;
 
@@ -48,7 +49,12 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
     for drawn in methods {
         let checking = drawn == chosen && !checked;
         sized.temporal.forget();
-        let mut clock = Clock::new(&p.apis.gl.gl)?;
+        let timeline = match (args.timeline, checking, p.timestamps) {
+            (0, _, _) | (_, false, _) => None,
+            (last, true, Some(_)) => Some((Timeline::new(&p.apis.gl.gl, last.min(frames), ["ids", "composite"])?, frames)),
+            (_, true, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", p.apis.vk.info.name),
+        };
+        let mut clock = Clock::new(&p.apis.gl.gl, timeline)?;
         let (mut records, mut before_cut) = (Vec::new(), None);
         let (mut resizes, mut after_first_resize) = (0, None);
         for frame in 0..frames {
@@ -78,6 +84,9 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
             records.push(FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse });
         }
         clock.finish(p)?;
+        if let Some(timeline) = clock.finish_timeline(p, &args.common.out_dir(crate::CHAPTER).join("timeline"))? {
+            report.set("timeline", timeline);
+        }
         // The passes' GPU times, frame by frame where every frame has one of each.
         let times = &clock.times;
         let per_frame = |pass: &str| Some(times.samples(pass)).filter(|s| s.len() == records.len());
@@ -234,7 +243,7 @@ fn alive(p: &Passes) -> Result<impl PartialEq + use<>> {
 /// Frames in a window until it closes (or `frames`, if not 0): the path plays on, H switches
 /// between this chapter's frame and chapter 12's, and a new window size remakes the images.
 pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Drawn, frames: u32, report: &mut Report) -> Result<()> {
-    let mut clock = Clock::new(&p.apis.gl.gl)?;
+    let mut clock = Clock::new(&p.apis.gl.gl, None)?;
     let mut drawn = chosen;
     let fresh = Drawn::Fresh(16);
     let (mut frame, mut camera, mut resizes, mut after_first_resize) = (0, None, 0, None);

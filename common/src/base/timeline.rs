@@ -22,6 +22,11 @@ use std::rc::Rc;
 /// composite and overlays) of the timeline's frame `slot`, when there is a timeline and this
 /// frame is in it.
 pub fn stamp(timeline: &Option<Timeline>, slot: Option<u32>, which: usize) {
+    stamp_into(timeline.as_ref(), slot, which);
+}
+
+/// [`stamp`], for a timeline held by reference.
+pub fn stamp_into(timeline: Option<&Timeline>, slot: Option<u32>, which: usize) {
     if let (Some(t), Some(slot)) = (timeline, slot) {
         unsafe { t.gl.query_counter(*t.queries[slot as usize][which], glow::TIMESTAMP) };
     }
