@@ -450,6 +450,8 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("cargo run --release --bin 08-composite$", Skip::Slow("a window's size, headless: about 25 s")),
     ("cargo run --release --bin 09-animated-instances", Skip::Slow("20 s to 2.5 min")),
     ("cargo run --release --bin 12-fast-frame", Skip::Slow("50 s to 1.5 min")),
+    ("Xvfb :7", Skip::Always("starts an X server, which runs until it is stopped")),
+    ("DISPLAY=:7 __GLX_VENDOR_LIBRARY_NAME=nvidia", Skip::Always("needs an NVIDIA GPU and the X server above")),
     ("cargo run --release --bin 13-temporal-reuse$", Skip::Slow("a window's size, 120 frames headless: minutes")),
     ("cargo run --release --bin 13-temporal-reuse -- --headless --size 1920x1080", Skip::Always("sized for a GPU")),
 ];
