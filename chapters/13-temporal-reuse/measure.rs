@@ -23,6 +23,8 @@ pub struct FrameRecord {
     pub ao_ms: Option<f64>,
     /// RMS error of the blurred occlusion against the converged trace, over covered pixels.
     pub rmse: Option<f64>,
+    /// FLIP between the final pictures (built with `--features flip`; else `null`).
+    pub flip: Option<f64>,
 }
 
 /// A whole walk: one method along the path, and what it sums up to.
@@ -35,6 +37,7 @@ pub struct Walk {
     pub ao_median_ms: Option<f64>,
     pub error_mean: Option<f64>,
     pub error_worst: Option<f64>,
+    pub flip_mean: Option<f64>,
 }
 
 pub fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
@@ -48,7 +51,9 @@ impl Walk {
     /// as llvmpipe's overlays are, counts nothing).
     pub fn new(method: String, frames: Vec<FrameRecord>, (frame_wall_median_ms, gpu_median_ms): (Option<f64>, Option<f64>)) -> Walk {
         let errors: Vec<f64> = frames.iter().filter_map(|f| f.rmse).collect();
+        let flips: Vec<f64> = frames.iter().filter_map(|f| f.flip).collect();
         Walk {
+            flip_mean: (!flips.is_empty()).then(|| flips.iter().sum::<f64>() / flips.len() as f64),
             method,
             gpu_median_ms,
             ao_median_ms: median(frames.iter().filter_map(|f| f.ao_ms)),
@@ -78,9 +83,15 @@ pub fn measured(frame: u32, every: u32, cut: Option<u32>) -> bool {
 
 // ANCHOR: error
 /// The converged trace of a frame, kept for the other methods walking the same path: the
-/// blurred occlusion as the composite shows it, and which pixels are covered.
+/// blurred occlusion as the composite shows it, which pixels are covered, and the final picture.
 #[derive(Default)]
-pub struct References(BTreeMap<u32, (Vec<u8>, Vec<bool>)>);
+pub struct References(BTreeMap<u32, Converged>);
+
+pub struct Converged {
+    occlusion: Vec<u8>,
+    covered: Vec<bool>,
+    picture: Vec<u8>,
+}
 
 /// What measuring a frame's error uses: the composite (to blur the two alike), chapter 12's
 /// tracer (for the converged trace: per-pixel rotations of another salt, so that its errors are
@@ -95,21 +106,22 @@ pub struct ErrorProbe<'a> {
 
 impl ErrorProbe<'_> {
     /// The RMS difference of the frame's blurred occlusion (the surface as the frame left it)
-    /// from the converged one's, over the covered pixels. Overwrites the surface.
+    /// from the converged one's, over the covered pixels, and FLIP between the two final
+    /// pictures (where built with it). Overwrites the surface.
     pub fn measure(
         &self,
         apis: Apis,
         (targets, tracer): (&Targets, &mut SurfaceTracer),
         (camera, frame): (&Camera, u32),
         references: &mut References,
-    ) -> Result<f64> {
+    ) -> Result<(f64, Option<f64>)> {
         let gl = &apis.gl.gl;
-        let shown = |composite: &ComputeComposite| {
-            let uniforms = Uniforms { view: View::Ao, ..self.uniforms };
-            composite.draw(gl, targets, &uniforms);
+        let shown = |view: View| {
+            let uniforms = Uniforms { view, far_depth: camera.far, ..self.uniforms };
+            self.composite.draw(gl, targets, &uniforms);
             read_picture(gl, targets)
         };
-        let ours = shown(self.composite);
+        let (ours, picture) = (shown(View::Ao), shown(View::Final));
         if !references.0.contains_key(&frame) {
             let rays = Rays {
                 samples: self.reference.min(256),
@@ -120,17 +132,35 @@ impl ErrorProbe<'_> {
             };
             tracer.retrace(apis, targets, camera, rays, self.reference)?;
             let covered = crate::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
-            references.0.insert(frame, (shown(self.composite), covered));
+            let (occlusion, picture) = (shown(View::Ao), shown(View::Final));
+            references.0.insert(frame, Converged { occlusion, covered, picture });
         }
-        let (converged, covered) = &references.0[&frame];
+        let Converged { occlusion: converged, covered, picture: converged_picture } = &references.0[&frame];
         let (mut sum, mut n) = (0.0, 0usize);
         for (i, _) in covered.iter().enumerate().filter(|(_, c)| **c) {
             sum += ((ours[i * 4] as f64 - converged[i * 4] as f64) / 255.0).powi(2);
             n += 1;
         }
         anyhow::ensure!(n > 0, "frame {frame}: the scene covers no pixel, so it has no error to measure");
-        Ok((sum / n as f64).sqrt())
+        let size = (targets.extent.width, targets.extent.height);
+        Ok(((sum / n as f64).sqrt(), flip_mean(converged_picture, &picture, size)))
     }
+}
+
+/// FLIP's mean over two RGBA8 pictures of `size` (the alpha left out), at FLIP's default viewing
+/// conditions (67 pixels per degree).
+#[cfg(any(test, feature = "flip"))]
+fn flip_mean(reference: &[u8], test: &[u8], (width, height): (u32, u32)) -> Option<f64> {
+    let rgb = |p: &[u8]| -> Vec<u8> { p.chunks_exact(4).flat_map(|c| [c[0], c[1], c[2]]).collect() };
+    let image = |p: &[u8]| nv_flip::FlipImageRgb8::with_data(width, height, &rgb(p));
+    let map = nv_flip::flip(image(reference), image(test), nv_flip::DEFAULT_PIXELS_PER_DEGREE);
+    Some(nv_flip::FlipPool::from_image(&map).mean() as f64)
+}
+
+/// Without the `flip` feature, no FLIP: the report says `null`.
+#[cfg(not(any(test, feature = "flip")))]
+fn flip_mean(_: &[u8], _: &[u8], _: (u32, u32)) -> Option<f64> {
+    None
 }
 // ANCHOR_END: error
 
@@ -138,17 +168,18 @@ impl ErrorProbe<'_> {
 /// against median GPU time per frame), for every walk.
 pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Result<String> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let mut csv = String::from("method,frame,gpu_ms,ao_ms,rmse\n");
+    let mut csv = String::from("method,frame,gpu_ms,ao_ms,rmse,flip\n");
     for w in walks {
         for f in &w.frames {
             let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
-            writeln!(csv, "\"{}\",{},{},{},{}", w.method, f.frame, o(f.gpu_ms), o(f.ao_ms), o(f.rmse))?;
+            let (gpu, ao, rmse, flip) = (o(f.gpu_ms), o(f.ao_ms), o(f.rmse), o(f.flip));
+            writeln!(csv, "\"{}\",{},{gpu},{ao},{rmse},{flip}", w.method, f.frame)?;
         }
     }
     let base = walks.first().and_then(|w| w.error_mean);
     let mut table = format!("Measured on {device}.\n\n");
-    table.push_str("| method | frame ms (wall) | GPU ms | AO ms | mean error | worst error | frames back within 1.5x |\n");
-    table.push_str("|---|---:|---:|---:|---:|---:|---:|\n");
+    table.push_str("| method | frame ms (wall) | GPU ms | AO ms | mean error | worst error | mean FLIP | frames back within 1.5x |\n");
+    table.push_str("|---|---:|---:|---:|---:|---:|---:|---:|\n");
     for w in walks {
         let o = |v: Option<f64>, d: usize| v.map_or("-".into(), |v| format!("{v:.d$}"));
         let back = match (cut, base) {
@@ -157,13 +188,14 @@ pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Resu
         };
         writeln!(
             table,
-            "| {} | {} | {} | {} | {} | {} | {back} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {back} |",
             w.method,
             o(w.frame_wall_median_ms, 2),
             o(w.gpu_median_ms, 2),
             o(w.ao_median_ms, 2),
             o(w.error_mean, 4),
-            o(w.error_worst, 4)
+            o(w.error_worst, 4),
+            o(w.flip_mean, 4)
         )?;
     }
     let write = |name: &str, text: &str| {
@@ -251,3 +283,16 @@ fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
     Ok(())
 }
 // ANCHOR_END: plot
+
+#[cfg(test)]
+mod tests {
+    /// FLIP sees nothing between a picture and itself, and sees a changed region.
+    #[test]
+    fn flip_sees_a_difference_and_no_other() {
+        let grey: Vec<u8> = [128u8, 128, 128, 255].repeat(32 * 32);
+        let mut marked = grey.clone();
+        marked[..4 * 32 * 8].iter_mut().step_by(4).for_each(|r| *r = 255);
+        assert_eq!(super::flip_mean(&grey, &grey, (32, 32)), Some(0.0));
+        assert!(super::flip_mean(&grey, &marked, (32, 32)).is_some_and(|e| e > 0.05));
+    }
+}

@@ -76,12 +76,16 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
                     check_last_frame(p, sized, &camera, (drawn, args), report)?;
                 }
             }
-            let rmse = match args.error_against {
-                0 => None,
-                _ if !measured(frame, args.error_every, p.path.cut()) => None,
-                _ => Some(probe.measure(p.apis, (&sized.targets, &mut sized.fresh), (&camera, frame), &mut references)?),
+            let (rmse, flip) = match args.error_against {
+                0 => (None, None),
+                _ if !measured(frame, args.error_every, p.path.cut()) => (None, None),
+                _ => {
+                    let sized = (&sized.targets, &mut sized.fresh);
+                    let (rmse, flip) = probe.measure(p.apis, sized, (&camera, frame), &mut references)?;
+                    (Some(rmse), flip)
+                }
             };
-            records.push(FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse });
+            records.push(FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse, flip });
         }
         clock.finish(p)?;
         if let Some(timeline) = clock.finish_timeline(p, &args.common.out_dir(crate::CHAPTER).join("timeline"))? {
