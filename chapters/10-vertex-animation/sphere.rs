@@ -2,7 +2,7 @@
 //! on the CPU, for the checks), the compute pipeline, and one frame's Vulkan work with its
 //! barriers.
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::VulkanContext;
 use common::base::fail;
@@ -201,8 +201,9 @@ impl VertexHandoff {
                 let buffers = [self.gl_buffer.0.get()];
                 (ext.WaitSemaphoreEXT)(moved.gl, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
             },
-            None => unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
-                .context("vkWaitForFences for the moved vertices")?,
+            None => fail::call("vkWaitForFences for the moved vertices", || unsafe {
+                vk.device.wait_for_fences(&[fence], true, u64::MAX)
+            })?,
         }
         self.with_gl.set(true);
         Ok(())
