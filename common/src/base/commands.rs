@@ -56,11 +56,7 @@ impl Commands {
     pub fn begin(&self, vk: &VulkanContext) -> Result<vk::CommandBuffer> {
         unsafe {
             if self.in_flight.get() {
-                // A failed wait leaves `in_flight` set: the drop still waits for the real work.
-                fail::call("vkWaitForFences for the previous submission", || {
-                    vk.device.wait_for_fences(&[self.fence], true, u64::MAX)
-                })?;
-                self.in_flight.set(false);
+                self.wait(vk, "vkWaitForFences for the previous submission")?;
             }
             fail::call("vkResetCommandBuffer", || {
                 vk.device.reset_command_buffer(self.buffer, vk::CommandBufferResetFlags::empty())
@@ -110,13 +106,23 @@ impl Commands {
         self.wait(vk, "vkWaitForFences for one-shot work")
     }
 
-    /// Waits for the last submission: `what` names the wait in an error (and as a step of
-    /// `base::fail`). A failed wait leaves the submission in flight, so the drop still waits.
+    /// Waits for the last submission (see [`wait_for`]); `what` names the wait.
     pub fn wait(&self, vk: &VulkanContext, what: &str) -> Result<()> {
-        fail::call(what, || unsafe { vk.device.wait_for_fences(&[self.fence], true, u64::MAX) })?;
+        let waited = wait_for(vk, self.fence, what);
         self.in_flight.set(false);
-        Ok(())
+        waited
     }
+}
+
+/// Waits for `fence`, as one step of `base::fail` named `what`. Failed or not, the work is over
+/// when it returns: a failed wait (device lost, or injected) waits once more, its result
+/// ignored, so that whatever the caller drops on its way out is no longer in use.
+pub fn wait_for(vk: &VulkanContext, fence: vk::Fence, what: &str) -> Result<()> {
+    let waited = fail::call(what, || unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) });
+    if waited.is_err() {
+        let _ = unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) };
+    }
+    waited
 }
 
 impl Drop for Commands {

@@ -236,9 +236,7 @@ impl Handoff {
             Handoff::Host { .. } => {
                 // Where Vulkan left them, GL will not move them: the next gl_release checks it.
                 textures.iter().zip(layouts).for_each(|(t, &layout)| vulkan_left(t.0.get(), Some(layout)));
-                fail::call("vkWaitForFences for Vulkan's work, on the CPU", || unsafe {
-                    vk.device.wait_for_fences(&[fence], true, u64::MAX)
-                })
+                crate::base::commands::wait_for(vk, fence, "vkWaitForFences for Vulkan's work, on the CPU")
             }
         }
     }
