@@ -124,18 +124,20 @@ fn chosen(steps: &[(u32, String)]) -> Vec<(u32, String)> {
 
 /// What each fd left open at exit points at (the fd numbers themselves may differ between runs).
 fn fds_left(run: &Run) -> Vec<String> {
-    let line = run
-        .stderr
-        .lines()
-        .find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "))
-        .unwrap_or_else(|| panic!("with VKGL_FAIL_AT the chapter lists the fds it left:\n{}", run.stderr));
+    listed_fds(run)
+        .unwrap_or_else(|| panic!("with VKGL_FAIL_AT the chapter lists the fds it left:\n{}", run.stderr))
+}
+
+/// The fds a run listed, if it got as far as listing them.
+fn listed_fds(run: &Run) -> Option<Vec<String>> {
+    let line = run.stderr.lines().find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "))?;
     let mut targets: Vec<String> = line
         .split("\", \"")
         .filter_map(|fd| fd.split_once(" -> "))
         .map(|(_, t)| t.trim_end_matches("\"]").to_owned())
         .collect();
     targets.sort();
-    targets
+    Some(targets)
 }
 
 /// What is wrong with a run whose step `n` failed, if anything: its exit code, its error, what
@@ -158,10 +160,14 @@ fn problems(run: &Run, (n, what): &(u32, String), kept_by_driver: &[String]) -> 
     if !run.stderr.contains("resources: alive after the chapter ran: []") {
         problems.push("resources left alive".into());
     }
-    let mut left = fds_left(run);
-    left.retain(|fd| !kept_by_driver.contains(fd));
-    if !left.is_empty() {
-        problems.push(format!("fds left open: {left:?}"));
+    match listed_fds(run) {
+        None => problems.push("no list of the fds left (did it crash?)".into()),
+        Some(mut left) => {
+            left.retain(|fd| !kept_by_driver.contains(fd));
+            if !left.is_empty() {
+                problems.push(format!("fds left open: {left:?}"));
+            }
+        }
     }
     problems
 }
