@@ -124,18 +124,20 @@ fn chosen(steps: &[(u32, String)]) -> Vec<(u32, String)> {
 
 /// What each fd left open at exit points at (the fd numbers themselves may differ between runs).
 fn fds_left(run: &Run) -> Vec<String> {
-    let line = run
-        .stderr
-        .lines()
-        .find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "))
-        .unwrap_or_else(|| panic!("with VKGL_FAIL_AT the chapter lists the fds it left:\n{}", run.stderr));
+    listed_fds(run)
+        .unwrap_or_else(|| panic!("with VKGL_FAIL_AT the chapter lists the fds it left:\n{}", run.stderr))
+}
+
+/// The fds a run listed, if it got as far as listing them.
+fn listed_fds(run: &Run) -> Option<Vec<String>> {
+    let line = run.stderr.lines().find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "))?;
     let mut targets: Vec<String> = line
         .split("\", \"")
         .filter_map(|fd| fd.split_once(" -> "))
         .map(|(_, t)| t.trim_end_matches("\"]").to_owned())
         .collect();
     targets.sort();
-    targets
+    Some(targets)
 }
 
 /// What is wrong with a run whose step `n` failed, if anything: its exit code, its error, what
@@ -158,10 +160,14 @@ fn problems(run: &Run, (n, what): &(u32, String), kept_by_driver: &[String]) -> 
     if !run.stderr.contains("resources: alive after the chapter ran: []") {
         problems.push("resources left alive".into());
     }
-    let mut left = fds_left(run);
-    left.retain(|fd| !kept_by_driver.contains(fd));
-    if !left.is_empty() {
-        problems.push(format!("fds left open: {left:?}"));
+    match listed_fds(run) {
+        None => problems.push("no list of the fds left (did it crash?)".into()),
+        Some(mut left) => {
+            left.retain(|fd| !kept_by_driver.contains(fd));
+            if !left.is_empty() {
+                problems.push(format!("fds left open: {left:?}"));
+            }
+        }
     }
     problems
 }
@@ -267,4 +273,106 @@ fn a_size_the_device_refuses_fails_cleanly() {
     let mut left = fds_left(&run);
     left.retain(|fd| !kept_by_driver.contains(fd));
     assert!(left.is_empty(), "fds left open {left:?}\n{}", run.stderr);
+}
+
+/// Calls into the driver, the allocator or the file system that return a `Result`: each must
+/// be a step of `base::fail` (`fail::call` or `fail::step` on its line or just above), so that
+/// the test above fails it. A `Drop` cannot return a failure, so its calls are not steps; nor
+/// are the calls that give something back (`vkDestroy*`, `vkUnmapMemory`, CUDA's frees).
+const FALLIBLE: &[&str] = &[
+    ".wait_for_fences(",
+    ".reset_fences(",
+    ".begin_command_buffer(",
+    ".end_command_buffer(",
+    ".reset_command_buffer(",
+    ".queue_submit(",
+    ".device_wait_idle(",
+    ".bind_buffer_memory(",
+    ".bind_image_memory(",
+    ".map_memory(",
+    ".allocate_memory(",
+    ".get_memory_fd(",
+    ".get_semaphore_fd(",
+    ".get_query_pool_results(",
+    ".get_ray_tracing_shader_group_handles(",
+    ".enumerate_physical_devices(",
+    "Allocator::new(",
+    "cu::launch_kernel(",
+    "cu::event::record(",
+    "cuGraphicsMapResources(",
+    "image::save_buffer(",
+    "std::fs::write(",
+    "std::fs::create_dir_all(",
+];
+
+/// `file:line: call` for every call of [`FALLIBLE`] in `text` that is not a step.
+fn unstepped_calls(file: &str, text: &str) -> Vec<String> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut found = Vec::new();
+    let mut in_drop = false;
+    for (i, line) in lines.iter().enumerate() {
+        let code = line.trim_start();
+        if code.starts_with("#[cfg(test)]") {
+            break; // unit tests may unwrap
+        }
+        // A top-level item starts: is it a Drop?
+        if line.starts_with("impl") || line.starts_with("pub ") || line.starts_with("fn ") {
+            in_drop = line.starts_with("impl") && line.contains("Drop for");
+        }
+        if code.starts_with("//") || in_drop {
+            continue;
+        }
+        for call in FALLIBLE.iter().filter(|call| line.contains(*call)) {
+            let stepped = lines[i.saturating_sub(3)..=i]
+                .iter()
+                .any(|l| l.contains("fail::call(") || l.contains("fail::step("));
+            if !stepped {
+                found.push(format!("{file}:{}: {} ({call})", i + 1, code));
+            }
+        }
+    }
+    found
+}
+
+fn rust_files(dir: &std::path::Path, files: &mut Vec<std::path::PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            rust_files(&path, files);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            files.push(path);
+        }
+    }
+}
+
+#[test]
+fn every_fallible_call_is_a_step() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    for dir in ["common/src", "chapters"] {
+        rust_files(&root.join(dir), &mut files);
+    }
+    files.sort();
+    let found: Vec<String> = files
+        .iter()
+        .flat_map(|path| {
+            let name = path.strip_prefix(root).unwrap().display().to_string();
+            unstepped_calls(&name, &std::fs::read_to_string(path).unwrap())
+        })
+        .collect();
+    assert!(files.len() > 50, "found only {} Rust files under common/src and chapters", files.len());
+    assert!(
+        found.is_empty(),
+        "fallible calls that VKGL_FAIL_AT cannot fail (wrap each in fail::call or fail::step):\n{}",
+        found.join("\n")
+    );
+}
+
+#[test]
+fn the_scan_finds_an_unstepped_call_and_spares_drop() {
+    let text = "fn f() {\n    unsafe { vk.device.bind_buffer_memory(b, m, 0) }?;\n}\n\
+                impl Drop for X {\n    fn drop(&mut self) {\n        let _ = d.wait_for_fences(&[f], true, 0);\n    }\n}\n\
+                fn g() {\n    fail::call(\"vkMapMemory\", || unsafe {\n        d.map_memory(m, 0, 4, flags)\n    })?;\n}\n";
+    let found = unstepped_calls("x.rs", text);
+    assert_eq!(found, ["x.rs:2: unsafe { vk.device.bind_buffer_memory(b, m, 0) }?; (.bind_buffer_memory()"]);
 }

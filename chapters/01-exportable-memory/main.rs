@@ -187,11 +187,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let image_memory =
         exportable::allocate(&ctx, &image_requirements, device_local, Dedicated::Image(*image))?;
     let image_memory = guard(image_memory, free);
-    unsafe {
-        // Offset 0, always: llvmpipe ignores offsets into imported memory.
-        ctx.device.bind_buffer_memory(*buffer, buffer_memory.memory, 0).context("vkBindBufferMemory")?;
-        ctx.device.bind_image_memory(*image, image_memory.memory, 0).context("vkBindImageMemory")?;
-    }
+    // Offset 0, always: llvmpipe ignores offsets into imported memory.
+    fail::call("vkBindBufferMemory", || unsafe {
+        ctx.device.bind_buffer_memory(*buffer, buffer_memory.memory, 0)
+    })?;
+    fail::call("vkBindImageMemory", || unsafe {
+        ctx.device.bind_image_memory(*image, image_memory.memory, 0)
+    })?;
     // ANCHOR_END: allocate
     report.check("buffer_memory_has_import_slack", buffer_memory.size >= buffer_requirements.size + 48);
     report.check("image_memory_is_exact", image_memory.size == image_requirements.size);
@@ -211,9 +213,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 7. Prove the descriptor is the memory: import it back and read the triangle through it
     // ANCHOR: reimport
-    let mapped =
-        unsafe { ctx.device.map_memory(buffer_memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
-            .context("mapping the exported buffer")?;
+    let mapped = fail::call("vkMapMemory for the exported buffer", || unsafe {
+        ctx.device.map_memory(buffer_memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
+    })?;
     // SAFETY: the mapping is BUFFER_BYTES long and host-coherent; nothing else uses it.
     unsafe {
         std::ptr::copy_nonoverlapping(
@@ -238,8 +240,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // SAFETY: the import succeeded, so the fd now belongs to the driver; it must not be closed.
     let _ = buffer_fd.into_raw_fd();
 
-    let view = unsafe { ctx.device.map_memory(*imported, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty()) }
-        .context("mapping the imported memory")?;
+    let view = fail::call("vkMapMemory for the imported memory", || unsafe {
+        ctx.device.map_memory(*imported, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
+    })?;
     // SAFETY: BUFFER_BYTES of host-coherent mapped memory.
     let read_back: [[f32; 4]; 3] = unsafe { std::ptr::read_unaligned(view.cast()) };
     unsafe { ctx.device.unmap_memory(*imported) };

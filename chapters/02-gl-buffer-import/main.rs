@@ -6,7 +6,7 @@
 //!
 //! Run: `cargo run --bin 02-gl-buffer-import` (writes out/02-gl-buffer-import/*.png).
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::fail;
@@ -94,7 +94,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
     let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
     let memory = guard(memory, |memory| unsafe { vk.device.free_memory(memory.memory, None) });
-    unsafe { vk.device.bind_buffer_memory(*buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
+    fail::call("vkBindBufferMemory", || unsafe { vk.device.bind_buffer_memory(*buffer, memory.memory, 0) })?;
     // Mapped for the whole chapter: Vulkan's view of the bytes.
     let mapped = fail::call("vkMapMemory", || unsafe {
         vk.device.map_memory(memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())

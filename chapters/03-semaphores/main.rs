@@ -8,7 +8,7 @@
 //!
 //! Run: `cargo run --bin 03-semaphores -- --frames 60` (add `--unsynchronised` to see it break).
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{COLOR_RANGE, Commands, HostBuffer};
@@ -170,7 +170,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
 
     // The last frame's copy: wait for its fence (Commands::begin would) before reading it.
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    commands.wait(&vk, "vkWaitForFences for the last frame's copy")?;
     vulkan_saw_gl &= first_pixel_is(&gl_pixels_seen_by_vulkan, frame_colours(frames - 1).0);
     if let Some(t) = &timestamps {
         times.add("vulkan_gpu", t.read_ms(&vk)?);

@@ -11,7 +11,7 @@
 mod check;
 mod compute;
 
-use anyhow::{Context as _, Result, bail};
+use anyhow::{Result, bail};
 use ash::vk;
 use check::Checks;
 use common::base::cli::Smallest;
@@ -205,7 +205,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // side first, and make the new one. The reference skipped the wait and leaked.
             unsafe {
                 gl.finish();
-                vk.device.wait_for_fences(&[commands.fence], true, u64::MAX).context("vkWaitForFences")?;
+                commands.wait(&vk, "vkWaitForFences before a resize")?;
             }
             // The new image first: if the device cannot make it, a window keeps the old one
             // (share_image points the descriptor at an image only once it exists).
@@ -299,7 +299,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         checks.times.add("frame_cpu", ms_since(frame_started));
         frame += 1;
     }
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    commands.wait(&vk, "vkWaitForFences after the last frame")?;
     if frame > 0
         && let Some(t) = &timestamps
     {

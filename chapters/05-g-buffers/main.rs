@@ -6,7 +6,7 @@
 //!
 //! Run: `cargo run --release --bin 05-g-buffers` (or `-- --scene assets/bunny.obj`).
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
@@ -152,7 +152,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     commands.submit(&vk, wait, handoff.vulkan_signals())?;
     handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
     // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    commands.wait(&vk, "vkWaitForFences for the copies")?;
     // ANCHOR_END: handover
     report.time_ms("raster_and_handover_cpu", ms_since(started));
     gl_timer.finish(gl, &mut times);

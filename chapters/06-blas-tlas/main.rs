@@ -7,7 +7,7 @@
 //!
 //! Run: `cargo run --release --bin 06-blas-tlas` (or `-- --scene assets/bunny.obj`).
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{
@@ -179,7 +179,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let wait = handoff.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
     commands.submit(&vk, wait, handoff.vulkan_signals())?;
     handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    commands.wait(&vk, "vkWaitForFences for the trace")?;
     if let Some(t) = &timestamps {
         report.time_ms("trace_gpu", t.read_ms(&vk)?);
     }

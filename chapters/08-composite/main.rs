@@ -9,7 +9,7 @@
 //! Run: `cargo run --release --bin 08-composite` (keys: 1-6 views, +/- rays, [/] radius,
 //! B blur, P power, O overlays, Esc quits; drag to orbit, wheel to zoom).
 
-use anyhow::{Context as _, Result, ensure};
+use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
@@ -171,8 +171,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // Every shared image is made anew at the new size, once the GPU is done with the old
             // ones (the reference sample leaked them and kept descriptors pointing at them).
             unsafe { gl.finish() };
-            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
-                .context("vkWaitForFences before a resize")?;
+            commands.wait(&vk, "vkWaitForFences before a resize")?;
             size = new;
             let fresh = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
             let old = std::mem::replace(&mut gbuffers, fresh);

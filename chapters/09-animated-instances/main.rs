@@ -7,7 +7,7 @@
 //!
 //! Run: `cargo run --release --bin 09-animated-instances -- --frames 120`.
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
@@ -139,7 +139,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // The previous frame's Vulkan work is done: its trace, the TLAS update submitted before
         // it, and (the trace having waited for it) GL's draw. Nothing reads the instance
         // buffer now, so the CPU may write it. (The trace's own `begin` would wait here anyway.)
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+        commands.wait(&vk, "vkWaitForFences for the previous frame")?;
         read_times(&vk, last_refresh.take(), &update_timer, &trace_timer, &mut times)?;
         ring.write(instances, time);
         let refresh = match args.animation.rebuild_every {
@@ -168,7 +168,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             pictures.push((frame, upright));
         }
     }
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    commands.wait(&vk, "vkWaitForFences after the last frame")?;
     read_times(&vk, last_refresh, &update_timer, &trace_timer, &mut times)?;
     gl_timer.finish(gl, &mut times);
     gl_context.check_error("the frame loop")?;

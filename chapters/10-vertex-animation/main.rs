@@ -7,7 +7,7 @@
 //!
 //! Run: `cargo run --release --bin 10-vertex-animation -- --frames 60`.
 
-use anyhow::{Context as _, Result, ensure};
+use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
@@ -251,7 +251,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             pictures.push((frame, output::flip_rows(&composite.read(gl), extent.width, extent.height)));
         }
     }
-    unsafe { vk.device.wait_for_fences(&[animation.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    animation.wait(&vk, "vkWaitForFences for the last animation")?;
     if let (Some(done), Some(timer)) = (animated, &animation_timer) {
         sphere::add_times(&vk, timer, done, &mut times)?;
     }
@@ -268,7 +268,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("workgroup_size", sphere::WORKGROUP);
 
     // 6. Check the vertices, the occlusion, the motion; write the frames
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    commands.wait(&vk, "vkWaitForFences before the checks")?;
     let moved = &buffers.meshes[1][0].0;
     // SAFETY: `count` vertices of the coherent mapping; the GPU is done with them (fence above).
     let gpu =

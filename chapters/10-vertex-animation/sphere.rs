@@ -2,9 +2,10 @@
 //! on the CPU, for the checks), the compute pipeline, and one frame's Vulkan work with its
 //! barriers.
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::VulkanContext;
+use common::base::commands;
 use common::base::fail;
 use common::base::timestamps::Timestamps;
 use common::base::timing::PassTimes;
@@ -201,8 +202,7 @@ impl VertexHandoff {
                 let buffers = [self.gl_buffer.0.get()];
                 (ext.WaitSemaphoreEXT)(moved.gl, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
             },
-            None => unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
-                .context("vkWaitForFences for the moved vertices")?,
+            None => commands::wait_for(vk, fence, "vkWaitForFences for the moved vertices")?,
         }
         self.with_gl.set(true);
         Ok(())

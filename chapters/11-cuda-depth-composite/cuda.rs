@@ -4,6 +4,7 @@
 
 use crate::scene::TraceParams;
 use anyhow::{Context as _, Result, ensure};
+use common::base::fail;
 use common::interop::cuda::{CudaDevice, cu, sys};
 use std::ffi::{CString, c_void};
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
@@ -27,22 +28,27 @@ impl CudaTracer {
     pub fn new(device: CudaDevice) -> Result<Self> {
         let ptx = CString::new(PTX)?;
         // SAFETY: `ptx` is NUL-terminated PTX text; CUDA copies what it needs.
-        let module = match unsafe { cu::module::load_data(ptx.as_ptr().cast()) } {
-            Ok(module) => module,
-            Err(error) => {
-                device.destroy()?;
-                return Err(error).context(
+        let module =
+            match fail::call("cuModuleLoadData", || unsafe { cu::module::load_data(ptx.as_ptr().cast()) }) {
+                Ok(module) => module,
+                Err(error) => {
+                    device.destroy()?;
+                    return Err(error).context(
                     "cuModuleLoadData: the driver cannot compile the PTX (it came from NVRTC 12.9: drivers \
                      older than CUDA 12.9 refuse it; fix: update the NVIDIA driver)",
                 );
-            }
-        };
+                }
+            };
         let rest = || -> Result<_> {
-            let function = unsafe { cu::module::get_function(module, CString::new("trace")?) }
-                .context("cuModuleGetFunction(trace)")?;
+            let name = CString::new("trace")?;
+            let function = fail::call("cuModuleGetFunction(trace)", || unsafe {
+                cu::module::get_function(module, name)
+            })?;
             // Non-blocking: this stream never waits for work on the legacy default stream.
-            let stream = cu::stream::create(cu::stream::StreamKind::NonBlocking).context("cuStreamCreate")?;
-            let event = || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT).context("cuEventCreate");
+            let stream =
+                fail::call("cuStreamCreate", || cu::stream::create(cu::stream::StreamKind::NonBlocking))?;
+            let event =
+                || fail::call("cuEventCreate", || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT));
             Ok((function, stream, event()?, event()?))
         };
         match rest() {
@@ -69,10 +75,11 @@ impl CudaTracer {
         let mut arguments: [*mut c_void; 2] = [(&raw mut traced).cast(), (&raw mut params).cast()];
         let grid = (params.width.div_ceil(16), params.height.div_ceil(16), 1);
         unsafe {
-            cu::event::record(self.started, self.stream)?;
-            cu::launch_kernel(self.function, grid, (16, 16, 1), 0, self.stream, &mut arguments)
-                .context("cuLaunchKernel(trace)")?;
-            cu::event::record(self.finished, self.stream)?;
+            fail::call("cuEventRecord (start)", || cu::event::record(self.started, self.stream))?;
+            fail::call("cuLaunchKernel(trace)", || {
+                cu::launch_kernel(self.function, grid, (16, 16, 1), 0, self.stream, &mut arguments)
+            })?;
+            fail::call("cuEventRecord (end)", || cu::event::record(self.finished, self.stream))?;
         }
         Ok(())
     }
@@ -81,14 +88,14 @@ impl CudaTracer {
     /// Waits for the last launch, and returns how long the GPU ran it.
     pub fn kernel_ms(&self) -> Result<f64> {
         unsafe {
-            cu::event::synchronize(self.finished).context("cuEventSynchronize")?;
-            Ok(cu::event::elapsed(self.started, self.finished).context("cuEventElapsedTime")? as f64)
+            fail::call("cuEventSynchronize", || cu::event::synchronize(self.finished))?;
+            Ok(fail::call("cuEventElapsedTime", || cu::event::elapsed(self.started, self.finished))? as f64)
         }
     }
 
     /// Blocks this thread until everything queued on the stream has run.
     pub fn synchronize(&self) -> Result<()> {
-        unsafe { cu::stream::synchronize(self.stream) }.context("cuStreamSynchronize")
+        fail::call("cuStreamSynchronize", || unsafe { cu::stream::synchronize(self.stream) })
     }
 
     /// Everything made in the context, newest first, then the context itself.
@@ -127,18 +134,19 @@ impl RegisteredPbo {
         bytes: u64,
     ) -> Result<sys::CUdeviceptr> {
         unsafe {
-            sys::cuGraphicsMapResources(1, &mut self.resource, tracer.stream)
-                .result()
-                .context("cuGraphicsMapResources")?;
+            fail::call("cuGraphicsMapResources", || {
+                sys::cuGraphicsMapResources(1, &mut self.resource, tracer.stream).result()
+            })?;
             let (mut pointer, mut size) = (0, 0);
-            let mapped = sys::cuGraphicsResourceGetMappedPointer_v2(&mut pointer, &mut size, self.resource)
-                .result()
-                .context("cuGraphicsResourceGetMappedPointer");
+            let mapped = fail::call("cuGraphicsResourceGetMappedPointer", || {
+                sys::cuGraphicsResourceGetMappedPointer_v2(&mut pointer, &mut size, self.resource).result()
+            });
             let launched = mapped.and_then(|()| {
                 ensure!(size as u64 >= bytes, "the mapped PBO holds {size} bytes, not {bytes}");
                 tracer.launch(pointer, params)
             });
-            // Unmapped even when the launch failed: a mapped buffer cannot be deleted by GL.
+            // Unmapped even when the launch failed: a mapped buffer cannot be deleted by GL. (Like
+            // every call that gives something back, not a step `VKGL_FAIL_AT` fails.)
             sys::cuGraphicsUnmapResources(1, &mut self.resource, tracer.stream)
                 .result()
                 .context("cuGraphicsUnmapResources")?;
@@ -178,17 +186,21 @@ impl ImportedMemory {
     pub fn new(fd: OwnedFd, size: u64, bytes: u64) -> Result<Self> {
         // OPAQUE_FD, as Vulkan exported it. On success CUDA owns the fd (and closes it when the
         // external memory is destroyed); on failure it is still ours, and `fd` closes it.
-        let external = unsafe { cu::external_memory::import_external_memory_opaque_fd(fd.as_raw_fd(), size) }
-            .context("cuImportExternalMemory(OPAQUE_FD)")?;
+        let external = fail::call("cuImportExternalMemory(OPAQUE_FD)", || unsafe {
+            cu::external_memory::import_external_memory_opaque_fd(fd.as_raw_fd(), size)
+        })?;
         // SAFETY: the import succeeded: the fd is CUDA's now, and closing it too would be a double close.
         let _ = fd.into_raw_fd();
         common::base::resources::created("cuda_external_memory", 0); // its bytes are Vulkan's allocation
-        match unsafe { cu::external_memory::get_mapped_buffer(external, 0, bytes) } {
+        let mapped = fail::call("cuExternalMemoryGetMappedBuffer", || unsafe {
+            cu::external_memory::get_mapped_buffer(external, 0, bytes)
+        });
+        match mapped {
             Ok(pointer) => Ok(ImportedMemory { external, pointer }),
             Err(error) => {
                 unsafe { cu::external_memory::destroy_external_memory(external) }.ok();
                 common::base::resources::destroyed("cuda_external_memory");
-                Err(error).context("cuExternalMemoryGetMappedBuffer")
+                Err(error)
             }
         }
     }

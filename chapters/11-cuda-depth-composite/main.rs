@@ -240,7 +240,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
         vk.device.free_memory(m.memory, None);
     });
     let (buffer, memory) = (path2.0, &path2.1);
-    unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) }.context("vkBindBufferMemory")?;
+    fail::call("vkBindBufferMemory", || unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) })?;
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
     // One fd per importer: each import takes ownership of the fd it is given.
     let imported = match tracer {

@@ -4,7 +4,7 @@
 
 use crate::composite::{ComputeComposite, Uniforms, View};
 use crate::visibility::Targets;
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use common::Report;
 use common::base::cli::{Size, check_covered};
 use common::base::output;
@@ -324,7 +324,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     let ids = read_ids(&gl.gl, targets);
     let subpixel_bits = unsafe { gl.gl.get_parameter_i32(glow::SUBPIXEL_BITS) }.clamp(1, 16) as u32;
     unsafe { gl.gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+    commands.wait(vk, "vkWaitForFences before the checks")?;
     drop(commands);
     drop(tracer);
     drop(gbuffers);

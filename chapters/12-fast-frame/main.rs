@@ -9,7 +9,7 @@
 //! Run: `cargo run --release --bin 12-fast-frame` (keys: 1-5 views, +/- rays, [/] radius,
 //! B blur, P power, O overlays, T sample pattern, Esc quits; drag to orbit, wheel to zoom).
 
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::Size;
 use common::base::cli::Smallest;
@@ -169,8 +169,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if let Some(new) = new_size {
             // Every image of the old size goes, once neither API uses it; the rest stays.
             unsafe { gl.finish() };
-            unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
-                .context("vkWaitForFences before a resize")?;
+            commands.wait(&vk, "vkWaitForFences before a resize")?;
             size = new;
             drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, extent(size))?));
             tracer.resized(&vk, &targets);

@@ -11,7 +11,7 @@
 
 use crate::trace::{Rays, SurfaceTracer};
 use crate::visibility::{MeshIds, Targets, VisibilityPass};
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use common::base::timestamps::median_p95;
 use common::interop::handoff::Apis;
 use common::scene::{Camera, Scene};
@@ -36,7 +36,7 @@ pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: &Probe, rounds: u32) -
     let draw_spare = || p.visibility.draw(g, &spare, p.scene, p.ids, p.camera);
     let done = || -> Result<()> {
         unsafe { g.finish() };
-        unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }.context("vkWaitForFences")?;
+        commands.wait(vk, "vkWaitForFences for an overlap sample")?;
         Ok(())
     };
     let (mut during, mut after, mut alone) = (Vec::new(), Vec::new(), Vec::new());

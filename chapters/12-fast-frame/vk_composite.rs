@@ -122,8 +122,7 @@ pub fn measure(
     }
     commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, compute)), handoff.vulkan_signals())?;
     handoff.gl_acquire(vk, gl, commands.fence, &texture, &[to_gl])?;
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
-        .context("vkWaitForFences after the Vulkan composite")?;
+    commands.wait(vk, "vkWaitForFences after the Vulkan composite")?;
     let times: Vec<f64> =
         (0..rounds).map(|round| stamps.between_ms(vk, 2 * round, 2 * round + 1)).collect::<Result<_>>()?;
     let median_ms = common::base::timestamps::median_p95(&times).0;

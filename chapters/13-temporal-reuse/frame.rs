@@ -8,8 +8,8 @@ use crate::trace::{Pattern, Rays, SurfaceTracer};
 use crate::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::{Context as _, Result};
 use common::base::commands::Commands;
-use common::base::timestamps::Timestamps;
 use common::base::timeline::{Timeline, stamp_into as stamp};
+use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes, read_after};
 use common::frame::Overlays;
 use common::interop::exportable::ExportedBuffer;
@@ -101,8 +101,14 @@ impl Clock {
     }
 
     /// The timeline, read and written to `<out>.json` and `<out>.svg` (both APIs idle).
-    pub fn finish_timeline(&mut self, p: &Passes, out: &std::path::Path) -> Result<Option<serde_json::Value>> {
-        let (Some((timeline, _)), Some(stamps)) = (self.timeline.take(), p.timestamps) else { return Ok(None) };
+    pub fn finish_timeline(
+        &mut self,
+        p: &Passes,
+        out: &std::path::Path,
+    ) -> Result<Option<serde_json::Value>> {
+        let (Some((timeline, _)), Some(stamps)) = (self.timeline.take(), p.timestamps) else {
+            return Ok(None);
+        };
         unsafe { glow::HasContext::finish(&*p.apis.gl.gl) };
         Ok(Some(timeline.finish(p.apis.vk, p.apis.commands, stamps, out)?.into()))
     }
@@ -121,8 +127,7 @@ impl Passes<'_> {
         let g = &gl.gl;
         // The previous frame's Vulkan work is done, and with it GL's draw it waited for: nothing
         // reads the instance buffers now, so the CPU may write them.
-        unsafe { vk.device.wait_for_fences(&[self.apis.commands.fence], true, u64::MAX) }
-            .context("vkWaitForFences at the top of a frame")?;
+        self.apis.commands.wait(vk, "vkWaitForFences at the top of a frame")?;
         clock.read_trace(self)?;
         let slot = clock.timeline.as_ref().and_then(|(t, frames)| t.slot(frame, *frames));
         let timeline = clock.timeline.as_ref().map(|(t, _)| t);

@@ -9,7 +9,7 @@
 //!
 //! Run: `cargo run --release --bin 13-temporal-reuse` (keys: H history on/off, Esc quits).
 
-use anyhow::{Context as _, Result, ensure};
+use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::{Size, Smallest};
 use common::base::commands::Commands;
@@ -227,8 +227,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 pub fn resize(passes: &Passes, sized: &mut Sized, size: Size) -> Result<()> {
     let Apis { vk, gl, commands, .. } = passes.apis;
     unsafe { gl.gl.finish() };
-    unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
-        .context("vkWaitForFences before a resize")?;
+    commands.wait(vk, "vkWaitForFences before a resize")?;
     let extent = vk::Extent2D { width: size.width, height: size.height };
     drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, extent)?));
     sized.fresh.resized(vk, &sized.targets);

@@ -6,7 +6,8 @@ use crate::check::read_picture;
 use crate::composite::{ComputeComposite, Uniforms, View};
 use crate::trace::{Pattern, Rays, SurfaceTracer};
 use crate::visibility::Targets;
-use anyhow::{Context as _, Result};
+use anyhow::Result;
+use common::base::output;
 use common::interop::handoff::Apis;
 use common::scene::Camera;
 use plotters::prelude::*;
@@ -49,7 +50,11 @@ pub fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
 impl Walk {
     /// `gpu_median_ms`: the sum of the passes' medians (a pass whose times were all left out,
     /// as llvmpipe's overlays are, counts nothing).
-    pub fn new(method: String, frames: Vec<FrameRecord>, (frame_wall_median_ms, gpu_median_ms): (Option<f64>, Option<f64>)) -> Walk {
+    pub fn new(
+        method: String,
+        frames: Vec<FrameRecord>,
+        (frame_wall_median_ms, gpu_median_ms): (Option<f64>, Option<f64>),
+    ) -> Walk {
         let errors: Vec<f64> = frames.iter().filter_map(|f| f.rmse).collect();
         let flips: Vec<f64> = frames.iter().filter_map(|f| f.flip).collect();
         Walk {
@@ -167,7 +172,7 @@ fn flip_mean(_: &[u8], _: &[u8], _: (u32, u32)) -> Option<f64> {
 /// compare.md, compare.csv and compare.svg (error per frame) and compare-time.svg (mean error
 /// against median GPU time per frame), for every walk.
 pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Result<String> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    output::create_dir(dir)?;
     let mut csv = String::from("method,frame,gpu_ms,ao_ms,rmse,flip\n");
     for w in walks {
         for f in &w.frames {
@@ -200,15 +205,15 @@ pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Resu
     }
     let write = |name: &str, text: &str| {
         let path = dir.join(name);
-        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))
+        output::write_file(&path, text)
     };
     write("compare.csv", &csv)?;
     write("compare.md", &table)?;
     if walks.iter().any(|w| w.error_mean.is_some()) {
         let path = dir.join("compare.svg");
-        plot_per_frame(&path, walks, device).with_context(|| format!("drawing {}", path.display()))?;
+        output::draw_plot(&path, |path| plot_per_frame(path, walks, device))?;
         let path = dir.join("compare-time.svg");
-        plot_against_time(&path, walks, device).with_context(|| format!("drawing {}", path.display()))?;
+        output::draw_plot(&path, |path| plot_against_time(path, walks, device))?;
     }
     eprintln!("wrote {}/compare.{{md,csv,svg}}", dir.display());
     Ok(table)

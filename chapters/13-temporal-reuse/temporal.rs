@@ -153,7 +153,8 @@ impl TemporalTracer {
         };
         let cameras = DeviceBuffer::new(vk, allocator, host("cameras", size_of::<Cameras>() as u64))?;
         let instance_bytes = shared.buffers.instances.0.bytes;
-        let mut previous_instances = DeviceBuffer::new(vk, allocator, host("previous instances", instance_bytes))?;
+        let mut previous_instances =
+            DeviceBuffer::new(vk, allocator, host("previous instances", instance_bytes))?;
         // At first the previous transforms are the transforms: nothing has moved yet.
         let copy = previous_instances.allocation.mapped_slice_mut().context("previous instances unmapped")?;
         let shared_instances = &shared.buffers.instances.0;
@@ -176,7 +177,11 @@ impl TemporalTracer {
         Ok(tracer)
     }
 
-    fn history_images(vk: &VulkanContext, allocator: &GpuAllocator, extent: vk::Extent2D) -> Result<[StorageImage; 2]> {
+    fn history_images(
+        vk: &VulkanContext,
+        allocator: &GpuAllocator,
+        extent: vk::Extent2D,
+    ) -> Result<[StorageImage; 2]> {
         let usage = vk::ImageUsageFlags::TRANSFER_SRC; // read back by the checks
         let first = StorageImage::new(vk, allocator, HISTORY_FORMAT, usage, extent)?;
         Ok([first, StorageImage::new(vk, allocator, HISTORY_FORMAT, usage, extent)?])
@@ -216,8 +221,7 @@ impl TemporalTracer {
     ) -> Result<()> {
         // The previous frame's work must be done before its descriptors and cameras change.
         let vk = apis.vk;
-        unsafe { vk.device.wait_for_fences(&[apis.commands.fence], true, u64::MAX) }
-            .context("vkWaitForFences before a frame's cameras")?;
+        apis.commands.wait(vk, "vkWaitForFences before a frame's cameras")?;
         self.point_at(vk, targets);
         let aspect = targets.extent.width as f32 / targets.extent.height as f32;
         let previous = self.previous_camera.unwrap_or(*camera);
@@ -257,7 +261,17 @@ impl TemporalTracer {
             let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
             // The previous frame wrote the image read now and read the image written now: its
             // writes must be visible, and its reads done, before these rays start.
-            unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, vk::DependencyFlags::empty(), &history.0, &[], &history.1) };
+            unsafe {
+                vk.device.cmd_pipeline_barrier(
+                    cb,
+                    stage,
+                    stage,
+                    vk::DependencyFlags::empty(),
+                    &history.0,
+                    &[],
+                    &history.1,
+                )
+            };
             self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
         };
         hand_over_around(apis, targets, timestamps, || {}, work)?;
@@ -283,7 +297,11 @@ impl TemporalTracer {
 
     /// The history the last frame wrote, read back (for the checks): per pixel the mean
     /// visibility, the rays it holds, and the instance + 1 (0: background).
-    pub fn read_history(&self, vk: &VulkanContext, commands: &common::base::commands::Commands) -> Result<Vec<Texel>> {
+    pub fn read_history(
+        &self,
+        vk: &VulkanContext,
+        commands: &common::base::commands::Commands,
+    ) -> Result<Vec<Texel>> {
         let last = &self.history[1 - self.written];
         let extent = last.extent;
         let bytes = extent.width as u64 * extent.height as u64 * 16;
@@ -296,7 +314,12 @@ impl TemporalTracer {
         let (write, read) = (vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::TRANSFER_READ);
         // To the copy's layout once the rays have written it, and back before the next frame's.
         let to_copy = image_barrier(last.image, (general, source), (write, read), (ignored, ignored));
-        let back = image_barrier(last.image, (source, general), (vk::AccessFlags::NONE, vk::AccessFlags::NONE), (ignored, ignored));
+        let back = image_barrier(
+            last.image,
+            (source, general),
+            (vk::AccessFlags::NONE, vk::AccessFlags::NONE),
+            (ignored, ignored),
+        );
         commands.run_once(vk, |cb| unsafe {
             vk.device.cmd_pipeline_barrier(cb, stage, transfer, none, &[], &[], &[to_copy]);
             copy_image_to_buffer(vk, cb, last.image, source, extent, host.buffer);

@@ -3,7 +3,7 @@
 
 use crate::round_trip::RoundTrip;
 use crate::{Mode, Row};
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::Size;
 use common::base::timeline::{self, Timeline};
@@ -131,7 +131,6 @@ impl<'s> Frame<'s> {
         let Apis { vk, gl, .. } = apis;
         let Setting { spp, frames: count, depth_prepass } = setting;
         let g = &gl.gl;
-        let fence = apis.commands.fence;
         let radius = self.scene.size() * 0.05;
         let rays = AoRays { samples: spp, accumulated: 0, radius, scene_scale: self.scene.size() / 2.0 };
         let aspect = self.gbuffers.extent.width as f32 / self.gbuffers.extent.height as f32;
@@ -159,7 +158,7 @@ impl<'s> Frame<'s> {
             // are queued, so the GPU has work while the CPU waits.
             if frame > 0 {
                 unsafe { g.flush() };
-                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
+                apis.commands.wait(vk, "vkWaitForFences for the previous frame")?;
                 if frame > 2 {
                     samples.ao_ms.push(stamps.read_ms(vk)?);
                 }
@@ -194,7 +193,7 @@ impl<'s> Frame<'s> {
         }
         // The last frame: until both APIs are done with it.
         unsafe { g.finish() };
-        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
+        apis.commands.wait(vk, "vkWaitForFences after the last frame")?;
         samples.ao_ms.push(stamps.read_ms(vk)?);
         if let (Some(t), Some(last)) = (timeline.as_mut(), slot(count + 1)) {
             t.trace_done(vk, last, stamps)?;

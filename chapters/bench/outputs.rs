@@ -2,25 +2,25 @@
 //! (`bench.md`) and a plot of frame time by mode and size (`bench.svg`, with `plotters`).
 
 use crate::{Mode, Row};
-use anyhow::{Context as _, Result};
+use anyhow::Result;
+use common::base::output;
 use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
 
 pub fn write(dir: &Path, rows: &[Row], device: &str, driver: &str, ablation: &str) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    output::create_dir(dir)?;
     let json = serde_json::json!({ "device": device, "driver": driver, "rows": rows });
     let path = dir.join("bench.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&json)?)
-        .with_context(|| format!("writing {}", path.display()))?;
+    output::write_file(&path, serde_json::to_string_pretty(&json)?)?;
     let path = dir.join("bench.md");
     let text = format!(
         "Measured on {device} ({driver}).\n\n{}\nChapter 12, one choice at a time:\n\n{ablation}",
         table(rows)
     );
-    std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
+    output::write_file(&path, text)?;
     let path = dir.join("bench.svg");
-    plot(&path, rows, device).with_context(|| format!("drawing {}", path.display()))?;
+    output::draw_plot(&path, |path| plot(path, rows, device))?;
     eprintln!("wrote {}/bench.{{json,md,svg}}", dir.display());
     Ok(())
 }

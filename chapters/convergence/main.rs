@@ -11,7 +11,7 @@ mod cases;
 mod exact;
 mod outputs;
 
-use anyhow::{Context as _, Result, ensure};
+use anyhow::{Result, ensure};
 use ash::vk;
 use cases::{Case, Placement};
 use clap::Parser;
@@ -191,8 +191,7 @@ fn measure(
             tracer.trace(Apis { vk, gl, handoff, commands: &commands }, &gbuffers, rays(spp), timestamps)?;
             if let Some(t) = timestamps {
                 // A measurement: wait for this frame's rays to read their GPU time.
-                unsafe { vk.device.wait_for_fences(&[commands.fence], true, u64::MAX) }
-                    .context("vkWaitForFences")?;
+                commands.wait(vk, "vkWaitForFences for a measured trace")?;
                 gpu_ms += t.read_ms(vk)?;
             }
         }

@@ -2,13 +2,14 @@
 //! log-log plot of error against GPU time (SVG, with the `plotters` crate).
 
 use crate::CaseReport;
-use anyhow::{Context as _, Result};
+use anyhow::Result;
+use common::base::output;
 use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
 
 pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    output::create_dir(dir)?;
     let mut csv = String::from(
         "scene,reference,spp,frames,rays_per_pixel,gpu_ms,rmse,max_abs,mean_error,standard_error\n",
     );
@@ -51,11 +52,11 @@ pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
         }
     }
     let path = dir.join("convergence.csv");
-    std::fs::write(&path, csv).with_context(|| format!("writing {}", path.display()))?;
+    output::write_file(&path, csv)?;
     let path = dir.join("convergence.md");
-    std::fs::write(&path, table).with_context(|| format!("writing {}", path.display()))?;
+    output::write_file(&path, table)?;
     let path = dir.join("convergence.svg");
-    plot(&path, cases, device).with_context(|| format!("drawing {}", path.display()))?;
+    output::draw_plot(&path, |path| plot(path, cases, device))?;
     eprintln!("wrote {}/convergence.{{csv,md,svg}}", dir.display());
     Ok(())
 }

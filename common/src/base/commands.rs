@@ -3,7 +3,7 @@
 
 use crate::base::fail;
 use crate::base::vulkan::VulkanContext;
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 
 /// A command pool with one primary command buffer and the fence of its last submission.
@@ -56,15 +56,14 @@ impl Commands {
     pub fn begin(&self, vk: &VulkanContext) -> Result<vk::CommandBuffer> {
         unsafe {
             if self.in_flight.get() {
-                vk.device.wait_for_fences(&[self.fence], true, u64::MAX).context("vkWaitForFences")?;
-                self.in_flight.set(false);
+                self.wait(vk, "vkWaitForFences for the previous submission")?;
             }
-            vk.device
-                .reset_command_buffer(self.buffer, vk::CommandBufferResetFlags::empty())
-                .context("vkResetCommandBuffer")?;
+            fail::call("vkResetCommandBuffer", || {
+                vk.device.reset_command_buffer(self.buffer, vk::CommandBufferResetFlags::empty())
+            })?;
             let begin =
                 vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
-            vk.device.begin_command_buffer(self.buffer, &begin).context("vkBeginCommandBuffer")?;
+            fail::call("vkBeginCommandBuffer", || vk.device.begin_command_buffer(self.buffer, &begin))?;
         }
         Ok(self.buffer)
     }
@@ -87,12 +86,12 @@ impl Commands {
             .command_buffers(&buffers)
             .signal_semaphores(&signals);
         unsafe {
-            vk.device.end_command_buffer(self.buffer).context("vkEndCommandBuffer")?;
-            fail::step("vkQueueSubmit")?; // as if the submission were refused
-            // Reset only now, with nothing left to fail before the submission: a fence reset
-            // earlier, then not submitted, would never signal, and the next wait would hang.
-            vk.device.reset_fences(&[self.fence]).context("vkResetFences")?;
-            vk.device.queue_submit(vk.queue, &[submit], self.fence).context("vkQueueSubmit")?;
+            fail::call("vkEndCommandBuffer", || vk.device.end_command_buffer(self.buffer))?;
+            // Reset only now, with only the submission left to fail: a fence reset earlier, then
+            // not submitted, would never signal, and the next wait would hang. (A failed reset
+            // leaves the fence signalled, and nothing in flight.)
+            fail::call("vkResetFences", || vk.device.reset_fences(&[self.fence]))?;
+            fail::call("vkQueueSubmit", || vk.device.queue_submit(vk.queue, &[submit], self.fence))?;
         }
         self.in_flight.set(true);
         Ok(())
@@ -104,8 +103,26 @@ impl Commands {
         let cb = self.begin(vk)?;
         record(cb);
         self.submit(vk, None, None)?;
-        unsafe { vk.device.wait_for_fences(&[self.fence], true, u64::MAX) }.context("vkWaitForFences")
+        self.wait(vk, "vkWaitForFences for one-shot work")
     }
+
+    /// Waits for the last submission (see [`wait_for`]); `what` names the wait.
+    pub fn wait(&self, vk: &VulkanContext, what: &str) -> Result<()> {
+        let waited = wait_for(vk, self.fence, what);
+        self.in_flight.set(false);
+        waited
+    }
+}
+
+/// Waits for `fence`, as one step of `base::fail` named `what`. Failed or not, the work is over
+/// when it returns: a failed wait (device lost, or injected) waits once more, its result
+/// ignored, so that whatever the caller drops on its way out is no longer in use.
+pub fn wait_for(vk: &VulkanContext, fence: vk::Fence, what: &str) -> Result<()> {
+    let waited = fail::call(what, || unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) });
+    if waited.is_err() {
+        let _ = unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) };
+    }
+    waited
 }
 
 impl Drop for Commands {
@@ -217,7 +234,9 @@ impl HostBuffer {
             host.memory =
                 fail::call("vkAllocateMemory (host-visible)", || vk.device.allocate_memory(&allocate, None))?;
             crate::base::resources::created("vk_memory_host", requirements.size);
-            vk.device.bind_buffer_memory(host.buffer, host.memory, 0).context("vkBindBufferMemory")?;
+            fail::call("vkBindBufferMemory (host-visible)", || {
+                vk.device.bind_buffer_memory(host.buffer, host.memory, 0)
+            })?;
             host.mapped = fail::call("vkMapMemory (host-visible)", || {
                 vk.device.map_memory(host.memory, 0, size, vk::MemoryMapFlags::empty())
             })?

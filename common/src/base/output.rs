@@ -1,5 +1,6 @@
 //! Writing what a chapter rendered: GL read-back and PNG files.
 
+use crate::base::fail;
 use crate::base::report::Report;
 use anyhow::{Context as _, Result};
 use glow::HasContext;
@@ -35,6 +36,24 @@ pub fn read_gl_rgba8(gl: &glow::Context, width: u32, height: u32) -> Vec<u8> {
     flip_rows(&pixels, width, height)
 }
 
+/// Creates `dir` and its parents, as one fallible step.
+pub fn create_dir(dir: &Path) -> Result<()> {
+    fail::call("creating an output directory", || std::fs::create_dir_all(dir))
+        .with_context(|| format!("creating {}", dir.display()))
+}
+
+/// Writes `contents` to `path` (a report, a table, a CSV), as one fallible step.
+pub fn write_file(path: &Path, contents: impl AsRef<[u8]>) -> Result<()> {
+    fail::call("writing an output file", || std::fs::write(path, contents))
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Draws a plot into `path` with `draw` (plotters writes the file), as one fallible step.
+pub fn draw_plot(path: &Path, draw: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    fail::step("drawing a plot")?;
+    draw(path).with_context(|| format!("drawing {}", path.display()))
+}
+
 /// Writes RGBA8 pixels (top row first) as `<dir>/<name>.png` and lists the image in the report.
 pub fn save_rgba8(
     report: &mut Report,
@@ -43,10 +62,12 @@ pub fn save_rgba8(
     (width, height): (u32, u32),
     pixels: &[u8],
 ) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    create_dir(dir)?;
     let path = dir.join(format!("{name}.png"));
-    image::save_buffer(&path, pixels, width, height, image::ExtendedColorType::Rgba8)
-        .with_context(|| format!("writing {}", path.display()))?;
+    fail::call("writing a PNG", || {
+        image::save_buffer(&path, pixels, width, height, image::ExtendedColorType::Rgba8)
+    })
+    .with_context(|| format!("writing {}", path.display()))?;
     eprintln!("wrote {}", path.display());
     report.image(name, &path, width, height, "RGBA8");
     Ok(())

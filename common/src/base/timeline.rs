@@ -9,9 +9,10 @@
 
 use super::commands::Commands;
 use super::gl::{Owned, create_n};
+use super::output;
 use super::timestamps::{Timestamps, median_p95};
 use super::vulkan::VulkanContext;
-use anyhow::{Context as _, Result, ensure};
+use anyhow::{Result, ensure};
 use ash::vk;
 use glow::HasContext;
 use plotters::prelude::*;
@@ -154,14 +155,13 @@ impl Timeline {
             })
             .collect();
         if let Some(dir) = out.parent() {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+            output::create_dir(dir)?;
         }
         let path = out.with_extension("json");
-        std::fs::write(&path, serde_json::to_string_pretty(&rows)?)
-            .with_context(|| format!("writing {}", path.display()))?;
+        output::write_file(&path, serde_json::to_string_pretty(&rows)?)?;
         let path = out.with_extension("svg");
         let bars: Vec<_> = spans.iter().map(|s| (s.vulkan, s.pass, ms(s.start), ms(s.end))).collect();
-        draw(&path, &bars, self.passes).with_context(|| format!("drawing {}", path.display()))?;
+        output::draw_plot(&path, |path| draw(path, &bars, self.passes))?;
         eprintln!("wrote {}.{{json,svg}}", out.display());
         Ok(summary)
     }

@@ -3,7 +3,7 @@
 
 use crate::base::fail;
 use crate::base::vulkan::VulkanContext;
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 
 /// Records `pass` between two timestamps when there are any: the queries reset, "start" once
@@ -83,16 +83,18 @@ impl Timestamps {
     /// (only the valid bits, scaled by the timestamp period): for a timeline.
     pub fn read_ns(&self, vk: &VulkanContext) -> Result<[f64; 2]> {
         let mut ticks = [0u64; 2];
-        unsafe { vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64) }
-            .context("vkGetQueryPoolResults")?;
+        fail::call("vkGetQueryPoolResults for a timeline's timestamps", || unsafe {
+            vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64)
+        })?;
         Ok(ticks.map(|t| (t & self.valid_mask) as f64 * self.period_ns))
     }
 
     /// Milliseconds between start and end of the last finished submission.
     pub fn read_ms(&self, vk: &VulkanContext) -> Result<f64> {
         let mut ticks = [0u64; 2];
-        unsafe { vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64) }
-            .context("vkGetQueryPoolResults")?;
+        fail::call("vkGetQueryPoolResults for a pass's timestamps", || unsafe {
+            vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64)
+        })?;
         Ok(self.ms(ticks[0], ticks[1]))
     }
 
@@ -110,10 +112,11 @@ impl Timestamps {
     /// Milliseconds between timestamps `from` and `to` of the last finished submission.
     pub fn between_ms(&self, vk: &VulkanContext, from: u32, to: u32) -> Result<f64> {
         let mut ticks = [0u64; 1];
-        let mut read = |i| unsafe {
-            vk.device
-                .get_query_pool_results(self.pool, i, &mut ticks, vk::QueryResultFlags::TYPE_64)
-                .map(|_| ticks[0])
+        let mut read = |i| {
+            fail::call("vkGetQueryPoolResults for one timestamp", || unsafe {
+                vk.device.get_query_pool_results(self.pool, i, &mut ticks, vk::QueryResultFlags::TYPE_64)
+            })
+            .map(|()| ticks[0])
         };
         let (start, end) = (read(from)?, read(to)?);
         Ok(self.ms(start, end))

@@ -6,6 +6,7 @@
 //! says so ([`GlPassTimer`]), and Vulkan's timestamps are read after the fence wait the frame
 //! already has ([`VkPassTimer`]).
 
+use crate::base::commands;
 use crate::base::gl::{Owned, create, create_n};
 use crate::base::report::Report;
 use crate::base::timestamps::{Timestamps, median_p95};
@@ -147,7 +148,7 @@ pub fn read_after(
     times: &mut PassTimes,
 ) -> Result<()> {
     if let Some(stamps) = stamps {
-        unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }.context("vkWaitForFences")?;
+        commands::wait_for(vk, fence, "vkWaitForFences before reading a pass's time")?;
         times.add(pass, stamps.read_ms(vk)?);
     }
     Ok(())

@@ -198,7 +198,7 @@ impl VulkanContext {
     /// Waits until the device has finished all work: what a chapter does once, before its list
     /// of `drop`s, so that no guard destroys what the GPU still uses.
     pub fn wait_idle(&self) -> Result<()> {
-        unsafe { self.device.device_wait_idle() }.context("vkDeviceWaitIdle")
+        fail::call("vkDeviceWaitIdle", || unsafe { self.device.device_wait_idle() })
     }
 }
 
@@ -318,7 +318,7 @@ fn pick_physical_device(
     let mut missing_any: Vec<String> = Vec::new();
 
     for physical_device in
-        unsafe { instance.enumerate_physical_devices() }.context("vkEnumeratePhysicalDevices")?
+        fail::call("vkEnumeratePhysicalDevices", || unsafe { instance.enumerate_physical_devices() })?
     {
         let info = device_info(instance, physical_device);
         let label = format!("{} ({})", info.name, info.driver);
@@ -327,13 +327,13 @@ fn pick_physical_device(
             skipped.push((label, format!("Vulkan {} < 1.3", version_string(info.api_version))));
             continue;
         }
-        let available: Vec<String> =
-            unsafe { instance.enumerate_device_extension_properties(physical_device) }
-                .context("vkEnumerateDeviceExtensionProperties")?
-                .iter()
-                .filter_map(|e| e.extension_name_as_c_str().ok())
-                .map(|e| e.to_string_lossy().into_owned())
-                .collect();
+        let available: Vec<String> = fail::call("vkEnumerateDeviceExtensionProperties", || unsafe {
+            instance.enumerate_device_extension_properties(physical_device)
+        })?
+        .iter()
+        .filter_map(|e| e.extension_name_as_c_str().ok())
+        .map(|e| e.to_string_lossy().into_owned())
+        .collect();
         let missing: Vec<String> = requirements
             .extensions
             .iter()

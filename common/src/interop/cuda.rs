@@ -5,6 +5,7 @@
 //! Everything is loaded at run time: a machine without CUDA builds and runs the chapters, and
 //! learns from [`Unavailable`] what is missing.
 
+use crate::base::fail;
 use anyhow::{Context as _, Result};
 pub use cudarc::driver::{result as cu, sys};
 use std::fmt;
@@ -69,9 +70,9 @@ impl GlInterop {
     ) -> Result<sys::CUgraphicsResource> {
         let mut resource = std::ptr::null_mut();
         // SAFETY: `buffer` is a live GL buffer of the current GL context.
-        unsafe { (self.register_buffer)(&mut resource, buffer.0.get(), flags as u32) }
-            .result()
-            .context("cuGraphicsGLRegisterBuffer")?;
+        fail::call("cuGraphicsGLRegisterBuffer", || unsafe {
+            (self.register_buffer)(&mut resource, buffer.0.get(), flags as u32).result()
+        })?;
         crate::base::resources::created("cuda_graphics_resource", 0);
         Ok(resource)
     }
@@ -94,28 +95,32 @@ impl CudaDevice {
     /// [`Unavailable`] when there is no driver, no device, or none of them is that one.
     pub fn open(device_uuid: &[u8; 16]) -> Result<Self> {
         let gl = GlInterop::load()?;
+        // An injected failure is an error; a real one says CUDA cannot run here.
+        fail::step("cuInit")?;
         cu::init().map_err(|error| {
             Unavailable(format!("cuInit failed: {error} (the NVIDIA driver found no usable GPU)"))
         })?;
-        let count = cu::device::get_count().context("cuDeviceGetCount")?;
+        let count = fail::call("cuDeviceGetCount", cu::device::get_count)?;
         let mut seen = Vec::new();
         for ordinal in 0..count {
-            let device = cu::device::get(ordinal).context("cuDeviceGet")?;
-            let name = cu::device::get_name(device).context("cuDeviceGetName")?;
-            let uuid = cu::device::get_uuid(device).context("cuDeviceGetUuid")?.bytes.map(|b| b as u8);
+            let device = fail::call("cuDeviceGet", || cu::device::get(ordinal))?;
+            let name = fail::call("cuDeviceGetName", || cu::device::get_name(device))?;
+            let uuid = fail::call("cuDeviceGetUuid", || cu::device::get_uuid(device))?.bytes.map(|b| b as u8);
             if &uuid != device_uuid {
                 seen.push(format!("{name} ({})", crate::base::report::uuid_hex(&uuid)));
                 continue;
             }
             use sys::CUdevice_attribute::*;
-            let attribute = |a| unsafe { cu::device::get_attribute(device, a) };
+            let attribute =
+                |a| fail::call("cuDeviceGetAttribute", || unsafe { cu::device::get_attribute(device, a) });
             let compute_capability = (
                 attribute(CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MAJOR)?,
                 attribute(CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MINOR)?,
             );
             // The primary context: the one the CUDA runtime would use too, shared per device.
-            let context = unsafe { cu::primary_ctx::retain(device) }.context("cuDevicePrimaryCtxRetain")?;
-            let current = unsafe { cu::ctx::set_current(context) }.context("cuCtxSetCurrent");
+            let context =
+                fail::call("cuDevicePrimaryCtxRetain", || unsafe { cu::primary_ctx::retain(device) })?;
+            let current = fail::call("cuCtxSetCurrent", || unsafe { cu::ctx::set_current(context) });
             if let Err(error) = current {
                 unsafe { cu::primary_ctx::release(device) }.ok();
                 return Err(error);

@@ -130,13 +130,13 @@ pub fn create_image(
     let mut external = vk::ExternalImageFormatProperties::default();
     let mut properties = vk::ImageFormatProperties2::default().push_next(&mut external);
     let device = &ctx.info.name;
-    unsafe {
+    fail::call("vkGetPhysicalDeviceImageFormatProperties2", || unsafe {
         ctx.instance.get_physical_device_image_format_properties2(
             ctx.physical_device,
             &query,
             &mut properties,
         )
-    }
+    })
     .with_context(|| format!("{device} cannot make a {format:?} image with usage {usage:?} to share"))?;
     let max = properties.image_format_properties.max_extent;
     let features = external.external_memory_properties.external_memory_features;
@@ -231,7 +231,9 @@ impl ExportedBuffer {
         };
         exported.memory = allocate(ctx, &requirements, host, dedicated)?;
         let memory = exported.memory.memory;
-        unsafe { ctx.device.bind_buffer_memory(buffer, memory, 0) }.context("vkBindBufferMemory")?;
+        fail::call("vkBindBufferMemory (exportable)", || unsafe {
+            ctx.device.bind_buffer_memory(buffer, memory, 0)
+        })?;
         exported.mapped = fail::call("vkMapMemory (exportable)", || unsafe {
             ctx.device.map_memory(memory, 0, bytes, vk::MemoryMapFlags::empty())
         })?

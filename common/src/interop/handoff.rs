@@ -236,8 +236,7 @@ impl Handoff {
             Handoff::Host { .. } => {
                 // Where Vulkan left them, GL will not move them: the next gl_release checks it.
                 textures.iter().zip(layouts).for_each(|(t, &layout)| vulkan_left(t.0.get(), Some(layout)));
-                unsafe { vk.device.wait_for_fences(&[fence], true, u64::MAX) }
-                    .context("waiting for Vulkan's work on the CPU")
+                crate::base::commands::wait_for(vk, fence, "vkWaitForFences for Vulkan's work, on the CPU")
             }
         }
     }

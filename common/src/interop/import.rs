@@ -9,7 +9,7 @@ use crate::base::gl::{
 };
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::{self, Dedicated, ExportableMemory};
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use glow::HasContext;
 use std::mem::ManuallyDrop;
@@ -259,7 +259,9 @@ impl SharedImage {
             Dedicated::Image(image),
         )?;
         half.memory = memory.memory;
-        unsafe { vk.device.bind_image_memory(image, memory.memory, 0) }.context("vkBindImageMemory")?;
+        fail::call("vkBindImageMemory (exportable)", || unsafe {
+            vk.device.bind_image_memory(image, memory.memory, 0)
+        })?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)
             .view_type(vk::ImageViewType::TYPE_2D)

@@ -10,7 +10,7 @@ use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
 use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
 use crate::scene::gbuffer::GBuffers;
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use glow::HasContext;
 
@@ -192,8 +192,7 @@ impl AoTracer {
         self.reset();
         self.trace(apis, gbuffers, rays, timestamps)?;
         let vk = apis.vk;
-        unsafe { vk.device.wait_for_fences(&[apis.commands.fence], true, u64::MAX) }
-            .context("vkWaitForFences after a measured trace")?;
+        apis.commands.wait(vk, "vkWaitForFences after a measured trace")?;
         let ms = timestamps.map(|t| t.read_ms(vk)).transpose()?;
         let extent = gbuffers.extent;
         let texture = self.image.texture.texture;

@@ -160,15 +160,14 @@ fn shader_binding_table(
     let handle_size = properties.shader_group_handle_size as u64;
     let record = handle_size.next_multiple_of(properties.shader_group_handle_alignment as u64);
     let region = record.next_multiple_of(properties.shader_group_base_alignment as u64);
-    let handles = unsafe {
+    let handles = fail::call("vkGetRayTracingShaderGroupHandlesKHR", || unsafe {
         loader.get_ray_tracing_shader_group_handles(
             pipeline,
             0,
             groups,
             (groups as u64 * handle_size) as usize,
         )
-    }
-    .context("vkGetRayTracingShaderGroupHandlesKHR")?;
+    })?;
     let usage = vk::BufferUsageFlags::SHADER_BINDING_TABLE_KHR;
     // One region per group, plus room to align the start to the base alignment.
     let bytes = region * groups as u64 + properties.shader_group_base_alignment as u64;
@@ -237,8 +236,9 @@ impl StorageImage {
         this.allocation = allocator.allocate(&description)?;
         let allocation = &this.allocation;
         crate::base::resources::created("vk_image: storage", allocation.size());
-        unsafe { vk.device.bind_image_memory(image, allocation.memory(), allocation.offset()) }
-            .context("vkBindImageMemory (storage)")?;
+        fail::call("vkBindImageMemory (storage)", || unsafe {
+            vk.device.bind_image_memory(image, allocation.memory(), allocation.offset())
+        })?;
         let view_info = vk::ImageViewCreateInfo::default()
             .image(image)
             .view_type(vk::ImageViewType::TYPE_2D)

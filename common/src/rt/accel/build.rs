@@ -7,6 +7,7 @@ use super::structure::{
     tlas_built_barrier, triangles_geometry,
 };
 use crate::base::commands::Commands;
+use crate::base::fail;
 use crate::base::timestamps::Timestamps;
 use crate::base::vulkan::VulkanContext;
 use crate::scene::Scene;
@@ -210,15 +211,14 @@ pub fn build_with(
     // Compaction: a BLAS built with ALLOW_COMPACTION knows how small it can be; copy it into a
     // structure of that size and free the original.
     let mut sizes = vec![0u64; blases.len()];
-    unsafe {
+    fail::call("vkGetQueryPoolResults for the compacted sizes", || unsafe {
         vk.device.get_query_pool_results(
             compacted_sizes.pool,
             0,
             &mut sizes,
             vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
         )
-    }
-    .context("vkGetQueryPoolResults: the compacted sizes")?;
+    })?;
     drop(compacted_sizes); // destroys the query pool
     let mut compacted = Vec::new();
     for &size in &sizes {

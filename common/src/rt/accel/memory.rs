@@ -3,7 +3,7 @@
 
 use crate::base::fail;
 use crate::base::vulkan::VulkanContext;
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 use gpu_allocator::vulkan::{
@@ -22,15 +22,15 @@ pub struct GpuAllocator(Rc<RefCell<Allocator>>);
 
 /// gpu-allocator for everything Vulkan keeps to itself, with device addresses on.
 pub fn allocator(vk: &VulkanContext) -> Result<GpuAllocator> {
-    let allocator = Allocator::new(&AllocatorCreateDesc {
+    let description = AllocatorCreateDesc {
         instance: (*vk.instance).clone(),
         device: vk.device.clone(),
         physical_device: vk.physical_device,
         debug_settings: Default::default(),
         buffer_device_address: vk.device_addresses,
         allocation_sizes: Default::default(),
-    })
-    .context("creating gpu-allocator's allocator")?;
+    };
+    let allocator = fail::call("creating gpu-allocator's allocator", || Allocator::new(&description))?;
     Ok(GpuAllocator(Rc::new(RefCell::new(allocator))))
 }
 
@@ -120,8 +120,9 @@ impl DeviceBuffer {
         guarded.allocation = allocator.allocate(&description)?;
         let allocation = &guarded.allocation;
         crate::base::resources::created(&format!("vk_buffer: {name}"), allocation.size());
-        unsafe { vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset()) }
-            .with_context(|| format!("vkBindBufferMemory for the {name}"))?;
+        fail::call(&format!("vkBindBufferMemory for the {name}"), || unsafe {
+            vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset())
+        })?;
         guarded.address = unsafe {
             vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
         };
