@@ -861,3 +861,15 @@ fn ch13_timeline_puts_both_apis_on_one_clock() {
         assert!(std::fs::metadata(&path).is_ok_and(|m| m.len() > 0), "{} written", path.display());
     }
 }
+
+/// `--method fresh`: chapter 12's frame along the same path, across the cut, with the same
+/// checks of the last frame (and none of the history's: it keeps none).
+#[test]
+fn ch13_draws_chapter_12s_frame_along_the_path() {
+    let mut args = CH13.to_vec();
+    args.extend(["--frames", "6", "--method", "fresh", "--samples", "4"]);
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+    assert!(report["checks"].get("no_history_kept_across_the_cut_from_unseen_surfaces").is_none());
+}

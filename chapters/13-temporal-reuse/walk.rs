@@ -71,7 +71,9 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
             }
             let camera = p.draw(sized, drawn, frame, &mut clock)?;
             if checking {
-                before_cut = watch_the_cut(p, sized, (&camera, frame), before_cut, (budget, report))?;
+                if let Drawn::Temporal(budget) = drawn {
+                    before_cut = watch_the_cut(p, sized, (&camera, frame), before_cut, (budget, report))?;
+                }
                 if frame + 1 == frames {
                     check_last_frame(p, sized, &camera, (drawn, args), report)?;
                 }
