@@ -824,11 +824,12 @@ fn ch13_ghosts_fail_the_cut_check_and_raise_the_error() {
 }
 
 /// New images of another size every other frame, as a window's resize makes them: the history
-/// starts again, and nothing is left behind.
+/// starts again, and nothing is left behind (with a timeline recording the last frames, whose
+/// queries are first used after the first resize).
 #[test]
 fn ch13_resizing_leaks_nothing() {
     let mut args = CH13.to_vec();
-    args.extend(["--frames", "8", "--resize-every", "2"]);
+    args.extend(["--frames", "8", "--resize-every", "2", "--timeline", "3"]);
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(report["resizes"], 3);
@@ -872,4 +873,14 @@ fn ch13_draws_chapter_12s_frame_along_the_path() {
     let report = run.succeeded();
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
     assert!(report["checks"].get("no_history_kept_across_the_cut_from_unseen_surfaces").is_none());
+}
+
+/// Flags that cannot work together are refused before any device is opened, naming both.
+#[test]
+fn ch13_refuses_a_comparison_that_resizes() {
+    let args = ["--size", "64x48", "--compare", "--resize-every", "2"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+    assert!(run.stderr.contains("--compare walks every method at one size: leave out --resize-every"), "{}", run.stderr);
+    assert!(!run.stderr.contains("vulkan: using"), "refused before the device: {}", run.stderr);
 }

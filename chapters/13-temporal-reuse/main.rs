@@ -76,6 +76,10 @@ fn main() -> ExitCode {
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     SMALLEST.check(CHAPTER, args.common.size)?;
+    ensure!(
+        !(args.compare && args.resize_every.is_some()),
+        "--compare walks every method at one size: leave out --resize-every"
+    );
     let size = args.common.size;
 
     // 1. The scene, the path the camera and one instance follow, and the rays' budget
