@@ -41,10 +41,9 @@ pub struct Walk {
     pub flip_mean: Option<f64>,
 }
 
-pub fn median(values: impl Iterator<Item = f64>) -> Option<f64> {
-    let mut v: Vec<f64> = values.filter(|x| x.is_finite()).collect();
-    v.sort_by(f64::total_cmp);
-    (!v.is_empty()).then(|| v[v.len() / 2])
+/// The median of `samples`, as the reports compute it (none of nothing).
+pub fn median(samples: &[f64]) -> Option<f64> {
+    (!samples.is_empty()).then(|| common::base::timestamps::median_p95(samples).0)
 }
 
 impl Walk {
@@ -61,7 +60,7 @@ impl Walk {
             flip_mean: (!flips.is_empty()).then(|| flips.iter().sum::<f64>() / flips.len() as f64),
             method,
             gpu_median_ms,
-            ao_median_ms: median(frames.iter().filter_map(|f| f.ao_ms)),
+            ao_median_ms: median(&frames.iter().filter_map(|f| f.ao_ms).collect::<Vec<_>>()),
             error_mean: (!errors.is_empty()).then(|| errors.iter().sum::<f64>() / errors.len() as f64),
             error_worst: errors.iter().copied().reduce(f64::max),
             frames,

@@ -210,7 +210,8 @@ impl TemporalTracer {
 
     // ANCHOR: frame
     /// One frame: the cameras written, then, between chapter 12's hand-overs, the history made
-    /// visible to this frame's rays and the rays traced; then the two history images swap.
+    /// visible to this frame's rays and the rays traced; then the two history images swap. The
+    /// caller waits for the previous frame's Vulkan work first (`Passes::draw` does).
     pub fn trace(
         &mut self,
         apis: Apis,
@@ -219,9 +220,9 @@ impl TemporalTracer {
         budget: &Budget,
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
-        // The previous frame's work must be done before its descriptors and cameras change.
+        // The previous frame's work is done (the caller waited for it, at the top of the frame):
+        // its descriptors and cameras may change.
         let vk = apis.vk;
-        apis.commands.wait(vk, "vkWaitForFences before a frame's cameras")?;
         self.point_at(vk, targets);
         let aspect = targets.extent.width as f32 / targets.extent.height as f32;
         let previous = self.previous_camera.unwrap_or(*camera);

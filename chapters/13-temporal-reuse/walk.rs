@@ -108,9 +108,9 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
             let gl_ms: Option<f64> = gl.iter().map(|pass| pass.map(|s| s[i])).sum();
             record.gpu_ms = record.ao_ms.zip(gl_ms).map(|(a, g)| a + g);
         }
-        let wall = median(times.samples("frame_wall").iter().copied()).filter(|_| args.error_against == 0);
+        let wall = median(times.samples("frame_wall")).filter(|_| args.error_against == 0);
         let passes = ["visibility", "ao_trace", "composite", "overlays"];
-        let gpu = passes.iter().filter_map(|&pass| median(times.samples(pass).iter().copied())).reduce(|a, b| a + b);
+        let gpu = passes.iter().filter_map(|&pass| median(times.samples(pass))).reduce(|a, b| a + b);
         if checking {
             times.record(report);
             checked = true;
