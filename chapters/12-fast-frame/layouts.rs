@@ -9,7 +9,7 @@
 //! Both come from the same vertex stage, so they must cover the same pixels: that is checked.
 
 use crate::overlap::Probe;
-use crate::visibility::VisibilityPass;
+use common::frame::fast::visibility::VisibilityPass;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::gl::{Owned, create};

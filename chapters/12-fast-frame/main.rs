@@ -28,18 +28,15 @@ use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
-mod check;
-mod composite;
 mod layouts;
 mod overlap;
 mod settings;
-mod trace;
-mod visibility;
 mod vk_composite;
-use composite::ComputeComposite;
+use common::frame::fast::check;
+use common::frame::fast::composite::ComputeComposite;
 use settings::{Args, Settings};
-use trace::{Pattern, Rays, SurfaceTracer};
-use visibility::{Targets, VisibilityPass};
+use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
+use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 
 const CHAPTER: &str = "12-fast-frame";
 /// The smallest picture this chapter can check, and why (the largest is the device's).
@@ -269,7 +266,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         vk_composite::compare(apis, &shared.allocator, (&targets, &composite), settled, report)?;
     }
     let surface = check::Surface::read(gl, &targets);
-    surface.require_covered()?;
+    surface.require_covered(CHAPTER)?;
     if frame > 0 {
         let uniforms = settings::uniforms(&settings, &camera);
         let last = check::LastFrame {

@@ -9,8 +9,8 @@
 //! If the driver runs GL's work beside Vulkan's, *during* is shorter by up to the second pass's
 //! time; if it runs one API's work at a time, the two take as long.
 
-use crate::trace::{Rays, SurfaceTracer};
-use crate::visibility::{MeshIds, Targets, VisibilityPass};
+use common::frame::fast::trace::{Rays, SurfaceTracer};
+use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::Result;
 use common::base::timestamps::median_p95;
 use common::interop::handoff::Apis;

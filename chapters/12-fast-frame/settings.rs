@@ -1,8 +1,8 @@
 //! Chapter 12's flags and settings: what the flags start with and the keys change, and what
 //! follows from them (the rays a frame traces, the composite's uniforms).
 
-use crate::composite::{Uniforms, View};
-use crate::trace::{Pattern, Rays};
+use common::frame::fast::composite::{Uniforms, View};
+use common::frame::fast::trace::{Pattern, Rays};
 use common::CommonArgs;
 use common::base::window::Key;
 use common::rt::accel::BlasLayout;

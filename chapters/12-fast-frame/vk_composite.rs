@@ -5,8 +5,8 @@
 //! depth, and shows it), so a Vulkan composite saves no hand-over: only the difference between
 //! the two dispatches could pay.
 
-use crate::composite::{ComputeComposite, Uniforms};
-use crate::visibility::Targets;
+use common::frame::fast::composite::{ComputeComposite, Uniforms};
+use common::frame::fast::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::Report;
@@ -147,7 +147,7 @@ pub fn compare(
     let measured = measure(apis, allocator, targets, u, rounds)?;
     let gl = &apis.gl.gl;
     composite.draw(gl, targets, u);
-    let drawn = crate::check::read_picture(gl, targets);
+    let drawn = common::frame::fast::check::read_picture(gl, targets);
     let largest = measured.picture.iter().zip(&drawn).map(|(a, b)| a.abs_diff(*b)).max().unwrap_or(0);
     report.set("composite_vulkan_compute_ms_median", measured.median_ms);
     report.set("composite_vulkan_largest_difference", largest);

@@ -1,11 +1,11 @@
 //! One frame of chapter 13, drawn by either method: the moving instance and its TLAS update,
 //! GL's ids, the rays (reused or all new), chapter 12's composite and overlays, each timed.
 
-use crate::composite::{ComputeComposite, Uniforms, View};
+use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
 use crate::path::Path;
 use crate::temporal::{Budget, TemporalTracer};
-use crate::trace::{Pattern, Rays, SurfaceTracer};
-use crate::visibility::{MeshIds, Targets, VisibilityPass};
+use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
+use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::{Context as _, Result};
 use common::base::commands::Commands;
 use common::base::timeline::{Timeline, stamp_into as stamp};

@@ -2,10 +2,10 @@
 //! across the cut from a surface the previous frame did not see, and on a pan what is kept
 //! agrees with a new trace within its noise.
 
-use crate::check::{Surface, unpack_normal};
+use common::frame::fast::check::{Surface, unpack_normal};
 use crate::path::Path;
 use crate::temporal::Texel;
-use crate::visibility::MeshIds;
+use common::frame::fast::visibility::MeshIds;
 use common::Report;
 use common::scene::Camera;
 use glam::{Vec2, Vec3, Vec4Swizzles as _};

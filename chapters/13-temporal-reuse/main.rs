@@ -26,21 +26,6 @@ use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
-// Chapter 12's passes, compiled here as they are: the ids, the surface tracer (for the fresh
-// frames and the converged references), the composite and its checks.
-#[allow(dead_code)] // what chapter 13 does not call of them
-#[path = "../12-fast-frame/check.rs"]
-mod check;
-#[allow(dead_code)]
-#[path = "../12-fast-frame/composite.rs"]
-mod composite;
-#[allow(dead_code)]
-#[path = "../12-fast-frame/trace.rs"]
-mod trace;
-#[allow(dead_code)]
-#[path = "../12-fast-frame/visibility.rs"]
-mod visibility;
-
 mod frame;
 mod history_check;
 mod measure;
@@ -49,12 +34,12 @@ mod settings;
 mod temporal;
 mod walk;
 
-use composite::{ComputeComposite, Uniforms};
+use common::frame::fast::composite::{ComputeComposite, Uniforms};
 use frame::{Drawn, Motion, Passes, Sized};
 use settings::{Args, Method};
 use temporal::{Budget, TemporalTracer};
-use trace::SurfaceTracer;
-use visibility::{Targets, VisibilityPass};
+use common::frame::fast::trace::SurfaceTracer;
+use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 
 const CHAPTER: &str = "13-temporal-reuse";
 /// The smallest picture this chapter can check, and why (the largest is the device's).

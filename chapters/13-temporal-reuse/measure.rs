@@ -2,10 +2,10 @@
 //! converged trace of that same frame, its GPU times, and the comparison of methods as a
 //! table, a CSV and two plots.
 
-use crate::check::read_picture;
-use crate::composite::{ComputeComposite, Uniforms, View};
-use crate::trace::{Pattern, Rays, SurfaceTracer};
-use crate::visibility::Targets;
+use common::frame::fast::check::read_picture;
+use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
+use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
+use common::frame::fast::visibility::Targets;
 use anyhow::Result;
 use common::base::output;
 use common::interop::handoff::Apis;
@@ -135,7 +135,7 @@ impl ErrorProbe<'_> {
                 salt: 1,
             };
             tracer.retrace(apis, targets, camera, rays, self.reference)?;
-            let covered = crate::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
+            let covered = common::frame::fast::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
             let (occlusion, picture) = (shown(View::Ao), shown(View::Final));
             references.0.insert(frame, Converged { occlusion, covered, picture });
         }

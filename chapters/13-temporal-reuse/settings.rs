@@ -1,7 +1,7 @@
 //! Chapter 13's flags: chapter 12's frame, the rays each pixel traces and what its history
 //! keeps, the path the camera and one instance follow, and what to measure along it.
 
-use crate::composite::View;
+use common::frame::fast::composite::View;
 use crate::path::{Mover, PathKind};
 use common::CommonArgs;
 use common::rt::accel::BlasLayout;

@@ -3,8 +3,8 @@
 //! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
 
 use crate::settings::{Accept, Args};
-use crate::trace::hand_over_around;
-use crate::visibility::Targets;
+use common::frame::fast::trace::hand_over_around;
+use common::frame::fast::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;

@@ -1,15 +1,15 @@
 //! Chapter 13's frame loops: headless along the path (each method of a comparison in turn, its
 //! error measured where asked, the checks on the chosen method's walk), or in a window.
 
-use crate::check::{self, LastFrame, Surface};
-use crate::composite::View;
+use common::frame::fast::check::{self, LastFrame, Surface};
+use common::frame::fast::composite::View;
 use crate::frame::{Clock, Drawn, Passes, Sized};
 use crate::history_check::{self, Seen};
 use crate::measure::{ErrorProbe, FrameRecord, References, Walk, measured, median};
 use crate::path::PathKind;
 use crate::settings::{Args, PATH_FRAMES};
 use crate::temporal::Budget;
-use crate::trace::{Pattern, Rays};
+use common::frame::fast::trace::{Pattern, Rays};
 use anyhow::Result;
 use common::Report;
 use common::base::cli::Size;
@@ -217,7 +217,7 @@ fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args
 fn chapter_12_checks(p: &Passes, sized: &Sized, camera: &Camera, report: &mut Report) -> Result<Surface> {
     let gl = &p.apis.gl.gl;
     let surface = Surface::read(gl, &sized.targets);
-    surface.require_covered()?;
+    surface.require_covered(crate::CHAPTER)?;
     surface.check_values(report);
     if let Some(last) = last_frame(p, sized, camera) {
         for (name, ok) in last.check(&surface) {

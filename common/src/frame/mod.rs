@@ -1,9 +1,11 @@
-//! The shared frame: what chapter 08 taught and chapters 09-11 and `bench` draw again. The
+//! The shared frame: what chapter 08 taught and chapters 09-11 and `bench` draw again, and
+//! chapter 12's fast frame (`fast`), which chapter 13 draws again. The
 //! composite pass (albedo x occlusion into an offscreen target over the G-buffer pass's depth),
 //! the overlay lines drawn into any target whose depth is the scene's, and the pixel probes and
 //! CPU reference the checks compare them with.
 
 pub mod composite;
+pub mod fast;
 pub mod overlay;
 pub mod probe;
 

@@ -4,15 +4,16 @@
 
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
-use common::base::gl::{Owned, create};
-use common::interop::{SharedFormat, SharedImage};
-use common::scene::gbuffer::SceneBuffers;
-use common::scene::{Camera, Scene};
-use common::{GlContext, VulkanContext};
+use crate::base::gl::{Owned, create};
+use crate::interop::{SharedFormat, SharedImage};
+use crate::scene::gbuffer::SceneBuffers;
+use crate::scene::{Camera, Scene};
+use crate::base::gl::GlContext;
+use crate::base::vulkan::VulkanContext;
 use glow::HasContext;
 
-const VERTEX_SHADER: &str = include_str!("../../shaders/gl/visibility.vert");
-const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/visibility.frag");
+const VERTEX_SHADER: &str = include_str!("../../../../shaders/gl/visibility.vert");
+const FRAGMENT_SHADER: &str = include_str!("../../../../shaders/gl/visibility.frag");
 
 // ANCHOR: mesh_ids
 /// One mesh's share of the ids, and where its triangles are (`MeshIds` in visibility_ao.rgen).
@@ -85,7 +86,7 @@ pub struct Targets {
 
 impl Targets {
     pub fn new(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> Result<Self> {
-        common::scene::gbuffer::check_size(vk, gl, extent)?;
+        crate::scene::gbuffer::check_size(vk, gl, extent)?;
         // ANCHOR: images
         // GL draws the ids (COLOR_ATTACHMENT), Vulkan reads them (STORAGE); Vulkan writes the
         // surface (STORAGE), GL samples it (SAMPLED).
@@ -94,7 +95,7 @@ impl Targets {
         let sampled = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
         let surface = SharedImage::new(vk, gl, SharedFormat::RGBA32F, sampled, extent)?;
         // GL draws the ids first: Vulkan hands the image over, in GENERAL, before it does.
-        common::interop::hand_new_images_to_gl(vk, &[&visibility])?;
+        crate::interop::hand_new_images_to_gl(vk, &[&visibility])?;
         // ANCHOR_END: images
         let g = &gl.gl;
         let (w, h) = (extent.width as i32, extent.height as i32);
@@ -149,8 +150,8 @@ impl Targets {
         Ok(targets)
     }
 
-    pub fn overlay_target(&self) -> common::frame::Target {
-        common::frame::Target {
+    pub fn overlay_target(&self) -> crate::frame::Target {
+        crate::frame::Target {
             framebuffer: *self.picture_framebuffer,
             width: self.extent.width,
             height: self.extent.height,
@@ -199,12 +200,12 @@ impl VisibilityPass {
     ) -> Result<Self> {
         let g = &gl.gl;
         let program =
-            common::base::gl::program(g, VERTEX_SHADER, fragment_shader).context("the visibility program")?;
+            crate::base::gl::program(g, VERTEX_SHADER, fragment_shader).context("the visibility program")?;
         let mut pass = VisibilityPass { vertex_arrays: Vec::new(), program };
         // Chapter 05's vertex arrays: the same buffers, read the same way.
         for [vertices, indices] in &buffers.meshes {
             let vao = unsafe {
-                common::scene::gbuffer::vertex_array(g, &vertices.1, &indices.1, &buffers.instances.1)
+                crate::scene::gbuffer::vertex_array(g, &vertices.1, &indices.1, &buffers.instances.1)
             }?;
             pass.vertex_arrays.push(vao);
         }

@@ -2,15 +2,15 @@
 //! and the lean frame against chapter 08's fat one on the same scene, camera and rays: the same
 //! pixels covered, the same hit points, the same occlusion.
 
-use crate::composite::{ComputeComposite, Uniforms, View};
-use crate::visibility::Targets;
+use super::composite::{ComputeComposite, Uniforms, View};
+use super::visibility::Targets;
 use anyhow::Result;
-use common::Report;
-use common::base::cli::{Size, check_covered};
-use common::base::output;
-use common::frame::{Overlays, shows_colour};
-use common::interop::handoff::Apis;
-use common::scene::Camera;
+use crate::base::report::Report;
+use crate::base::cli::{Size, check_covered};
+use crate::base::output;
+use crate::frame::{Overlays, shows_colour};
+use crate::interop::handoff::Apis;
+use crate::scene::Camera;
 use glam::Vec3;
 use glow::HasContext;
 use std::path::Path;
@@ -40,9 +40,9 @@ impl Surface {
 
     /// Refuses the size when the scene covers no pixel of it: every mean and check over the
     /// covered pixels (the occlusion's mean, its error, chapter 08's comparison) would be over none.
-    pub fn require_covered(&self) -> Result<()> {
+    pub fn require_covered(&self, chapter: &str) -> Result<()> {
         let size = Size { width: self.width as u32, height: self.height as u32 };
-        check_covered("--size", crate::CHAPTER, size, self.covered().count() as u64)
+        check_covered("--size", chapter, size, self.covered().count() as u64)
     }
 
     /// Every visibility a fraction of rays, and exactly 1 where GL drew no id.
@@ -285,8 +285,8 @@ impl Chapter08 {
 /// What chapter 08 is asked to trace, to be compared with this chapter's frames: the same scene
 /// and camera, and the same rays, `per_frame` at a time up to `total` per pixel.
 pub struct Chapter08Run<'a> {
-    pub scene: &'a common::scene::Scene,
-    pub shared: &'a common::rt::RayTracedScene,
+    pub scene: &'a crate::scene::Scene,
+    pub shared: &'a crate::rt::RayTracedScene,
     pub camera: &'a Camera,
     pub per_frame: u32,
     pub total: u32,
@@ -299,15 +299,15 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     let (allocator, buffers, tlas) = (&shared.allocator, &shared.buffers, shared.structures.tlas.handle);
     let (vk, gl) = (apis.vk, apis.gl);
     let extent = targets.extent;
-    use common::rt::ao::AoTracer;
-    use common::scene::gbuffer::GBuffers;
+    use crate::rt::ao::AoTracer;
+    use crate::scene::gbuffer::GBuffers;
     let storage = ash::vk::ImageUsageFlags::STORAGE;
     let gbuffers = GBuffers::new(vk, gl, buffers, extent, storage)?;
     gbuffers.draw(&gl.gl, scene, camera);
     let mut tracer = AoTracer::new(vk, gl, allocator, tlas, &gbuffers)?;
     // Its own command buffer, made after what it traces with: dropped first on an early return,
     // it waits for its last trace before `tracer` and `gbuffers` go.
-    let commands = common::base::commands::Commands::new(vk)?;
+    let commands = crate::base::commands::Commands::new(vk)?;
     let apis = Apis { commands: &commands, ..apis };
     let scene_scale = scene.size() / 2.0;
     if per_frame == 0 || total == 0 || radius == 0.0 {
@@ -315,7 +315,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     }
     while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
         let samples = per_frame.min(total - tracer.accumulated);
-        let rays = common::rt::ao::AoRays { samples, accumulated: 0, radius, scene_scale };
+        let rays = crate::rt::ao::AoRays { samples, accumulated: 0, radius, scene_scale };
         tracer.trace(apis, &gbuffers, rays, None)?;
     }
     let (w, h) = (extent.width, extent.height);
@@ -339,8 +339,8 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
 /// independent of the frame's (its own error adds `rays.samples / reference` to the square).
 pub struct ErrorAgainst<'a> {
     pub last: &'a LastFrame<'a>,
-    pub tracer: &'a mut crate::trace::SurfaceTracer,
-    pub rays: crate::trace::Rays,
+    pub tracer: &'a mut super::trace::SurfaceTracer,
+    pub rays: super::trace::Rays,
     pub reference: u32,
 }
 
@@ -358,8 +358,8 @@ impl ErrorAgainst<'_> {
         self.tracer.trace(apis, targets, camera, self.rays, None)?;
         let (frame_blurred, frame_raw) = (shown(blur), shown(0));
         let surface = Surface::read(&gl.gl, targets);
-        let pattern = crate::trace::Pattern::PerPixel;
-        let rays = crate::trace::Rays { samples: 256, pattern, salt: 1, ..self.rays };
+        let pattern = super::trace::Pattern::PerPixel;
+        let rays = super::trace::Rays { samples: 256, pattern, salt: 1, ..self.rays };
         self.tracer.retrace(apis, targets, camera, rays, self.reference)?;
         let (converged_blurred, converged_raw) = (shown(blur), shown(0));
         let covered: Vec<usize> = surface.covered().collect();

@@ -1,7 +1,7 @@
 //! Chapter 12's composite: chapter 08's blur and albedo x occlusion, as a GL compute shader
 //! that reads the surface Vulkan wrote and writes the picture.
 
-use crate::visibility::Targets;
+use super::visibility::Targets;
 use anyhow::{Context as _, Result};
 use glow::HasContext;
 use std::rc::Rc;
@@ -9,8 +9,8 @@ use std::rc::Rc;
 /// GL's declarations (the surface sampled, the settings as uniforms), then the tile and blur
 /// that Vulkan's compute shader includes too.
 const COMPUTE_SHADER: &str = concat!(
-    include_str!("../../shaders/gl/fast_composite.comp"),
-    include_str!("../../shaders/composite_tile.glsl")
+    include_str!("../../../../shaders/gl/fast_composite.comp"),
+    include_str!("../../../../shaders/composite_tile.glsl")
 );
 
 /// What the composite shows (its `view` uniform, in this order).
@@ -43,12 +43,12 @@ pub struct Uniforms {
 
 /// Deleted when dropped (its program).
 pub struct ComputeComposite {
-    program: common::base::gl::Owned<glow::Program>,
+    program: crate::base::gl::Owned<glow::Program>,
 }
 
 impl ComputeComposite {
     pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
-        let program = common::base::gl::compute_program(gl, COMPUTE_SHADER)
+        let program = crate::base::gl::compute_program(gl, COMPUTE_SHADER)
             .context("the composite's compute shader")?;
         Ok(ComputeComposite { program })
     }

@@ -1,22 +1,22 @@
 //! Chapter 12's Vulkan side: the ray tracing pipeline that rebuilds each pixel's hit from its id
 //! and traces the occlusion, the table of mesh ids it reads, and one frame's hand-overs.
 
-use crate::visibility::{MeshIds, Targets};
+use super::visibility::{MeshIds, Targets};
 use anyhow::Result;
 use ash::vk;
-use common::VulkanContext;
-use common::base::commands::first_use;
-use common::base::timestamps::{Timestamps, timed};
-use common::interop::handoff::{Apis, HandOver};
-use common::interop::{acquire_from_gl, release_to_gl};
-use common::rt::RayTracedScene;
-use common::rt::accel::{BufferDesc, DeviceBuffer};
-use common::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
-use common::scene::Camera;
+use crate::base::vulkan::VulkanContext;
+use crate::base::commands::first_use;
+use crate::base::timestamps::{Timestamps, timed};
+use crate::interop::handoff::{Apis, HandOver};
+use crate::interop::{acquire_from_gl, release_to_gl};
+use crate::rt::RayTracedScene;
+use crate::rt::accel::{BufferDesc, DeviceBuffer};
+use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
+use crate::scene::Camera;
 use gpu_allocator::MemoryLocation;
 
-const RAYGEN: &[u8] = include_bytes!("../../shaders/visibility_ao.rgen.spv");
-const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+const RAYGEN: &[u8] = include_bytes!("../../../../shaders/visibility_ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../../../shaders/miss.rmiss.spv");
 
 // ANCHOR: surface_rays
 /// The push constants of `shaders/visibility_ao.rgen` (std430, 128 bytes: the most every
@@ -131,7 +131,7 @@ impl SurfaceTracer {
         pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
         // ANCHOR_END: pipeline
         // The mesh table, written once: the ray generation shader reads it by its address.
-        let bytes = common::scene::gbuffer::as_bytes(ids);
+        let bytes = crate::scene::gbuffer::as_bytes(ids);
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
         let mut meshes = DeviceBuffer::new(
             vk,
