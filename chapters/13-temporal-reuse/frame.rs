@@ -144,7 +144,8 @@ impl Passes<'_> {
         stamp(timeline, slot, 1);
         match drawn {
             Drawn::Temporal(budget) => {
-                sized.temporal.trace(self.apis, targets, (&camera, frame), &budget, self.timestamps)?
+                let moved = self.path.moving.as_ref().filter(|_| self.motion.is_some()).map(|m| m.swept(frame));
+                sized.temporal.trace(self.apis, targets, (&camera, frame), (&budget, moved), self.timestamps)?
             }
             Drawn::Fresh(samples) => {
                 let scene_scale = self.scene.size() / 2.0;

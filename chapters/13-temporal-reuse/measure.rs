@@ -53,16 +53,21 @@ impl Walk {
         method: String,
         frames: Vec<FrameRecord>,
         (frame_wall_median_ms, gpu_median_ms): (Option<f64>, Option<f64>),
+        every: u32,
     ) -> Walk {
-        let errors: Vec<f64> = frames.iter().filter_map(|f| f.rmse).collect();
-        let flips: Vec<f64> = frames.iter().filter_map(|f| f.flip).collect();
+        // The mean over the path: over every `every`th frame alone, so that the frames measured
+        // besides them around the cut (for `frames_to_recover`) do not weigh the cut twice.
+        let along = || frames.iter().filter(|f| f.frame % every == 0);
+        let errors: Vec<f64> = along().filter_map(|f| f.rmse).collect();
+        let flips: Vec<f64> = along().filter_map(|f| f.flip).collect();
+        let worst = frames.iter().filter_map(|f| f.rmse).reduce(f64::max);
         Walk {
             flip_mean: (!flips.is_empty()).then(|| flips.iter().sum::<f64>() / flips.len() as f64),
             method,
             gpu_median_ms,
             ao_median_ms: median(&frames.iter().filter_map(|f| f.ao_ms).collect::<Vec<_>>()),
             error_mean: (!errors.is_empty()).then(|| errors.iter().sum::<f64>() / errors.len() as f64),
-            error_worst: errors.iter().copied().reduce(f64::max),
+            error_worst: worst,
             frames,
             frame_wall_median_ms,
         }

@@ -48,6 +48,8 @@ pub struct Moving {
     start: Mat4,
     centre: Vec3,
     radius: f32,
+    /// The mesh's bounding sphere in its object space (centre, radius), as `start` places it.
+    sphere: (Vec3, f32),
 }
 
 impl Path {
@@ -110,17 +112,18 @@ impl Moving {
                 (l.min(Vec3::from(v.position)), h.max(Vec3::from(v.position)))
             });
             let m = matrix(i);
-            (m.transform_point3((low + high) / 2.0), (m.transform_vector3(high - low)).length())
+            (m.transform_point3((low + high) / 2.0), (m.transform_vector3(high - low)).length(), (low + high) / 2.0)
         };
         let candidates = if scene.instances.len() > 1 { 1..scene.instances.len() } else { 0..1 };
         let index = candidates
             .min_by(|&a, &b| (middle(a).0 - centre).length().total_cmp(&(middle(b).0 - centre).length()))
             .unwrap_or(0);
-        let (at, size) = middle(index);
+        let (at, size, object_centre) = middle(index);
         let alone = scene.instances.len() == 1;
         let grow = if alone { 1.0 } else { 4.0 };
         let start = Mat4::from_translation(at) * Mat4::from_scale(Vec3::splat(grow)) * Mat4::from_translation(-at);
-        Moving { index, start: start * matrix(index), centre: at, radius: if alone { 0.0 } else { 2.0 * grow * size } }
+        let sphere = (object_centre, grow * size / 2.0);
+        Moving { index, start: start * matrix(index), centre: at, radius: if alone { 0.0 } else { 2.0 * grow * size }, sphere }
     }
 
     // ANCHOR: mover
@@ -131,6 +134,14 @@ impl Moving {
         let offset = Vec3::new(angle.cos() - 1.0, 0.0, angle.sin()) * self.radius;
         let turn = Mat4::from_rotation_y(angle);
         Mat4::from_translation(self.centre + offset) * turn * Mat4::from_translation(-self.centre) * self.start
+    }
+
+    /// A sphere (centre, radius) holding the instance at the frame before `frame` and at
+    /// `frame`: everything that moved between them.
+    pub fn swept(&self, frame: u32) -> (Vec3, f32) {
+        let (before, now) = (self.at(frame.saturating_sub(1)), self.at(frame));
+        let (a, b) = (before.transform_point3(self.sphere.0), now.transform_point3(self.sphere.0));
+        ((a + b) / 2.0, (b - a).length() / 2.0 + self.sphere.1)
     }
 
     /// Writes the transform at `frame` into `instances` (the shared buffer GL draws with and

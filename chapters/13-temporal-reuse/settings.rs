@@ -30,6 +30,11 @@ pub struct Args {
     /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=64))]
     pub settled_every: u32,
+    /// The most rays a pixel remembers where something moved within the radius of it since the
+    /// previous frame (its occlusion changed there, by how much no test can tell from a few new
+    /// rays); 0: no limit, the cap alone.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(0..=4096))]
+    pub near_motion_cap: u32,
     /// Which tests a remembered texel must pass to be reused (`none`: every texel is reused, so
     /// moving things leave ghosts; for measuring what the tests are worth).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "instance,plane,normal")]

@@ -22,7 +22,7 @@ const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 const HISTORY_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
 
 // ANCHOR: push
-/// The push constants of `shaders/temporal_ao.rgen` (std430, 80 bytes).
+/// The push constants of `shaders/temporal_ao.rgen` (std430: 100 bytes, padded to 112).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct TemporalRays {
@@ -42,6 +42,11 @@ pub struct TemporalRays {
     pub plane_tolerance: f32,
     pub normal_tolerance: f32,
     pub per_pixel: u32,
+    /// A sphere (centre, radius) holding what moved since the previous frame, grown by the
+    /// occlusion radius; radius 0: nothing moved.
+    pub moved: [f32; 4],
+    pub near_motion_cap: u32,
+    _pad: [u32; 3],
 }
 
 /// The shader's `Cameras` (std430, 256 bytes): this frame's and the previous frame's.
@@ -83,6 +88,8 @@ pub struct Budget {
     pub scene_scale: f32,
     /// Chapter 07's rotation per pixel instead of chapter 12's 4x4 blocks (`--pattern`).
     pub per_pixel: bool,
+    /// The most rays a pixel remembers near what moved (`--near-motion-cap`).
+    pub near_motion_cap: u32,
 }
 
 impl Budget {
@@ -90,7 +97,8 @@ impl Budget {
         let (samples, fresh) = if radius > 0.0 { (args.samples, args.fresh) } else { (0, 0) };
         let (cap, settled_every, accept) = (args.cap, args.settled_every, accept_bits(&args.accept));
         let per_pixel = args.pattern == crate::settings::Pattern::PerPixel;
-        Budget { samples, fresh, cap, settled_every, accept, radius, scene_scale, per_pixel }
+        let near_motion_cap = args.near_motion_cap;
+        Budget { samples, fresh, cap, settled_every, accept, radius, scene_scale, per_pixel, near_motion_cap }
     }
 }
 
@@ -217,7 +225,7 @@ impl TemporalTracer {
         apis: Apis,
         targets: &Targets,
         (camera, frame): (&Camera, u32),
-        budget: &Budget,
+        (budget, moved): (&Budget, Option<(glam::Vec3, f32)>),
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
         // The previous frame's work is done (the caller waited for it, at the top of the frame):
@@ -256,6 +264,10 @@ impl TemporalTracer {
             plane_tolerance: 0.01,
             normal_tolerance: 0.9,
             per_pixel: budget.per_pixel as u32,
+            // Occlusion is the geometry within `radius` of a point: only there can it change.
+            moved: moved.map_or([0.0; 4], |(centre, reach)| centre.extend(reach + budget.radius).to_array()),
+            near_motion_cap: budget.near_motion_cap,
+            _pad: [0; 3],
         };
         let history = self.history_barriers();
         let work = |cb| {
@@ -358,7 +370,9 @@ mod tests {
         assert_eq!(offset_of!(TemporalRays, samples), 44);
         assert_eq!(offset_of!(TemporalRays, accept), 64);
         assert_eq!(offset_of!(TemporalRays, normal_tolerance), 72);
-        assert_eq!(size_of::<TemporalRays>(), 80);
+        assert_eq!(offset_of!(TemporalRays, moved), 80);
+        assert_eq!(offset_of!(TemporalRays, near_motion_cap), 96);
+        assert_eq!(size_of::<TemporalRays>(), 112);
         assert_eq!(offset_of!(Cameras, eye), 192);
         assert_eq!(size_of::<Cameras>(), 256);
     }

@@ -116,7 +116,7 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
             checked = true;
         }
         eprintln!("walk: {} done ({frames} frames)", drawn.name());
-        walks.push(Walk::new(drawn.name(), records, (wall, gpu)));
+        walks.push(Walk::new(drawn.name(), records, (wall, gpu), args.error_every));
     }
     report.set("frames", frames);
     Ok(walks)
