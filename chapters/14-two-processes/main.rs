@@ -27,6 +27,8 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 const CHAPTER: &str = "14-two-processes";
+/// How long a viewer has to exit once the conversation is over before it is killed.
+const GRACE: Duration = Duration::from_secs(2);
 const SMALLEST: Smallest = Smallest {
     width: 16,
     height: 16,
@@ -178,17 +180,18 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         let outcome = match outcome {
             Ok(outcome) => outcome,
             Err(error) => {
-                session::end_viewer(child, false);
+                session::end_viewer(socket, child, GRACE);
                 return Err(error);
             }
         };
         match outcome {
             Outcome::Done(summary) => {
-                report.check("viewer_exited_cleanly", session::end_viewer(child, true) != Some(false));
+                let exited = session::end_viewer(socket, child, GRACE);
+                report.check("viewer_exited_cleanly", exited != Some(false));
                 break summary;
             }
             Outcome::Gone { why, lost } => {
-                session::end_viewer(child, false);
+                session::end_viewer(socket, child, GRACE);
                 restarts += 1;
                 redrawn += lost;
                 eprintln!("renderer: the viewer {why}; {lost} frame(s) in flight will be drawn again");

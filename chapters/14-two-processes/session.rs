@@ -130,6 +130,7 @@ impl Session<'_> {
         // ANCHOR_END: frames
         times.record(report);
         if !self.socket.send(&Message::Bye, &[])? {
+            while self.recv()?.is_some() {} // its refusal, if it left one, is the error
             bail!("the viewer hung up after the last frame, before its summary");
         }
         match self.recv()? {
@@ -188,7 +189,8 @@ pub fn spawn_viewer(args: &Args, width: u32, height: u32) -> Result<(Socket, Opt
         });
     }
     let child = fail::call("starting the viewer process", || command.spawn())?;
-    eprintln!("renderer: started the viewer (pid {})", child.id());
+    // One write, whole: the viewer is printing on the same stderr already.
+    eprint!("{}", format!("renderer: started the viewer (pid {})\n", child.id()));
     drop(theirs);
     Ok((ours, Some(child)))
 }
@@ -206,12 +208,16 @@ pub fn accept(listener: &std::os::fd::OwnedFd, timeout: Duration) -> Result<Sock
     Ok(Socket { fd })
 }
 
-/// Reaps the viewer we started (None: we started none). Unless it is done (`finished`), kills
-/// it first: it may be hung, and a dead one ignores the signal. Whether it exited with 0.
-pub fn end_viewer(child: Option<Child>, finished: bool) -> Option<bool> {
+/// Closes our end of the socket, then reaps the viewer we started (None: we started none): a
+/// viewer that hung up or saw us hang up exits by itself, within `grace`; one that does not is
+/// hung, and is killed. Whether it exited with 0.
+pub fn end_viewer(socket: Socket, child: Option<Child>, grace: Duration) -> Option<bool> {
+    drop(socket);
     let mut child = child?;
-    if !finished {
-        let _ = child.kill();
+    let started = Instant::now();
+    while child.try_wait().ok()?.is_none() && started.elapsed() < grace {
+        std::thread::sleep(Duration::from_millis(10));
     }
+    let _ = child.kill(); // a process that has exited ignores it
     child.wait().ok().map(|status| status.success())
 }

@@ -4,7 +4,6 @@
 
 use super::{Args, CHAPTER, picture, wire};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::vulkan::DeviceInfo;
@@ -18,7 +17,6 @@ use wire::{Message, Received, Socket};
 pub fn run(args: &Args, report: &mut Report) -> Result<()> {
     let socket = match (args.viewer_fd, &args.connect) {
         (Some(fd), _) => {
-            fail::step("taking the inherited socket")?;
             // Is it open at all? A mistyped --viewer-fd must not become someone else's fd.
             let borrowed = unsafe { std::os::fd::BorrowedFd::borrow_raw(fd) };
             rustix::io::fcntl_getfd(borrowed).with_context(|| format!("--viewer-fd {fd} is not open"))?;
@@ -28,7 +26,6 @@ pub fn run(args: &Args, report: &mut Report) -> Result<()> {
         (None, Some(path)) => wire::connect(path)?,
         (None, None) => unreachable!("main runs the viewer only with --viewer-fd or --connect"),
     };
-    socket.set_timeout(Duration::from_secs_f64(args.timeout))?;
     let result = view(args, report, &socket);
     if let Err(error) = &result {
         // The renderer learns why, rather than only that we hung up (which it would survive).
@@ -38,6 +35,7 @@ pub fn run(args: &Args, report: &mut Report) -> Result<()> {
 }
 
 fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
+    socket.set_timeout(Duration::from_secs_f64(args.timeout))?;
     // 1. Hear the renderer's Hello
     let hello = match socket.recv()? {
         Received::Message(Message::Hello(hello), _) => hello,
@@ -128,6 +126,8 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         // glReadPixels returns when the pixels are in our memory: GL is done with the slot.
         // (GL numbers rows from the bottom; flipped back, row 0 is Vulkan's row 0.)
         let pixels = output::flip_rows(&output::read_gl_rgba8(gl, width, height), width, height);
+        // Unbound, the slot is held by nothing of GL's state between frames.
+        unsafe { gl.bind_framebuffer(glow::READ_FRAMEBUFFER, None) };
         gl_context.check_error("reading a slot")?;
         all_right &= is_picture_of(&pixels, frame, width, height);
         shown += 1;
@@ -154,7 +154,6 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
     report.set("renderer_gone", gone.is_some());
 
     // 6. Clean up
-    unsafe { gl.bind_framebuffer(glow::READ_FRAMEBUFFER, None) };
     drop(ring); // each framebuffer, then its texture and memory object: GL lets go of the memory
     gl_context.check_error("cleaning up")?;
     // Each slot's fd was GL's from its import, and went with its memory object.

@@ -384,13 +384,19 @@ impl Socket {
         let mut control = RecvAncillaryBuffer::new(&mut space);
         // CMSG_CLOEXEC: received fds are not inherited by any child we start.
         let flags = RecvFlags::CMSG_CLOEXEC;
-        let got =
-            match rustix::net::recvmsg(&self.fd, &mut [IoSliceMut::new(&mut bytes)], &mut control, flags) {
-                Ok(got) => got,
-                Err(rustix::io::Errno::AGAIN) => return Ok(Received::TimedOut),
-                Err(rustix::io::Errno::CONNRESET) => return Ok(Received::HungUp),
-                Err(error) => return Err(error).context("recvmsg"),
-            };
+        let mut iov = [IoSliceMut::new(&mut bytes)];
+        let mut got = rustix::net::recvmsg(&self.fd, &mut iov, &mut control, flags);
+        if got.as_ref().is_err_and(|&error| error == rustix::io::Errno::CONNRESET) {
+            // The other end closed with our last message unread. Linux says so once, before
+            // what it had sent us (a refusal, say), which the next call reads; or end of file.
+            got = rustix::net::recvmsg(&self.fd, &mut iov, &mut control, flags);
+        }
+        let got = match got {
+            Ok(got) => got,
+            Err(rustix::io::Errno::AGAIN) => return Ok(Received::TimedOut),
+            Err(rustix::io::Errno::CONNRESET) => return Ok(Received::HungUp),
+            Err(error) => return Err(error).context("recvmsg"),
+        };
         let fds: Vec<OwnedFd> = control
             .drain()
             .filter_map(|m| match m {
