@@ -205,6 +205,8 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         }
     };
     viewer::merge_summary(report, &summary)?;
+    // No semaphores cross the socket yet: the CPU waits for each side, as chapter 03's host path.
+    report.sync = Some("host");
     report.set("frames", frames);
     report.set("slots", slots);
     report.set("restarts", restarts);
