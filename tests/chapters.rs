@@ -762,10 +762,7 @@ fn ch13_temporal_reuse_orbit_with_a_cut() {
     let report = run.succeeded();
     assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY);
     assert_eq!(report["checks"]["no_history_kept_across_the_cut_from_unseen_surfaces"], true);
-    assert!(
-        report["cut_pixels_kept"].as_u64().unwrap() > 0,
-        "some of the view is seen before and after the cut"
-    );
+    assert!(report["cut_pixels_kept"].as_u64().unwrap() > 0, "some of the view is seen before and after the cut");
     assert_report_snapshot("13-temporal-reuse", report);
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
@@ -774,8 +771,7 @@ fn ch13_temporal_reuse_orbit_with_a_cut() {
 /// same rays chapter 08 traces: the two agree pixel by pixel.
 #[test]
 fn ch13_still_camera_traces_chapter_08s_rays() {
-    let still =
-        ["--size", "64x48", "--frames", "8", "--path", "still", "--mover", "none", "--instances", "400"];
+    let still = ["--size", "64x48", "--frames", "8", "--path", "still", "--mover", "none", "--instances", "400"];
     let mut args = still.to_vec();
     args.extend(["--pattern", "per-pixel"]);
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
@@ -792,8 +788,7 @@ fn ch13_pan_keeps_what_a_new_trace_finds() {
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(report["checks"]["pan_history_agrees_with_a_new_trace"], true);
-    let (kept, covered) =
-        (report["pan_pixels_kept"].as_u64().unwrap(), report["pan_pixels_covered"].as_u64().unwrap());
+    let (kept, covered) = (report["pan_pixels_kept"].as_u64().unwrap(), report["pan_pixels_covered"].as_u64().unwrap());
     assert!(kept * 4 > covered * 3, "most of the view is kept: {kept} of {covered} pixels");
 }
 
@@ -845,11 +840,8 @@ fn ch13_resizing_leaks_nothing() {
 fn ch13_in_a_window_under_xvfb() {
     let Some(xvfb) = harness::Xvfb::start("ch13_in_a_window_under_xvfb") else { return };
     let args = ["--size", "96x72", "--frames", "3", "--instances", "100"];
-    let run = harness::run_chapter_with(
-        env!("CARGO_BIN_EXE_13-temporal-reuse"),
-        &args,
-        &[("DISPLAY", &xvfb.display)],
-    );
+    let run =
+        harness::run_chapter_with(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[("DISPLAY", &xvfb.display)]);
     drop(xvfb);
     let report = run.succeeded();
     assert_eq!(report["window"], true, "{}", run.stderr);
@@ -889,11 +881,7 @@ fn ch13_refuses_a_comparison_that_resizes() {
     let args = ["--size", "64x48", "--compare", "--resize-every", "2"];
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
-    assert!(
-        run.stderr.contains("--compare walks every method at one size: leave out --resize-every"),
-        "{}",
-        run.stderr
-    );
+    assert!(run.stderr.contains("--compare walks every method at one size: leave out --resize-every"), "{}", run.stderr);
     assert!(!run.stderr.contains("vulkan: using"), "refused before the device: {}", run.stderr);
 }
 
