@@ -382,7 +382,7 @@ impl Socket {
         // Room for two fds: a message with one too many is seen, and refused, rather than cut.
         let mut space = [MaybeUninit::uninit(); rustix::cmsg_space!(ScmRights(2))];
         let mut control = RecvAncillaryBuffer::new(&mut space);
-        // CMSG_CLOEXEC: received fds are not inherited by any child we start.
+        // CMSG_CLOEXEC (MSG_CMSG_CLOEXEC): received fds are not inherited by any child we start.
         let flags = RecvFlags::CMSG_CLOEXEC;
         let mut iov = [IoSliceMut::new(&mut bytes)];
         let mut got = rustix::net::recvmsg(&self.fd, &mut iov, &mut control, flags);
@@ -409,6 +409,7 @@ impl Socket {
             return Ok(Received::HungUp); // end of file: every fd of the other end is closed
         }
         ensure!(!got.flags.contains(ReturnFlags::TRUNC), "a message longer than {MAX_MESSAGE} bytes");
+        // CTRUNC (MSG_CTRUNC): fds that did not fit were closed by the kernel; refuse the rest.
         ensure!(!got.flags.contains(ReturnFlags::CTRUNC), "a message with more fds than any carries");
         let (message, fd) = decode(&bytes[..got.bytes], fds)?;
         Ok(Received::Message(message, fd))
