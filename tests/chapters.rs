@@ -884,3 +884,91 @@ fn ch13_refuses_a_comparison_that_resizes() {
     assert!(run.stderr.contains("--compare walks every method at one size: leave out --resize-every"), "{}", run.stderr);
     assert!(!run.stderr.contains("vulkan: using"), "refused before the device: {}", run.stderr);
 }
+
+const CH14: &str = env!("CARGO_BIN_EXE_14-two-processes");
+
+/// One command, two processes: the renderer starts its viewer, shares a ring of two images, and
+/// every frame the viewer reads back is the one announced; the viewer's report comes back.
+#[test]
+fn ch14_two_processes() {
+    let run = run_chapter(CH14, &["--size", "96x64", "--frames", "8"], &[]);
+    let report = run.succeeded();
+    assert_eq!(enabled_extensions(report), ["VK_KHR_external_memory_fd"]);
+    assert_eq!(report["uuids_match"], true);
+    assert_eq!(report["restarts"], 0);
+    assert_eq!(report["frames_shown_by_the_last_viewer"], 8);
+    assert_eq!(report["checks"]["viewer_every_frame_is_the_one_announced"], true);
+    assert!(run.stderr.contains("renderer: started the viewer (pid "), "{}", run.stderr);
+    assert_report_snapshot("14-two-processes", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+/// A viewer killed (SIGKILL) every 5 frames is noticed by its hang-up, replaced, and the frames
+/// it lost drawn again: every frame is shown, in the end, and nothing leaks on either side.
+#[test]
+fn ch14_a_killed_viewer_is_replaced() {
+    let args = ["--size", "64x48", "--frames", "24", "--kill-viewer-every", "5", "--restarts", "10"];
+    let run = run_chapter(CH14, &args, &[]);
+    let report = run.succeeded();
+    let restarts = report["restarts"].as_u64().unwrap();
+    assert!(restarts >= 4, "24 frames, 5 to each viewer, at most 2 lost each: {restarts} restarts");
+    assert_eq!(run.stderr.matches("renderer: killing the viewer").count() as u64, restarts);
+    assert_eq!(report["frames"], 24);
+    assert_eq!(report["checks"]["no_fd_leaked"], true);
+    assert_eq!(report["checks"]["viewer_no_fd_leaked"], true);
+}
+
+/// A renderer killed mid-run: its viewer notices the hang-up, keeps the last complete frame,
+/// lets go of what it imported and exits 0, saying so.
+#[test]
+fn ch14_a_killed_renderer_leaves_the_viewer_clean() {
+    use std::io::{BufRead, BufReader, Read};
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("vkgl.sock");
+    let spawn = |args: &[&str]| {
+        let mut command = std::process::Command::new(CH14);
+        command.args(["--headless", "--size", "64x48", "--out"]).arg(dir.path()).args(args);
+        harness::pin_software_stack(&mut command);
+        command.stderr(std::process::Stdio::piped()).stdout(std::process::Stdio::null());
+        command.spawn().unwrap()
+    };
+    let socket_arg = socket.to_str().unwrap();
+    let mut renderer = spawn(&["--listen", socket_arg, "--frames", "100000", "--timeout", "30"]);
+    while !socket.exists() {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let mut viewer = spawn(&["--connect", socket_arg, "--timeout", "30"]);
+    let mut stderr = BufReader::new(viewer.stderr.take().unwrap());
+    let mut seen = String::new();
+    while !seen.contains("viewer: showing frames") {
+        assert!(stderr.read_line(&mut seen).unwrap() > 0, "the viewer stopped early:\n{seen}");
+    }
+    std::thread::sleep(std::time::Duration::from_millis(500)); // frames flow
+    renderer.kill().unwrap(); // SIGKILL: no Bye, no clean-up of its own
+    renderer.wait().unwrap();
+    stderr.read_to_string(&mut seen).unwrap();
+    let status = viewer.wait().unwrap();
+    assert_eq!(status.code(), Some(0), "{seen}");
+    assert!(seen.contains("viewer: the renderer hung up; keeping frame "), "{seen}");
+    for check in ["every_frame_is_the_one_announced", "no_fd_leaked"] {
+        assert!(seen.contains(&format!("[ ok ] {check}")), "{check}:\n{seen}");
+    }
+    assert!(dir.path().join("14-two-processes.png").exists(), "the last frame is kept:\n{seen}");
+}
+
+/// What cannot work is refused before anything is made: a ring of one, a kill rate that would
+/// never let a frame through, a kill in a viewer the renderer did not start.
+#[test]
+fn ch14_refuses_what_cannot_work() {
+    let cases: [(&[&str], &str); 3] = [
+        (&["--slots", "1"], "--slots 1: a ring has 2 to 16 slots"),
+        (&["--kill-viewer-every", "2"], "--kill-viewer-every 2: more than --slots 2"),
+        (&["--kill-viewer-every", "5", "--listen", "/tmp/unused.sock"], "kills only a viewer it started"),
+    ];
+    for (args, expected) in cases {
+        let run = run_chapter(CH14, args, &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{args:?}: {}", run.stderr);
+        assert!(run.stderr.contains(expected), "{args:?}: {}", run.stderr);
+        assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
+    }
+}

@@ -444,6 +444,8 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("cargo run --release --bin 10-vertex-animation -- --headless --json --size 1920x1080", Skip::Always("sized for a GPU")),
     ("cargo run --release --bin bench -- --json", Skip::Always("the full sweep: minutes on a GPU")),
     ("cargo run --release --bin convergence -- --json", Skip::Always("the full sweep: minutes on a GPU")),
+    ("cargo run --release --bin 14-two-processes -- --listen", Skip::Always("waits for the viewer a second terminal starts")),
+    ("cargo run --release --bin 14-two-processes -- --connect", Skip::Always("connects to the renderer of a first terminal")),
     ("cargo run --release --bin bench -- --quick", Skip::Slow("35 to 55 s")),
     ("cargo run --release --bin 07-ao-ray-pipeline -- --headless --size 320x240 --frames 4 --scene", Skip::Slow("35 to 50 s")),
     ("cargo run --release --bin 08-composite -- --headless --size 320x240 --frames 4 --scene", Skip::Slow("about 45 s")),

@@ -1,0 +1,290 @@
+//! Chapter 14: two processes.
+//!
+//! The Vulkan renderer and the GL viewer are separate programs now: the renderer draws into a ring
+//! of exported images, hands their fds to the viewer once over a Unix-domain socket, then says
+//! "frame k is in slot i" each frame; the viewer reads the slot and answers "slot i is free".
+//! Either side may die at any moment; the other notices and carries on (or, for the viewer, stops
+//! cleanly).
+//!
+//! Run: `cargo run --release --bin 14-two-processes` (the renderer starts its own viewer), or by
+//! hand in two terminals: `-- --listen /tmp/vkgl.sock` and `-- --connect /tmp/vkgl.sock`.
+
+mod session;
+mod viewer;
+mod wire;
+
+use anyhow::{Result, bail, ensure};
+use ash::vk;
+use common::base::cli::Smallest;
+use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, image_barrier};
+use common::base::guard::guard;
+use common::base::{fail, resources};
+use common::interop::exportable::{self, Dedicated};
+use common::{CommonArgs, Report, Requirements, VulkanContext};
+use session::{Outcome, Session};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+const CHAPTER: &str = "14-two-processes";
+/// How long a viewer has to exit once the conversation is over before it is killed.
+const GRACE: Duration = Duration::from_secs(2);
+const SMALLEST: Smallest = Smallest {
+    width: 16,
+    height: 16,
+    why: "the moving square, a quarter of the shorter side, must have background around it",
+    shape: None,
+};
+
+/// Chapter 14: a Vulkan renderer and a GL viewer in two processes, sharing a ring of images.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Images in the ring, each a frame in flight: 2 to 16.
+    #[arg(long, default_value_t = 2)]
+    slots: u32,
+    /// Wait for a viewer at this socket path instead of starting one (the viewer: --connect).
+    #[arg(long, conflicts_with = "connect")]
+    listen: Option<PathBuf>,
+    /// Be the viewer of the renderer listening at this socket path.
+    #[arg(long)]
+    connect: Option<PathBuf>,
+    /// Seconds to wait for the other process before giving up on it.
+    #[arg(long, default_value_t = 10.0)]
+    timeout: f64,
+    /// How many viewers that died are replaced before the renderer gives up.
+    #[arg(long, default_value_t = 3)]
+    restarts: u32,
+    /// Kill the viewer (SIGKILL) each time it has been sent K frames, to see it replaced.
+    #[arg(long, value_name = "K")]
+    kill_viewer_every: Option<u32>,
+    /// (Internal) be the viewer, on this inherited socket.
+    #[arg(long, hide = true)]
+    viewer_fd: Option<i32>,
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(
+        CHAPTER,
+        |args: &Args| &args.common,
+        |args, report| match args.viewer_fd.is_some() || args.connect.is_some() {
+            true => viewer::run(args, report),
+            false => render(args, report),
+        },
+    )
+}
+
+// ANCHOR: picture
+/// Frame `frame`'s picture, which both processes know: a background colour no nearby frame
+/// shares, and a white square (x, y, side) that moves one step a frame. A viewer that read a
+/// slot too early, or the wrong slot, sees another frame's colour or square.
+pub fn picture(frame: u64, width: u32, height: u32) -> ([u8; 4], (u32, u32, u32)) {
+    let channel = |step: u64| (20 + frame * step % 200) as u8;
+    let background = [channel(37), channel(91), channel(53), 255];
+    let side = width.min(height) / 4;
+    let x = (frame * 3 % (width - side + 1) as u64) as u32;
+    (background, (x, (height - side) / 2, side))
+}
+// ANCHOR_END: picture
+
+fn render(args: &Args, report: &mut Report) -> Result<()> {
+    SMALLEST.check(CHAPTER, args.common.size)?;
+    let slots = args.slots;
+    ensure!(
+        (2..=wire::MAX_SLOTS).contains(&slots),
+        "--slots {slots}: a ring has 2 to {} slots",
+        wire::MAX_SLOTS
+    );
+    if let Some(k) = args.kill_viewer_every {
+        ensure!(k > slots, "--kill-viewer-every {k}: more than --slots {slots}, or no frame is ever shown");
+        ensure!(args.listen.is_none(), "--kill-viewer-every: the renderer kills only a viewer it started");
+    }
+    let (width, height) = (args.common.size.width, args.common.size.height);
+    let frames = args.common.headless_frames() as u64;
+
+    // 1. Vulkan alone: the renderer has no GL
+    let vk = VulkanContext::new(&Requirements {
+        extensions: &[ash::khr::external_memory_fd::NAME],
+        ..Default::default()
+    })?;
+    report.vulkan = Some(vk.report());
+    let open_fds_before = common::open_fd_count()?;
+
+    // 2. A ring of exportable images
+    // ANCHOR: ring
+    let usage = vk::ImageUsageFlags::TRANSFER_DST // Vulkan clears and copies into it
+        | vk::ImageUsageFlags::COLOR_ATTACHMENT // GL attaches it to a framebuffer to read it
+        | vk::ImageUsageFlags::SAMPLED; // a viewer with a window would sample it
+    let extent = vk::Extent2D { width, height };
+    let ring = (0..slots)
+        .map(|_| -> Result<_> {
+            let image = exportable::create_image(&vk, vk::Format::R8G8B8A8_UNORM, usage, extent)?;
+            let image = guard(image, |&image| unsafe {
+                vk.device.destroy_image(image, None);
+                resources::destroyed("vk_image_exportable");
+            });
+            let requirements = unsafe { vk.device.get_image_memory_requirements(*image) };
+            let local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
+            let memory = exportable::allocate(&vk, &requirements, local, Dedicated::Image(*image))?;
+            let memory = guard(memory, |memory| unsafe { vk.device.free_memory(memory.memory, None) });
+            fail::call("vkBindImageMemory (a ring slot)", || unsafe {
+                vk.device.bind_image_memory(*image, memory.memory, 0)
+            })?;
+            Ok((image, memory)) // dropped in that order: the image, then its memory
+        })
+        .collect::<Result<Vec<_>>>()?;
+    // ANCHOR_END: ring
+    let side = picture(0, width, height).1.2;
+    let mut square = HostBuffer::new(&vk, side as u64 * side as u64 * 4, vk::BufferUsageFlags::TRANSFER_SRC)?;
+    square.bytes_mut().fill(255); // white, opaque
+    let commands = Commands::new(&vk)?; // dropped first: it waits for its last submission
+    // Every slot starts outside Vulkan, in GENERAL, as it is after each frame's release.
+    commands.run_once(&vk, |cb| unsafe {
+        let to_general = (vk::ImageLayout::UNDEFINED, vk::ImageLayout::GENERAL);
+        let (none, families) = (vk::AccessFlags::NONE, (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL));
+        let barriers: Vec<_> = ring
+            .iter()
+            .map(|(image, _)| image_barrier(**image, to_general, (none, none), families))
+            .collect();
+        let (top, bottom) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
+        vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
+    })?;
+
+    // 3. Serve viewers until every frame has been shown
+    let timeout = Duration::from_secs_f64(args.timeout);
+    let listener = args.listen.as_deref().map(wire::listen).transpose()?;
+    let hello = wire::Hello {
+        device_uuid: vk.info.device_uuid,
+        driver_uuid: vk.info.driver_uuid,
+        device: vk.info.name.clone(),
+        format: wire::FORMAT_RGBA8,
+        width,
+        height,
+        memory_size: ring[0].1.size,
+        slots,
+    };
+    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
+    let draw =
+        |frame: u64, slot: usize| draw(&vk, &commands, *ring[slot].0, &square, picture(frame, width, height));
+    let (mut next_frame, mut restarts, mut redrawn) = (0u64, 0u32, 0u64);
+    let summary = loop {
+        let (socket, mut child) = match &listener {
+            Some(listener) => (session::accept(listener, timeout)?, None),
+            None => session::spawn_viewer(args, hello.width, hello.height)?,
+        };
+        socket.set_timeout(timeout)?;
+        let session = Session { socket: &socket, child: child.as_mut(), kill_every: args.kill_viewer_every };
+        let exported = || ring.iter().map(|(_, memory)| exportable::export_fd(&fd_loader, memory.memory));
+        let outcome = session.serve(&hello, exported, &draw, &mut next_frame, frames, report);
+        let outcome = match outcome {
+            Ok(outcome) => outcome,
+            Err(error) => {
+                session::end_viewer(socket, child, GRACE);
+                return Err(error);
+            }
+        };
+        match outcome {
+            Outcome::Done(summary) => {
+                let exited = session::end_viewer(socket, child, GRACE);
+                report.check("viewer_exited_cleanly", exited != Some(false));
+                break summary;
+            }
+            Outcome::Gone { why, lost } => {
+                session::end_viewer(socket, child, GRACE);
+                restarts += 1;
+                redrawn += lost;
+                eprintln!("renderer: the viewer {why}; {lost} frame(s) in flight will be drawn again");
+                if restarts > args.restarts {
+                    bail!(
+                        "the viewer {why}, and it has been replaced {} times already (--restarts)",
+                        args.restarts
+                    );
+                }
+            }
+        }
+    };
+    viewer::merge_summary(report, &summary)?;
+    // No semaphores cross the socket yet: the CPU waits for each side, as chapter 03's host path.
+    report.sync = Some("host");
+    report.set("frames", frames);
+    report.set("slots", slots);
+    report.set("restarts", restarts);
+    report.set("frames_drawn_again", redrawn);
+    report.set("mode", if listener.is_some() { "listen" } else { "one command" });
+
+    // 4. Clean up, newest first (the last frame's fence has signalled)
+    drop(listener);
+    drop(commands);
+    drop(square);
+    drop(ring); // each image, then its memory
+    if let Some(path) = &args.listen {
+        let _ = std::fs::remove_file(path);
+    }
+    // Every fd exported went to a viewer, and ours was closed once sent.
+    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
+    Ok(())
+}
+
+// ANCHOR: draw
+/// Frame `frame` into `image`: clear to the background, copy the white square in, and hand the
+/// image back outside Vulkan. Waits for the fence: the caller announces the frame only then.
+fn draw(
+    vk: &VulkanContext,
+    commands: &Commands,
+    image: vk::Image,
+    square: &HostBuffer,
+    (background, (x, y, side)): ([u8; 4], (u32, u32, u32)),
+) -> Result<()> {
+    let cb = commands.begin(vk)?;
+    let (ours, external) = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
+    let (transfer, none) = (vk::PipelineStageFlags::TRANSFER, vk::DependencyFlags::empty());
+    let dst = vk::ImageLayout::TRANSFER_DST_OPTIMAL;
+    let write = vk::AccessFlags::TRANSFER_WRITE;
+    unsafe {
+        // Take the slot back from the viewer: from outside Vulkan, from GENERAL, where the last
+        // release left it. The viewer's "slot free" came after its reads had finished: nothing
+        // to wait for on the GPU, so from the top of the pipe.
+        let acquire = image_barrier(
+            image,
+            (vk::ImageLayout::GENERAL, dst),
+            (vk::AccessFlags::NONE, write),
+            (external, ours),
+        );
+        let top = vk::PipelineStageFlags::TOP_OF_PIPE;
+        vk.device.cmd_pipeline_barrier(cb, top, transfer, none, &[], &[], &[acquire]);
+        let colour = vk::ClearColorValue { float32: background.map(|c| c as f32 / 255.0) };
+        vk.device.cmd_clear_color_image(cb, image, dst, &colour, &[COLOR_RANGE]);
+        // The clear and the copy write the same pixels: the copy must land after the clear.
+        let after_clear = image_barrier(
+            image,
+            (dst, dst),
+            (write, write),
+            (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED),
+        );
+        vk.device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &[after_clear]);
+        let region = vk::BufferImageCopy::default()
+            .image_subresource(vk::ImageSubresourceLayers {
+                aspect_mask: vk::ImageAspectFlags::COLOR,
+                mip_level: 0,
+                base_array_layer: 0,
+                layer_count: 1,
+            })
+            .image_offset(vk::Offset3D { x: x as i32, y: y as i32, z: 0 })
+            .image_extent(vk::Extent3D { width: side, height: side, depth: 1 });
+        vk.device.cmd_copy_buffer_to_image(cb, square.buffer, image, dst, &[region]);
+        // Release to the viewer: make the writes available, leave it in GENERAL (GL, on the host
+        // path, names no layout), and hand ownership outside Vulkan.
+        let release = image_barrier(
+            image,
+            (dst, vk::ImageLayout::GENERAL),
+            (write, vk::AccessFlags::NONE),
+            (ours, external),
+        );
+        let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+        vk.device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &[release]);
+    }
+    commands.submit(vk, None, None)?;
+    commands.wait(vk, "vkWaitForFences for the frame")
+}
+// ANCHOR_END: draw

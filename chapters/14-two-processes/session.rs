@@ -1,0 +1,223 @@
+//! Chapter 14's renderer side of the conversation: starting (or accepting) a viewer, the
+//! handshake, and the frames, one "frame k is in slot i" and one "slot i is free" at a time.
+
+use super::{Args, CHAPTER};
+use crate::wire::{self, Message, Received, Socket};
+use anyhow::{Context as _, Result, bail, ensure};
+use common::base::fail;
+use common::base::timing::PassTimes;
+use common::{Report, ms_since};
+use std::collections::VecDeque;
+use std::os::fd::{AsFd, AsRawFd};
+use std::process::Child;
+use std::time::{Duration, Instant};
+
+/// How a viewer's session ended, if not with an error.
+pub enum Outcome {
+    /// Every frame shown; the viewer's summary (JSON).
+    Done(String),
+    /// The viewer hung up or fell silent; `lost` frames were sent and not shown.
+    Gone { why: &'static str, lost: u64 },
+}
+
+/// One viewer, from the handshake to its summary.
+pub struct Session<'a> {
+    pub socket: &'a Socket,
+    pub child: Option<&'a mut Child>,
+    pub kill_every: Option<u32>,
+}
+
+impl Session<'_> {
+    pub fn serve<I>(
+        mut self,
+        hello: &wire::Hello,
+        exported: impl Fn() -> I,
+        draw: &dyn Fn(u64, usize) -> Result<()>,
+        next_frame: &mut u64,
+        frames: u64,
+        report: &mut Report,
+    ) -> Result<Outcome>
+    where
+        I: Iterator<Item = Result<std::os::fd::OwnedFd>>,
+    {
+        let gone = |why| Ok(Outcome::Gone { why, lost: 0 });
+        let mut times = PassTimes::new();
+        // ANCHOR: handshake
+        // Hello: who we are and what we share. The viewer checks GL runs on our device.
+        if !self.socket.send(&Message::Hello(hello.clone()), &[])? {
+            return self.hung_up("hung up before the handshake", 0);
+        }
+        let (device_uuid, driver_uuid, renderer) = match self.recv()? {
+            Some(Message::Welcome { device_uuid, driver_uuid, renderer }) => {
+                (device_uuid, driver_uuid, renderer)
+            }
+            Some(other) => bail!("the viewer answered Hello with {}", other.name()),
+            None => return gone("hung up during the handshake"),
+        };
+        let same = device_uuid == hello.device_uuid && driver_uuid == hello.driver_uuid;
+        report.uuids_match = Some(same);
+        let hex = common::base::report::uuid_hex;
+        ensure!(
+            same,
+            "the viewer's GL ({renderer}, device {} driver {}) is not our Vulkan ({}, device {} driver {})",
+            hex(&device_uuid),
+            hex(&driver_uuid),
+            hello.device,
+            hex(&hello.device_uuid),
+            hex(&hello.driver_uuid)
+        );
+        // The fds, one message per slot. Each is ours until sendmsg returns; then the kernel
+        // has given the viewer its own, and ours is closed (dropped) at the end of the loop body.
+        for (slot, fd) in exported().enumerate() {
+            let fd = fd?;
+            let slot_message = Message::Slot { slot: slot as u32, memory_size: hello.memory_size };
+            let sent = self.socket.send(&slot_message, &[fd.as_fd()])?;
+            drop(fd); // sent or not, ours is closed: the viewer has its own, or is gone
+            if !sent {
+                return self.hung_up("hung up while the slots were sent", 0);
+            }
+        }
+        match self.recv()? {
+            Some(Message::Ready) => {}
+            Some(other) => bail!("the viewer answered the slots with {}", other.name()),
+            None => return gone("hung up while importing the slots"),
+        }
+        // ANCHOR_END: handshake
+        // ANCHOR: frames
+        let mut in_flight: VecDeque<(u64, u32)> = VecDeque::new(); // sent, not yet free, oldest first
+        let mut sent = 0u32;
+        while *next_frame < frames || !in_flight.is_empty() {
+            let slot = (*next_frame % hello.slots as u64) as u32;
+            // The slot is the viewer's until it says it is free: wait for that, on the CPU, with a
+            // timeout. Never on a GPU semaphore: a dead viewer would never signal it.
+            let must_wait = *next_frame == frames || in_flight.iter().any(|&(_, s)| s == slot);
+            if must_wait {
+                let lost = in_flight.len() as u64;
+                match self.recv()? {
+                    Some(Message::SlotFree { slot: freed }) => {
+                        let oldest = in_flight.pop_front().map(|(_, s)| s);
+                        ensure!(oldest == Some(freed), "the viewer freed slot {freed}, not {oldest:?}");
+                    }
+                    Some(other) => bail!("the viewer sent {} during the frames", other.name()),
+                    None => {
+                        // Everything in flight is lost: draw it again for the next viewer.
+                        *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _)| frame);
+                        return Ok(Outcome::Gone { why: "hung up or fell silent", lost });
+                    }
+                }
+                continue;
+            }
+            let started = Instant::now();
+            // On lavapipe, with no shared semaphores, the message is the synchronisation: draw
+            // waits for the frame's fence before we say the frame is ready.
+            draw(*next_frame, slot as usize)?;
+            let ready = Message::FrameReady { frame: *next_frame, slot };
+            if !self.socket.send(&ready, &[])? {
+                *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _)| frame);
+                return self.hung_up("hung up", in_flight.len() as u64);
+            }
+            times.add("frame", ms_since(started));
+            in_flight.push_back((*next_frame, slot));
+            *next_frame += 1;
+            sent += 1;
+            if let (Some(k), Some(child)) = (self.kill_every, self.child.as_deref_mut()) {
+                if sent % k == 0 && *next_frame < frames {
+                    eprintln!("renderer: killing the viewer (pid {}) after {sent} frames", child.id());
+                    child.kill().context("kill -KILL the viewer")?;
+                }
+            }
+        }
+        // ANCHOR_END: frames
+        times.record(report);
+        if !self.socket.send(&Message::Bye, &[])? {
+            while self.recv()?.is_some() {} // its refusal, if it left one, is the error
+            bail!("the viewer hung up after the last frame, before its summary");
+        }
+        match self.recv()? {
+            Some(Message::Summary { json }) => Ok(Outcome::Done(json)),
+            Some(other) => bail!("the viewer answered Bye with {}", other.name()),
+            None => bail!("the viewer hung up before its summary"),
+        }
+    }
+
+    /// The viewer hung up while we were sending: if it said why first (a refusal waiting in
+    /// the socket), that is an error; otherwise it is gone, with `lost` frames.
+    fn hung_up(&mut self, why: &'static str, lost: u64) -> Result<Outcome> {
+        while self.recv()?.is_some() {} // a refusal bails; anything else is moot now
+        Ok(Outcome::Gone { why, lost })
+    }
+
+    /// The viewer's next message; `None` if it hung up or said nothing for the timeout. A
+    /// refusal is the viewer's error, named.
+    fn recv(&mut self) -> Result<Option<Message>> {
+        match self.socket.recv()? {
+            Received::Message(Message::Refused { reason }, _) => bail!("the viewer refused: {reason}"),
+            Received::Message(message, fd) => {
+                ensure!(fd.is_none(), "the viewer sent an fd with {}", message.name());
+                Ok(Some(message))
+            }
+            Received::HungUp | Received::TimedOut => Ok(None),
+        }
+    }
+}
+
+// ANCHOR: spawn
+/// Starts this same program as the viewer, on one end of a socket pair: `--viewer-fd N` names
+/// the end it inherits. Our copy of that end is closed once it has started, so that its death is
+/// our hang-up (a socket reads as hung up only when every copy of the other end is closed).
+pub fn spawn_viewer(args: &Args, width: u32, height: u32) -> Result<(Socket, Option<Child>)> {
+    let (ours, theirs) = wire::socketpair()?;
+    let exe = std::env::current_exe().context("finding this program, to start the viewer")?;
+    let mut command = std::process::Command::new(exe);
+    let fd = theirs.fd.as_raw_fd();
+    let (size, timeout) = (format!("{width}x{height}"), args.timeout.to_string());
+    command.args(["--viewer-fd", &fd.to_string(), "--headless", "--size", &size, "--timeout", &timeout]);
+    command.arg("--out").arg(args.common.out_dir(CHAPTER));
+    command.stdout(std::process::Stdio::null()); // --json's one document is the renderer's
+    // Failure injection is the renderer's; the viewer's comes from VKGL_VIEWER_FAIL_AT.
+    command.env_remove("VKGL_FAIL_AT");
+    if let Some(at) = std::env::var_os("VKGL_VIEWER_FAIL_AT") {
+        command.env("VKGL_FAIL_AT", at);
+    }
+    // SAFETY: between fork and exec only fcntl runs, which is async-signal-safe. It clears
+    // FD_CLOEXEC on the viewer's end, in the child only, so that exec keeps it open.
+    unsafe {
+        use std::os::unix::process::CommandExt as _;
+        command.pre_exec(move || {
+            let end = std::os::fd::BorrowedFd::borrow_raw(fd);
+            rustix::io::fcntl_setfd(end, rustix::io::FdFlags::empty()).map_err(Into::into)
+        });
+    }
+    let child = fail::call("starting the viewer process", || command.spawn())?;
+    // One write, whole: the viewer is printing on the same stderr already.
+    eprint!("{}", format!("renderer: started the viewer (pid {})\n", child.id()));
+    drop(theirs);
+    Ok((ours, Some(child)))
+}
+// ANCHOR_END: spawn
+
+/// The next viewer to connect to `listener` (`--listen`), within `timeout`.
+pub fn accept(listener: &std::os::fd::OwnedFd, timeout: Duration) -> Result<Socket> {
+    eprintln!("renderer: waiting up to {timeout:?} for a viewer (--connect)");
+    let recv = rustix::net::sockopt::Timeout::Recv;
+    fail::call("setsockopt SO_RCVTIMEO (listening)", || {
+        rustix::net::sockopt::set_socket_timeout(listener, recv, Some(timeout))
+    })?;
+    let fd = fail::call("accept", || rustix::net::accept_with(listener, rustix::net::SocketFlags::CLOEXEC))
+        .with_context(|| format!("no viewer connected within {timeout:?}"))?;
+    Ok(Socket { fd })
+}
+
+/// Closes our end of the socket, then reaps the viewer we started (None: we started none): a
+/// viewer that hung up or saw us hang up exits by itself, within `grace`; one that does not is
+/// hung, and is killed. Whether it exited with 0.
+pub fn end_viewer(socket: Socket, child: Option<Child>, grace: Duration) -> Option<bool> {
+    drop(socket);
+    let mut child = child?;
+    let started = Instant::now();
+    while child.try_wait().ok()?.is_none() && started.elapsed() < grace {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let _ = child.kill(); // a process that has exited ignores it
+    child.wait().ok().map(|status| status.success())
+}
