@@ -54,7 +54,7 @@ pub fn import_memory(gl: &GlContext, memory: &ExportableMemory, fd: OwnedFd) -> 
     let mut name = 0;
     unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
     crate::base::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
-    // From here on the guard deletes the memory object on every early return.
+    // From here on its owner deletes the memory object on every early return.
     let memory_object = MemoryObject { name, fns: *ext };
     if memory.dedicated {
         // Must match how Vulkan allocated it, and must be said before the import.
