@@ -293,7 +293,8 @@ fn a_size_the_device_refuses_fails_cleanly() {
 }
 
 /// Calls into the driver, the allocator or the file system that return a `Result`: each must
-/// be a step of `base::fail` (`fail::call` or `fail::step` on its line or just above), so that
+/// be a step of `base::fail` (`fail::call`, `fail::step`, or `owned::create`, which makes its
+/// call a step and owns the result, on its line or just above), so that
 /// the test above fails it. A `Drop` cannot return a failure, so its calls are not steps; nor
 /// are the calls that give something back (`vkDestroy*`, `vkUnmapMemory`, CUDA's frees).
 const FALLIBLE: &[&str] = &[
@@ -342,13 +343,20 @@ fn unstepped_calls(file: &str, text: &str) -> Vec<String> {
         for call in FALLIBLE.iter().filter(|call| line.contains(*call)) {
             let stepped = lines[i.saturating_sub(3)..=i]
                 .iter()
-                .any(|l| l.contains("fail::call(") || l.contains("fail::step("));
+                .any(|l| l.contains("fail::call(") || l.contains("fail::step(") || calls_create(l));
             if !stepped {
                 found.push(format!("{file}:{}: {} ({call})", i + 1, code));
             }
         }
     }
     found
+}
+
+/// Does `line` call `owned::create` (a bare `create(`, not `foo_create(` or `.create(`)?
+fn calls_create(line: &str) -> bool {
+    line.match_indices("create(").any(|(at, _)| {
+        !line[..at].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == '.')
+    })
 }
 
 fn rust_files(dir: &std::path::Path, files: &mut Vec<std::path::PathBuf>) {

@@ -11,7 +11,7 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::{Largest, Smallest};
 use common::base::fail;
-use common::base::guard::guard;
+use common::base::owned::create;
 use common::base::report::uuid_hex;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
@@ -137,19 +137,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .size(BUFFER_BYTES)
         .usage(buffer_usage)
         .push_next(&mut buffer_external);
-    // `fail::call`: the call, its error named, and a step `VKGL_FAIL_AT` can make fail.
-    let buffer = fail::call("vkCreateBuffer", || unsafe { ctx.device.create_buffer(&buffer_info, None) })?;
-    // Guarded the moment it exists: any early return from here on destroys it.
-    let buffer = guard(buffer, |&buffer| unsafe { ctx.device.destroy_buffer(buffer, None) });
-    common::base::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
+    // `create`: the call, as a step `VKGL_FAIL_AT` can make fail, its error named; and the new
+    // buffer owned from the moment it exists: any early return from here on destroys it.
+    let buffer = create(&ctx.device, "vkCreateBuffer", || unsafe { ctx.device.create_buffer(&buffer_info, None) })?
+        .counted("vk_buffer_exportable", 0); // for the report's list of resources
 
     // The image is made the same way, with ExternalMemoryImageCreateInfo (see exportable.rs).
     let extent = vk::Extent2D { width: size.width, height: size.height };
     let image = exportable::create_image(&ctx, IMAGE_FORMAT, image_usage, extent)?;
-    let image = guard(image, |&image| unsafe {
-        ctx.device.destroy_image(image, None);
-        common::base::resources::destroyed("vk_image_exportable"); // the report's live count
-    });
     // ANCHOR_END: create
 
     // 4. Ask whether each needs memory of its own
@@ -178,21 +173,19 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: allocate
     // The buffer is host-visible so that we can write the triangle into it from the CPU.
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+    // Owned as the buffer is: `exportable::allocate` hands back memory that frees itself.
     let buffer_memory = exportable::allocate(&ctx, &buffer_requirements, host_visible, Dedicated::No)?;
-    let free = |memory: &exportable::ExportableMemory| unsafe { ctx.device.free_memory(memory.memory, None) };
-    let buffer_memory = guard(buffer_memory, free);
     // Images always get a dedicated allocation: the only kind every driver can share, and GL is
     // told so on import (GL_DEDICATED_MEMORY_OBJECT_EXT).
     let device_local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
     let image_memory =
         exportable::allocate(&ctx, &image_requirements, device_local, Dedicated::Image(*image))?;
-    let image_memory = guard(image_memory, free);
     // Offset 0, always: llvmpipe ignores offsets into imported memory.
     fail::call("vkBindBufferMemory", || unsafe {
-        ctx.device.bind_buffer_memory(*buffer, buffer_memory.memory, 0)
+        ctx.device.bind_buffer_memory(*buffer, *buffer_memory.memory, 0)
     })?;
     fail::call("vkBindImageMemory", || unsafe {
-        ctx.device.bind_image_memory(*image, image_memory.memory, 0)
+        ctx.device.bind_image_memory(*image, *image_memory.memory, 0)
     })?;
     // ANCHOR_END: allocate
     report.check("buffer_memory_has_import_slack", buffer_memory.size >= buffer_requirements.size + 48);
@@ -201,8 +194,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 6. Export file descriptors
     // ANCHOR: export
     let fd_loader = ash::khr::external_memory_fd::Device::new(&ctx.instance, &ctx.device);
-    let buffer_fd = exportable::export_fd(&fd_loader, buffer_memory.memory)?;
-    let image_fd = exportable::export_fd(&fd_loader, image_memory.memory)?;
+    let buffer_fd = exportable::export_fd(&fd_loader, *buffer_memory.memory)?;
+    let image_fd = exportable::export_fd(&fd_loader, *image_memory.memory)?;
     // ANCHOR_END: export
     eprintln!("buffer fd {} -> {}", buffer_fd.as_raw_fd(), fd_target(&buffer_fd));
     eprintln!("image  fd {} -> {}", image_fd.as_raw_fd(), fd_target(&image_fd));
@@ -214,7 +207,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Prove the descriptor is the memory: import it back and read the triangle through it
     // ANCHOR: reimport
     let mapped = fail::call("vkMapMemory for the exported buffer", || unsafe {
-        ctx.device.map_memory(buffer_memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
+        ctx.device.map_memory(*buffer_memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
     })?;
     // SAFETY: the mapping is BUFFER_BYTES long and host-coherent; nothing else uses it.
     unsafe {
@@ -224,7 +217,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             BUFFER_BYTES as usize,
         )
     };
-    unsafe { ctx.device.unmap_memory(buffer_memory.memory) };
+    unsafe { ctx.device.unmap_memory(*buffer_memory.memory) };
 
     // Same size and memory type as the export: for OPAQUE_FD the importer must match both.
     let mut import = vk::ImportMemoryFdInfoKHR::default().handle_type(HANDLE_TYPE).fd(buffer_fd.as_raw_fd());
@@ -232,11 +225,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .allocation_size(buffer_memory.size)
         .memory_type_index(buffer_memory.memory_type_index)
         .push_next(&mut import);
-    let imported = fail::call("vkAllocateMemory importing the buffer's fd", || unsafe {
+    // Freeing the imported allocation (when `imported` is dropped) releases the fd the driver
+    // took over.
+    let imported = create(&ctx.device, "vkAllocateMemory importing the buffer's fd", || unsafe {
         ctx.device.allocate_memory(&import_info, None)
     })?;
-    // Freeing the imported allocation releases the fd the driver took over.
-    let imported = guard(imported, |&memory| unsafe { ctx.device.free_memory(memory, None) });
     // SAFETY: the import succeeded, so the fd now belongs to the driver; it must not be closed.
     let _ = buffer_fd.into_raw_fd();
 
@@ -274,7 +267,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 8. Clean up, newest first
     // ANCHOR: cleanup
-    // Nothing was submitted, so nothing is in flight. Each drop makes its guard's call.
+    // Nothing was submitted, so nothing is in flight: no wait first. Each drop makes its owner's call.
     drop(image_fd); // nobody imported the image's fd: it is still ours to close
     drop(imported); // vkFreeMemory: releases the buffer's fd, which the driver took over
     drop(image_memory); // vkFreeMemory

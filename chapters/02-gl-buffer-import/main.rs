@@ -11,7 +11,7 @@ use ash::vk;
 use common::base::cli::Smallest;
 use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device};
-use common::base::guard::guard;
+use common::base::owned::create;
 use common::base::output;
 use common::interop;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
@@ -86,25 +86,22 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .size(BUFFER_BYTES)
         .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
         .push_next(&mut external);
-    let buffer = fail::call("vkCreateBuffer", || unsafe { vk.device.create_buffer(&buffer_info, None) })?;
-    // Each raw handle is guarded as it is made (chapter 01): an early return destroys it.
-    let buffer = guard(buffer, |&buffer| unsafe { vk.device.destroy_buffer(buffer, None) });
-    common::base::resources::created("vk_buffer_exportable", 0); // for the report's list of resources
+    // Each handle is owned as it is made (chapter 01): an early return destroys it.
+    let buffer = create(&vk.device, "vkCreateBuffer", || unsafe { vk.device.create_buffer(&buffer_info, None) })?
+        .counted("vk_buffer_exportable", 0); // for the report's list of resources
     let requirements = unsafe { vk.device.get_buffer_memory_requirements(*buffer) };
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
     let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
-    let memory = guard(memory, |memory| unsafe { vk.device.free_memory(memory.memory, None) });
-    fail::call("vkBindBufferMemory", || unsafe { vk.device.bind_buffer_memory(*buffer, memory.memory, 0) })?;
-    // Mapped for the whole chapter: Vulkan's view of the bytes.
+    fail::call("vkBindBufferMemory", || unsafe { vk.device.bind_buffer_memory(*buffer, *memory.memory, 0) })?;
+    // Mapped for the whole chapter: Vulkan's view of the bytes. (Freeing the memory unmaps it.)
     let mapped = fail::call("vkMapMemory", || unsafe {
-        vk.device.map_memory(memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
+        vk.device.map_memory(*memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
     })?
     .cast::<Triangle>();
-    let mapped = guard(mapped, |_| unsafe { vk.device.unmap_memory(memory.memory) });
     // SAFETY: `mapped` is BUFFER_BYTES of host-coherent memory that only this thread touches.
     unsafe { mapped.write_unaligned(TRIANGLE) };
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-    let fd = exportable::export_fd(&fd_loader, memory.memory)?;
+    let fd = exportable::export_fd(&fd_loader, *memory.memory)?;
     // ANCHOR_END: export
 
     // 4. Import it into GL
@@ -197,9 +194,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(vertex_array);
     drop(program);
     drop(shared); // the GL buffer, then its memory object: releases the fd GL took over
-    drop(mapped); // vkUnmapMemory
-    drop(memory); // vkFreeMemory
     drop(buffer); // vkDestroyBuffer
+    drop(memory); // vkFreeMemory, which unmaps it too
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     let open_fds_after = common::settled_fd_count(open_fds_before)?;

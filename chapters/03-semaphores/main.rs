@@ -154,7 +154,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // ANCHOR: gl_reads
         if !args.unsynchronised {
             let texture = image.texture.texture;
-            handoff.gl_acquire(&vk, &gl_context, commands.fence, &[texture], &[wait_layout])?;
+            handoff.gl_acquire(&vk, &gl_context, *commands.fence, &[texture], &[wait_layout])?;
         }
         handshake_cpu += ms_since(handshake);
         let seen = output::read_gl_rgba8(gl, extent.width, extent.height);
@@ -200,9 +200,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // On the host path GL moves no image: each hand-over named the layout the image was in.
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
-    // 6. Clean up, newest first (Vulkan is idle: the last fence has signalled)
+    // 6. Clean up, newest first
     // ANCHOR: cleanup
-    unsafe { gl.finish() }; // and so is GL
+    // The wait before teardown (the book's "Waiting before teardown"): GL, then Vulkan, once.
+    unsafe { gl.finish() };
+    vk.wait_idle()?;
     drop(gl_timer); // its queries
     drop(commands); // the command pool and the fence
     drop(gl_pixels_seen_by_vulkan); // unmapped, freed, destroyed
@@ -231,7 +233,7 @@ fn record_vulkan_turn(
 ) {
     let barrier = |old, new, src_access, dst_access, src_family, dst_family| {
         vk::ImageMemoryBarrier::default()
-            .image(image.image)
+            .image(*image.image)
             .subresource_range(COLOR_RANGE)
             .old_layout(old)
             .new_layout(new)
@@ -273,7 +275,7 @@ fn record_vulkan_turn(
             t.start(vk, cb, transfer);
         }
         let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
-        device.cmd_copy_image_to_buffer(cb, image.image, transfer_src, readback.buffer, &[region]);
+        device.cmd_copy_image_to_buffer(cb, *image.image, transfer_src, *readback.buffer, &[region]);
         // The copy's reads must finish before the image is overwritten: a write-after-read hazard,
         // so an execution dependency is enough, plus the move to TRANSFER_DST for the write.
         let to_write = barrier(
@@ -287,8 +289,8 @@ fn record_vulkan_turn(
         device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &[to_write]);
         device.cmd_copy_buffer_to_image(
             cb,
-            pattern.buffer,
-            image.image,
+            *pattern.buffer,
+            *image.image,
             vk::ImageLayout::TRANSFER_DST_OPTIMAL,
             &[region],
         );

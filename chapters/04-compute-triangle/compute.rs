@@ -5,6 +5,7 @@ use anyhow::Result;
 use ash::vk;
 use common::base::commands::first_use;
 use common::base::fail;
+use common::base::owned::{Owned, create};
 use common::base::timestamps::Timestamps;
 use common::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use common::{GlContext, VulkanContext};
@@ -24,16 +25,15 @@ const WORKGROUP: u32 = 16;
 // ANCHOR_END: interface
 
 /// The compute pipeline, its layout, and the one descriptor set that points at the shared image.
-/// Destroyed when dropped (newest first; the set goes with its pool), so that an early return
-/// from `run` leaks nothing. The GPU must be done with it.
+/// Destroyed when dropped, fields in the order written (the set goes with its pool), so that an
+/// early return from `run` leaks nothing. The GPU must be done with it.
 pub struct ComputePipeline {
-    set_layout: vk::DescriptorSetLayout,
-    layout: vk::PipelineLayout,
-    pipeline: vk::Pipeline,
-    descriptor_pool: vk::DescriptorPool,
     /// Written by `share_image` whenever the image is made (anew).
     pub set: vk::DescriptorSet,
-    device: ash::Device,
+    _descriptor_pool: Owned<vk::DescriptorPool>,
+    pipeline: Owned<vk::Pipeline>,
+    layout: Owned<vk::PipelineLayout>,
+    _set_layout: Owned<vk::DescriptorSetLayout>,
 }
 
 impl ComputePipeline {
@@ -41,60 +41,53 @@ impl ComputePipeline {
         // ANCHOR: pipeline
         let device = &vk.device;
         let compute = vk::ShaderStageFlags::COMPUTE;
-        // The guard exists before its first object: a failure half-way destroys what was made
-        // (Vulkan ignores the null handles of what was not).
-        let mut this = ComputePipeline {
-            set_layout: vk::DescriptorSetLayout::null(),
-            layout: vk::PipelineLayout::null(),
-            pipeline: vk::Pipeline::null(),
-            descriptor_pool: vk::DescriptorPool::null(),
-            set: vk::DescriptorSet::null(),
-            device: device.clone(),
-        };
+        // Each object is owned as it is made (`owned::create`): a failure half-way destroys
+        // what was made.
         let bindings = [vk::DescriptorSetLayoutBinding::default()
             .binding(0) // `binding = 0` in the shader: the image it writes
             .descriptor_type(vk::DescriptorType::STORAGE_IMAGE)
             .descriptor_count(1)
             .stage_flags(compute)];
         let set_layout_info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
-        this.set_layout = fail::call("vkCreateDescriptorSetLayout", || unsafe {
+        let set_layout = create(device, "vkCreateDescriptorSetLayout", || unsafe {
             device.create_descriptor_set_layout(&set_layout_info, None)
         })?;
         let push_range =
             [vk::PushConstantRange::default().stage_flags(compute).size(size_of::<Push>() as u32)];
-        let set_layouts = [this.set_layout];
+        let set_layouts = [*set_layout];
         let layout_info = vk::PipelineLayoutCreateInfo::default()
             .set_layouts(&set_layouts)
             .push_constant_ranges(&push_range);
-        this.layout = fail::call("vkCreatePipelineLayout", || unsafe {
+        let layout = create(device, "vkCreatePipelineLayout", || unsafe {
             device.create_pipeline_layout(&layout_info, None)
         })?;
         // SPIR-V to a shader module (common::base::compute), destroyed when dropped.
         let module = common::base::pipeline::shader_module(vk, COMPUTE_SPIRV, "compute")?;
         let stage =
-            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module.module).name(c"main");
-        let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(this.layout);
-        this.pipeline = fail::call("vkCreateComputePipelines", || unsafe {
+            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(*module).name(c"main");
+        let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(*layout);
+        let pipeline = create(device, "vkCreateComputePipelines", || unsafe {
             device
                 .create_compute_pipelines(vk::PipelineCache::null(), &[pipeline_info], None)
+                .map(|pipelines| pipelines[0])
                 .map_err(|(_, e)| e)
-        })?[0];
-        common::base::resources::created("vk_pipeline: compute", 0); // for the report's list of resources
+        })?
+        .counted("vk_pipeline: compute", 0); // for the report's list of resources
         drop(module); // the pipeline keeps what it needs
         let pool_sizes =
             [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_IMAGE, descriptor_count: 1 }];
         let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&pool_sizes);
-        this.descriptor_pool = fail::call("vkCreateDescriptorPool", || unsafe {
+        let descriptor_pool = create(device, "vkCreateDescriptorPool", || unsafe {
             device.create_descriptor_pool(&pool_info, None)
         })?;
         let allocate = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(this.descriptor_pool)
+            .descriptor_pool(*descriptor_pool)
             .set_layouts(&set_layouts);
-        this.set =
+        let set =
             fail::call("vkAllocateDescriptorSets", || unsafe { device.allocate_descriptor_sets(&allocate) })?
                 [0];
         // ANCHOR_END: pipeline
-        Ok(this)
+        Ok(ComputePipeline { set, _descriptor_pool: descriptor_pool, pipeline, layout, _set_layout: set_layout })
     }
 
     // ANCHOR: record_compute
@@ -114,7 +107,7 @@ impl ComputePipeline {
         let acquire = if previous == Previous::Nobody {
             // Nothing to take over: UNDEFINED says the old contents may go, and the shader writes
             // every pixel anyway. No ownership transfer: Vulkan's first use claims it.
-            first_use(image.image, general, vk::AccessFlags::SHADER_WRITE)
+            first_use(*image.image, general, vk::AccessFlags::SHADER_WRITE)
         } else {
             // Acquire from GL: ownership moves from outside Vulkan (QUEUE_FAMILY_EXTERNAL) to our
             // queue family, and the image from the layout GL released it in to GENERAL, the layout
@@ -131,18 +124,18 @@ impl ComputePipeline {
             if let Some(t) = timestamps {
                 t.start(vk, cb, compute); // after the wait for GL: time the dispatch, not the wait
             }
-            device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, *self.pipeline);
             device.cmd_bind_descriptor_sets(
                 cb,
                 vk::PipelineBindPoint::COMPUTE,
-                self.layout,
+                *self.layout,
                 0,
                 &[self.set],
                 &[],
             );
             device.cmd_push_constants(
                 cb,
-                self.layout,
+                *self.layout,
                 vk::ShaderStageFlags::COMPUTE,
                 0,
                 &push.time.to_ne_bytes(),
@@ -173,17 +166,6 @@ pub enum Previous {
     Gl,
 }
 
-impl Drop for ComputePipeline {
-    fn drop(&mut self) {
-        unsafe {
-            self.device.destroy_descriptor_pool(self.descriptor_pool, None);
-            self.device.destroy_pipeline(self.pipeline, None);
-            self.device.destroy_pipeline_layout(self.layout, None);
-            self.device.destroy_descriptor_set_layout(self.set_layout, None);
-        }
-    }
-}
-
 // ANCHOR: share_image
 /// The compute shader's output: a storage image that GL samples as a texture. Writes it into
 /// the descriptor set, so a resize is this call again.
@@ -207,7 +189,7 @@ pub fn share_image(
     }
     // GENERAL: the only layout in which a shader may write a storage image.
     let info =
-        [vk::DescriptorImageInfo::default().image_view(image.view).image_layout(vk::ImageLayout::GENERAL)];
+        [vk::DescriptorImageInfo::default().image_view(*image.view).image_layout(vk::ImageLayout::GENERAL)];
     let write = vk::WriteDescriptorSet::default()
         .dst_set(set)
         .dst_binding(0)

@@ -127,7 +127,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // Chapter 02's buffer, SLOTS triangles long. Its contents are written before each use.
     let zeros = [0; (SLOTS * TRIANGLE_BYTES) as usize];
     let usage = vk::BufferUsageFlags::VERTEX_BUFFER;
-    let (vertices_vk, vertices_gl) = interop::share_buffer(&vk, &gl_context, &zeros, usage)?;
+    let interop::BufferPair { gl: vertices_gl, vk: vertices_vk } =
+        interop::share_buffer(&vk, &gl_context, &zeros, usage)?;
     // Vulkan's mapping: the CPU writes the triangle here, GL draws from the same bytes.
     let mapped = vertices_vk.mapped.cast::<Triangle>();
     // ANCHOR_END: vertex_buffer
@@ -264,7 +265,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // 9. Vulkan hands the image back; GL draws
         // ANCHOR: draw
         // SHADER_READ_ONLY: where Vulkan's release barrier left it. GL must be told the same.
-        handoff.gl_acquire(&vk, &gl_context, commands.fence, &texture, &[layout::SHADER_READ_ONLY])?;
+        handoff.gl_acquire(&vk, &gl_context, *commands.fence, &texture, &[layout::SHADER_READ_ONLY])?;
         previous = Previous::Gl;
         let (width, height) = window.as_ref().map_or((size.width, size.height), |w| w.size());
         gl_timer.time(gl, "gl_draw", || unsafe {
@@ -316,13 +317,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 11. Clean up, newest first, once both APIs are idle
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    vk.wait_idle()?; // once: no guard below waits
-    drop(commands); // the command pool (and its buffer), the fence
+    vk.wait_idle()?; // once, as the book's "Waiting before teardown" says
+    drop(commands); // the fence, the command pool (and its buffer)
     drop(gl_timer);
     drop(target);
     drop(vertex_array);
     drop(program);
-    drop(image); // GL's texture and memory object, then view, memory, image
+    drop(image); // GL's texture and memory object, then view, image, memory
     drop(compute); // the descriptor pool (and its set), the pipeline, its layouts
     drop(vertices_gl); // GL's buffer and memory object
     drop(vertices_vk); // then Vulkan's buffer and memory

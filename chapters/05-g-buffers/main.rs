@@ -141,7 +141,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         t.begin(&vk, cb, "copies"); // after the acquire: waiting for GL is not the copies' time
     }
     for (image, readback) in gbuffers.images.iter().zip(&readbacks) {
-        copy_image_to_buffer(&vk, cb, image.image, transfer_src, extent, readback.buffer);
+        copy_image_to_buffer(&vk, cb, *image.image, transfer_src, extent, *readback.buffer);
     }
     unsafe { vk.device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &release) };
     if let Some(t) = vk_timer.as_mut() {
@@ -150,7 +150,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     transfers_to_host(&vk, cb);
     let wait = handoff.vulkan_waits_on().map(|s| (s, transfer));
     commands.submit(&vk, wait, handoff.vulkan_signals())?;
-    handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
+    handoff.gl_acquire(&vk, &gl_context, *commands.fence, &textures, &[wait_layout; 3])?;
     // The CPU reads the copies next: wait for them (on the host path gl_acquire already did).
     commands.wait(&vk, "vkWaitForFences for the copies")?;
     // ANCHOR_END: handover
@@ -213,7 +213,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 9. Clean up, newest first
     // ANCHOR: cleanup
-    // Nothing is in flight: the copies' fence signalled, and GL finished before the resizes.
+    // The wait before teardown (the book's "Waiting before teardown"): GL, then Vulkan, once.
+    unsafe { gl.finish() };
+    vk.wait_idle()?;
     drop(commands);
     drop(vk_timer);
     drop(readbacks); // unmapped, freed, destroyed

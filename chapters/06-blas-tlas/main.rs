@@ -9,6 +9,7 @@
 
 use anyhow::Result;
 use ash::vk;
+use glow::HasContext as _;
 use common::base::cli::Smallest;
 use common::base::commands::{
     Commands, HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
@@ -147,8 +148,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         vk::ImageUsageFlags::TRANSFER_SRC,
         extent,
     )?;
-    pipeline.write_tlas(&vk, 0, structures.tlas.handle);
-    pipeline.write_storage_image(&vk, 1, mask.view);
+    pipeline.write_tlas(&vk, 0, *structures.tlas.handle);
+    pipeline.write_storage_image(&vk, 1, *mask.view);
     // ANCHOR_END: pipeline
     let pixels = (extent.width * extent.height) as u64;
     let hits = HostBuffer::new(&vk, pixels * 4, vk::BufferUsageFlags::TRANSFER_DST)?;
@@ -178,7 +179,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let wait = handoff.vulkan_waits_on().map(|s| (s, vk::PipelineStageFlags::TRANSFER));
     commands.submit(&vk, wait, handoff.vulkan_signals())?;
-    handoff.gl_acquire(&vk, &gl_context, commands.fence, &textures, &[wait_layout; 3])?;
+    handoff.gl_acquire(&vk, &gl_context, *commands.fence, &textures, &[wait_layout; 3])?;
     commands.wait(&vk, "vkWaitForFences for the trace")?;
     if let Some(t) = &timestamps {
         report.time_ms("trace_gpu", t.read_ms(&vk)?);
@@ -243,7 +244,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 8. Clean up, newest first
     // ANCHOR: cleanup
-    // Nothing is in flight: the trace's fence signalled, and GL's acquire followed it.
+    // The wait before teardown (the book's "Waiting before teardown"): GL, then Vulkan, once.
+    unsafe { gl.finish() };
+    vk.wait_idle()?;
     drop(commands);
     drop(timestamps);
     drop(coverage);
@@ -310,10 +313,10 @@ impl Trace<'_> {
             copy_image_to_buffer(
                 vk,
                 cb,
-                gbuffers.images[0].image,
+                *gbuffers.images[0].image,
                 transfer_src,
                 gbuffers.extent,
-                coverage.buffer,
+                *coverage.buffer,
             );
             device.cmd_pipeline_barrier(
                 cb,
@@ -326,7 +329,7 @@ impl Trace<'_> {
             );
 
             // The mask starts undefined (its old contents do not matter) and becomes a storage image.
-            let to_storage = first_use(mask.image, general, vk::AccessFlags::SHADER_WRITE);
+            let to_storage = first_use(*mask.image, general, vk::AccessFlags::SHADER_WRITE);
             device.cmd_pipeline_barrier(cb, top, rays, none, &[], &[], &[to_storage]);
             if let Some(t) = timestamps {
                 t.start(vk, cb, rays);
@@ -339,9 +342,9 @@ impl Trace<'_> {
             let (layouts, accesses) =
                 ((general, transfer_src), (vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::TRANSFER_READ));
             let ignored = (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED);
-            let to_copy = image_barrier(mask.image, layouts, accesses, ignored);
+            let to_copy = image_barrier(*mask.image, layouts, accesses, ignored);
             device.cmd_pipeline_barrier(cb, rays, transfer, none, &[], &[], &[to_copy]);
-            copy_image_to_buffer(vk, cb, mask.image, transfer_src, mask.extent, hits.buffer);
+            copy_image_to_buffer(vk, cb, *mask.image, transfer_src, mask.extent, *hits.buffer);
             transfers_to_host(vk, cb);
         }
     }

@@ -9,6 +9,7 @@
 
 use anyhow::Result;
 use ash::vk;
+use glow::HasContext as _;
 use common::base::cli::{Smallest, check_covered};
 use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
@@ -75,7 +76,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // The ray tracer reads the G-buffers as storage images.
     let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer =
-        AoTracer::new(&vk, &gl_context, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+        AoTracer::new(&vk, &gl_context, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
     // ANCHOR_END: tracer
 
     // 4. Every frame: GL draws, Vulkan traces and accumulates, GL reads
@@ -105,7 +106,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if traced {
             let params = AoRays { samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
             if std::mem::take(&mut trace_pending) {
-                timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+                timing::read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
             }
             tracer.trace(apis, &gbuffers, params, timestamps.as_ref())?;
             trace_pending = timestamps.is_some();
@@ -129,7 +130,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
     }
     if trace_pending {
-        timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+        timing::read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
     }
     gl_timer.finish(gl, &mut times);
     times.record(report);
@@ -189,8 +190,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
     // 6. Clean up, newest first
     // ANCHOR: cleanup
-    // Once the GPU is done with the last frame: its pipeline and images must outlive the
-    // commands that use them (GL's read-back only waited for GL). One wait; no guard waits.
+    // The wait before teardown (the book's "Waiting before teardown"): GL, then Vulkan, once.
+    unsafe { gl.finish() };
     vk.wait_idle()?;
     drop(commands);
     drop(timestamps);

@@ -103,7 +103,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let storage = vk::ImageUsageFlags::STORAGE;
     let mut gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
     let mut tracer =
-        AoTracer::new(&vk, &gl_context, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+        AoTracer::new(&vk, &gl_context, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
 
     // 4. The composite pass and the overlays: GL only
     // ANCHOR: setup
@@ -201,7 +201,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if std::mem::take(&mut trace_pending) {
                 common::base::timing::read_after(
                     &vk,
-                    commands.fence,
+                    *commands.fence,
                     timestamps.as_ref(),
                     "ao_trace",
                     &mut times,
@@ -242,7 +242,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("live_gl_objects_after_resizes", gl_now);
     }
     if trace_pending {
-        common::base::timing::read_after(&vk, commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+        common::base::timing::read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
     }
     gl_timer.finish(gl, &mut times);
     times.record(report);
@@ -284,7 +284,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    vk.wait_idle()?; // once: no guard below waits
+    vk.wait_idle()?; // once, as the book's "Waiting before teardown" says
     drop(commands);
     drop(timestamps);
     drop(gl_timer);

@@ -96,9 +96,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // As chapter 06 built it, plus ALLOW_UPDATE. Then what updating it in place needs: the
     // geometry it was built from (the shared instance buffer) and one scratch buffer for good.
     let shared = RayTracedScene::with_tlas(&vk, &gl_context, &scene, TlasFlags::UPDATABLE)?;
-    let instances = &shared.buffers.instances.0;
+    let instances = &shared.buffers.instances.vk;
     let inputs = BuildInputs {
-        handle: shared.structures.tlas.handle,
+        handle: *shared.structures.tlas.handle,
         ty: vk::AccelerationStructureTypeKHR::TOP_LEVEL,
         flags: TlasFlags::UPDATABLE.0,
         geometry: instances_geometry(&vk, instances),
@@ -114,7 +114,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 3. G-buffers, the AO tracer and chapter 08's composite
     let storage = vk::ImageUsageFlags::STORAGE;
     let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, storage)?;
-    let tlas_handle = shared.structures.tlas.handle;
+    let tlas_handle = *shared.structures.tlas.handle;
     let mut tracer = AoTracer::new(&vk, &gl_context, &shared.allocator, tlas_handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
     let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);
@@ -228,7 +228,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    vk.wait_idle()?; // once, for the traces and the updates: no guard below waits
+    vk.wait_idle()?; // once, for the traces and the updates
     drop(gl_timer);
     drop(commands);
     drop((trace_timer, update_timer));

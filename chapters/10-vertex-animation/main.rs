@@ -112,7 +112,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
     // The sphere's vertex buffer goes from Vulkan's compute shader to GL's vertex fetch and
     // back every frame, with semaphores of its own where the images have theirs.
-    let vertices = VertexHandoff::new(&vk, &gl_context, &handoff, buffers.meshes[1][0].1.buffer)?;
+    let vertices = VertexHandoff::new(&vk, &gl_context, &handoff, buffers.meshes[1][0].gl.buffer)?;
     // ANCHOR_END: share
 
     // 3. The structures: the ground's BLAS, the sphere's refittable one, an updatable TLAS
@@ -127,21 +127,21 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let blas_flags = [Flags::PREFER_FAST_TRACE, Flags::PREFER_FAST_BUILD | Flags::ALLOW_UPDATE];
     let mut blases = Vec::new();
     for ((mesh, [vertices, indices]), flags) in scene.meshes.iter().zip(&buffers.meshes).zip(blas_flags) {
-        let geometry = accel::triangles_geometry(&vk, mesh, &vertices.0, &indices.0);
+        let geometry = accel::triangles_geometry(&vk, mesh, &vertices.vk, &indices.vk);
         let triangles = mesh.indices.len() as u32 / 3;
         let bytes = accel::structure_size(&loader, bottom, flags, &geometry, triangles);
         let blas = AccelerationStructure::new(&vk, &allocator, bottom, flags, bytes)?;
-        let inputs = BuildInputs { handle: blas.handle, ty: bottom, flags, geometry, primitives: triangles };
+        let inputs = BuildInputs { handle: *blas.handle, ty: bottom, flags, geometry, primitives: triangles };
         let in_place = InPlace::new(&vk, &allocator, &loader, inputs)?;
-        accel::set_blas_address(&buffers.instances.0, blases.len(), blas.address);
+        accel::set_blas_address(&buffers.instances.vk, blases.len(), blas.address);
         blases.push((blas, in_place));
     }
     let top = vk::AccelerationStructureTypeKHR::TOP_LEVEL;
     let tlas_flags = accel::TlasFlags::UPDATABLE.0;
-    let geometry = accel::instances_geometry(&vk, &buffers.instances.0);
+    let geometry = accel::instances_geometry(&vk, &buffers.instances.vk);
     let bytes = accel::structure_size(&loader, top, tlas_flags, &geometry, 2);
     let tlas = AccelerationStructure::new(&vk, &allocator, top, tlas_flags, bytes)?;
-    let inputs = BuildInputs { handle: tlas.handle, ty: top, flags: tlas_flags, geometry, primitives: 2 };
+    let inputs = BuildInputs { handle: *tlas.handle, ty: top, flags: tlas_flags, geometry, primitives: 2 };
     let tlas_in_place = InPlace::new(&vk, &allocator, &loader, inputs)?;
     // ANCHOR_END: structures
 
@@ -165,7 +165,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
     mapped[..rest_bytes as usize].copy_from_slice(common::scene::gbuffer::as_bytes(&rest_directions));
     let mut wave = Wave {
-        vertices: buffers.meshes[1][0].0.device_address(&vk),
+        vertices: buffers.meshes[1][0].vk.device_address(&vk),
         directions: rest.address,
         axis: Vec3::new(0.3, 1.0, 0.2).normalize().into(),
         count,
@@ -175,7 +175,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         speed: 4.0,
     };
     let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
-    let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, tlas.handle, &gbuffers)?;
+    let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, *tlas.handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
     let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);
     let animation_timer = Timestamps::with_count(&vk, 4)?;
@@ -193,7 +193,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (mut animated, mut traced) = (None, false);
     let (mut blas_refits, mut blas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
-    let vertex_buffer = buffers.meshes[1][0].0.buffer;
+    let vertex_buffer = *buffers.meshes[1][0].vk.buffer;
     // What a frame's animation work uses; the wave is the frame's, and GL may have the vertices.
     let parts = |wave| Animation {
         loader: &loader,
@@ -221,7 +221,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // Vulkan writes the vertices once GL's last draw has fetched them; GL fetches them again
         // once they are written.
         animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
-        vertices.to_gl(&vk, &gl_context, animation.fence)?;
+        vertices.to_gl(&vk, &gl_context, *animation.fence)?;
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         if args.animation.step > 0.0 {
             tracer.reset(); // the surface moved: the running mean is of a picture that is gone
@@ -229,7 +229,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let rays =
             AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
         if std::mem::take(&mut traced) {
-            timing::read_after(&vk, commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
+            timing::read_after(&vk, *commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
         }
         tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
@@ -256,7 +256,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         sphere::add_times(&vk, timer, done, &mut times)?;
     }
     if traced {
-        timing::read_after(&vk, commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
+        timing::read_after(&vk, *commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
     }
     gl_timer.finish(gl, &mut times);
     gl_context.check_error("the frame loop")?;
@@ -269,7 +269,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 6. Check the vertices, the occlusion, the motion; write the frames
     commands.wait(&vk, "vkWaitForFences before the checks")?;
-    let moved = &buffers.meshes[1][0].0;
+    let moved = &buffers.meshes[1][0].vk;
     // SAFETY: `count` vertices of the coherent mapping; the GPU is done with them (fence above).
     let gpu =
         unsafe { std::slice::from_raw_parts(moved.mapped.cast::<common::scene::Vertex>(), count as usize) };
@@ -290,7 +290,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let cb = animation.begin(&vk)?;
     record_animation(&vk, cb, &parts(wave), Step::Next(Refresh::Rebuild), animation_timer.as_ref());
     animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
-    vertices.to_gl(&vk, &gl_context, animation.fence)?;
+    vertices.to_gl(&vk, &gl_context, *animation.fence)?;
     gbuffers.draw(gl, &scene, &camera);
     let (after_rebuild, rebuilt_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     let differing = after_refits.iter().zip(&after_rebuild).filter(|(a, b)| a != b).count();
@@ -315,7 +315,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    vk.wait_idle()?; // once, for the animation and the traces: no guard below waits
+    vk.wait_idle()?; // once, for the animation and the traces
     drop((animation, commands));
     drop(gl_timer);
     drop((trace_timer, animation_timer));

@@ -6,7 +6,7 @@ use anyhow::Result;
 use ash::vk;
 use common::VulkanContext;
 use common::base::commands;
-use common::base::fail;
+use common::base::owned::{Owned, create};
 use common::base::timestamps::Timestamps;
 use common::base::timing::PassTimes;
 use common::interop::handoff::{Handoff, SharedSemaphore};
@@ -82,55 +82,44 @@ impl Wave {
 // ANCHOR_END: wave
 
 /// The compute pipeline: no descriptors, only push constants (the buffers by device address).
-/// Destroyed when dropped too, so that an early return from `run` leaks nothing.
+/// Destroyed when dropped too (the pipeline, then its layout), so that an early return from
+/// `run` leaks nothing.
 pub struct WavePipeline {
-    pub layout: vk::PipelineLayout,
-    pub pipeline: vk::Pipeline,
-    device: ash::Device,
+    pub pipeline: Owned<vk::Pipeline>,
+    pub layout: Owned<vk::PipelineLayout>,
 }
 
 impl WavePipeline {
     pub fn new(vk: &VulkanContext) -> Result<Self> {
-        // The guard exists before its first object: a failure half-way destroys what was made.
-        let null = (vk::PipelineLayout::null(), vk::Pipeline::null());
-        let mut this = WavePipeline { layout: null.0, pipeline: null.1, device: vk.device.clone() };
+        // Each object is owned as it is made: a failure half-way destroys what was made.
         let module = common::base::pipeline::shader_module(vk, SHADER, "wave")?;
         let range = vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::COMPUTE)
             .size(size_of::<Wave>() as u32);
         let layout_info =
             vk::PipelineLayoutCreateInfo::default().push_constant_ranges(std::slice::from_ref(&range));
-        this.layout = fail::call("vkCreatePipelineLayout for the wave", || unsafe {
+        let layout = create(&vk.device, "vkCreatePipelineLayout for the wave", || unsafe {
             vk.device.create_pipeline_layout(&layout_info, None)
         })?;
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(module.module)
+            .module(*module)
             .name(c"main");
-        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(this.layout);
-        this.pipeline = fail::call("vkCreateComputePipelines for the wave", || unsafe {
-            vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None).map_err(|(_, e)| e)
-        })?[0];
-        Ok(this) // `module` is dropped: the pipeline keeps what it needs
+        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(*layout);
+        let pipeline = create(&vk.device, "vkCreateComputePipelines for the wave", || unsafe {
+            let pipelines = vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None);
+            pipelines.map(|p| p[0]).map_err(|(_, e)| e)
+        })?;
+        Ok(WavePipeline { pipeline, layout }) // `module` is dropped: the pipeline keeps what it needs
     }
 
     /// Records the dispatch: one invocation per vertex, in workgroups of [`WORKGROUP`].
     pub fn record(&self, vk: &VulkanContext, cb: vk::CommandBuffer, wave: &Wave) {
         unsafe {
-            vk.device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            vk.device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, *self.pipeline);
             let bytes = common::scene::gbuffer::as_bytes(std::slice::from_ref(wave));
-            vk.device.cmd_push_constants(cb, self.layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
+            vk.device.cmd_push_constants(cb, *self.layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
             vk.device.cmd_dispatch(cb, wave.count.div_ceil(WORKGROUP), 1, 1);
-        }
-    }
-}
-
-impl Drop for WavePipeline {
-    /// The pipeline, then its layout. The GPU must be done with it.
-    fn drop(&mut self) {
-        unsafe {
-            self.device.destroy_pipeline(self.pipeline, None);
-            self.device.destroy_pipeline_layout(self.layout, None);
         }
     }
 }
@@ -182,15 +171,15 @@ impl VertexHandoff {
         let ext = gl.semaphores.as_ref().expect("semaphores were shared");
         let buffers = [self.gl_buffer.0.get()];
         unsafe {
-            (ext.SignalSemaphoreEXT)(drawn.gl, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
+            (ext.SignalSemaphoreEXT)(drawn.gl.name, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
             gl.gl.flush(); // a signal waits in GL's queue until flushed
         }
-        Some((drawn.vk, vk::PipelineStageFlags::COMPUTE_SHADER))
+        Some((*drawn.vk, vk::PipelineStageFlags::COMPUTE_SHADER))
     }
 
     /// What Vulkan's submission signals once the vertices are written.
     pub fn vulkan_signals(&self) -> Option<vk::Semaphore> {
-        self.semaphores.as_ref().map(|[moved, _]| moved.vk)
+        self.semaphores.as_ref().map(|[moved, _]| *moved.vk)
     }
 
     /// After Vulkan's write: GL acquires the buffer (a wait that lists it), or the CPU waits for
@@ -200,7 +189,7 @@ impl VertexHandoff {
             Some([moved, _]) => unsafe {
                 let ext = gl.semaphores.as_ref().expect("semaphores were shared");
                 let buffers = [self.gl_buffer.0.get()];
-                (ext.WaitSemaphoreEXT)(moved.gl, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
+                (ext.WaitSemaphoreEXT)(moved.gl.name, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
             },
             None => commands::wait_for(vk, fence, "vkWaitForFences for the moved vertices")?,
         }

@@ -5,7 +5,8 @@
 use crate::scene::TraceParams;
 use anyhow::{Context as _, Result, ensure};
 use common::base::fail;
-use common::interop::cuda::{CudaDevice, cu, sys};
+use common::base::owned::{Owned, create};
+use common::interop::cuda::{CudaDevice, MappedPointer, cu, sys};
 use std::ffi::{CString, c_void};
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
 
@@ -13,56 +14,37 @@ use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
 /// GPU it finds when the module loads.
 const PTX: &str = include_str!("../../shaders/cuda/trace.ptx");
 
-/// The kernel, loaded, with a stream to launch it on and two events to time it.
+/// The kernel, loaded, with a stream to launch it on and two events to time it. Dropped, its
+/// fields go in the order written: the events, the stream, the module, then the context they
+/// were made in. CUDA must be done with them (see [`CudaTracer::synchronize`]).
 pub struct CudaTracer {
-    pub device: CudaDevice,
-    module: sys::CUmodule,
+    started: Owned<sys::CUevent>,
+    finished: Owned<sys::CUevent>,
+    pub stream: Owned<sys::CUstream>,
     function: sys::CUfunction,
-    pub stream: sys::CUstream,
-    started: sys::CUevent,
-    finished: sys::CUevent,
+    _module: Owned<sys::CUmodule>,
+    pub device: CudaDevice,
 }
 
 impl CudaTracer {
     // ANCHOR: load
+    /// Each object is owned as it is made: a failure drops what exists, `device` last.
     pub fn new(device: CudaDevice) -> Result<Self> {
         let ptx = CString::new(PTX)?;
         // SAFETY: `ptx` is NUL-terminated PTX text; CUDA copies what it needs.
-        let module =
-            match fail::call("cuModuleLoadData", || unsafe { cu::module::load_data(ptx.as_ptr().cast()) }) {
-                Ok(module) => module,
-                Err(error) => {
-                    device.destroy()?;
-                    return Err(error).context(
-                    "cuModuleLoadData: the driver cannot compile the PTX (it came from NVRTC 12.9: drivers \
-                     older than CUDA 12.9 refuse it; fix: update the NVIDIA driver)",
-                );
-                }
-            };
-        let rest = || -> Result<_> {
-            let name = CString::new("trace")?;
-            let function = fail::call("cuModuleGetFunction(trace)", || unsafe {
-                cu::module::get_function(module, name)
-            })?;
-            // Non-blocking: this stream never waits for work on the legacy default stream.
-            let stream =
-                fail::call("cuStreamCreate", || cu::stream::create(cu::stream::StreamKind::NonBlocking))?;
-            let event =
-                || fail::call("cuEventCreate", || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT));
-            Ok((function, stream, event()?, event()?))
-        };
-        match rest() {
-            Ok((function, stream, started, finished)) => {
-                Ok(CudaTracer { device, module, function, stream, started, finished })
-            }
-            // Rare enough (out of resources) that a stream or event made before the failure is
-            // left to the context's release, which frees everything made in it.
-            Err(error) => {
-                unsafe { cu::module::unload(module) }.ok();
-                device.destroy()?;
-                Err(error)
-            }
-        }
+        let module = create(&(), "cuModuleLoadData", || unsafe { cu::module::load_data(ptx.as_ptr().cast()) })
+            .context(
+                "cuModuleLoadData: the driver cannot compile the PTX (it came from NVRTC 12.9: drivers \
+                 older than CUDA 12.9 refuse it; fix: update the NVIDIA driver)",
+            )?;
+        let name = CString::new("trace")?;
+        let function =
+            fail::call("cuModuleGetFunction(trace)", || unsafe { cu::module::get_function(*module, name) })?;
+        // Non-blocking: this stream never waits for work on the legacy default stream.
+        let stream = create(&(), "cuStreamCreate", || cu::stream::create(cu::stream::StreamKind::NonBlocking))?;
+        let event = || create(&(), "cuEventCreate", || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT));
+        let (started, finished) = (event()?, event()?);
+        Ok(CudaTracer { started, finished, stream, function, _module: module, device })
     }
     // ANCHOR_END: load
 
@@ -75,11 +57,11 @@ impl CudaTracer {
         let mut arguments: [*mut c_void; 2] = [(&raw mut traced).cast(), (&raw mut params).cast()];
         let grid = (params.width.div_ceil(16), params.height.div_ceil(16), 1);
         unsafe {
-            fail::call("cuEventRecord (start)", || cu::event::record(self.started, self.stream))?;
+            fail::call("cuEventRecord (start)", || cu::event::record(*self.started, *self.stream))?;
             fail::call("cuLaunchKernel(trace)", || {
-                cu::launch_kernel(self.function, grid, (16, 16, 1), 0, self.stream, &mut arguments)
+                cu::launch_kernel(self.function, grid, (16, 16, 1), 0, *self.stream, &mut arguments)
             })?;
-            fail::call("cuEventRecord (end)", || cu::event::record(self.finished, self.stream))?;
+            fail::call("cuEventRecord (end)", || cu::event::record(*self.finished, *self.stream))?;
         }
         Ok(())
     }
@@ -88,33 +70,33 @@ impl CudaTracer {
     /// Waits for the last launch, and returns how long the GPU ran it.
     pub fn kernel_ms(&self) -> Result<f64> {
         unsafe {
-            fail::call("cuEventSynchronize", || cu::event::synchronize(self.finished))?;
-            Ok(fail::call("cuEventElapsedTime", || cu::event::elapsed(self.started, self.finished))? as f64)
+            fail::call("cuEventSynchronize", || cu::event::synchronize(*self.finished))?;
+            Ok(fail::call("cuEventElapsedTime", || cu::event::elapsed(*self.started, *self.finished))? as f64)
         }
     }
 
-    /// Blocks this thread until everything queued on the stream has run.
+    /// Blocks this thread until everything queued on the stream has run: the chapter's one wait
+    /// for CUDA before its teardown.
     pub fn synchronize(&self) -> Result<()> {
-        fail::call("cuStreamSynchronize", || unsafe { cu::stream::synchronize(self.stream) })
+        fail::call("cuStreamSynchronize", || unsafe { cu::stream::synchronize(*self.stream) })
     }
+}
 
-    /// Everything made in the context, newest first, then the context itself.
-    pub fn destroy(self) -> Result<()> {
-        self.synchronize()?;
-        unsafe {
-            cu::event::destroy(self.finished)?;
-            cu::event::destroy(self.started)?;
-            cu::stream::destroy(self.stream)?;
-            cu::module::unload(self.module)?;
-        }
-        self.device.destroy()
+/// CUDA's counterpart of `Commands`' wait on drop: made after everything the kernel uses, so
+/// that on an early return it is dropped first, and waits for the stream before any of it goes.
+pub struct StreamDrained<'a>(pub &'a CudaTracer);
+
+impl Drop for StreamDrained<'_> {
+    fn drop(&mut self) {
+        let _ = unsafe { cu::stream::synchronize(*self.0.stream) };
     }
 }
 
 // ANCHOR: registered_pbo
-/// Path 1: GL's pixel buffer object, registered with CUDA once.
+/// Path 1: GL's pixel buffer object, registered with CUDA once; unregistered when dropped,
+/// before GL deletes the buffer it names (its owner drops it later).
 pub struct RegisteredPbo {
-    resource: sys::CUgraphicsResource,
+    resource: Owned<sys::CUgraphicsResource>,
 }
 
 impl RegisteredPbo {
@@ -133,13 +115,14 @@ impl RegisteredPbo {
         params: &TraceParams,
         bytes: u64,
     ) -> Result<sys::CUdeviceptr> {
+        let mut resource = *self.resource;
         unsafe {
             fail::call("cuGraphicsMapResources", || {
-                sys::cuGraphicsMapResources(1, &mut self.resource, tracer.stream).result()
+                sys::cuGraphicsMapResources(1, &mut resource, *tracer.stream).result()
             })?;
             let (mut pointer, mut size) = (0, 0);
             let mapped = fail::call("cuGraphicsResourceGetMappedPointer", || {
-                sys::cuGraphicsResourceGetMappedPointer_v2(&mut pointer, &mut size, self.resource).result()
+                sys::cuGraphicsResourceGetMappedPointer_v2(&mut pointer, &mut size, resource).result()
             });
             let launched = mapped.and_then(|()| {
                 ensure!(size as u64 >= bytes, "the mapped PBO holds {size} bytes, not {bytes}");
@@ -147,7 +130,7 @@ impl RegisteredPbo {
             });
             // Unmapped even when the launch failed: a mapped buffer cannot be deleted by GL. (Like
             // every call that gives something back, not a step `VKGL_FAIL_AT` fails.)
-            sys::cuGraphicsUnmapResources(1, &mut self.resource, tracer.stream)
+            sys::cuGraphicsUnmapResources(1, &mut resource, *tracer.stream)
                 .result()
                 .context("cuGraphicsUnmapResources")?;
             launched.map(|()| pointer)
@@ -155,30 +138,15 @@ impl RegisteredPbo {
     }
 }
 
-impl Drop for RegisteredPbo {
-    /// Unregistered before GL deletes the buffer it names (its owner drops it later), once
-    /// CUDA's work is done. A failure is printed, and the registration stays counted alive, which
-    /// the chapter's `cuda_and_shared_resources_released` check then reports.
-    fn drop(&mut self) {
-        let released =
-            unsafe { sys::cuCtxSynchronize().result().context("cuCtxSynchronize") }.and_then(|()| {
-                unsafe { sys::cuGraphicsUnregisterResource(self.resource) }
-                    .result()
-                    .context("cuGraphicsUnregisterResource")
-            });
-        match released {
-            Ok(()) => common::base::resources::destroyed("cuda_graphics_resource"),
-            Err(error) => eprintln!("cuda: {error:#}"),
-        }
-    }
-}
 // ANCHOR_END: registered_pbo
 
 // ANCHOR: imported_memory
-/// Path 2: Vulkan's exportable memory, seen by CUDA as a device pointer.
+/// Path 2: Vulkan's exportable memory, seen by CUDA as a device pointer. Dropped, the mapping
+/// is freed like any device allocation, then the external memory destroyed (fields, in order):
+/// before Vulkan frees the allocation under it (its owner is dropped later).
 pub struct ImportedMemory {
-    external: sys::CUexternalMemory,
-    pub pointer: sys::CUdeviceptr,
+    pub pointer: Owned<MappedPointer>,
+    _external: Owned<sys::CUexternalMemory>,
 }
 
 impl ImportedMemory {
@@ -186,45 +154,16 @@ impl ImportedMemory {
     pub fn new(fd: OwnedFd, size: u64, bytes: u64) -> Result<Self> {
         // OPAQUE_FD, as Vulkan exported it. On success CUDA owns the fd (and closes it when the
         // external memory is destroyed); on failure it is still ours, and `fd` closes it.
-        let external = fail::call("cuImportExternalMemory(OPAQUE_FD)", || unsafe {
+        let external = create(&(), "cuImportExternalMemory(OPAQUE_FD)", || unsafe {
             cu::external_memory::import_external_memory_opaque_fd(fd.as_raw_fd(), size)
         })?;
         // SAFETY: the import succeeded: the fd is CUDA's now, and closing it too would be a double close.
         let _ = fd.into_raw_fd();
         common::base::resources::created("cuda_external_memory", 0); // its bytes are Vulkan's allocation
-        let mapped = fail::call("cuExternalMemoryGetMappedBuffer", || unsafe {
-            cu::external_memory::get_mapped_buffer(external, 0, bytes)
-        });
-        match mapped {
-            Ok(pointer) => Ok(ImportedMemory { external, pointer }),
-            Err(error) => {
-                unsafe { cu::external_memory::destroy_external_memory(external) }.ok();
-                common::base::resources::destroyed("cuda_external_memory");
-                Err(error)
-            }
-        }
-    }
-}
-
-impl Drop for ImportedMemory {
-    /// Once CUDA's work is done, the mapping is freed like any device allocation, then the
-    /// external memory destroyed: before Vulkan frees the allocation under it (its owner is
-    /// dropped later). A failure is printed, and the memory stays counted alive.
-    fn drop(&mut self) {
-        let released = unsafe {
-            sys::cuCtxSynchronize()
-                .result()
-                .context("cuCtxSynchronize")
-                .and_then(|()| cu::memory_free(self.pointer).context("cuMemFree"))
-                .and_then(|()| {
-                    cu::external_memory::destroy_external_memory(self.external)
-                        .context("cuDestroyExternalMemory")
-                })
-        };
-        match released {
-            Ok(()) => common::base::resources::destroyed("cuda_external_memory"),
-            Err(error) => eprintln!("cuda: {error:#}"),
-        }
+        let pointer = create(&(), "cuExternalMemoryGetMappedBuffer", || unsafe {
+            cu::external_memory::get_mapped_buffer(*external, 0, bytes).map(MappedPointer)
+        })?;
+        Ok(ImportedMemory { pointer, _external: external })
     }
 }
 // ANCHOR_END: imported_memory

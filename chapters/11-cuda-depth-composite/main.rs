@@ -15,7 +15,7 @@ use ash::vk;
 use common::base::cli::Smallest;
 use common::base::fail;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::base::guard::guard;
+use common::base::owned::create;
 use common::interop;
 use common::interop::cuda::CudaDevice;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
@@ -31,7 +31,7 @@ mod cuda;
 mod scene;
 use check::TracedBy;
 use composite::{DepthComposite, DepthUniforms, PixelBuffer, Source, gl_time_ms, traced_bytes};
-use cuda::{CudaTracer, ImportedMemory, RegisteredPbo};
+use cuda::{CudaTracer, ImportedMemory, RegisteredPbo, StreamDrained};
 
 const CHAPTER: &str = "11-cuda-depth-composite";
 /// The smallest picture this chapter can check, and why (the largest is the device's).
@@ -171,11 +171,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let drawn = draw_paths(&setup, tracer.as_ref(), report);
     let fds_after = common::base::resources::open_fds();
     // ANCHOR: release
-    // CUDA's own objects last: the module, the stream, the events, then the primary context.
-    let released = tracer.map_or(Ok(()), CudaTracer::destroy);
+    // CUDA's own objects last (draw_paths waited for its stream): the events, the stream, the
+    // module, then the primary context.
+    drop(tracer);
     // ANCHOR_END: release
     drawn?;
-    released?;
     gl_context.check_error("cleaning up")?;
     let live = common::base::resources::live();
     report.check("cuda_and_shared_resources_released", live.values().all(|&n| n == 0));
@@ -224,40 +224,36 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
         .usage(vk::BufferUsageFlags::STORAGE_BUFFER)
         .push_next(&mut external);
     let buffer =
-        fail::call("vkCreateBuffer (exportable)", || unsafe { vk.device.create_buffer(&buffer_info, None) })?;
-    let buffer = guard(buffer, |&b| unsafe { vk.device.destroy_buffer(b, None) });
+        create(&vk.device, "vkCreateBuffer (exportable)", || unsafe { vk.device.create_buffer(&buffer_info, None) })?;
     let requirements = unsafe { vk.device.get_buffer_memory_requirements(*buffer) };
     // CUDA writes it from the GPU: device-local. The CPU tracer writes it through a mapping.
     let properties = match tracer {
         Some(_) => vk::MemoryPropertyFlags::DEVICE_LOCAL,
         None => vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT,
     };
+    // Freed (and so unmapped, for the CPU tracer) when dropped, after the buffer.
     let memory = exportable::allocate(vk, &requirements, properties, Dedicated::No)?;
-    // From here on the pair goes together: the buffer destroyed, then its memory freed (which
-    // also unmaps it, for the CPU tracer).
-    let path2 = guard((buffer.into_inner(), memory), |(b, m)| unsafe {
-        vk.device.destroy_buffer(*b, None);
-        vk.device.free_memory(m.memory, None);
-    });
-    let (buffer, memory) = (path2.0, &path2.1);
-    fail::call("vkBindBufferMemory", || unsafe { vk.device.bind_buffer_memory(buffer, memory.memory, 0) })?;
+    fail::call("vkBindBufferMemory", || unsafe { vk.device.bind_buffer_memory(*buffer, *memory.memory, 0) })?;
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
     // One fd per importer: each import takes ownership of the fd it is given.
     let imported = match tracer {
         Some(_) => {
-            Some(ImportedMemory::new(exportable::export_fd(&fd_loader, memory.memory)?, memory.size, bytes)?)
+            Some(ImportedMemory::new(exportable::export_fd(&fd_loader, *memory.memory)?, memory.size, bytes)?)
         }
         None => None,
     };
-    let fd = exportable::export_fd(&fd_loader, memory.memory)?;
-    let shared = interop::import_buffer(gl_context, memory, fd, bytes)?;
+    let fd = exportable::export_fd(&fd_loader, *memory.memory)?;
+    let shared = interop::import_buffer(gl_context, &memory, fd, bytes)?;
     let mapped = match tracer {
         Some(_) => None,
         None => Some(fail::call("vkMapMemory", || unsafe {
-            vk.device.map_memory(memory.memory, 0, bytes, vk::MemoryMapFlags::empty())
+            vk.device.map_memory(*memory.memory, 0, bytes, vk::MemoryMapFlags::empty())
         })?),
     };
     // ANCHOR_END: path2
+    // Made after everything the kernel uses, so dropped first on an early return: it waits for
+    // CUDA's stream before any of it goes, as `Commands` waits for Vulkan's fence.
+    let drained = tracer.map(StreamDrained);
 
     // 6. Every frame: trace, hand the pixels to GL, composite, draw the lines
     let composite = DepthComposite::new(gl, width, height, s.spheres)?;
@@ -281,7 +277,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
                     // No semaphores here: GL has finished reading the last frame before
                     // CUDA writes, and CUDA has finished writing before GL reads.
                     unsafe { gl.finish() };
-                    t.launch(imported.as_ref().expect("imported by CUDA").pointer, &params)?;
+                    t.launch(imported.as_ref().expect("imported by CUDA").pointer.0, &params)?;
                     times[0].push(t.kernel_ms()?);
                     t.synchronize()?;
                 }
@@ -342,14 +338,19 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
     }
     gl_context.check_error("the frames")?;
 
-    // 8. Clean up, newest first
+    // 8. Clean up, newest first, once every API is done (Vulkan submitted nothing)
     // ANCHOR: cleanup
     unsafe { gl.finish() };
+    if let Some(t) = tracer {
+        t.synchronize()?;
+    }
+    drop(drained); // waits for nothing now
     drop(composite); // GL only
-    // GL's import and CUDA's (which waits for CUDA's work), before Vulkan frees the memory.
+    // GL's import and CUDA's, before Vulkan frees the memory.
     drop(shared); // the GL buffer, then its memory object
     drop(imported); // CUDA's mapping, then its external memory
-    drop(path2); // the Vulkan buffer, then its memory (unmapped with it)
+    drop(buffer); // the Vulkan buffer
+    drop(memory); // its memory (unmapped with it)
     // CUDA's registration, before GL deletes the buffer it names.
     drop(registered);
     drop(pbo); // the textures, then the buffer

@@ -190,7 +190,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let rays = settings.rays(samples, scene.size() / 2.0);
             if let Some(traced) = trace_pending.take() {
                 let stamps = timestamps.as_ref();
-                common::base::timing::read_after(&vk, commands.fence, stamps, "ao_trace", &mut times)?;
+                common::base::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
                 if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
                     t.trace_done(&vk, slot, stamps)?;
                 }
@@ -220,7 +220,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     if let Some(traced) = trace_pending {
         let stamps = timestamps.as_ref();
-        common::base::timing::read_after(&vk, commands.fence, stamps, "ao_trace", &mut times)?;
+        common::base::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
         if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
             t.trace_done(&vk, slot, stamps)?;
         }
@@ -323,7 +323,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };
-    vk.wait_idle()?; // once: no guard below waits
+    vk.wait_idle()?; // once, as the book's "Waiting before teardown" says
     drop(commands);
     drop(timeline);
     drop(timestamps);

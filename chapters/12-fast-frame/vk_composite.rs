@@ -66,7 +66,7 @@ pub fn measure(
     let stamps = Timestamps::with_count(vk, 2 * rounds)?
         .with_context(|| format!("--vulkan-composite-rounds: {} writes no timestamps", vk.info.name))?;
     let commands = &Commands::new(vk)?; // made last: dropped first, it waits for its submission
-    pipeline.write_images(vk, &[targets.surface.view, picture.view]);
+    pipeline.write_images(vk, &[*targets.surface.view, *picture.view]);
 
     // The surface: GL sampled it last; Vulkan reads it as a storage image, and gives it back.
     let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
@@ -79,10 +79,10 @@ pub fn measure(
     let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
     let none = vk::DependencyFlags::empty();
     unsafe {
-        vk.device.cmd_reset_query_pool(cb, stamps.pool, 0, 2 * rounds);
+        vk.device.cmd_reset_query_pool(cb, *stamps.pool, 0, 2 * rounds);
         let take = [
             acquire_from_gl(vk, &targets.surface, layouts.to_vulkan, general, read),
-            first_use(picture.image, general, write),
+            first_use(*picture.image, general, write),
         ];
         // From the stage the submission waits for GL at: the acquire follows GL's release.
         vk.device.cmd_pipeline_barrier(cb, compute, compute, none, &[], &[], &take);
@@ -99,14 +99,14 @@ pub fn measure(
         // ANCHOR_END: rounds
         let source = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
         let to_copy = common::base::commands::image_barrier(
-            picture.image,
+            *picture.image,
             (general, source),
             (write, vk::AccessFlags::TRANSFER_READ),
             (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED),
         );
         let transfer = vk::PipelineStageFlags::TRANSFER;
         vk.device.cmd_pipeline_barrier(cb, compute, transfer, none, &[], &[], &[to_copy]);
-        copy_image_to_buffer(vk, cb, picture.image, source, extent, read_back.buffer);
+        copy_image_to_buffer(vk, cb, *picture.image, source, extent, *read_back.buffer);
         transfers_to_host(vk, cb);
         // Back to GL: nothing written, nothing to make available.
         let give = release_to_gl(vk, &targets.surface, general, layouts.to_gl, vk::AccessFlags::NONE);
@@ -121,7 +121,7 @@ pub fn measure(
         );
     }
     commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, compute)), handoff.vulkan_signals())?;
-    handoff.gl_acquire(vk, gl, commands.fence, &texture, &[to_gl])?;
+    handoff.gl_acquire(vk, gl, *commands.fence, &texture, &[to_gl])?;
     commands.wait(vk, "vkWaitForFences after the Vulkan composite")?;
     let times: Vec<f64> =
         (0..rounds).map(|round| stamps.between_ms(vk, 2 * round, 2 * round + 1)).collect::<Result<_>>()?;

@@ -85,7 +85,7 @@ impl Clock {
     /// where that frame has a slot in it).
     fn read_trace(&mut self, p: &Passes) -> Result<()> {
         if let Some(slot) = self.traced.take() {
-            read_after(p.apis.vk, p.apis.commands.fence, p.timestamps, "ao_trace", &mut self.times)?;
+            read_after(p.apis.vk, *p.apis.commands.fence, p.timestamps, "ao_trace", &mut self.times)?;
             if let (Some((t, _)), Some(slot), Some(stamps)) = (self.timeline.as_mut(), slot, p.timestamps) {
                 t.trace_done(p.apis.vk, slot, stamps)?;
             }

@@ -114,10 +114,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let tlas = match path.moving {
         Some(_) => {
             let inputs = BuildInputs {
-                handle: shared.structures.tlas.handle,
+                handle: *shared.structures.tlas.handle,
                 ty: vk::AccelerationStructureTypeKHR::TOP_LEVEL,
                 flags: flags.0,
-                geometry: instances_geometry(&vk, &shared.buffers.instances.0),
+                geometry: instances_geometry(&vk, &shared.buffers.instances.vk),
                 primitives: scene.instances.len() as u32,
             };
             Some(InPlace::new(&vk, &shared.allocator, loader, inputs)?)
@@ -159,7 +159,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         overlays: Some(&overlays),
         path: &path,
         motion: tlas.as_ref().map(|tlas| Motion {
-            instances: &shared.buffers.instances.0,
+            instances: &shared.buffers.instances.vk,
             tlas,
             loader,
             updates: &updates,

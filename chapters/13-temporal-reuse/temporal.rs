@@ -151,7 +151,7 @@ impl TemporalTracer {
         let allocator = &shared.allocator;
         let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
         let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<TemporalRays>() as u32)?;
-        pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
+        pipeline.write_tlas(vk, 0, *shared.structures.tlas.handle);
         let history = Self::history_images(vk, allocator, targets.extent)?;
         let host = |name, size| BufferDesc {
             name,
@@ -160,12 +160,12 @@ impl TemporalTracer {
             location: MemoryLocation::CpuToGpu,
         };
         let cameras = DeviceBuffer::new(vk, allocator, host("cameras", size_of::<Cameras>() as u64))?;
-        let instance_bytes = shared.buffers.instances.0.bytes;
+        let instance_bytes = shared.buffers.instances.vk.bytes;
         let mut previous_instances =
             DeviceBuffer::new(vk, allocator, host("previous instances", instance_bytes))?;
         // At first the previous transforms are the transforms: nothing has moved yet.
         let copy = previous_instances.allocation.mapped_slice_mut().context("previous instances unmapped")?;
-        let shared_instances = &shared.buffers.instances.0;
+        let shared_instances = &shared.buffers.instances.vk;
         // SAFETY: the shared buffer's mapping is `bytes` long and nothing writes it now.
         let now = unsafe { std::slice::from_raw_parts(shared_instances.mapped, instance_bytes as usize) };
         copy[..now.len()].copy_from_slice(now);
@@ -197,10 +197,10 @@ impl TemporalTracer {
 
     /// The descriptors at this size's images, the history read and written as `written` says.
     fn point_at(&self, vk: &VulkanContext, targets: &Targets) {
-        self.pipeline.write_storage_image(vk, 1, targets.visibility.view);
-        self.pipeline.write_storage_image(vk, 2, targets.surface.view);
-        self.pipeline.write_storage_image(vk, 3, self.history[1 - self.written].view);
-        self.pipeline.write_storage_image(vk, 4, self.history[self.written].view);
+        self.pipeline.write_storage_image(vk, 1, *targets.visibility.view);
+        self.pipeline.write_storage_image(vk, 2, *targets.surface.view);
+        self.pipeline.write_storage_image(vk, 3, *self.history[1 - self.written].view);
+        self.pipeline.write_storage_image(vk, 4, *self.history[self.written].view);
     }
 
     /// New images of the new size: nothing is remembered. The GPU must be done with the old.
@@ -304,7 +304,7 @@ impl TemporalTracer {
             (vec![barrier], vec![])
         } else {
             let general = vk::ImageLayout::GENERAL;
-            (vec![], self.history.iter().map(|h| first_use(h.image, general, read | write)).collect())
+            (vec![], self.history.iter().map(|h| first_use(*h.image, general, read | write)).collect())
         }
     }
 
@@ -326,16 +326,16 @@ impl TemporalTracer {
         let ignored = vk::QUEUE_FAMILY_IGNORED;
         let (write, read) = (vk::AccessFlags::SHADER_WRITE, vk::AccessFlags::TRANSFER_READ);
         // To the copy's layout once the rays have written it, and back before the next frame's.
-        let to_copy = image_barrier(last.image, (general, source), (write, read), (ignored, ignored));
+        let to_copy = image_barrier(*last.image, (general, source), (write, read), (ignored, ignored));
         let back = image_barrier(
-            last.image,
+            *last.image,
             (source, general),
             (vk::AccessFlags::NONE, vk::AccessFlags::NONE),
             (ignored, ignored),
         );
         commands.run_once(vk, |cb| unsafe {
             vk.device.cmd_pipeline_barrier(cb, stage, transfer, none, &[], &[], &[to_copy]);
-            copy_image_to_buffer(vk, cb, last.image, source, extent, host.buffer);
+            copy_image_to_buffer(vk, cb, *last.image, source, extent, *host.buffer);
             transfers_to_host(vk, cb);
             vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[], &[back]);
         })?;

@@ -17,8 +17,7 @@ use anyhow::{Result, bail, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, image_barrier};
-use common::base::guard::guard;
-use common::base::{fail, resources};
+use common::base::fail;
 use common::interop::exportable::{self, Dedicated};
 use common::{CommonArgs, Report, Requirements, VulkanContext};
 use session::{Outcome, Session};
@@ -120,16 +119,11 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     let ring = (0..slots)
         .map(|_| -> Result<_> {
             let image = exportable::create_image(&vk, vk::Format::R8G8B8A8_UNORM, usage, extent)?;
-            let image = guard(image, |&image| unsafe {
-                vk.device.destroy_image(image, None);
-                resources::destroyed("vk_image_exportable");
-            });
             let requirements = unsafe { vk.device.get_image_memory_requirements(*image) };
             let local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
             let memory = exportable::allocate(&vk, &requirements, local, Dedicated::Image(*image))?;
-            let memory = guard(memory, |memory| unsafe { vk.device.free_memory(memory.memory, None) });
             fail::call("vkBindImageMemory (a ring slot)", || unsafe {
-                vk.device.bind_image_memory(*image, memory.memory, 0)
+                vk.device.bind_image_memory(*image, *memory.memory, 0)
             })?;
             Ok((image, memory)) // dropped in that order: the image, then its memory
         })
@@ -175,7 +169,7 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         };
         socket.set_timeout(timeout)?;
         let session = Session { socket: &socket, child: child.as_mut(), kill_every: args.kill_viewer_every };
-        let exported = || ring.iter().map(|(_, memory)| exportable::export_fd(&fd_loader, memory.memory));
+        let exported = || ring.iter().map(|(_, memory)| exportable::export_fd(&fd_loader, *memory.memory));
         let outcome = session.serve(&hello, exported, &draw, &mut next_frame, frames, report);
         let outcome = match outcome {
             Ok(outcome) => outcome,
@@ -272,7 +266,7 @@ fn draw(
             })
             .image_offset(vk::Offset3D { x: x as i32, y: y as i32, z: 0 })
             .image_extent(vk::Extent3D { width: side, height: side, depth: 1 });
-        vk.device.cmd_copy_buffer_to_image(cb, square.buffer, image, dst, &[region]);
+        vk.device.cmd_copy_buffer_to_image(cb, *square.buffer, image, dst, &[region]);
         // Release to the viewer: make the writes available, leave it in GENERAL (GL, on the host
         // path, names no layout), and hand ownership outside Vulkan.
         let release = image_barrier(

@@ -7,7 +7,7 @@ use anyhow::{Context as _, Result, bail, ensure};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::vulkan::DeviceInfo;
-use common::interop::{self, exportable::ExportableMemory};
+use common::interop::{self, exportable::MemoryTerms};
 use common::{Report, open_fd_count, settled_fd_count};
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
@@ -76,7 +76,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
     // 3. Import the ring
     // ANCHOR: import
     // What GL must be told of each slot's memory: its size, and that it is one image's alone.
-    let memory = ExportableMemory { size: hello.memory_size, dedicated: true, ..Default::default() };
+    let memory = MemoryTerms { size: hello.memory_size, dedicated: true };
     let mut ring = Vec::new();
     for expected in 0..hello.slots {
         let (slot, memory_size, fd) = match socket.recv()? {
@@ -93,7 +93,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         let fd = wire::check_memory_fd(fd, memory_size)?;
         // A successful import takes the fd (GL closes it with the memory object); a failed one
         // does not, and `import_texture_2d` closes it.
-        let texture = interop::import_texture_2d(&gl_context, &memory, fd, glow::RGBA8, (width, height))?;
+        let texture = interop::import_texture_2d(&gl_context, memory, fd, glow::RGBA8, (width, height))?;
         let framebuffer = common::base::gl::create(gl, "glCreateFramebuffers", |gl| unsafe {
             gl.create_named_framebuffer()
         })?;

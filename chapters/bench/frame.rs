@@ -87,7 +87,7 @@ impl<'s> Frame<'s> {
         let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
         let storage = vk::ImageUsageFlags::STORAGE;
         let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, storage)?;
-        let tracer = AoTracer::new(vk, gl, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+        let tracer = AoTracer::new(vk, gl, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
         let composite = Composite::new(&gl.gl, &gbuffers)?;
         let overlays = Overlays::new(&gl.gl, scene, 0)?;
         let round_trip = match mode {

@@ -210,7 +210,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let scene = kind.build(ground)?;
         let shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         // What the scene's memory turned out to be (`--scene-memory device` is a preference).
-        let memory = &shared.buffers.instances.0.memory;
+        let memory = &shared.buffers.instances.vk.memory;
         report.set("scene_memory_flags", format!("{:?}", memory.property_flags));
         report.set("scene_memory_type", memory.memory_type_index);
         // Which types an exportable buffer may live in at all: `--scene-memory device` can only
@@ -265,7 +265,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
             unsafe { glow::HasContext::finish(&*gl.gl) };
-            vk.wait_idle()?; // once: no guard below waits
+            vk.wait_idle()?; // once: no owner below waits
             drop(commands);
             drop(frames); // each newest first: GL's objects, then the shared images
         }
@@ -288,7 +288,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let timeline = timeline.take().expect("made above");
         report.set("timeline_08", timeline.finish(&vk, &commands, &stamps, &args.out.join("timeline-08"))?);
         unsafe { glow::HasContext::finish(&*gl.gl) };
-        vk.wait_idle()?; // once: no guard below waits
+        vk.wait_idle()?; // once: no owner below waits
         drop(commands);
         drop(frame);
         drop(shared);

@@ -99,7 +99,7 @@ impl RoundTrip {
         // Host writes before the submission are visible to it (vkQueueSubmit's guarantee).
         let region = vk::BufferCopy::default().size(self.upload.size);
         self.commands.run_once(vk, |cb| unsafe {
-            vk.device.cmd_copy_buffer(cb, self.upload.buffer, self.gbuffers.buffer, &[region])
+            vk.device.cmd_copy_buffer(cb, *self.upload.buffer, *self.gbuffers.buffer, &[region])
         })
     }
 
@@ -107,7 +107,7 @@ impl RoundTrip {
     pub fn ao_to_gl(&mut self, vk: &VulkanContext, gl: &GlContext) -> Result<()> {
         let region = vk::BufferCopy::default().size(self.readback.size);
         self.commands.run_once(vk, |cb| unsafe {
-            vk.device.cmd_copy_buffer(cb, self.ao.buffer, self.readback.buffer, &[region]);
+            vk.device.cmd_copy_buffer(cb, *self.ao.buffer, *self.readback.buffer, &[region]);
             // TRANSFER writes -> HOST reads: the CPU reads them after the fence.
             transfers_to_host(vk, cb);
         })?;

@@ -176,7 +176,7 @@ fn measure(
     let &Grid { extent, spps, frame_counts, quick } = grid;
     let shared = RayTracedScene::new(vk, gl, &case.scene)?;
     let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
-    let mut tracer = AoTracer::new(vk, gl, &shared.allocator, shared.structures.tlas.handle, &gbuffers)?;
+    let mut tracer = AoTracer::new(vk, gl, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
     // Made after what the traces use: dropped first on an early return, it waits for the last.
     let commands = Commands::new(vk)?;
     let scene_scale = cases::scene_scale(&case.scene);
@@ -243,7 +243,7 @@ fn measure(
     if !quick {
         eprintln!("{}: {} rows", case.name, rows.len());
     }
-    vk.wait_idle()?; // once: no guard below waits
+    vk.wait_idle()?; // once: no owner below waits
     drop(commands);
     drop(tracer);
     drop(gbuffers);

@@ -20,15 +20,17 @@
 //!
 //! The crate root only declares the layers and re-exports what nearly every chapter names.
 //!
-//! One teardown rule holds in every layer:
+//! One teardown rule holds in every layer (the book's appendix states it, "Owners"):
 //!
-//! - every object is owned by a guard from the moment it exists (`base::gl::Owned` for GL's,
-//!   `base::guard::Guard` for the raw handles chapters 01 and 02 show), so that an early return
-//!   destroys what was made, newest first; a constructor that fails half-way drops what it made;
-//! - only `base::commands::Commands` waits, for its own last submission, when dropped: a chapter
-//!   makes it after everything its submissions use, so it is dropped first. No other `Drop` waits
-//!   or idles the device; a chapter waits once (`VulkanContext::wait_idle`) before its list of
-//!   `drop(x)` in reverse order;
+//! - every object is owned from the moment it exists (`base::owned::Owned` for Vulkan's and
+//!   CUDA's, `base::gl::Owned` for GL's), so that an early return destroys what was made, newest
+//!   first; a struct holds one owner per object, its fields in the order they must be dropped
+//!   (GL's import before Vulkan's memory), and a constructor builds it from owned locals at the
+//!   end, so one that fails half-way drops what it made;
+//! - only the owner of a queue of work waits, for its own last submission, when dropped
+//!   (`base::commands::Commands`): a chapter makes it after everything its submissions use, so it
+//!   is dropped first. No other `Drop` waits or idles the device; a chapter waits once (`glFinish`,
+//!   then `VulkanContext::wait_idle`) before its list of `drop(x)` in reverse order;
 //! - gpu-allocator memory is freed by its owner (`rt::accel::Memory`), through a shared
 //!   `GpuAllocator` handle; the allocator goes with its last handle;
 //! - every fallible step goes through `base::fail` (`VKGL_FAIL_AT`), and every count of what is

@@ -2,21 +2,23 @@
 //! fence, plus one-shot submissions for set-up.
 
 use crate::base::fail;
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::Result;
 use ash::vk;
 
 /// A command pool with one primary command buffer and the fence of its last submission.
 ///
-/// The one guard that waits: dropped, it waits for its last submission before destroying the
+/// The one owner that waits: dropped, it waits for its last submission before destroying the
 /// pool. A chapter makes the `Commands` its frames submit through after everything those frames
 /// use, so that Rust, dropping locals newest first, drops it first: on an early return, the work
-/// in flight is done before anything it uses is destroyed. No other guard waits.
+/// in flight is done before anything it uses is destroyed. No other owner waits.
 pub struct Commands {
-    pub pool: vk::CommandPool,
-    pub buffer: vk::CommandBuffer,
     /// Signalled when the last submission of `buffer` has finished.
-    pub fence: vk::Fence,
+    pub fence: Owned<vk::Fence>,
+    /// Freed with its pool.
+    pub buffer: vk::CommandBuffer,
+    pub pool: Owned<vk::CommandPool>,
     /// Whether a submission is on its way to signalling `fence`. A failed `vkQueueSubmit` leaves
     /// an already reset fence unsignalled for ever: nothing may wait for it then.
     in_flight: std::cell::Cell<bool>,
@@ -25,29 +27,18 @@ pub struct Commands {
 
 impl Commands {
     pub fn new(vk: &VulkanContext) -> Result<Self> {
-        // Built up one object at a time inside the guard: a failure half-way destroys the rest.
-        let mut commands = Commands {
-            pool: vk::CommandPool::null(),
-            buffer: vk::CommandBuffer::null(),
-            fence: vk::Fence::null(),
-            in_flight: std::cell::Cell::new(false),
-            device: vk.device.clone(),
-        };
-        unsafe {
-            let pool_info = vk::CommandPoolCreateInfo::default()
-                .queue_family_index(vk.queue_family_index)
-                .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-            commands.pool =
-                fail::call("vkCreateCommandPool", || vk.device.create_command_pool(&pool_info, None))?;
-            let allocate =
-                vk::CommandBufferAllocateInfo::default().command_pool(commands.pool).command_buffer_count(1);
-            commands.buffer =
-                fail::call("vkAllocateCommandBuffers", || vk.device.allocate_command_buffers(&allocate))?[0];
-            // Created signalled, so that waiting before the first submission returns at once.
-            let fence_info = vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED);
-            commands.fence = fail::call("vkCreateFence", || vk.device.create_fence(&fence_info, None))?;
-        }
-        Ok(commands)
+        let device = &vk.device;
+        let pool_info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(vk.queue_family_index)
+            .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
+        let pool = create(device, "vkCreateCommandPool", || unsafe { device.create_command_pool(&pool_info, None) })?;
+        let allocate = vk::CommandBufferAllocateInfo::default().command_pool(*pool).command_buffer_count(1);
+        let buffer =
+            fail::call("vkAllocateCommandBuffers", || unsafe { device.allocate_command_buffers(&allocate) })?[0];
+        // Created signalled, so that waiting before the first submission returns at once.
+        let fence_info = vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED);
+        let fence = create(device, "vkCreateFence", || unsafe { device.create_fence(&fence_info, None) })?;
+        Ok(Commands { fence, buffer, pool, in_flight: std::cell::Cell::new(false), device: device.clone() })
     }
 
     // ANCHOR: begin
@@ -90,8 +81,8 @@ impl Commands {
             // Reset only now, with only the submission left to fail: a fence reset earlier, then
             // not submitted, would never signal, and the next wait would hang. (A failed reset
             // leaves the fence signalled, and nothing in flight.)
-            fail::call("vkResetFences", || vk.device.reset_fences(&[self.fence]))?;
-            fail::call("vkQueueSubmit", || vk.device.queue_submit(vk.queue, &[submit], self.fence))?;
+            fail::call("vkResetFences", || vk.device.reset_fences(&[*self.fence]))?;
+            fail::call("vkQueueSubmit", || vk.device.queue_submit(vk.queue, &[submit], *self.fence))?;
         }
         self.in_flight.set(true);
         Ok(())
@@ -108,7 +99,7 @@ impl Commands {
 
     /// Waits for the last submission (see [`wait_for`]); `what` names the wait.
     pub fn wait(&self, vk: &VulkanContext, what: &str) -> Result<()> {
-        let waited = wait_for(vk, self.fence, what);
+        let waited = wait_for(vk, *self.fence, what);
         self.in_flight.set(false);
         waited
     }
@@ -126,14 +117,10 @@ pub fn wait_for(vk: &VulkanContext, fence: vk::Fence, what: &str) -> Result<()> 
 }
 
 impl Drop for Commands {
-    /// Waits for the last submission, then destroys the fence and the pool (and its buffer).
+    /// Waits for the last submission; then (fields) the fence and the pool (and its buffer) go.
     fn drop(&mut self) {
-        unsafe {
-            if self.in_flight.get() {
-                let _ = self.device.wait_for_fences(&[self.fence], true, u64::MAX);
-            }
-            self.device.destroy_fence(self.fence, None);
-            self.device.destroy_command_pool(self.pool, None);
+        if self.in_flight.get() {
+            let _ = unsafe { self.device.wait_for_fences(&[*self.fence], true, u64::MAX) };
         }
     }
 }
@@ -203,46 +190,38 @@ pub const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
 };
 
 /// A plain (not shared) buffer in host-visible, host-coherent memory, mapped for its lifetime:
-/// staging data in, reading results out. Destroyed when dropped, like every guard in `common`.
+/// staging data in, reading results out. Destroyed when dropped (the buffer, then its memory,
+/// which unmaps it); the GPU must be done with it.
 pub struct HostBuffer {
-    pub buffer: vk::Buffer,
-    pub memory: vk::DeviceMemory,
+    pub buffer: Owned<vk::Buffer>,
+    pub memory: Owned<vk::DeviceMemory>,
     pub mapped: *mut u8,
     pub size: u64,
-    device: ash::Device,
 }
 
 impl HostBuffer {
     pub fn new(vk: &VulkanContext, size: u64, usage: vk::BufferUsageFlags) -> Result<Self> {
-        let mut host = HostBuffer {
-            buffer: vk::Buffer::null(),
-            memory: vk::DeviceMemory::null(),
-            mapped: std::ptr::null_mut(),
-            size,
-            device: vk.device.clone(),
-        };
-        unsafe {
-            let info = vk::BufferCreateInfo::default().size(size).usage(usage);
-            host.buffer =
-                fail::call("vkCreateBuffer (host-visible)", || vk.device.create_buffer(&info, None))?;
-            let requirements = vk.device.get_buffer_memory_requirements(host.buffer);
-            let flags = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-            let memory_type = vk.find_memory_type(requirements.memory_type_bits, flags)?;
-            let allocate = vk::MemoryAllocateInfo::default()
-                .allocation_size(requirements.size)
-                .memory_type_index(memory_type);
-            host.memory =
-                fail::call("vkAllocateMemory (host-visible)", || vk.device.allocate_memory(&allocate, None))?;
-            crate::base::resources::created("vk_memory_host", requirements.size);
-            fail::call("vkBindBufferMemory (host-visible)", || {
-                vk.device.bind_buffer_memory(host.buffer, host.memory, 0)
-            })?;
-            host.mapped = fail::call("vkMapMemory (host-visible)", || {
-                vk.device.map_memory(host.memory, 0, size, vk::MemoryMapFlags::empty())
-            })?
-            .cast();
-        }
-        Ok(host)
+        let device = &vk.device;
+        let info = vk::BufferCreateInfo::default().size(size).usage(usage);
+        let buffer =
+            create(device, "vkCreateBuffer (host-visible)", || unsafe { device.create_buffer(&info, None) })?;
+        let requirements = unsafe { device.get_buffer_memory_requirements(*buffer) };
+        let flags = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+        let memory_type = vk.find_memory_type(requirements.memory_type_bits, flags)?;
+        let allocate =
+            vk::MemoryAllocateInfo::default().allocation_size(requirements.size).memory_type_index(memory_type);
+        let memory = create(device, "vkAllocateMemory (host-visible)", || unsafe {
+            device.allocate_memory(&allocate, None)
+        })?
+        .counted("vk_memory_host", requirements.size);
+        fail::call("vkBindBufferMemory (host-visible)", || unsafe {
+            device.bind_buffer_memory(*buffer, *memory, 0)
+        })?;
+        let mapped = fail::call("vkMapMemory (host-visible)", || unsafe {
+            device.map_memory(*memory, 0, size, vk::MemoryMapFlags::empty())
+        })?
+        .cast();
+        Ok(HostBuffer { buffer, memory, mapped, size })
     }
 
     /// The mapped bytes. The GPU must not be writing them (wait for the fence first).
@@ -264,23 +243,6 @@ impl HostBuffer {
     pub fn bytes_mut(&mut self) -> &mut [u8] {
         // SAFETY: as above, and `&mut self` makes this the only view.
         unsafe { std::slice::from_raw_parts_mut(self.mapped, self.size as usize) }
-    }
-}
-
-impl Drop for HostBuffer {
-    /// Unmaps, frees and destroys what exists (Vulkan ignores null handles). The GPU must be
-    /// done with it.
-    fn drop(&mut self) {
-        unsafe {
-            if !self.mapped.is_null() {
-                self.device.unmap_memory(self.memory);
-            }
-            if self.memory != vk::DeviceMemory::null() {
-                self.device.free_memory(self.memory, None);
-                crate::base::resources::destroyed("vk_memory_host");
-            }
-            self.device.destroy_buffer(self.buffer, None);
-        }
     }
 }
 

@@ -1,7 +1,7 @@
 //! A compute pipeline over storage images, with push constants: the kind chapter 04 builds step
 //! by step, for the compute shaders later chapters dispatch (chapter 12's Vulkan composite).
 
-use super::fail;
+use super::owned::{Owned, create};
 use super::pipeline::{ShaderInterface, shader_module};
 use super::vulkan::VulkanContext;
 use anyhow::Result;
@@ -11,10 +11,9 @@ use ash::vk;
 /// with the one descriptor set that points at the images. Dropped, it destroys the pipeline,
 /// then (a field) its interface. The GPU must be done with them.
 pub struct ComputePipeline {
-    pub pipeline: vk::Pipeline,
+    pub pipeline: Owned<vk::Pipeline>,
     pub interface: ShaderInterface,
     images: u32,
-    device: ash::Device,
 }
 
 impl ComputePipeline {
@@ -35,15 +34,16 @@ impl ComputePipeline {
         let interface = ShaderInterface::new(vk, &bindings, push, "compute")?;
         let module = shader_module(vk, spirv, "compute")?;
         let stage =
-            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(module.module).name(c"main");
-        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(interface.layout);
+            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(*module).name(c"main");
+        let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(*interface.layout);
         // On failure `interface` and `module` are dropped, which destroys them.
-        let pipeline = fail::call("vkCreateComputePipelines", || unsafe {
-            vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None).map_err(|(_, e)| e)
-        })?[0];
+        let pipeline = create(&vk.device, "vkCreateComputePipelines", || unsafe {
+            let pipelines = vk.device.create_compute_pipelines(vk::PipelineCache::null(), &[info], None);
+            pipelines.map(|p| p[0]).map_err(|(_, e)| e)
+        })?
+        .counted("vk_pipeline: compute", 0);
         drop(module); // the pipeline keeps what it needs of it
-        super::resources::created("vk_pipeline: compute", 0);
-        Ok(ComputePipeline { pipeline, interface, images, device: vk.device.clone() })
+        Ok(ComputePipeline { pipeline, interface, images })
     }
 
     /// Points the bindings at `views`, in order, each in GENERAL. Not while a submission that
@@ -59,15 +59,8 @@ impl ComputePipeline {
     /// `extent` (the shader skips the overhang).
     pub fn dispatch(&self, vk: &VulkanContext, cb: vk::CommandBuffer, push: &[u8], extent: vk::Extent2D) {
         let compute = vk::PipelineBindPoint::COMPUTE;
-        unsafe { vk.device.cmd_bind_pipeline(cb, compute, self.pipeline) };
+        unsafe { vk.device.cmd_bind_pipeline(cb, compute, *self.pipeline) };
         self.interface.bind(vk, cb, compute, push);
         unsafe { vk.device.cmd_dispatch(cb, extent.width.div_ceil(16), extent.height.div_ceil(16), 1) };
-    }
-}
-
-impl Drop for ComputePipeline {
-    fn drop(&mut self) {
-        unsafe { self.device.destroy_pipeline(self.pipeline, None) };
-        super::resources::destroyed("vk_pipeline: compute");
     }
 }

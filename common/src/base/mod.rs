@@ -8,9 +8,9 @@ pub mod commands;
 pub mod compute;
 pub mod fail;
 pub mod gl;
-pub mod guard;
 pub mod image;
 pub mod output;
+pub mod owned;
 pub mod pipeline;
 pub mod report;
 pub mod resources;
@@ -18,5 +18,6 @@ pub mod timeline;
 pub mod timestamps;
 pub mod timing;
 pub mod validation;
+
 pub mod vulkan;
 pub mod window;

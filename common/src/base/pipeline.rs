@@ -4,16 +4,14 @@
 //! (`rt::raytrace`) are both built on it.
 
 use super::fail;
+use super::owned::{Owned, create};
 use super::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
 
 /// A shader module, destroyed when dropped: once the pipeline made from it exists (which keeps
 /// what it needs), or on the way out of a failed one.
-pub struct ShaderModule {
-    pub module: vk::ShaderModule,
-    device: ash::Device,
-}
+pub type ShaderModule = Owned<vk::ShaderModule>;
 
 /// SPIR-V bytes as a shader module; `stage` names it in errors. `read_spv` copies the bytes into
 /// `u32` words: `include_bytes!` promises no 4-byte alignment.
@@ -21,27 +19,20 @@ pub fn shader_module(vk: &VulkanContext, spirv: &[u8], stage: &str) -> Result<Sh
     let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv)).context("reading SPIR-V")?;
     let info = vk::ShaderModuleCreateInfo::default().code(&words);
     let what = format!("vkCreateShaderModule for the {stage} shader");
-    let module = fail::call(&what, || unsafe { vk.device.create_shader_module(&info, None) })?;
-    Ok(ShaderModule { module, device: vk.device.clone() })
-}
-
-impl Drop for ShaderModule {
-    fn drop(&mut self) {
-        unsafe { self.device.destroy_shader_module(self.module, None) };
-    }
+    create(&vk.device, &what, || unsafe { vk.device.create_shader_module(&info, None) })
 }
 
 /// A pipeline's interface: the layout of descriptor set 0, the pipeline layout that adds the
 /// push constants, and the one set, from a pool sized for exactly it. Dropped, it destroys the
 /// pool (and with it the set) and both layouts: after the pipeline, and once the GPU is done.
 pub struct ShaderInterface {
-    pub layout: vk::PipelineLayout,
+    /// Freed with its pool.
     pub set: vk::DescriptorSet,
-    set_layout: vk::DescriptorSetLayout,
-    pool: vk::DescriptorPool,
+    _pool: Owned<vk::DescriptorPool>,
+    pub layout: Owned<vk::PipelineLayout>,
+    _set_layout: Owned<vk::DescriptorSetLayout>,
     /// The stages that read the push constants: what `vkCmdPushConstants` must name.
     push_stages: vk::ShaderStageFlags,
-    device: ash::Device,
 }
 
 impl ShaderInterface {
@@ -54,24 +45,15 @@ impl ShaderInterface {
         pipeline: &str,
     ) -> Result<Self> {
         let device = &vk.device;
-        // The guard holds each object as it is made: an early return destroys those that exist.
-        let mut this = ShaderInterface {
-            layout: vk::PipelineLayout::null(),
-            set: vk::DescriptorSet::null(),
-            set_layout: vk::DescriptorSetLayout::null(),
-            pool: vk::DescriptorPool::null(),
-            push_stages: push.stage_flags,
-            device: device.clone(),
-        };
         let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(bindings);
-        this.set_layout = fail::call(&format!("vkCreateDescriptorSetLayout ({pipeline})"), || unsafe {
+        let set_layout = create(device, &format!("vkCreateDescriptorSetLayout ({pipeline})"), || unsafe {
             device.create_descriptor_set_layout(&info, None)
         })?;
-        let set_layouts = [this.set_layout];
+        let set_layouts = [*set_layout];
         let pushes = [push];
         let info =
             vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&pushes);
-        this.layout = fail::call(&format!("vkCreatePipelineLayout ({pipeline})"), || unsafe {
+        let layout = create(device, &format!("vkCreatePipelineLayout ({pipeline})"), || unsafe {
             device.create_pipeline_layout(&info, None)
         })?;
         // One pool entry per binding: room for exactly one set.
@@ -80,15 +62,14 @@ impl ShaderInterface {
             .map(|b| vk::DescriptorPoolSize { ty: b.descriptor_type, descriptor_count: b.descriptor_count })
             .collect();
         let info = vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes);
-        this.pool = fail::call(&format!("vkCreateDescriptorPool ({pipeline})"), || unsafe {
+        let pool = create(device, &format!("vkCreateDescriptorPool ({pipeline})"), || unsafe {
             device.create_descriptor_pool(&info, None)
         })?;
-        let info =
-            vk::DescriptorSetAllocateInfo::default().descriptor_pool(this.pool).set_layouts(&set_layouts);
-        this.set = fail::call(&format!("vkAllocateDescriptorSets ({pipeline})"), || unsafe {
+        let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(*pool).set_layouts(&set_layouts);
+        let set = fail::call(&format!("vkAllocateDescriptorSets ({pipeline})"), || unsafe {
             device.allocate_descriptor_sets(&info)
         })?[0];
-        Ok(this)
+        Ok(ShaderInterface { set, _pool: pool, layout, _set_layout: set_layout, push_stages: push.stage_flags })
     }
 
     /// Points `binding` at a storage image view, read and written in GENERAL (the layout storage
@@ -113,18 +94,8 @@ impl ShaderInterface {
         push: &[u8],
     ) {
         unsafe {
-            vk.device.cmd_bind_descriptor_sets(cb, bind_point, self.layout, 0, &[self.set], &[]);
-            vk.device.cmd_push_constants(cb, self.layout, self.push_stages, 0, push);
-        }
-    }
-}
-
-impl Drop for ShaderInterface {
-    fn drop(&mut self) {
-        unsafe {
-            self.device.destroy_descriptor_pool(self.pool, None);
-            self.device.destroy_pipeline_layout(self.layout, None);
-            self.device.destroy_descriptor_set_layout(self.set_layout, None);
+            vk.device.cmd_bind_descriptor_sets(cb, bind_point, *self.layout, 0, &[self.set], &[]);
+            vk.device.cmd_push_constants(cb, *self.layout, self.push_stages, 0, push);
         }
     }
 }

@@ -2,6 +2,7 @@
 //! signalled, and the median and 95th percentile the reports give of them.
 
 use crate::base::fail;
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::Result;
 use ash::vk;
@@ -28,14 +29,13 @@ pub fn timed(
 
 /// GPU timestamps around each frame's Vulkan work, read back once the frame's fence has signalled.
 pub struct Timestamps {
-    pub pool: vk::QueryPool,
+    pub pool: Owned<vk::QueryPool>,
     count: u32,
     /// Nanoseconds per timestamp tick (`VkPhysicalDeviceLimits::timestampPeriod`).
     period_ns: f64,
     /// The bits of a timestamp that count (`timestampValidBits`); the rest are undefined, and a
     /// counter this narrow wraps.
     valid_mask: u64,
-    device: ash::Device,
 }
 
 impl Timestamps {
@@ -55,28 +55,27 @@ impl Timestamps {
         let valid_mask = if valid_bits >= 64 { u64::MAX } else { (1u64 << valid_bits) - 1 };
         let limits = unsafe { vk.instance.get_physical_device_properties(vk.physical_device) }.limits;
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(count);
-        let pool = fail::call("vkCreateQueryPool for timestamps", || unsafe {
+        let pool = create(&vk.device, "vkCreateQueryPool for timestamps", || unsafe {
             vk.device.create_query_pool(&info, None)
         })?;
         crate::base::resources::created("vk_query_pool: timestamps", 0);
-        let device = vk.device.clone();
-        Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask, device }))
+        Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask }))
     }
 
     /// Resets the queries; record before anything else in the command buffer.
     pub fn reset(&self, vk: &VulkanContext, cb: vk::CommandBuffer) {
-        unsafe { vk.device.cmd_reset_query_pool(cb, self.pool, 0, self.count) };
+        unsafe { vk.device.cmd_reset_query_pool(cb, *self.pool, 0, self.count) };
     }
 
     /// Records the "start" timestamp, written once earlier commands reach `stage`. Record it
     /// after the barrier that waits for GL, so that waiting for GL is not counted as work.
     pub fn start(&self, vk: &VulkanContext, cb: vk::CommandBuffer, stage: vk::PipelineStageFlags) {
-        unsafe { vk.device.cmd_write_timestamp(cb, stage, self.pool, 0) };
+        unsafe { vk.device.cmd_write_timestamp(cb, stage, *self.pool, 0) };
     }
 
     /// Records the "end" timestamp, once all earlier commands have completed.
     pub fn end(&self, vk: &VulkanContext, cb: vk::CommandBuffer) {
-        unsafe { vk.device.cmd_write_timestamp(cb, vk::PipelineStageFlags::BOTTOM_OF_PIPE, self.pool, 1) };
+        unsafe { vk.device.cmd_write_timestamp(cb, vk::PipelineStageFlags::BOTTOM_OF_PIPE, *self.pool, 1) };
     }
 
     /// Start and end of the last finished submission, in nanoseconds of the device's clock
@@ -84,7 +83,7 @@ impl Timestamps {
     pub fn read_ns(&self, vk: &VulkanContext) -> Result<[f64; 2]> {
         let mut ticks = [0u64; 2];
         fail::call("vkGetQueryPoolResults for a timeline's timestamps", || unsafe {
-            vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64)
+            vk.device.get_query_pool_results(*self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64)
         })?;
         Ok(ticks.map(|t| (t & self.valid_mask) as f64 * self.period_ns))
     }
@@ -93,7 +92,7 @@ impl Timestamps {
     pub fn read_ms(&self, vk: &VulkanContext) -> Result<f64> {
         let mut ticks = [0u64; 2];
         fail::call("vkGetQueryPoolResults for a pass's timestamps", || unsafe {
-            vk.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64)
+            vk.device.get_query_pool_results(*self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64)
         })?;
         Ok(self.ms(ticks[0], ticks[1]))
     }
@@ -106,7 +105,7 @@ impl Timestamps {
         stage: vk::PipelineStageFlags,
         index: u32,
     ) {
-        unsafe { vk.device.cmd_write_timestamp(cb, stage, self.pool, index) };
+        unsafe { vk.device.cmd_write_timestamp(cb, stage, *self.pool, index) };
     }
 
     /// Milliseconds between timestamps `from` and `to` of the last finished submission.
@@ -114,7 +113,7 @@ impl Timestamps {
         let mut ticks = [0u64; 1];
         let mut read = |i| {
             fail::call("vkGetQueryPoolResults for one timestamp", || unsafe {
-                vk.device.get_query_pool_results(self.pool, i, &mut ticks, vk::QueryResultFlags::TYPE_64)
+                vk.device.get_query_pool_results(*self.pool, i, &mut ticks, vk::QueryResultFlags::TYPE_64)
             })
             .map(|()| ticks[0])
         };
@@ -134,13 +133,6 @@ impl Timestamps {
 fn ticks_to_ms(start: u64, end: u64, valid_mask: u64, period_ns: f64) -> f64 {
     let ticks = (end & valid_mask).wrapping_sub(start & valid_mask) & valid_mask;
     ticks as f64 * period_ns / 1e6
-}
-
-impl Drop for Timestamps {
-    /// The GPU must be done with the queries.
-    fn drop(&mut self) {
-        unsafe { self.device.destroy_query_pool(self.pool, None) };
-    }
 }
 
 /// Median and 95th percentile of a series of timings, for the report.

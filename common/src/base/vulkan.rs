@@ -196,7 +196,7 @@ impl VulkanContext {
 
 impl VulkanContext {
     /// Waits until the device has finished all work: what a chapter does once, before its list
-    /// of `drop`s, so that no guard destroys what the GPU still uses.
+    /// of `drop`s (after `glFinish`), so that no owner destroys what the GPU still uses.
     pub fn wait_idle(&self) -> Result<()> {
         fail::call("vkDeviceWaitIdle", || unsafe { self.device.device_wait_idle() })
     }

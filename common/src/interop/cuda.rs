@@ -6,7 +6,9 @@
 //! learns from [`Unavailable`] what is missing.
 
 use crate::base::fail;
-use anyhow::{Context as _, Result};
+use crate::base::owned::{Owned, create};
+pub use crate::base::owned::Destroy;
+use anyhow::Result;
 pub use cudarc::driver::{result as cu, sys};
 use std::fmt;
 
@@ -62,16 +64,16 @@ impl GlInterop {
     }
 
     /// Registers a GL buffer with CUDA (with the CUDA context current, and GL's current on this
-    /// thread). Unregister it with `cuGraphicsUnregisterResource` before deleting the buffer.
+    /// thread). Dropped, it is unregistered: before GL deletes the buffer.
     pub fn register_buffer(
         &self,
         buffer: glow::Buffer,
         flags: sys::CUgraphicsRegisterFlags,
-    ) -> Result<sys::CUgraphicsResource> {
+    ) -> Result<Owned<sys::CUgraphicsResource>> {
         let mut resource = std::ptr::null_mut();
         // SAFETY: `buffer` is a live GL buffer of the current GL context.
-        fail::call("cuGraphicsGLRegisterBuffer", || unsafe {
-            (self.register_buffer)(&mut resource, buffer.0.get(), flags as u32).result()
+        let resource = create(&(), "cuGraphicsGLRegisterBuffer", || unsafe {
+            (self.register_buffer)(&mut resource, buffer.0.get(), flags as u32).result().map(|()| resource)
         })?;
         crate::base::resources::created("cuda_graphics_resource", 0);
         Ok(resource)
@@ -79,10 +81,10 @@ impl GlInterop {
 }
 // ANCHOR_END: register_buffer_fn
 
-/// The CUDA device that is also Vulkan's and GL's, its primary context current on this thread.
+/// The CUDA device that is also Vulkan's and GL's, its primary context current on this thread
+/// and released when dropped (after everything made in it).
 pub struct CudaDevice {
-    pub device: sys::CUdevice,
-    pub context: sys::CUcontext,
+    pub context: Owned<PrimaryContext>,
     pub name: String,
     pub compute_capability: (i32, i32),
     pub gl: GlInterop,
@@ -118,14 +120,11 @@ impl CudaDevice {
                 attribute(CU_DEVICE_ATTRIBUTE_COMPUTE_CAPABILITY_MINOR)?,
             );
             // The primary context: the one the CUDA runtime would use too, shared per device.
-            let context =
-                fail::call("cuDevicePrimaryCtxRetain", || unsafe { cu::primary_ctx::retain(device) })?;
-            let current = fail::call("cuCtxSetCurrent", || unsafe { cu::ctx::set_current(context) });
-            if let Err(error) = current {
-                unsafe { cu::primary_ctx::release(device) }.ok();
-                return Err(error);
-            }
-            return Ok(CudaDevice { device, context, name, compute_capability, gl });
+            let context = create(&(), "cuDevicePrimaryCtxRetain", || unsafe {
+                cu::primary_ctx::retain(device).map(|context| PrimaryContext { device, context })
+            })?;
+            fail::call("cuCtxSetCurrent", || unsafe { cu::ctx::set_current(context.context) })?;
+            return Ok(CudaDevice { context, name, compute_capability, gl });
         }
         Err(Unavailable(format!(
             "none of the {count} CUDA device(s) is the Vulkan/GL device {}: {seen:?}",
@@ -134,16 +133,86 @@ impl CudaDevice {
         .into())
     }
     // ANCHOR_END: open
+}
 
-    /// Releases the primary context (everything made in it must be gone).
-    pub fn destroy(self) -> Result<()> {
+/// A device's primary context, retained: released when dropped.
+#[derive(Clone, Copy)]
+pub struct PrimaryContext {
+    pub device: sys::CUdevice,
+    pub context: sys::CUcontext,
+}
+
+/// Memory CUDA mapped from imported external memory: freed like any device allocation.
+#[derive(Clone, Copy)]
+pub struct MappedPointer(pub sys::CUdeviceptr);
+
+/// A failed CUDA release is printed and otherwise ignored: on the way out there is no one to
+/// hand it to. (Those counted in `base::resources` then stay counted alive, which a check reports.)
+fn released(what: &str, result: Result<(), cu::DriverError>) -> bool {
+    result.map_err(|error| eprintln!("cuda: {what}: {error}")).is_ok()
+}
+
+// ANCHOR: destroy_table
+// CUDA's objects in this book, and the call that releases each. None waits for CUDA's work: the
+// chapter synchronizes once, before its teardown, as it waits for Vulkan and GL.
+impl Destroy for PrimaryContext {
+    type By = ();
+    unsafe fn destroy(self, _: &()) {
         unsafe {
-            cu::ctx::set_current(std::ptr::null_mut()).context("cuCtxSetCurrent(NULL)")?;
-            cu::primary_ctx::release(self.device).context("cuDevicePrimaryCtxRelease")?;
+            released("cuCtxSetCurrent(NULL)", cu::ctx::set_current(std::ptr::null_mut()));
+            released("cuDevicePrimaryCtxRelease", cu::primary_ctx::release(self.device));
         }
-        Ok(())
     }
 }
+
+impl Destroy for sys::CUmodule {
+    type By = ();
+    unsafe fn destroy(self, _: &()) {
+        released("cuModuleUnload", unsafe { cu::module::unload(self) });
+    }
+}
+
+impl Destroy for sys::CUstream {
+    type By = ();
+    unsafe fn destroy(self, _: &()) {
+        released("cuStreamDestroy", unsafe { cu::stream::destroy(self) });
+    }
+}
+
+impl Destroy for sys::CUevent {
+    type By = ();
+    unsafe fn destroy(self, _: &()) {
+        released("cuEventDestroy", unsafe { cu::event::destroy(self) });
+    }
+}
+
+impl Destroy for sys::CUgraphicsResource {
+    type By = ();
+    unsafe fn destroy(self, _: &()) {
+        let result = unsafe { sys::cuGraphicsUnregisterResource(self) }.result();
+        if released("cuGraphicsUnregisterResource", result) {
+            crate::base::resources::destroyed("cuda_graphics_resource");
+        }
+    }
+}
+
+impl Destroy for sys::CUexternalMemory {
+    type By = ();
+    unsafe fn destroy(self, _: &()) {
+        let result = unsafe { cu::external_memory::destroy_external_memory(self) };
+        if released("cuDestroyExternalMemory", result) {
+            crate::base::resources::destroyed("cuda_external_memory");
+        }
+    }
+}
+
+impl Destroy for MappedPointer {
+    type By = ();
+    unsafe fn destroy(self, _: &()) {
+        released("cuMemFree", unsafe { cu::memory_free(self.0) });
+    }
+}
+// ANCHOR_END: destroy_table
 
 /// Is `error` (or anything in its chain) CUDA saying it cannot run here?
 pub fn unavailable(error: &anyhow::Error) -> Option<&Unavailable> {

@@ -5,6 +5,7 @@
 
 use crate::base::fail;
 use crate::base::image::image_info;
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -34,10 +35,10 @@ pub enum Dedicated {
 }
 // ANCHOR_END: dedicated
 
-/// One exportable allocation.
-#[derive(Debug, Default)]
+/// One exportable allocation, freed when dropped (with its count in `base::resources`).
+#[derive(Debug)]
 pub struct ExportableMemory {
-    pub memory: vk::DeviceMemory,
+    pub memory: Owned<vk::DeviceMemory>,
     /// `allocationSize`: what the importer must be told the memory object's size is.
     pub size: u64,
     pub memory_type_index: u32,
@@ -47,8 +48,21 @@ pub struct ExportableMemory {
     /// Whether it was allocated for one buffer or image alone (`VkMemoryDedicatedAllocateInfo`):
     /// an importer must say the same.
     pub dedicated: bool,
-    /// Its count in `base::resources`: whoever frees `memory` drops this with it.
-    pub counted: Option<crate::base::resources::Counted>,
+}
+
+/// What an importer must be told of exported memory, and all it needs: its size and whether it
+/// is one buffer's or image's alone. A process that receives the fd builds it from the message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryTerms {
+    pub size: u64,
+    pub dedicated: bool,
+}
+
+impl ExportableMemory {
+    /// What GL's import must say of this memory.
+    pub fn terms(&self) -> MemoryTerms {
+        MemoryTerms { size: self.size, dedicated: self.dedicated }
+    }
 }
 
 // ANCHOR: allocate_whole
@@ -90,8 +104,8 @@ pub fn allocate(
     // ANCHOR_END: device_address
     // ANCHOR: allocate_memory
     let what = format!("vkAllocateMemory: {size} bytes of exportable memory ({properties:?})");
-    let memory = fail::call(&what, || unsafe { ctx.device.allocate_memory(&info, None) })?;
-    let counted = Some(crate::base::resources::count("vk_memory_exportable", size));
+    let memory = create(&ctx.device, &what, || unsafe { ctx.device.allocate_memory(&info, None) })?
+        .counted("vk_memory_exportable", size);
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     let allowed_types = requirements.memory_type_bits;
     let dedicated = !matches!(dedicated, Dedicated::No);
@@ -102,7 +116,6 @@ pub fn allocate(
         property_flags,
         allowed_types,
         dedicated,
-        counted,
     })
 }
 // ANCHOR_END: allocate_memory
@@ -116,7 +129,7 @@ pub fn create_image(
     format: vk::Format,
     usage: vk::ImageUsageFlags,
     extent: vk::Extent2D,
-) -> Result<vk::Image> {
+) -> Result<Owned<vk::Image>> {
     // Ask first (VUID-VkImageCreateInfo-pNext-00990): can the driver export an image like this one,
     // this large? Chapter 01 asks the same, step by step.
     let mut external_query = vk::PhysicalDeviceExternalImageFormatInfo::default().handle_type(HANDLE_TYPE);
@@ -158,9 +171,8 @@ pub fn create_image(
         .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
         .push_next(&mut external);
     let what = format!("vkCreateImage (exportable, {format:?})");
-    let image = fail::call(&what, || unsafe { ctx.device.create_image(&info, None) })?;
-    crate::base::resources::created("vk_image_exportable", 0);
-    Ok(image)
+    create(&ctx.device, &what, || unsafe { ctx.device.create_image(&info, None) })
+        .map(|image| image.counted("vk_image_exportable", 0))
 }
 // ANCHOR_END: create_image
 
@@ -176,15 +188,14 @@ pub fn export_fd(loader: &ash::khr::external_memory_fd::Device, memory: vk::Devi
 // ANCHOR_END: export_fd
 
 /// A buffer in exportable, host-visible memory, mapped for its lifetime (taught in chapters 01
-/// and 02): Vulkan's side of every buffer GL imports. Destroyed when dropped; the GPU must be
-/// done with it.
+/// and 02): Vulkan's side of every buffer GL imports. Destroyed when dropped (the buffer, then its
+/// memory, which unmaps it); the GPU, and GL, must be done with it.
 pub struct ExportedBuffer {
-    pub buffer: vk::Buffer,
+    pub buffer: Owned<vk::Buffer>,
     pub memory: ExportableMemory,
     /// Vulkan's view of the bytes, coherent with the GPU's.
     pub mapped: *mut u8,
     pub bytes: u64,
-    device: ash::Device,
 }
 
 impl ExportedBuffer {
@@ -210,58 +221,38 @@ impl ExportedBuffer {
             "{} cannot export a buffer with usage {usage:?} as an fd",
             ctx.info.name
         );
-        let buffer =
-            fail::call("vkCreateBuffer (exportable)", || unsafe { ctx.device.create_buffer(&info, None) })?;
-        crate::base::resources::created("vk_buffer_exportable", 0);
-        // The guard exists from the first object on: a failed allocation, bind or map below
-        // destroys what was made before it.
-        let mut exported = ExportedBuffer {
-            buffer,
-            memory: ExportableMemory::default(),
-            mapped: std::ptr::null_mut(),
-            bytes,
-            device: ctx.device.clone(),
-        };
-        let requirements = unsafe { ctx.device.get_buffer_memory_requirements(buffer) };
+        // Each object is owned as it is made: a failed allocation, bind or map below destroys
+        // what was made before it.
+        let buffer = create(&ctx.device, "vkCreateBuffer (exportable)", || unsafe {
+            ctx.device.create_buffer(&info, None)
+        })?
+        .counted("vk_buffer_exportable", 0);
+        let requirements = unsafe { ctx.device.get_buffer_memory_requirements(*buffer) };
         let host = buffer_memory_properties(ctx, requirements.memory_type_bits);
         let dedicated = if features.contains(vk::ExternalMemoryFeatureFlags::DEDICATED_ONLY) {
-            Dedicated::Buffer(buffer)
+            Dedicated::Buffer(*buffer)
         } else {
             Dedicated::No
         };
-        exported.memory = allocate(ctx, &requirements, host, dedicated)?;
-        let memory = exported.memory.memory;
+        let memory = allocate(ctx, &requirements, host, dedicated)?;
         fail::call("vkBindBufferMemory (exportable)", || unsafe {
-            ctx.device.bind_buffer_memory(buffer, memory, 0)
+            ctx.device.bind_buffer_memory(*buffer, *memory.memory, 0)
         })?;
-        exported.mapped = fail::call("vkMapMemory (exportable)", || unsafe {
-            ctx.device.map_memory(memory, 0, bytes, vk::MemoryMapFlags::empty())
+        let mapped = fail::call("vkMapMemory (exportable)", || unsafe {
+            ctx.device.map_memory(*memory.memory, 0, bytes, vk::MemoryMapFlags::empty())
         })?
         .cast::<u8>();
         // SAFETY: `mapped` is `bytes` long, coherent, and nothing else uses it yet.
-        unsafe { std::ptr::copy_nonoverlapping(data.as_ptr(), exported.mapped, data.len()) };
-        Ok(exported)
+        unsafe { std::ptr::copy_nonoverlapping(data.as_ptr(), mapped, data.len()) };
+        Ok(ExportedBuffer { buffer, memory, mapped, bytes })
     }
     // ANCHOR_END: exported_buffer
 
     /// The buffer's GPU address (needs SHADER_DEVICE_ADDRESS usage and a context with
     /// `Requirements::ray_tracing`).
     pub fn device_address(&self, ctx: &VulkanContext) -> vk::DeviceAddress {
-        let info = vk::BufferDeviceAddressInfo::default().buffer(self.buffer);
+        let info = vk::BufferDeviceAddressInfo::default().buffer(*self.buffer);
         unsafe { ctx.device.get_buffer_device_address(&info) }
-    }
-}
-
-impl Drop for ExportedBuffer {
-    /// Unmaps, frees the memory, destroys the buffer.
-    fn drop(&mut self) {
-        unsafe {
-            if !self.mapped.is_null() {
-                self.device.unmap_memory(self.memory.memory);
-            }
-            self.device.free_memory(self.memory.memory, None); // and (a field) its count
-            self.device.destroy_buffer(self.buffer, None);
-        }
     }
 }
 

@@ -3,6 +3,7 @@
 
 use crate::base::fail;
 use crate::base::gl::GlContext;
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -15,13 +16,24 @@ use std::sync::Mutex;
 /// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Handoff::Host`].
 pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
 
-/// One semaphore, seen by both APIs. Deleted on both sides when dropped (GL's first).
+/// One semaphore, seen by both APIs. Deleted on both sides when dropped (fields, in order: GL's
+/// first). No submission may still wait on it or signal it then.
 pub struct SharedSemaphore {
-    pub vk: vk::Semaphore,
-    /// GL's name for it; 0 until the import succeeded.
-    pub gl: u32,
-    device: ash::Device,
-    gl_fns: Option<crate::base::gl::SemaphoreFns>,
+    pub gl: GlSemaphore,
+    pub vk: Owned<vk::Semaphore>,
+}
+
+/// GL's semaphore object (`GL_EXT_semaphore`), deleted when dropped.
+pub struct GlSemaphore {
+    pub name: u32,
+    fns: crate::base::gl::SemaphoreFns,
+}
+
+impl Drop for GlSemaphore {
+    fn drop(&mut self) {
+        unsafe { (self.fns.DeleteSemaphoresEXT)(1, &self.name) };
+        crate::base::resources::gone("gl_semaphore");
+    }
 }
 
 /// Both APIs and how work passes between them, as every frame that hands images over needs
@@ -164,7 +176,7 @@ impl Handoff {
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.SignalSemaphoreEXT)(
-                        gl_done.gl,
+                        gl_done.gl.name,
                         0,
                         std::ptr::null(),
                         names.len() as u32,
@@ -190,7 +202,7 @@ impl Handoff {
     /// already waited).
     pub fn vulkan_waits_on(&self) -> Option<vk::Semaphore> {
         match self {
-            Handoff::Semaphores { gl_done, .. } => Some(gl_done.vk),
+            Handoff::Semaphores { gl_done, .. } => Some(*gl_done.vk),
             Handoff::Host { .. } => None,
         }
     }
@@ -198,7 +210,7 @@ impl Handoff {
     /// What Vulkan's submission signals for GL (`None` on the host path).
     pub fn vulkan_signals(&self) -> Option<vk::Semaphore> {
         match self {
-            Handoff::Semaphores { vulkan_done, .. } => Some(vulkan_done.vk),
+            Handoff::Semaphores { vulkan_done, .. } => Some(*vulkan_done.vk),
             Handoff::Host { .. } => None,
         }
     }
@@ -223,7 +235,7 @@ impl Handoff {
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.WaitSemaphoreEXT)(
-                        vulkan_done.gl,
+                        vulkan_done.gl.name,
                         0,
                         std::ptr::null(),
                         names.len() as u32,
@@ -292,43 +304,30 @@ impl SharedSemaphore {
         let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
         let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
         let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
-        let semaphore = fail::call("vkCreateSemaphore (exportable)", || unsafe {
+        // Each side is owned as it is made: an early return deletes what exists.
+        let semaphore = create(&vk.device, "vkCreateSemaphore (exportable)", || unsafe {
             vk.device.create_semaphore(&info, None)
         })?;
         crate::base::resources::created("vk_semaphore_exportable", 0);
-        // From here on the guard destroys what exists on every early return.
-        let mut shared =
-            SharedSemaphore { vk: semaphore, gl: 0, device: vk.device.clone(), gl_fns: Some(*ext) };
         let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
-        let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(handle_type);
+        let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(*semaphore).handle_type(handle_type);
         let fd = fail::call("vkGetSemaphoreFdKHR", || unsafe { loader.get_semaphore_fd(&get) })?;
         // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns. Until the import
         // succeeds, `fd` closes it on every way out.
         let fd = unsafe { OwnedFd::from_raw_fd(fd) };
         fail::step("glGenSemaphoresEXT")?;
-        unsafe { (ext.GenSemaphoresEXT)(1, &mut shared.gl) };
+        let mut name = 0;
+        unsafe { (ext.GenSemaphoresEXT)(1, &mut name) };
         crate::base::resources::alive("gl_semaphore");
+        let gl_semaphore = GlSemaphore { name, fns: *ext };
         fail::step("glImportSemaphoreFdEXT")?;
-        unsafe {
-            (ext.ImportSemaphoreFdEXT)(shared.gl, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
-        };
+        unsafe { (ext.ImportSemaphoreFdEXT)(name, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
         // On failure `fd` is dropped, and so closed (the failed import did not take it), and
-        // `shared` deletes GL's semaphore and Vulkan's.
+        // GL's semaphore and Vulkan's are deleted.
         gl.check_error("glImportSemaphoreFdEXT")?;
         // SAFETY: the import succeeded; the fd is GL's now.
         let _ = fd.into_raw_fd();
-        Ok(shared)
+        Ok(SharedSemaphore { gl: gl_semaphore, vk: semaphore })
     }
     // ANCHOR_END: share_semaphore
-}
-
-impl Drop for SharedSemaphore {
-    /// GL's semaphore, then Vulkan's. No submission may still wait on or signal it.
-    fn drop(&mut self) {
-        if let (Some(ext), true) = (&self.gl_fns, self.gl != 0) {
-            unsafe { (ext.DeleteSemaphoresEXT)(1, &self.gl) };
-            crate::base::resources::gone("gl_semaphore");
-        }
-        unsafe { self.device.destroy_semaphore(self.vk, None) };
-    }
 }

@@ -7,12 +7,12 @@ use crate::base::gl::{
     DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MemoryObjectFns, OPTIMAL_TILING_EXT,
     TEXTURE_TILING_EXT,
 };
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
-use crate::interop::exportable::{self, Dedicated, ExportableMemory};
+use crate::interop::exportable::{self, Dedicated, ExportableMemory, MemoryTerms};
 use anyhow::Result;
 use ash::vk;
 use glow::HasContext;
-use std::mem::ManuallyDrop;
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
 use std::rc::Rc;
 
@@ -45,16 +45,16 @@ impl Drop for MemoryObject {
 }
 
 // ANCHOR: import_memory
-/// Imports `fd`, exported from `memory`, as a GL memory object of the same size (the Vulkan
-/// `allocationSize`). On success GL owns the fd; on failure it is closed here, and the memory
-/// object deleted.
-pub fn import_memory(gl: &GlContext, memory: &ExportableMemory, fd: OwnedFd) -> Result<MemoryObject> {
+/// Imports `fd`, exported from memory of these `terms`, as a GL memory object of the same size
+/// (the Vulkan `allocationSize`). On success GL owns the fd; on failure it is closed here, and
+/// the memory object deleted.
+pub fn import_memory(gl: &GlContext, memory: MemoryTerms, fd: OwnedFd) -> Result<MemoryObject> {
     let ext = gl.memory_fns()?;
     fail::step("glCreateMemoryObjectsEXT")?;
     let mut name = 0;
     unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
     crate::base::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
-    // From here on the guard deletes the memory object on every early return.
+    // From here on its owner deletes the memory object on every early return.
     let memory_object = MemoryObject { name, fns: *ext };
     if memory.dedicated {
         // Must match how Vulkan allocated it, and must be said before the import.
@@ -84,7 +84,7 @@ pub fn import_buffer(
     fd: OwnedFd,
     bytes: u64,
 ) -> Result<SharedBuffer> {
-    let memory_object = import_memory(gl, memory, fd)?;
+    let memory_object = import_memory(gl, memory.terms(), fd)?;
     // A failure from here on drops `memory_object`, which deletes it.
     let buffer = fail::call("glCreateBuffers (imported)", || unsafe { gl.gl.create_named_buffer() })?;
     crate::base::resources::created("gl_buffer_imported", 0);
@@ -98,20 +98,29 @@ pub fn import_buffer(
 }
 // ANCHOR_END: import_buffer
 
+/// One buffer seen by both APIs: GL's import and Vulkan's exported buffer. Fields drop in the
+/// order written: GL lets go of the memory (buffer, then memory object) before Vulkan frees it.
+pub struct BufferPair {
+    /// GL's side, for drawing.
+    pub gl: SharedBuffer,
+    /// Vulkan's side: the mapped bytes, and what the acceleration structures read.
+    pub vk: exportable::ExportedBuffer,
+}
+
 /// Vulkan makes a buffer holding `data` and exports it; GL imports it. Vulkan and GL now see the
-/// same bytes: `exported.mapped` from the CPU, `shared.buffer` from GL.
+/// same bytes: `pair.vk.mapped` from the CPU, `pair.gl.buffer` from GL.
 pub fn share_buffer(
     vk: &VulkanContext,
     gl: &GlContext,
     data: &[u8],
     usage: vk::BufferUsageFlags,
-) -> Result<(exportable::ExportedBuffer, SharedBuffer)> {
+) -> Result<BufferPair> {
     let exported = exportable::ExportedBuffer::new(vk, data, usage)?;
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-    let fd = exportable::export_fd(&fd_loader, exported.memory.memory)?;
+    let fd = exportable::export_fd(&fd_loader, *exported.memory.memory)?;
     // On failure `exported` is dropped, which destroys it.
     let shared = import_buffer(gl, &exported.memory, fd, exported.bytes)?;
-    Ok((exported, shared))
+    Ok(BufferPair { gl: shared, vk: exported })
 }
 
 // ANCHOR: import_texture_2d
@@ -119,7 +128,7 @@ pub fn share_buffer(
 /// `internal_format` must be the GL twin of the Vulkan format (GL_RGBA8 for R8G8B8A8_UNORM).
 pub fn import_texture_2d(
     gl: &GlContext,
-    memory: &ExportableMemory,
+    memory: MemoryTerms,
     fd: OwnedFd,
     internal_format: u32,
     (width, height): (u32, u32),
@@ -171,51 +180,16 @@ impl Drop for SharedTexture {
 }
 
 /// A Vulkan image with its own exported memory and a view, and the GL texture that is the same
-/// memory (taught in chapter 03). Resizing means dropping it and making a new one. Dropped, it
-/// deletes GL's side first (texture, memory object), then Vulkan's (view, memory, image); the
-/// GPU must be done with it.
+/// memory (taught in chapter 03). Resizing means dropping it and making a new one. Dropped, its
+/// fields go in the order written: GL's side first (texture, memory object), then Vulkan's
+/// (view, image, memory); the GPU must be done with it.
 pub struct SharedImage {
-    pub image: vk::Image,
+    /// First: GL lets go of the memory before Vulkan frees it.
+    pub texture: SharedTexture,
+    pub view: Owned<vk::ImageView>,
+    pub image: Owned<vk::Image>,
     pub memory: ExportableMemory,
-    pub view: vk::ImageView,
-    /// Dropped by hand, first: GL's side goes before Vulkan's.
-    pub texture: ManuallyDrop<SharedTexture>,
     pub extent: vk::Extent2D,
-    device: ash::Device,
-}
-
-/// The Vulkan half of a [`SharedImage`] while it is being made: destroyed if a later step fails.
-struct VulkanHalf {
-    device: ash::Device,
-    image: vk::Image,
-    memory: vk::DeviceMemory,
-    view: vk::ImageView,
-}
-
-impl Drop for VulkanHalf {
-    fn drop(&mut self) {
-        destroy_vulkan_half(&self.device, self.image, self.memory, self.view);
-    }
-}
-
-/// View, memory, image: what exists of them (null handles are skipped).
-fn destroy_vulkan_half(
-    device: &ash::Device,
-    image: vk::Image,
-    memory: vk::DeviceMemory,
-    view: vk::ImageView,
-) {
-    if image == vk::Image::null() {
-        return; // nothing was made (or it has been handed on)
-    }
-    unsafe {
-        device.destroy_image_view(view, None);
-        device.free_memory(memory, None); // its count goes with the `ExportableMemory`
-        if image != vk::Image::null() {
-            device.destroy_image(image, None);
-            crate::base::resources::destroyed("vk_image_exportable");
-        }
-    }
 }
 
 /// A Vulkan format and GL's name for the same texels, which a shared image is made with: the
@@ -248,47 +222,32 @@ impl SharedImage {
         usage: vk::ImageUsageFlags,
         extent: vk::Extent2D,
     ) -> Result<Self> {
+        // Each object is owned as it is made: a failure half-way destroys what exists, newest first.
         let image = exportable::create_image(vk, format.vk, usage, extent)?;
-        let null = (vk::DeviceMemory::null(), vk::ImageView::null());
-        let mut half = VulkanHalf { device: vk.device.clone(), image, memory: null.0, view: null.1 };
-        let requirements = unsafe { vk.device.get_image_memory_requirements(image) };
+        let requirements = unsafe { vk.device.get_image_memory_requirements(*image) };
         let memory = exportable::allocate(
             vk,
             &requirements,
             vk::MemoryPropertyFlags::DEVICE_LOCAL,
-            Dedicated::Image(image),
+            Dedicated::Image(*image),
         )?;
-        half.memory = memory.memory;
         fail::call("vkBindImageMemory (exportable)", || unsafe {
-            vk.device.bind_image_memory(image, memory.memory, 0)
+            vk.device.bind_image_memory(*image, *memory.memory, 0)
         })?;
         let view_info = vk::ImageViewCreateInfo::default()
-            .image(image)
+            .image(*image)
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format.vk)
             .subresource_range(crate::base::commands::COLOR_RANGE);
-        half.view = fail::call("vkCreateImageView (exportable image)", || unsafe {
+        let view = create(&vk.device, "vkCreateImageView (exportable image)", || unsafe {
             vk.device.create_image_view(&view_info, None)
         })?;
         let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-        let fd = exportable::export_fd(&fd_loader, memory.memory)?;
-        let texture = import_texture_2d(gl, &memory, fd, format.gl, (extent.width, extent.height))?;
-        // Everything exists: the SharedImage owns it now, and the half-made guard lets go.
-        let view = std::mem::replace(&mut half.view, vk::ImageView::null());
-        half.memory = vk::DeviceMemory::null();
-        half.image = vk::Image::null();
-        let device = vk.device.clone();
-        Ok(SharedImage { image, memory, view, texture: ManuallyDrop::new(texture), extent, device })
+        let fd = exportable::export_fd(&fd_loader, *memory.memory)?;
+        let texture = import_texture_2d(gl, memory.terms(), fd, format.gl, (extent.width, extent.height))?;
+        Ok(SharedImage { texture, view, image, memory, extent })
     }
     // ANCHOR_END: shared_image_new
-}
-
-impl Drop for SharedImage {
-    fn drop(&mut self) {
-        // SAFETY: dropped once, here, and never used again.
-        unsafe { ManuallyDrop::drop(&mut self.texture) };
-        destroy_vulkan_half(&self.device, self.image, self.memory.memory, self.view);
-    }
 }
 
 // ANCHOR: hand_new_images_to_gl
@@ -304,7 +263,7 @@ pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Res
     let barriers: Vec<_> = images
         .iter()
         .map(|image| {
-            image_barrier(image.image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
+            image_barrier(*image.image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
         })
         .collect();
     let commands = crate::base::commands::Commands::new(vk)?;
@@ -334,7 +293,7 @@ pub fn acquire_from_gl<'a>(
     access: vk::AccessFlags,
 ) -> vk::ImageMemoryBarrier<'a> {
     let families = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
-    image_barrier(image.image, (from_gl, layout), (vk::AccessFlags::NONE, access), families)
+    image_barrier(*image.image, (from_gl, layout), (vk::AccessFlags::NONE, access), families)
 }
 
 /// The barrier that hands `image` back to GL in `for_gl`, the layout GL's acquire will name,
@@ -347,6 +306,6 @@ pub fn release_to_gl<'a>(
     access: vk::AccessFlags,
 ) -> vk::ImageMemoryBarrier<'a> {
     let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
-    image_barrier(image.image, (layout, for_gl), (access, vk::AccessFlags::NONE), families)
+    image_barrier(*image.image, (layout, for_gl), (access, vk::AccessFlags::NONE), families)
 }
 // ANCHOR_END: ownership

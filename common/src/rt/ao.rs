@@ -134,9 +134,9 @@ impl AoTracer {
         // One float per pixel. Vulkan writes it (STORAGE), GL samples it (SAMPLED).
         let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
         let image = SharedImage::new(vk, gl, SharedFormat::R32F, usage, gbuffers.extent)?;
-        pipeline.write_storage_image(vk, 1, gbuffers.images[0].view);
-        pipeline.write_storage_image(vk, 2, gbuffers.images[1].view);
-        pipeline.write_storage_image(vk, 3, image.view);
+        pipeline.write_storage_image(vk, 1, *gbuffers.images[0].view);
+        pipeline.write_storage_image(vk, 2, *gbuffers.images[1].view);
+        pipeline.write_storage_image(vk, 3, *image.view);
         Ok(image)
     }
     // ANCHOR_END: image
@@ -248,7 +248,7 @@ impl AoTracer {
         let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
         let layouts = [gbuffer_to_gl, gbuffer_to_gl, ao_to_gl];
-        handoff.gl_acquire(vk, gl, commands.fence, &textures, &layouts)?;
+        handoff.gl_acquire(vk, gl, *commands.fence, &textures, &layouts)?;
         self.gl_has_image = true;
         self.accumulated += rays.samples;
         Ok(())
@@ -274,7 +274,7 @@ impl AoTracer {
             acquire_from_gl(vk, &self.image, ao_layouts.to_vulkan, general, read | write)
         } else {
             // Never GL's yet: undefined contents, which the first frame overwrites (weight 1).
-            first_use(self.image.image, general, read | write)
+            first_use(*self.image.image, general, read | write)
         };
         let acquire = [
             acquire_from_gl(vk, positions, gbuffer_layouts.to_vulkan, general, read),

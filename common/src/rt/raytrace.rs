@@ -5,6 +5,7 @@
 use crate::base::fail;
 use crate::base::image::image_info;
 use crate::base::pipeline::{ShaderInterface, shader_module};
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use crate::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator, Memory};
 use anyhow::{Context as _, Result};
@@ -12,17 +13,16 @@ use ash::vk;
 use gpu_allocator::MemoryLocation;
 use gpu_allocator::vulkan::{AllocationCreateDesc, AllocationScheme};
 
-/// Dropped, it destroys the pipeline, then (fields) its interface and the shader binding table.
-/// The GPU must be done with it.
+/// Dropped, it destroys the pipeline, then its interface and the shader binding table (fields,
+/// in order). The GPU must be done with it.
 pub struct RayPipeline {
     pub loader: ash::khr::ray_tracing_pipeline::Device,
-    pub pipeline: vk::Pipeline,
+    pub pipeline: Owned<vk::Pipeline>,
     pub interface: ShaderInterface,
-    /// `None` only while the pipeline is being made.
-    sbt: Option<DeviceBuffer>,
+    /// The shader binding table's buffer (read through `regions`).
+    _sbt: DeviceBuffer,
     /// Where the shader binding table's ray generation, miss, hit and callable records are.
     pub regions: [vk::StridedDeviceAddressRegionKHR; 4],
-    device: ash::Device,
 }
 
 /// The two shaders of a [`RayPipeline`], as SPIR-V.
@@ -44,12 +44,12 @@ impl RayPipeline {
         let stages = vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR;
         let push = vk::PushConstantRange::default().stage_flags(stages).size(push_bytes);
         let interface = ShaderInterface::new(vk, bindings, push, "ray tracing")?;
-        let layout = interface.layout;
+        let layout = *interface.layout;
 
         // ANCHOR: pipeline
         let raygen = shader_module(vk, shaders.raygen, "ray generation")?;
         let miss = shader_module(vk, shaders.miss, "miss")?;
-        let modules = [raygen.module, miss.module];
+        let modules = [*raygen, *miss];
         let stages = [
             vk::PipelineShaderStageCreateInfo::default()
                 .stage(vk::ShaderStageFlags::RAYGEN_KHR)
@@ -76,7 +76,8 @@ impl RayPipeline {
             .groups(&groups)
             .max_pipeline_ray_recursion_depth(1) // rays start in raygen only
             .layout(layout);
-        let pipeline = fail::call("vkCreateRayTracingPipelinesKHR", || unsafe {
+        // Destroyed with `vkDestroyPipeline`, as every pipeline is: the device, not the loader.
+        let pipeline = create(&vk.device, "vkCreateRayTracingPipelinesKHR", || unsafe {
             loader
                 .create_ray_tracing_pipelines(
                     vk::DeferredOperationKHR::null(),
@@ -84,23 +85,14 @@ impl RayPipeline {
                     &[info],
                     None,
                 )
+                .map(|pipelines| pipelines[0])
                 .map_err(|(_, e)| e)
-        })?[0];
+        })?;
         drop((raygen, miss)); // the pipeline keeps what it needs of them
         crate::base::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
-        // From here on the guard destroys the pipeline and its interface on every early return.
-        let mut this = RayPipeline {
-            loader: loader.clone(),
-            pipeline,
-            interface,
-            sbt: None,
-            regions: Default::default(),
-            device: vk.device.clone(),
-        };
-        let (sbt, regions) = shader_binding_table(vk, &loader, allocator, pipeline, groups.len() as u32)?;
-        (this.sbt, this.regions) = (Some(sbt), regions);
-        Ok(this)
+        let (sbt, regions) = shader_binding_table(vk, &loader, allocator, *pipeline, groups.len() as u32)?;
+        Ok(RayPipeline { loader, pipeline, interface, _sbt: sbt, regions })
     }
 
     /// Points binding `binding` at the TLAS.
@@ -127,20 +119,13 @@ impl RayPipeline {
     pub fn trace(&self, vk: &VulkanContext, cb: vk::CommandBuffer, push: &[u8], extent: vk::Extent2D) {
         let bind = vk::PipelineBindPoint::RAY_TRACING_KHR;
         let [raygen, miss, hit, callable] = &self.regions;
-        unsafe { vk.device.cmd_bind_pipeline(cb, bind, self.pipeline) };
+        unsafe { vk.device.cmd_bind_pipeline(cb, bind, *self.pipeline) };
         self.interface.bind(vk, cb, bind, push);
         unsafe {
             self.loader.cmd_trace_rays(cb, raygen, miss, hit, callable, extent.width, extent.height, 1)
         };
     }
     // ANCHOR_END: trace
-}
-
-impl Drop for RayPipeline {
-    fn drop(&mut self) {
-        unsafe { self.device.destroy_pipeline(self.pipeline, None) };
-        // `interface` and `sbt` are dropped next (fields): the layouts, the pool, the buffer.
-    }
 }
 
 // ANCHOR: sbt
@@ -197,13 +182,12 @@ fn shader_binding_table(
 // ANCHOR_END: sbt
 
 /// An image only Vulkan uses (a ray tracer's output), in memory from gpu-allocator, with a view.
-/// Dropped, it destroys the view and the image, then gives its memory back.
+/// Dropped, it destroys the view and the image, then gives its memory back (fields, in order).
 pub struct StorageImage {
-    pub image: vk::Image,
+    pub view: Owned<vk::ImageView>,
+    pub image: Owned<vk::Image>,
     pub allocation: Memory,
-    pub view: vk::ImageView,
     pub extent: vk::Extent2D,
-    device: ash::Device,
 }
 
 impl StorageImage {
@@ -217,15 +201,9 @@ impl StorageImage {
         // Written by a ray generation shader (STORAGE), and only ever by Vulkan: no external
         // memory chained to the create-info, unlike an exported image's.
         let info = image_info(format, usage | vk::ImageUsageFlags::STORAGE, extent);
-        let image = fail::call("vkCreateImage (storage)", || unsafe { vk.device.create_image(&info, None) })?;
-        let mut this = StorageImage {
-            image,
-            allocation: allocator.unallocated(),
-            view: vk::ImageView::null(),
-            extent,
-            device: vk.device.clone(),
-        };
-        let requirements = unsafe { vk.device.get_image_memory_requirements(image) };
+        let image =
+            create(&vk.device, "vkCreateImage (storage)", || unsafe { vk.device.create_image(&info, None) })?;
+        let requirements = unsafe { vk.device.get_image_memory_requirements(*image) };
         let description = AllocationCreateDesc {
             name: "storage image",
             requirements,
@@ -233,30 +211,20 @@ impl StorageImage {
             linear: false,
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
-        this.allocation = allocator.allocate(&description)?;
-        let allocation = &this.allocation;
+        let allocation = allocator.allocate(&description)?;
         crate::base::resources::created("vk_image: storage", allocation.size());
         fail::call("vkBindImageMemory (storage)", || unsafe {
-            vk.device.bind_image_memory(image, allocation.memory(), allocation.offset())
+            vk.device.bind_image_memory(*image, allocation.memory(), allocation.offset())
         })?;
         let view_info = vk::ImageViewCreateInfo::default()
-            .image(image)
+            .image(*image)
             .view_type(vk::ImageViewType::TYPE_2D)
             .format(format)
             .subresource_range(crate::base::commands::COLOR_RANGE);
-        this.view = fail::call("vkCreateImageView (storage)", || unsafe {
+        let view = create(&vk.device, "vkCreateImageView (storage)", || unsafe {
             vk.device.create_image_view(&view_info, None)
         })?;
-        Ok(this)
-    }
-}
-
-impl Drop for StorageImage {
-    fn drop(&mut self) {
-        unsafe {
-            self.device.destroy_image_view(self.view, None);
-            self.device.destroy_image(self.image, None);
-        }
+        Ok(StorageImage { view, image, allocation, extent })
     }
 }
 

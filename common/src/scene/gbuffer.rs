@@ -3,8 +3,7 @@
 
 use crate::base::gl::{GlContext, Owned, create};
 use crate::base::vulkan::VulkanContext;
-use crate::interop::exportable::ExportedBuffer;
-use crate::interop::{SharedBuffer, SharedFormat, SharedImage, share_buffer};
+use crate::interop::{BufferPair, SharedBuffer, SharedFormat, SharedImage, share_buffer};
 use crate::scene::{Camera, Instance, Scene, Vertex};
 use anyhow::{Result, ensure};
 use ash::vk;
@@ -32,12 +31,12 @@ const GEOMETRY_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.geom");
 const FRAGMENT_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.frag");
 
 /// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocated and GL
-/// imported: Vulkan's side (`.0`, for the acceleration structures) and GL's (`.1`, for drawing).
-/// Dropped, each buffer's GL side goes first (buffer, memory object), then Vulkan's.
+/// imported: Vulkan's side (`.vk`, for the acceleration structures) and GL's (`.gl`, for drawing).
+/// Dropped, each buffer's GL side goes first (buffer, memory object), then Vulkan's: a
+/// [`BufferPair`] drops in that order wherever it is, a half-built list of them included.
 pub struct SceneBuffers {
-    pub meshes: Vec<[(ExportedBuffer, SharedBuffer); 2]>,
-    /// Dropped by hand (in `Drop`), so that GL's side goes first here too.
-    pub instances: std::mem::ManuallyDrop<(ExportedBuffer, SharedBuffer)>,
+    pub meshes: Vec<[BufferPair; 2]>,
+    pub instances: BufferPair,
 }
 
 impl SceneBuffers {
@@ -60,24 +59,13 @@ impl SceneBuffers {
         }
         let instances =
             share_buffer(vk, gl, as_bytes(&scene.instances), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
-        Ok(SceneBuffers { meshes, instances: std::mem::ManuallyDrop::new(instances) })
+        Ok(SceneBuffers { meshes, instances })
     }
     // ANCHOR_END: share_scene
 
     /// Bytes of Vulkan memory GL sees through these buffers.
     pub fn bytes(&self) -> u64 {
-        self.meshes.iter().flatten().chain([&*self.instances]).map(|(v, _)| v.memory.size).sum()
-    }
-}
-
-impl Drop for SceneBuffers {
-    fn drop(&mut self) {
-        // SAFETY: taken once, here, and never used again.
-        let instances = unsafe { std::mem::ManuallyDrop::take(&mut self.instances) };
-        for (exported, shared) in std::mem::take(&mut self.meshes).into_iter().flatten().chain([instances]) {
-            drop(shared); // GL's buffer, then its memory object
-            drop(exported); // Vulkan's buffer and memory
-        }
+        self.meshes.iter().flatten().chain([&self.instances]).map(|pair| pair.vk.memory.size).sum()
     }
 }
 
@@ -118,11 +106,11 @@ impl GBuffers {
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
         let program =
             crate::base::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, FRAGMENT_SHADER)?;
-        let instances = &buffers.instances.1;
+        let instances = &buffers.instances.gl;
         let vertex_arrays = buffers
             .meshes
             .iter()
-            .map(|[v, i]| unsafe { vertex_array(gl_, &v.1, &i.1, instances) })
+            .map(|[v, i]| unsafe { vertex_array(gl_, &v.gl, &i.gl, instances) })
             .collect::<Result<_>>()?;
         Ok(GBuffers { vertex_arrays, program, framebuffer, depth, images, extent })
     }

@@ -144,7 +144,7 @@ const PROBED_NAMES: u32 = 4096;
 
 /// A current GL context and what the chapters need to know about it.
 pub struct GlContext {
-    /// Shared (`Rc`) with the guards in `common` that delete their GL objects when dropped.
+    /// Shared (`Rc`) with the owners in `common` that delete their GL objects when dropped.
     pub gl: std::rc::Rc<glow::Context>,
     /// Present when the chapter asked for [`MEMORY_EXTENSIONS`].
     pub memory: Option<MemoryObjectFns>,

@@ -296,7 +296,7 @@ pub struct Chapter08Run<'a> {
 /// Chapter 08's G-buffers and AO for `run`, at the size of `targets`: read back, then destroyed.
 pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Result<Chapter08> {
     let Chapter08Run { scene, shared, camera, per_frame, total, radius } = run;
-    let (allocator, buffers, tlas) = (&shared.allocator, &shared.buffers, shared.structures.tlas.handle);
+    let (allocator, buffers, tlas) = (&shared.allocator, &shared.buffers, *shared.structures.tlas.handle);
     let (vk, gl) = (apis.vk, apis.gl);
     let extent = targets.extent;
     use crate::rt::ao::AoTracer;

@@ -128,7 +128,7 @@ impl SurfaceTracer {
         let allocator = &shared.allocator;
         let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
         let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<SurfaceRays>() as u32)?;
-        pipeline.write_tlas(vk, 0, shared.structures.tlas.handle);
+        pipeline.write_tlas(vk, 0, *shared.structures.tlas.handle);
         // ANCHOR_END: pipeline
         // The mesh table, written once: the ray generation shader reads it by its address.
         let bytes = crate::scene::gbuffer::as_bytes(ids);
@@ -146,7 +146,7 @@ impl SurfaceTracer {
         let mapped =
             meshes.allocation.mapped_slice_mut().ok_or_else(|| anyhow::anyhow!("mesh ids unmapped"))?;
         mapped[..bytes.len()].copy_from_slice(bytes);
-        let instances = shared.buffers.instances.0.device_address(vk);
+        let instances = shared.buffers.instances.vk.device_address(vk);
         let tracer = SurfaceTracer {
             pipeline,
             meshes,
@@ -167,8 +167,8 @@ impl SurfaceTracer {
 
     /// The descriptors at one size's images (after a resize too: accumulation starts again).
     pub fn point_at(&self, vk: &VulkanContext, targets: &Targets) {
-        self.pipeline.write_storage_image(vk, 1, targets.visibility.view);
-        self.pipeline.write_storage_image(vk, 2, targets.surface.view);
+        self.pipeline.write_storage_image(vk, 1, *targets.visibility.view);
+        self.pipeline.write_storage_image(vk, 2, *targets.surface.view);
     }
 
     pub fn resized(&mut self, vk: &VulkanContext, targets: &Targets) {
@@ -272,7 +272,7 @@ pub fn hand_over_around(
     let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
     commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
     between();
-    handoff.gl_acquire(vk, gl, commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
+    handoff.gl_acquire(vk, gl, *commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
     targets.gl_has_surface.set(true);
     Ok(())
 }
@@ -296,7 +296,7 @@ unsafe fn record(
         acquire_from_gl(vk, &targets.surface, surface_layouts.to_vulkan, general, read | write)
     } else {
         // Never GL's yet: undefined, and the first frame overwrites every pixel.
-        first_use(targets.surface.image, general, read | write)
+        first_use(*targets.surface.image, general, read | write)
     };
     let acquire = [acquire_from_gl(vk, &targets.visibility, ids_layouts.to_vulkan, general, read), surface];
     // Back to GL: the ids for the next frame's draw (nothing written here), the surface to

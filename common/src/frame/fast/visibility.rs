@@ -41,8 +41,8 @@ pub fn number_triangles(vk: &VulkanContext, scene: &Scene, buffers: &SceneBuffer
     {
         let triangles = (mesh.indices.len() / 3) as u64;
         ids.push(MeshIds {
-            vertices: vertices.0.device_address(vk),
-            indices: indices.0.device_address(vk),
+            vertices: vertices.vk.device_address(vk),
+            indices: indices.vk.device_address(vk),
             first_id: next as u32,
             triangles: triangles as u32,
             first_instance: instances.start,
@@ -205,7 +205,7 @@ impl VisibilityPass {
         // Chapter 05's vertex arrays: the same buffers, read the same way.
         for [vertices, indices] in &buffers.meshes {
             let vao = unsafe {
-                crate::scene::gbuffer::vertex_array(g, &vertices.1, &indices.1, &buffers.instances.1)
+                crate::scene::gbuffer::vertex_array(g, &vertices.gl, &indices.gl, &buffers.instances.gl)
             }?;
             pass.vertex_arrays.push(vao);
         }

@@ -126,12 +126,12 @@ pub fn build_with(
             let triangles = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
                 .vertex_format(vk::Format::R32G32B32_SFLOAT) // Vertex::position, at offset 0
                 .vertex_data(vk::DeviceOrHostAddressConstKHR {
-                    device_address: vertices.0.device_address(vk),
+                    device_address: vertices.vk.device_address(vk),
                 })
                 .vertex_stride(size_of::<crate::scene::Vertex>() as u64) // skipping the normal
                 .max_vertex(mesh.vertices.len() as u32 - 1)
                 .index_type(vk::IndexType::UINT32)
-                .index_data(vk::DeviceOrHostAddressConstKHR { device_address: indices.0.device_address(vk) });
+                .index_data(vk::DeviceOrHostAddressConstKHR { device_address: indices.vk.device_address(vk) });
             vk::AccelerationStructureGeometryKHR::default()
                 .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
                 .geometry(vk::AccelerationStructureGeometryDataKHR { triangles })
@@ -173,7 +173,7 @@ pub fn build_with(
         )?;
         stats.blas_bytes += blas.bytes;
         scratch_sizes.push(sizes.build_scratch_size);
-        builds.push((info.dst_acceleration_structure(blas.handle), triangles));
+        builds.push((info.dst_acceleration_structure(*blas.handle), triangles));
         blases.push(blas);
     }
     // One scratch buffer, a separately aligned region for each build, so they may overlap on the GPU.
@@ -185,7 +185,7 @@ pub fn build_with(
             t.reset(vk, cb);
             t.write(vk, cb, vk::PipelineStageFlags::TOP_OF_PIPE, 0);
         }
-        vk.device.cmd_reset_query_pool(cb, compacted_sizes.pool, 0, blases.len() as u32);
+        vk.device.cmd_reset_query_pool(cb, *compacted_sizes, 0, blases.len() as u32);
         for (i, (info, triangles)) in builds.iter().enumerate() {
             let info = info.scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch.address(i) });
             let ranges: Vec<_> = triangles
@@ -196,9 +196,9 @@ pub fn build_with(
         }
         // The builds must finish before their compacted sizes can be read.
         build_barrier(vk, cb);
-        let handles: Vec<_> = blases.iter().map(|b| b.handle).collect();
+        let handles: Vec<_> = blases.iter().map(|b| *b.handle).collect();
         let query = vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR;
-        loader.cmd_write_acceleration_structures_properties(cb, &handles, query, compacted_sizes.pool, 0);
+        loader.cmd_write_acceleration_structures_properties(cb, &handles, query, *compacted_sizes, 0);
         if let Some(t) = &timestamps {
             t.write(vk, cb, vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR, 1);
         }
@@ -213,7 +213,7 @@ pub fn build_with(
     let mut sizes = vec![0u64; blases.len()];
     fail::call("vkGetQueryPoolResults for the compacted sizes", || unsafe {
         vk.device.get_query_pool_results(
-            compacted_sizes.pool,
+            *compacted_sizes,
             0,
             &mut sizes,
             vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
@@ -238,8 +238,8 @@ pub fn build_with(
         }
         for (from, to) in blases.iter().zip(&compacted) {
             let copy = vk::CopyAccelerationStructureInfoKHR::default()
-                .src(from.handle)
-                .dst(to.handle)
+                .src(*from.handle)
+                .dst(*to.handle)
                 .mode(vk::CopyAccelerationStructureModeKHR::COMPACT);
             loader.cmd_copy_acceleration_structure(cb, &copy);
         }
@@ -255,7 +255,7 @@ pub fn build_with(
     // ANCHOR: instances
     // Each instance points at its mesh's BLAS. The write goes straight into the instance buffer
     // GL draws from (GL never reads these 8 bytes): the TLAS is built from the same buffer.
-    let instances = &buffers.instances.0;
+    let instances = &buffers.instances.vk;
     if layout == BlasLayout::PerMesh {
         for (blas, range) in blases.iter().zip(&scene.mesh_instances) {
             for i in range.clone() {
@@ -286,7 +286,7 @@ pub fn build_with(
         AccelerationStructure::new(vk, allocator, info.ty, info.flags, sizes.acceleration_structure_size)?;
     let scratch = Scratch::new(vk, allocator, &[sizes.build_scratch_size])?;
     let info = info
-        .dst_acceleration_structure(tlas.handle)
+        .dst_acceleration_structure(*tlas.handle)
         .scratch_data(vk::DeviceOrHostAddressKHR { device_address: scratch.address(0) });
     commands.run_once(vk, |cb| unsafe {
         if let Some(t) = &timestamps {
@@ -329,14 +329,14 @@ fn flat_geometries(
         properties.max_geometry_count,
         properties.max_primitive_count
     );
-    let transforms = buffers.instances.0.device_address(vk);
+    let transforms = buffers.instances.vk.device_address(vk);
     let mut geometries = Vec::new();
     let mut counts = Vec::new();
     for ((mesh, [vertices, indices]), range) in
         scene.meshes.iter().zip(&buffers.meshes).zip(&scene.mesh_instances)
     {
         for i in range.clone() {
-            let mut geometry = triangles_geometry(vk, mesh, &vertices.0, &indices.0);
+            let mut geometry = triangles_geometry(vk, mesh, &vertices.vk, &indices.vk);
             let at = transforms + i as u64 * size_of::<crate::scene::Instance>() as u64;
             // `triangles_geometry` made a TRIANGLES geometry: `triangles` is the union's live field.
             geometry.geometry.triangles.transform_data.device_address = at;

@@ -2,6 +2,7 @@
 //! scratch space for builds, and query pools.
 
 use crate::base::fail;
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::Result;
 use ash::vk;
@@ -41,12 +42,6 @@ impl GpuAllocator {
         let allocation = fail::call(&what, || self.0.borrow_mut().allocate(description))?;
         Ok(Memory { allocation, allocator: self.clone() })
     }
-
-    /// No memory yet: the placeholder of a guard being built, before its memory is allocated.
-    /// Dropping it frees nothing.
-    pub fn unallocated(&self) -> Memory {
-        Memory { allocation: Allocation::default(), allocator: self.clone() }
-    }
 }
 
 /// Memory from gpu-allocator, given back to it when dropped. The GPU must be done with it.
@@ -70,20 +65,18 @@ impl std::ops::DerefMut for Memory {
 
 impl Drop for Memory {
     fn drop(&mut self) {
-        // gpu-allocator frees nothing for a placeholder, and a failure to free leaves the block
-        // to the allocator, which frees every block when it goes.
+        // A failure to free leaves the block to the allocator, which frees every block when it goes.
         let _ = self.allocator.0.borrow_mut().free(std::mem::take(&mut self.allocation));
     }
 }
 // ANCHOR_END: allocator
 
 /// A buffer in memory from gpu-allocator, with its device address. Dropped, it destroys the
-/// buffer, then gives its memory back.
+/// buffer, then gives its memory back (fields, in order).
 pub struct DeviceBuffer {
-    pub buffer: vk::Buffer,
+    pub buffer: Owned<vk::Buffer>,
     pub allocation: Memory,
     pub address: vk::DeviceAddress,
-    pub(super) device: ash::Device,
 }
 
 /// What a [`DeviceBuffer`] is for, as gpu-allocator's `AllocationCreateDesc` describes an
@@ -102,14 +95,8 @@ impl DeviceBuffer {
         let usage = usage | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS;
         let info = vk::BufferCreateInfo::default().size(size).usage(usage);
         let what = format!("vkCreateBuffer for the {name}");
-        let buffer = fail::call(&what, || unsafe { vk.device.create_buffer(&info, None) })?;
-        let mut guarded = DeviceBuffer {
-            buffer,
-            allocation: allocator.unallocated(),
-            address: 0,
-            device: vk.device.clone(),
-        };
-        let requirements = unsafe { vk.device.get_buffer_memory_requirements(buffer) };
+        let buffer = create(&vk.device, &what, || unsafe { vk.device.create_buffer(&info, None) })?;
+        let requirements = unsafe { vk.device.get_buffer_memory_requirements(*buffer) };
         let description = AllocationCreateDesc {
             name,
             requirements,
@@ -117,44 +104,27 @@ impl DeviceBuffer {
             linear: true,
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
-        guarded.allocation = allocator.allocate(&description)?;
-        let allocation = &guarded.allocation;
+        let allocation = allocator.allocate(&description)?;
         crate::base::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         fail::call(&format!("vkBindBufferMemory for the {name}"), || unsafe {
-            vk.device.bind_buffer_memory(buffer, allocation.memory(), allocation.offset())
+            vk.device.bind_buffer_memory(*buffer, allocation.memory(), allocation.offset())
         })?;
-        guarded.address = unsafe {
-            vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(buffer))
+        let address = unsafe {
+            vk.device.get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(*buffer))
         };
-        Ok(guarded)
-    }
-}
-
-impl Drop for DeviceBuffer {
-    /// The buffer; then (a field) its memory goes back to the allocator.
-    fn drop(&mut self) {
-        unsafe { self.device.destroy_buffer(self.buffer, None) };
+        Ok(DeviceBuffer { buffer, allocation, address })
     }
 }
 
 /// A query pool, destroyed when dropped.
-pub(super) struct QueryPool {
-    pub(super) pool: vk::QueryPool,
-    device: ash::Device,
-}
-
-impl Drop for QueryPool {
-    fn drop(&mut self) {
-        unsafe { self.device.destroy_query_pool(self.pool, None) };
-    }
-}
+pub(super) type QueryPool = Owned<vk::QueryPool>;
 
 pub(super) fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> Result<QueryPool> {
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
     let what = format!("vkCreateQueryPool ({ty:?})");
-    let pool = fail::call(&what, || unsafe { vk.device.create_query_pool(&info, None) })?;
+    let pool = create(&vk.device, &what, || unsafe { vk.device.create_query_pool(&info, None) })?;
     crate::base::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
-    Ok(QueryPool { pool, device: vk.device.clone() })
+    Ok(pool)
 }
 
 /// Scratch memory for several builds: one buffer, each region aligned as the device requires.

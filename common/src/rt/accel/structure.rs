@@ -2,6 +2,7 @@
 //! build needs around it: sizes, barriers, the device's limits, the instances' BLAS addresses.
 
 use super::memory::{BufferDesc, DeviceBuffer, GpuAllocator};
+use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::ExportedBuffer;
 use crate::scene::{Instance, Scene};
@@ -12,11 +13,10 @@ use gpu_allocator::MemoryLocation;
 /// One acceleration structure and the buffer that holds it; destroyed when dropped (the
 /// structure, then its buffer). The GPU must be done with it.
 pub struct AccelerationStructure {
-    pub handle: vk::AccelerationStructureKHR,
+    pub handle: Owned<vk::AccelerationStructureKHR>,
     pub buffer: DeviceBuffer,
     pub address: vk::DeviceAddress,
     pub bytes: u64,
-    loader: ash::khr::acceleration_structure::Device,
 }
 
 impl AccelerationStructure {
@@ -41,24 +41,16 @@ impl AccelerationStructure {
                 location: MemoryLocation::GpuOnly,
             },
         )?;
-        let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(buffer.buffer).size(bytes).ty(ty);
+        let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(*buffer.buffer).size(bytes).ty(ty);
         // On failure `buffer` is dropped, which destroys it.
-        let handle =
-            crate::base::fail::call(&format!("vkCreateAccelerationStructureKHR ({ty:?})"), || unsafe {
-                loader.create_acceleration_structure(&info, None)
-            })?;
+        let what = format!("vkCreateAccelerationStructureKHR ({ty:?})");
+        let handle = create(&loader, &what, || unsafe { loader.create_acceleration_structure(&info, None) })?;
         // Its bytes are counted with its buffer; the kind says what was built, and how.
         crate::base::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
-            vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(handle);
+            vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(*handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };
-        Ok(AccelerationStructure { handle, buffer, address, bytes, loader })
-    }
-}
-
-impl Drop for AccelerationStructure {
-    fn drop(&mut self) {
-        unsafe { self.loader.destroy_acceleration_structure(self.handle, None) };
+        Ok(AccelerationStructure { handle, buffer, address, bytes })
     }
 }
 
