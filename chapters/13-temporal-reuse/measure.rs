@@ -123,7 +123,7 @@ impl ErrorProbe<'_> {
         (targets, tracer): (&Targets, &mut SurfaceTracer),
         (camera, frame): (&Camera, u32),
         references: &mut References,
-    ) -> Result<(f64, Option<f64>)> {
+    ) -> Result<(f64, FlipJob)> {
         let gl = &apis.gl.gl;
         let shown = |view: View| {
             let uniforms = Uniforms { view, far_depth: camera.far, ..self.uniforms };
@@ -152,7 +152,57 @@ impl ErrorProbe<'_> {
         }
         anyhow::ensure!(n > 0, "frame {frame}: the scene covers no pixel, so it has no error to measure");
         let size = (targets.extent.width, targets.extent.height);
-        Ok(((sum / n as f64).sqrt(), flip_mean(converged_picture, &picture, size)))
+        Ok(((sum / n as f64).sqrt(), flip_job(converged_picture, picture, size)))
+    }
+}
+
+/// FLIP of one frame, worked out on a thread of its own: on one core it takes seconds at 4K,
+/// longer than a walk's frame, so the walk goes on and collects it later. Without the `flip`
+/// feature, no job: the report says `null`.
+pub type FlipJob = Option<std::thread::JoinHandle<Option<f64>>>;
+
+#[cfg(any(test, feature = "flip"))]
+fn flip_job(reference: &[u8], picture: Vec<u8>, size: (u32, u32)) -> FlipJob {
+    let reference = reference.to_vec();
+    Some(std::thread::spawn(move || flip_mean(&reference, &picture, size)))
+}
+
+#[cfg(not(any(test, feature = "flip")))]
+fn flip_job(_: &[u8], _: Vec<u8>, _: (u32, u32)) -> FlipJob {
+    None
+}
+
+/// The FLIP jobs a walk has started, at most one per core running at once, each for the record
+/// it belongs to.
+#[derive(Default)]
+pub struct Flips(std::collections::VecDeque<(usize, std::thread::JoinHandle<Option<f64>>)>);
+
+impl Flips {
+    /// Adds `job` for `records[index]`, and, while more are running than there are cores,
+    /// finishes the oldest into its record.
+    pub fn add(&mut self, job: FlipJob, index: usize, records: &mut [FrameRecord]) -> Result<()> {
+        self.0.extend(job.map(|job| (index, job)));
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        while self.0.len() > cores {
+            self.finish_oldest(records)?;
+        }
+        Ok(())
+    }
+
+    /// Every job finished into its record.
+    pub fn finish(mut self, records: &mut [FrameRecord]) -> Result<()> {
+        while !self.0.is_empty() {
+            self.finish_oldest(records)?;
+        }
+        Ok(())
+    }
+
+    fn finish_oldest(&mut self, records: &mut [FrameRecord]) -> Result<()> {
+        if let Some((index, job)) = self.0.pop_front() {
+            let flip = job.join().map_err(|_| anyhow::anyhow!("FLIP's thread panicked"))?;
+            records[index].flip = flip;
+        }
+        Ok(())
     }
 }
 
@@ -164,12 +214,6 @@ fn flip_mean(reference: &[u8], test: &[u8], (width, height): (u32, u32)) -> Opti
     let image = |p: &[u8]| nv_flip::FlipImageRgb8::with_data(width, height, &rgb(p));
     let map = nv_flip::flip(image(reference), image(test), nv_flip::DEFAULT_PIXELS_PER_DEGREE);
     Some(nv_flip::FlipPool::from_image(&map).mean() as f64)
-}
-
-/// Without the `flip` feature, no FLIP: the report says `null`.
-#[cfg(not(any(test, feature = "flip")))]
-fn flip_mean(_: &[u8], _: &[u8], _: (u32, u32)) -> Option<f64> {
-    None
 }
 // ANCHOR_END: error
 

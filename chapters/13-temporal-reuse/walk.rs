@@ -5,7 +5,7 @@ use common::frame::fast::check::{self, LastFrame, Surface};
 use common::frame::fast::composite::View;
 use crate::frame::{Clock, Drawn, Passes, Sized};
 use crate::history_check::{self, Seen};
-use crate::measure::{ErrorProbe, FrameRecord, References, Walk, measured, median};
+use crate::measure::{ErrorProbe, Flips, FrameRecord, References, Walk, measured, median};
 use crate::path::PathKind;
 use crate::settings::{Args, PATH_FRAMES};
 use crate::temporal::Budget;
@@ -55,7 +55,7 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
             (_, true, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", p.apis.vk.info.name),
         };
         let mut clock = Clock::new(&p.apis.gl.gl, timeline)?;
-        let (mut records, mut before_cut) = (Vec::new(), None);
+        let (mut records, mut before_cut, mut flips) = (Vec::new(), None, Flips::default());
         let (mut resizes, mut after_first_resize) = (0, None);
         for frame in 0..frames {
             if let Some(every) = args.resize_every.filter(|&k| checking && frame > 0 && frame % k == 0) {
@@ -87,8 +87,10 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, repor
                     (Some(rmse), flip)
                 }
             };
-            records.push(FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse, flip });
+            records.push(FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse, flip: None });
+            flips.add(flip, records.len() - 1, &mut records)?;
         }
+        flips.finish(&mut records)?;
         // Before the walk's own timers and timeline go: they were there at the first resize too.
         if let Some(first) = after_first_resize {
             report.check("nothing_grows_across_resizes", alive(p)? == first);
