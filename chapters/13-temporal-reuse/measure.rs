@@ -348,4 +348,34 @@ mod tests {
         assert_eq!(super::flip_mean(&grey, &grey, (32, 32)), Some(0.0));
         assert!(super::flip_mean(&grey, &marked, (32, 32)).is_some_and(|e| e > 0.05));
     }
+
+    /// Jobs finished on other threads, more at once than there are cores, land in their own
+    /// records: each record gets its own frame's FLIP, and a record without a job keeps none.
+    #[test]
+    fn flips_land_in_their_own_records() {
+        let grey: Vec<u8> = [128u8, 128, 128, 255].repeat(16 * 16);
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let mut records: Vec<super::FrameRecord> = (0..cores as u32 * 2 + 3)
+            .map(|frame| super::FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse: None, flip: None })
+            .collect();
+        let mut flips = super::Flips::default();
+        for i in 0..records.len() {
+            if i % 3 == 2 {
+                continue; // a frame not measured
+            }
+            // Frame i's picture differs from the reference in i rows: FLIP grows with i.
+            let mut picture = grey.clone();
+            picture[..4 * 16 * i.min(16)].iter_mut().step_by(4).for_each(|r| *r = 255);
+            flips.add(super::flip_job(&grey, picture, (16, 16)), i, &mut records).unwrap();
+        }
+        flips.finish(&mut records).unwrap();
+        for (i, record) in records.iter().enumerate() {
+            let expected = (i % 3 != 2).then(|| {
+                let mut picture = grey.clone();
+                picture[..4 * 16 * i.min(16)].iter_mut().step_by(4).for_each(|r| *r = 255);
+                super::flip_mean(&grey, &picture, (16, 16)).unwrap()
+            });
+            assert_eq!(record.flip, expected, "record {i}");
+        }
+    }
 }
