@@ -1,48 +1,9 @@
-//! A scene from the command line (chapter 05 on): the default scene, a builtin one, or an OBJ
-//! file, read with tobj, its normals made where it has none.
+//! OBJ files (chapter 05 on), read with tobj, their normals made where they have none.
 
-use super::model::{Instance, Mesh, Scene, Vertex, default_scene};
+use super::model::{Instance, Mesh, Scene, Vertex};
 use anyhow::{Result, bail};
 use glam::{Mat4, Vec3};
 use std::path::Path;
-
-/// The flags of every chapter that draws a scene (05 on).
-#[derive(clap::Args, Debug, Clone)]
-pub struct SceneArgs {
-    /// An OBJ file to use instead of the default scene.
-    #[arg(long)]
-    pub scene: Option<std::path::PathBuf>,
-    /// Normals for an OBJ file that has none.
-    #[arg(long, value_enum, default_value = "smooth")]
-    pub normals: Normals,
-    /// Tetrahedra in the default scene (0 to a million).
-    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
-    pub instances: u32,
-    /// One of the scenes `bench` measures instead: `large` (the default scene's tetrahedra over a
-    /// million-triangle rippled ground) or `ceiling` (one triangle every ray misses).
-    #[arg(long, value_enum, conflicts_with = "scene")]
-    pub builtin: Option<super::builtin::SceneKind>,
-}
-
-impl SceneArgs {
-    /// The OBJ file's scene, or the default one (seeded: the same on every run).
-    pub fn load(&self) -> Result<Scene> {
-        match (&self.scene, self.builtin) {
-            (Some(path), _) => load_obj(path, self.normals),
-            (None, Some(kind)) => kind.build(super::builtin::Ground::Fine),
-            (None, None) => Ok(default_scene(self.instances, 1)),
-        }
-    }
-
-    /// Picture names: `<chapter>` for the default scene, `<chapter>-<file stem>` for a model.
-    pub fn picture_name(&self, chapter: &str) -> String {
-        match (self.scene.as_ref().and_then(|p| p.file_stem()), self.builtin) {
-            (Some(stem), _) => format!("{chapter}-{}", stem.to_string_lossy()),
-            (None, Some(kind)) => format!("{chapter}-{}", kind.name()),
-            (None, None) => chapter.to_owned(),
-        }
-    }
-}
 
 /// How to make normals for a file that has none.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -212,7 +173,7 @@ pub fn compute_normals(mesh: &mut Mesh, normals: Normals) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{Random, ground_plane, tetrahedron};
+    use crate::scene::Random;
 
     /// The OBJ loader on random and mutated files (truncated lines, huge and negative indices,
     /// NaN and infinity, missing and zero normals, stray bytes, many faces): it never panics, and
@@ -291,15 +252,5 @@ mod tests {
         let scene = load_obj(&path, Normals::Flat).unwrap();
         assert_eq!(scene.triangles(), 2_000_000);
         std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn smooth_and_flat_normals() {
-        let mut m = tetrahedron();
-        compute_normals(&mut m, Normals::Flat);
-        assert_eq!(m.vertices.len(), 12);
-        let mut shared = ground_plane();
-        compute_normals(&mut shared, Normals::Smooth);
-        assert!(shared.vertices.iter().all(|v| (Vec3::from(v.normal) - Vec3::Y).length() < 1e-6));
     }
 }
