@@ -52,8 +52,21 @@ pub fn run_chapter(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
 /// Like [`run_chapter`], without `--headless`: the chapter opens a window if `env` gives it a
 /// display (see [`Xvfb`]), and says why it runs headless otherwise.
 pub fn run_chapter_with(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
-    let out_dir = tempfile::tempdir().expect("temporary directory");
+    run_chapter_in(Command::new(bin), bin, args, env)
+}
+
+/// Like [`run_chapter`], started in `dir` instead of the checkout: what a user who runs a
+/// binary from elsewhere sees.
+pub fn run_chapter_from(dir: &Path, bin: &str, args: &[&str]) -> Run {
     let mut command = Command::new(bin);
+    command.current_dir(dir);
+    let mut all = vec!["--headless"];
+    all.extend_from_slice(args);
+    run_chapter_in(command, bin, &all, &[])
+}
+
+fn run_chapter_in(mut command: Command, bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
+    let out_dir = tempfile::tempdir().expect("temporary directory");
     command.args(["--json", "--out"]).arg(out_dir.path()).args(args);
     pin_software_stack(&mut command);
     // The validation layer's synchronisation checks too (hazards between commands, barriers

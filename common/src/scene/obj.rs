@@ -3,7 +3,23 @@
 use super::model::{Instance, Mesh, Scene, Vertex};
 use anyhow::{Result, bail};
 use glam::{Mat4, Vec3};
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// One of the tutorial's own files in `assets/`, for a chapter's default model: found in the
+/// checkout the binary was built from, so that the chapter runs from any directory (a path the
+/// user gives stays relative to the current directory). An error names the path tried and
+/// `flag`, which gives a file instead.
+pub fn default_asset(name: &str, flag: &str) -> Result<PathBuf> {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(|root| root.join("assets"));
+    let path = assets.unwrap_or_default().join(name);
+    if !path.is_file() {
+        bail!(
+            "{}: the default for {flag} is not there (binaries look for it in the checkout they              were built from); name a file with {flag} PATH",
+            path.display()
+        );
+    }
+    Ok(path)
+}
 
 /// How to make normals for a file that has none.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -179,6 +195,14 @@ mod tests {
     /// NaN and infinity, missing and zero normals, stray bytes, many faces): it never panics, and
     /// returns either a scene whose numbers are all finite, with unit normals, or an error that
     /// names the file.
+    #[test]
+    fn default_assets_are_found_or_named() {
+        let bunny = default_asset("bunny.obj", "--model").unwrap();
+        assert!(bunny.is_absolute() && bunny.ends_with("assets/bunny.obj"), "{}", bunny.display());
+        let missing = default_asset("no-such.obj", "--model").unwrap_err().to_string();
+        assert!(missing.contains("assets/no-such.obj") && missing.contains("--model PATH"), "{missing}");
+    }
+
     #[test]
     fn obj_loader_never_panics_on_bad_input() {
         let base = "o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 1\nvn 0 0 1\nvn 0 0 1\n\
