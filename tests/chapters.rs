@@ -590,20 +590,9 @@ fn ch09_default_model_is_found_from_any_directory() {
 /// from elsewhere would not find it: a default asset comes from `scene::default_asset`.
 #[test]
 fn no_binary_looks_for_assets_in_the_current_directory() {
-    fn sources(dir: &std::path::Path, found: &mut Vec<std::path::PathBuf>) {
-        for entry in std::fs::read_dir(dir).unwrap() {
-            let path = entry.unwrap().path();
-            if path.is_dir() {
-                sources(&path, found);
-            } else if path.extension().is_some_and(|e| e == "rs") {
-                found.push(path);
-            }
-        }
-    }
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut files = Vec::new();
-    sources(&root.join("chapters"), &mut files);
-    sources(&root.join("common/src"), &mut files);
+    let mut files = harness::rust_files(&root.join("chapters"));
+    files.extend(harness::rust_files(&root.join("common/src")));
     let mut found = Vec::new();
     for file in &files {
         let text = std::fs::read_to_string(file).unwrap();
@@ -619,7 +608,11 @@ fn no_binary_looks_for_assets_in_the_current_directory() {
         }
     }
     assert!(files.len() > 40, "found only {} sources", files.len());
-    assert!(found.is_empty(), "assets named from the current directory (use scene::default_asset):\n{}", found.join("\n"));
+    assert!(
+        found.is_empty(),
+        "assets named from the current directory (use scene::default_asset):\n{}",
+        found.join("\n")
+    );
 }
 
 #[test]

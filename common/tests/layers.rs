@@ -156,18 +156,23 @@ fn violations(relative: &Path, text: &str) -> Vec<String> {
     found
 }
 
+/// Every source file of `common`, by its path under `src/`, with its text.
+fn crate_sources() -> Vec<(PathBuf, String)> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut paths = Vec::new();
+    sources(&root, &mut paths);
+    paths.sort();
+    assert!(paths.len() > 20, "found only {} files under {}", paths.len(), root.display());
+    paths
+        .iter()
+        .map(|p| (p.strip_prefix(&root).unwrap().to_path_buf(), std::fs::read_to_string(p).unwrap()))
+        .collect()
+}
+
 #[test]
 fn no_module_reaches_a_higher_layer() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut files = Vec::new();
-    sources(&root, &mut files);
-    files.sort();
-    assert!(files.len() > 20, "found only {} files under {}", files.len(), root.display());
-    let mut found = Vec::new();
-    for file in &files {
-        let text = std::fs::read_to_string(file).unwrap();
-        found.extend(violations(file.strip_prefix(&root).unwrap(), &text));
-    }
+    let found: Vec<String> =
+        crate_sources().iter().flat_map(|(relative, text)| violations(relative, text)).collect();
     assert!(found.is_empty(), "modules that break the layers:\n{}", found.join("\n"));
 }
 
@@ -355,13 +360,7 @@ fn cycles(files: &[(PathBuf, String)]) -> Vec<String> {
 /// without the other, and the layers' order says nothing about which comes first.
 #[test]
 fn no_modules_use_each_other() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut paths = Vec::new();
-    sources(&root, &mut paths);
-    let files: Vec<(PathBuf, String)> = paths
-        .iter()
-        .map(|p| (p.strip_prefix(&root).unwrap().to_path_buf(), std::fs::read_to_string(p).unwrap()))
-        .collect();
+    let files = crate_sources();
     assert!(uses(&files).len() > 50, "found only {} uses between modules", uses(&files).len());
     let found = cycles(&files);
     assert!(found.is_empty(), "modules that use each other, in a circle:\n{}", found.join("\n"));
@@ -369,32 +368,42 @@ fn no_modules_use_each_other() {
 
 #[test]
 fn the_circle_check_sees_what_it_must_refuse() {
-    let files = |list: &[(&str, &str)]| -> Vec<(PathBuf, String)> {
-        list.iter().map(|(p, t)| (PathBuf::from(p), t.to_string())).collect()
-    };
-    // Two files naming each other, through `super::`.
-    let pair = files(&[
-        ("rt/accel/memory.rs", "pub struct Memory;\nfn f() { super::structure::properties(); }"),
-        ("rt/accel/structure.rs", "use super::memory::Memory;\npub fn properties() {}"),
-    ]);
-    assert_eq!(cycles(&pair).len(), 1, "{:?}", cycles(&pair));
-    // Three, one of them reached through its folder's re-export (`crate::scene::load_obj`).
-    let three = files(&[
-        ("scene/mod.rs", "mod builtin;\nmod model;\nmod obj;\npub use model::*;\npub use obj::*;"),
-        ("scene/builtin.rs", "use super::model::Scene;\npub enum SceneKind {}"),
-        ("scene/model.rs", "use crate::scene::load_obj;\npub struct Scene;"),
-        ("scene/obj.rs", "pub fn load_obj() {}\nfn g(k: super::builtin::SceneKind) {}"),
-    ]);
-    assert_eq!(cycles(&three).len(), 1, "{:?}", cycles(&three));
-    // One way only, a test module's `super::*` (its own file), and a layer above: no circle.
-    let fine = files(&[
-        ("scene/mod.rs", "mod model;\nmod obj;\npub use model::*;\npub use obj::*;"),
-        ("scene/model.rs", "pub struct Scene;\n#[cfg(test)]\nmod tests {\n    use super::*;\n}"),
-        ("scene/obj.rs", "use crate::scene::Scene;\nuse crate::base::Report;"),
-        ("base/mod.rs", "pub struct Report;"),
-    ]);
-    assert!(cycles(&fine).is_empty(), "{:?}", cycles(&fine));
-    assert_eq!(uses(&fine).len(), 2, "{:?}", uses(&fine));
+    // Each case: its files, and how many circles they make.
+    let cases: [(&[(&str, &str)], usize); 3] = [
+        // Two files naming each other, through `super::`.
+        (
+            &[
+                ("rt/accel/memory.rs", "pub struct Memory;\nfn f() { super::structure::properties(); }"),
+                ("rt/accel/structure.rs", "use super::memory::Memory;\npub fn properties() {}"),
+            ],
+            1,
+        ),
+        // Three, one reached through its folder's re-export (`crate::scene::load_obj`).
+        (
+            &[
+                ("scene/mod.rs", "mod builtin;\nmod model;\nmod obj;\npub use model::*;\npub use obj::*;"),
+                ("scene/builtin.rs", "use super::model::Scene;\npub enum SceneKind {}"),
+                ("scene/model.rs", "use crate::scene::load_obj;\npub struct Scene;"),
+                ("scene/obj.rs", "pub fn load_obj() {}\nfn g(k: super::builtin::SceneKind) {}"),
+            ],
+            1,
+        ),
+        // One way only, a test module's `super::*` (its own file), and a layer below: none.
+        (
+            &[
+                ("scene/mod.rs", "mod model;\nmod obj;\npub use model::*;\npub use obj::*;"),
+                ("scene/model.rs", "pub struct Scene;\n#[cfg(test)]\nmod tests {\n    use super::*;\n}"),
+                ("scene/obj.rs", "use crate::scene::Scene;\nuse crate::base::Report;"),
+                ("base/mod.rs", "pub struct Report;"),
+            ],
+            0,
+        ),
+    ];
+    for (list, circles) in cases {
+        let files: Vec<(PathBuf, String)> =
+            list.iter().map(|(p, t)| (PathBuf::from(p), t.to_string())).collect();
+        assert_eq!(cycles(&files).len(), circles, "{list:?}: {:?}", cycles(&files));
+    }
 }
 
 /// What each layer holds, for the picture (lowest first, as [`LAYERS`]).

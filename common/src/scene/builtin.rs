@@ -8,7 +8,6 @@ use super::obj::{Normals, meshes_from_obj};
 use anyhow::Result;
 use glam::{Mat4, Vec3};
 
-
 /// `count` faceted tetrahedra, placed and scaled by a seeded normal distribution, over a
 /// 20 x 20 ground plane: two meshes, `count + 1` instances. The same seed gives the same scene.
 pub fn default_scene(count: u32, seed: u64) -> Scene {
