@@ -3,7 +3,7 @@
 
 mod harness;
 
-use harness::{DEFAULT_TOLERANCE, assert_images_match, assert_report_snapshot, run_chapter};
+use harness::{DEFAULT_TOLERANCE, assert_images_match, assert_report_snapshot, run_chapter, run_chapter_from};
 
 const RAY_TRACING_EXTENSIONS: [&str; 3] =
     ["VK_KHR_acceleration_structure", "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations"];
@@ -574,6 +574,45 @@ fn ch09_missing_model_is_named() {
     assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
     assert!(run.stderr.contains("no/such/model.obj: cannot open"), "{}", run.stderr);
     assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
+}
+
+/// A default model is found whatever the current directory: chapter 09, started in the
+/// temporary directory, finds the bunny in the checkout it was built from.
+#[test]
+fn ch09_default_model_is_found_from_any_directory() {
+    let elsewhere = tempfile::tempdir().unwrap();
+    let args = ["--size", "64x48", "--frames", "2", "--samples", "1", "--step", "0"];
+    let run = run_chapter_from(elsewhere.path(), env!("CARGO_BIN_EXE_09-animated-instances"), &args);
+    assert_eq!(run.succeeded()["runners"], 20);
+}
+
+/// No chapter or tool names a file of `assets/` relative to the current directory, where a run
+/// from elsewhere would not find it: a default asset comes from `scene::default_asset`.
+#[test]
+fn no_binary_looks_for_assets_in_the_current_directory() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = harness::rust_files(&root.join("chapters"));
+    files.extend(harness::rust_files(&root.join("common/src")));
+    let mut found = Vec::new();
+    for file in &files {
+        let text = std::fs::read_to_string(file).unwrap();
+        // A unit test's paths are the test's own business.
+        let code_only = text.split("#[cfg(test)]").next().unwrap_or_default();
+        for (number, line) in code_only.lines().enumerate() {
+            let code = line.trim_start();
+            // Built-in files are no look-up: `include_str!` builds one in, `embedded` names it.
+            let built_in = code.contains("include_str!") || code.starts_with("embedded(");
+            if !code.starts_with("//") && !built_in && code.contains("\"assets/") {
+                found.push(format!("{}:{}: {code}", file.strip_prefix(root).unwrap().display(), number + 1));
+            }
+        }
+    }
+    assert!(files.len() > 40, "found only {} sources", files.len());
+    assert!(
+        found.is_empty(),
+        "assets named from the current directory (use scene::default_asset):\n{}",
+        found.join("\n")
+    );
 }
 
 #[test]

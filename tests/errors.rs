@@ -359,23 +359,12 @@ fn calls_create(line: &str) -> bool {
     })
 }
 
-fn rust_files(dir: &std::path::Path, files: &mut Vec<std::path::PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let path = entry.unwrap().path();
-        if path.is_dir() {
-            rust_files(&path, files);
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            files.push(path);
-        }
-    }
-}
-
 #[test]
 fn every_fallible_call_is_a_step() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut files = Vec::new();
     for dir in ["common/src", "chapters"] {
-        rust_files(&root.join(dir), &mut files);
+        files.extend(harness::rust_files(&root.join(dir)));
     }
     files.sort();
     let found: Vec<String> = files

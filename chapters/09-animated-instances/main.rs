@@ -49,9 +49,9 @@ struct Args {
     common: CommonArgs,
     #[command(flatten)]
     ao: AoArgs,
-    /// The model that runs in the ring.
-    #[arg(long, default_value = "assets/bunny.obj")]
-    model: std::path::PathBuf,
+    /// The model that runs in the ring [default: the tutorial's assets/bunny.obj].
+    #[arg(long)]
+    model: Option<std::path::PathBuf>,
     /// How many run in the ring.
     #[arg(long, default_value_t = 20)]
     count: u32,
@@ -72,7 +72,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     args.animation.check()?;
 
     // 1. Make the ring, as it stands at the first frame
-    let (scene, ring) = ring::scene(&args.model, args.count, args.lap, args.animation.time)?;
+    // A model given is found from the current directory; the default, from the checkout.
+    let model = match &args.model {
+        Some(path) => path.clone(),
+        None => common::scene::default_asset("bunny.obj", "--model")?,
+    };
+    let (scene, ring) = ring::scene(&model, args.count, args.lap, args.animation.time)?;
     let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
     let radius = args.ao.radius(&scene)?;
     if let Some(reason) = common::rt::ao::nothing_to_trace(args.ao.samples, radius) {

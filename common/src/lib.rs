@@ -4,7 +4,8 @@
 //! which); later chapters call it by name. Doc comments here say *what*; the book says *why*.
 //!
 //! The modules stand in layers, each using only its own layer and those below it
-//! (`common/tests/layers.rs` fails on any module that reaches up):
+//! (`common/tests/layers.rs` fails on any module that reaches up, and on any circle of modules
+//! that use each other):
 //!
 //! ```text
 //! frame    composite pass, overlay lines, pixel probes             (chapter 08)

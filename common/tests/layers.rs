@@ -3,7 +3,9 @@
 //! through `crate::` or `super::`, and fails naming the file and line of any that reaches a
 //! higher layer, or goes through the crate root (which only re-exports) instead of naming the
 //! module. The acceleration structures and ray pipelines are Vulkan only: they may not name GL.
+//! Inside a layer too, modules use each other one way: no two (or more) use each other in a circle.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// The layers, lowest first.
@@ -34,8 +36,31 @@ fn module_of(relative: &Path) -> Vec<String> {
     segments
 }
 
+/// The paths after `crate::` or `super::`: one, or each top-level item of a `{a, b::c}` group.
+fn items(rest: &str) -> Vec<&str> {
+    let Some(group) = rest.strip_prefix('{') else { return vec![rest] };
+    // Split at commas outside nested braces, up to the group's closing brace.
+    let (mut found, mut depth, mut item_start) = (Vec::new(), 0, 0);
+    for (i, c) in group.char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' if depth == 0 => {
+                found.push(group[item_start..i].trim());
+                break;
+            }
+            '}' => depth -= 1,
+            ',' if depth == 0 => {
+                found.push(group[item_start..i].trim());
+                item_start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    found
+}
+
 /// Every path a line names from the crate's root: `crate::a::b`, each item of
-/// `crate::{a, b::c}`, and `super::` paths resolved against `module`.
+/// `crate::{a, b::c}`, and `super::` paths (and groups) resolved against `module`.
 fn paths_in(line: &str, module: &[String]) -> Vec<Vec<String>> {
     let mut paths = Vec::new();
     let ident = |s: &str| -> String { s.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect() };
@@ -61,28 +86,7 @@ fn paths_in(line: &str, module: &[String]) -> Vec<Vec<String>> {
         if !word_start {
             continue;
         }
-        let rest = &line[start + prefix..];
-        if let Some(group) = rest.strip_prefix('{') {
-            // Top-level items of the group: split at commas outside nested braces.
-            let (mut depth, mut item_start) = (0, 0);
-            for (i, c) in group.char_indices() {
-                match c {
-                    '{' => depth += 1,
-                    '}' if depth == 0 => {
-                        paths.push(segments_from(group[item_start..i].trim()));
-                        break;
-                    }
-                    '}' => depth -= 1,
-                    ',' if depth == 0 => {
-                        paths.push(segments_from(group[item_start..i].trim()));
-                        item_start = i + 1;
-                    }
-                    _ => {}
-                }
-            }
-        } else {
-            paths.push(segments_from(rest));
-        }
+        paths.extend(items(&line[start + prefix..]).into_iter().map(segments_from));
     }
     for (start, _) in line.match_indices("super::") {
         if start > 0 && line[..start].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == ':') {
@@ -94,9 +98,11 @@ fn paths_in(line: &str, module: &[String]) -> Vec<Vec<String>> {
             base.pop();
             rest = more;
         }
-        let mut path = base;
-        path.extend(segments_from(rest));
-        paths.push(path);
+        for item in items(rest) {
+            let mut path = base.clone();
+            path.extend(segments_from(item));
+            paths.push(path);
+        }
     }
     paths.retain(|p| !p.is_empty());
     paths
@@ -150,18 +156,23 @@ fn violations(relative: &Path, text: &str) -> Vec<String> {
     found
 }
 
+/// Every source file of `common`, by its path under `src/`, with its text.
+fn crate_sources() -> Vec<(PathBuf, String)> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut paths = Vec::new();
+    sources(&root, &mut paths);
+    paths.sort();
+    assert!(paths.len() > 20, "found only {} files under {}", paths.len(), root.display());
+    paths
+        .iter()
+        .map(|p| (p.strip_prefix(&root).unwrap().to_path_buf(), std::fs::read_to_string(p).unwrap()))
+        .collect()
+}
+
 #[test]
 fn no_module_reaches_a_higher_layer() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut files = Vec::new();
-    sources(&root, &mut files);
-    files.sort();
-    assert!(files.len() > 20, "found only {} files under {}", files.len(), root.display());
-    let mut found = Vec::new();
-    for file in &files {
-        let text = std::fs::read_to_string(file).unwrap();
-        found.extend(violations(file.strip_prefix(&root).unwrap(), &text));
-    }
+    let found: Vec<String> =
+        crate_sources().iter().flat_map(|(relative, text)| violations(relative, text)).collect();
     assert!(found.is_empty(), "modules that break the layers:\n{}", found.join("\n"));
 }
 
@@ -184,6 +195,215 @@ fn the_check_sees_what_it_must_refuse() {
     assert_eq!(check("lib.rs", "pub fn run() {}").len(), 1);
     // Words that merely contain `crate::` are not paths.
     assert!(check("base/cli.rs", "use mycrate::scene::Scene;").is_empty());
+}
+
+// ---------------------------------------------------------------------------------------------
+// No circles between modules
+
+/// Whether `text` defines or re-exports `name` publicly: `pub fn name`, `pub(crate) struct name`,
+/// `pub use a::name;` or `pub use a::{b, name};`.
+fn defines(text: &str, name: &str) -> bool {
+    const KINDS: [&str; 9] = ["fn", "struct", "enum", "type", "const", "static", "trait", "mod", "union"];
+    text.lines().any(|line| {
+        let line = line.trim_start();
+        let Some(rest) = line.strip_prefix("pub") else { return false };
+        // Past the visibility: `pub `, `pub(crate) `, `pub(super) `.
+        let rest = match rest.strip_prefix('(') {
+            Some(inner) => inner.split_once(')').map_or("", |(_, after)| after),
+            None => rest,
+        };
+        let mut words = rest.split(|c: char| !(c.is_alphanumeric() || c == '_')).filter(|w| !w.is_empty());
+        match words.next() {
+            Some("use") => words.any(|w| w == name),
+            Some(kind) if KINDS.contains(&kind) => words.next() == Some(name),
+            _ => false,
+        }
+    })
+}
+
+/// The module `path` (segments from the crate root) names: the longest prefix that is a module,
+/// and, where the next segment is an item a folder re-exports (`pub use model::*;` in
+/// `scene/mod.rs`), the module that defines it, so that `crate::scene::Vertex` counts as a use of
+/// `scene/model.rs`, not of `scene/mod.rs`.
+fn resolve(path: &[String], modules: &BTreeMap<Vec<String>, String>) -> Vec<String> {
+    let at = (1..=path.len()).rev().find(|&k| modules.contains_key(&path[..k])).unwrap_or(0);
+    let module = path[..at].to_vec();
+    let (Some(name), Some(text)) = (path.get(at), modules.get(&module)) else { return module };
+    for line in text.lines() {
+        let Some(used) = line.trim_start().strip_prefix("pub use ") else { continue };
+        let child = used.split("::").next().unwrap_or_default();
+        let mut child_path = module.clone();
+        child_path.push(child.to_owned());
+        let Some(child_text) = modules.get(&child_path) else { continue };
+        let glob = used.trim_end_matches(';').ends_with("::*");
+        let listed = used.split(|c: char| !(c.is_alphanumeric() || c == '_')).skip(1).any(|w| w == name);
+        if (glob && defines(child_text, name)) || listed {
+            child_path.push(name.clone());
+            return resolve(&child_path, modules);
+        }
+    }
+    module
+}
+
+/// A file's lines, each with the module its paths are resolved against: inside an inline
+/// `mod tests { ... }`, `super::` names the file's own module.
+fn lines_with_modules(relative: &Path, text: &str) -> Vec<(usize, String, Vec<String>)> {
+    let mut module = module_of(relative);
+    let (mut depth, mut open): (i64, Vec<i64>) = (0, Vec::new());
+    let mut out = Vec::new();
+    for (number, line) in text.lines().enumerate() {
+        let code = line.split("//").next().unwrap_or_default();
+        let words: Vec<&str> = code.split_whitespace().collect();
+        out.push((number + 1, line.to_owned(), module.clone()));
+        if let Some(i) = words.iter().position(|w| *w == "mod")
+            && words.get(i + 2) == Some(&"{")
+        {
+            module.push(words[i + 1].to_owned());
+            open.push(depth);
+        }
+        depth += code.matches('{').count() as i64 - code.matches('}').count() as i64;
+        while open.last().is_some_and(|d| *d >= depth) {
+            open.pop();
+            module.pop();
+        }
+    }
+    out
+}
+
+/// Every use of one module by another, as `(user, used) -> "file:line"` (the first such line).
+fn uses(files: &[(PathBuf, String)]) -> BTreeMap<(Vec<String>, Vec<String>), String> {
+    let modules: BTreeMap<Vec<String>, String> =
+        files.iter().map(|(relative, text)| (module_of(relative), text.clone())).collect();
+    let mut found = BTreeMap::new();
+    for (relative, text) in files {
+        let user = module_of(relative);
+        for (number, line, module) in lines_with_modules(relative, text) {
+            // A doc comment's link is no use of the module it names.
+            if line.trim_start().starts_with("//") {
+                continue;
+            }
+            let mut paths = paths_in(&line, &module);
+            // A folder's own `use child::...` (not its re-exports, which `resolve` follows).
+            if let Some(used) = line.trim_start().strip_prefix("use ") {
+                let mut child = user.clone();
+                child.extend(used.split("::").next().map(str::to_owned));
+                if modules.contains_key(&child) {
+                    child.extend(used.split("::").nth(1).map(|s| s.trim_end_matches(';').to_owned()));
+                    paths.push(child);
+                }
+            }
+            for path in paths {
+                let used = resolve(&path, &modules);
+                if !used.is_empty() && used != user {
+                    let at = format!("{}:{number}", relative.display());
+                    found.entry((user.clone(), used)).or_insert(at);
+                }
+            }
+        }
+    }
+    found
+}
+
+/// Every circle of modules that use each other, as `a -> b (file:line) -> ... -> a` lines, each
+/// circle once.
+fn cycles(files: &[(PathBuf, String)]) -> Vec<String> {
+    let uses = uses(files);
+    let mut next: BTreeMap<&Vec<String>, Vec<&Vec<String>>> = BTreeMap::new();
+    for (user, used) in uses.keys() {
+        next.entry(user).or_default().push(used);
+    }
+    let name = |m: &Vec<String>| if m.is_empty() { "lib".to_owned() } else { m.join("::") };
+    let mut seen = std::collections::BTreeSet::new();
+    let mut found = Vec::new();
+    for (from, to) in uses.keys() {
+        // The shortest way back from `to` to `from`, breadth first.
+        let mut came_from: BTreeMap<&Vec<String>, &Vec<String>> = BTreeMap::new();
+        let mut queue = std::collections::VecDeque::from([to]);
+        while let Some(at) = queue.pop_front() {
+            if at == from {
+                break;
+            }
+            for step in next.get(at).into_iter().flatten() {
+                if !came_from.contains_key(step) && *step != to {
+                    came_from.insert(step, at);
+                    queue.push_back(step);
+                }
+            }
+        }
+        if from != to && !came_from.contains_key(from) {
+            continue;
+        }
+        let mut circle = vec![from];
+        let mut at = from;
+        while at != to {
+            at = came_from[at];
+            circle.push(at);
+        }
+        circle[1..].reverse();
+        let mut key: Vec<_> = circle.iter().map(|m| name(m)).collect();
+        key.sort();
+        if !seen.insert(key) {
+            continue;
+        }
+        let mut text = name(circle[0]);
+        for (i, m) in circle.iter().enumerate() {
+            let after = circle[(i + 1) % circle.len()];
+            text += &format!(" -> {} ({})", name(after), uses[&((*m).clone(), after.clone())]);
+        }
+        found.push(text);
+    }
+    found
+}
+
+/// Modules use each other in one direction only, inside a layer as between layers: a circle
+/// (`memory` uses `structure`, which uses `memory`) means neither can be read, tested or moved
+/// without the other, and the layers' order says nothing about which comes first.
+#[test]
+fn no_modules_use_each_other() {
+    let files = crate_sources();
+    assert!(uses(&files).len() > 50, "found only {} uses between modules", uses(&files).len());
+    let found = cycles(&files);
+    assert!(found.is_empty(), "modules that use each other, in a circle:\n{}", found.join("\n"));
+}
+
+#[test]
+fn the_circle_check_sees_what_it_must_refuse() {
+    // Each case: its files, and how many circles they make.
+    let cases: [(&[(&str, &str)], usize); 3] = [
+        // Two files naming each other, through `super::`.
+        (
+            &[
+                ("rt/accel/memory.rs", "pub struct Memory;\nfn f() { super::structure::properties(); }"),
+                ("rt/accel/structure.rs", "use super::memory::Memory;\npub fn properties() {}"),
+            ],
+            1,
+        ),
+        // Three, one reached through its folder's re-export (`crate::scene::load_obj`).
+        (
+            &[
+                ("scene/mod.rs", "mod builtin;\nmod model;\nmod obj;\npub use model::*;\npub use obj::*;"),
+                ("scene/builtin.rs", "use super::model::Scene;\npub enum SceneKind {}"),
+                ("scene/model.rs", "use crate::scene::load_obj;\npub struct Scene;"),
+                ("scene/obj.rs", "pub fn load_obj() {}\nfn g(k: super::builtin::SceneKind) {}"),
+            ],
+            1,
+        ),
+        // One way only, a test module's `super::*` (its own file), and a layer below: none.
+        (
+            &[
+                ("scene/mod.rs", "mod model;\nmod obj;\npub use model::*;\npub use obj::*;"),
+                ("scene/model.rs", "pub struct Scene;\n#[cfg(test)]\nmod tests {\n    use super::*;\n}"),
+                ("scene/obj.rs", "use crate::scene::Scene;\nuse crate::base::Report;"),
+                ("base/mod.rs", "pub struct Report;"),
+            ],
+            0,
+        ),
+    ];
+    for (list, circles) in cases {
+        let files: Vec<(PathBuf, String)> =
+            list.iter().map(|(p, t)| (PathBuf::from(p), t.to_string())).collect();
+        assert_eq!(cycles(&files).len(), circles, "{list:?}: {:?}", cycles(&files));
+    }
 }
 
 /// What each layer holds, for the picture (lowest first, as [`LAYERS`]).

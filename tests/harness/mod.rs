@@ -52,8 +52,21 @@ pub fn run_chapter(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
 /// Like [`run_chapter`], without `--headless`: the chapter opens a window if `env` gives it a
 /// display (see [`Xvfb`]), and says why it runs headless otherwise.
 pub fn run_chapter_with(bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
-    let out_dir = tempfile::tempdir().expect("temporary directory");
+    run_chapter_in(Command::new(bin), bin, args, env)
+}
+
+/// Like [`run_chapter`], started in `dir` instead of the checkout: what a user who runs a
+/// binary from elsewhere sees.
+pub fn run_chapter_from(dir: &Path, bin: &str, args: &[&str]) -> Run {
     let mut command = Command::new(bin);
+    command.current_dir(dir);
+    let mut all = vec!["--headless"];
+    all.extend_from_slice(args);
+    run_chapter_in(command, bin, &all, &[])
+}
+
+fn run_chapter_in(mut command: Command, bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
+    let out_dir = tempfile::tempdir().expect("temporary directory");
     command.args(["--json", "--out"]).arg(out_dir.path()).args(args);
     pin_software_stack(&mut command);
     // The validation layer's synchronisation checks too (hazards between commands, barriers
@@ -291,4 +304,18 @@ pub fn markdown_files(dir: &Path) -> Vec<PathBuf> {
     let mut found = Vec::new();
     walk(dir, &mut found);
     found
+}
+
+/// Every `.rs` file under `dir`, at any depth.
+pub fn rust_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            files.extend(rust_files(&path));
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            files.push(path);
+        }
+    }
+    files
 }

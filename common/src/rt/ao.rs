@@ -8,7 +8,7 @@ use crate::base::vulkan::VulkanContext;
 use crate::interop::handoff::{Apis, HandOver};
 use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
-use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
+use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes, raygen_bindings};
 use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
 use ash::vk;
@@ -102,19 +102,10 @@ impl AoTracer {
         gbuffers: &GBuffers,
     ) -> Result<Self> {
         // ANCHOR: pipeline
-        let binding = |binding, ty| {
-            vk::DescriptorSetLayoutBinding::default()
-                .binding(binding)
-                .descriptor_type(ty)
-                .descriptor_count(1)
-                .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR)
-        };
-        let bindings = [
-            binding(0, vk::DescriptorType::ACCELERATION_STRUCTURE_KHR),
-            binding(1, vk::DescriptorType::STORAGE_IMAGE), // positions
-            binding(2, vk::DescriptorType::STORAGE_IMAGE), // normals
-            binding(3, vk::DescriptorType::STORAGE_IMAGE), // AO
-        ];
+        // Bindings 0-3, as chapter 06's: the TLAS, positions, normals, and the AO image.
+        let image = vk::DescriptorType::STORAGE_IMAGE;
+        let bindings =
+            raygen_bindings(&[vk::DescriptorType::ACCELERATION_STRUCTURE_KHR, image, image, image]);
         let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
         let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<AoRays>() as u32)?;
         pipeline.write_tlas(vk, 0, tlas);
@@ -222,86 +213,116 @@ impl AoTracer {
         mut rays: AoRays,
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
-        let Apis { vk, gl, handoff, commands } = apis;
-        let gbuffer_textures = gbuffers.textures();
-        // Positions and normals come to Vulkan in GENERAL, the layout storage images need, and go
-        // back as attachments for GL's next draw; the AO image is sampled by GL. On the host path
-        // `hand_over` makes all of them GENERAL both ways (GL moves no layout there).
-        let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
-        let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-        let layouts = (
-            handoff.hand_over(vk::ImageLayout::GENERAL, attachment),
-            handoff.hand_over(read_only, read_only),
-        );
-        let ((gbuffer_to_vulkan, gbuffer_to_gl), (ao_to_vulkan, ao_to_gl)) = (layouts.0.gl(), layouts.1.gl());
-        let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
-        // The AO image only once GL has had it.
-        let handed = if self.gl_has_image { 3 } else { 2 };
-        handoff.gl_release(
-            gl,
-            &textures[..handed],
-            &[gbuffer_to_vulkan, gbuffer_to_vulkan, ao_to_vulkan][..handed],
-        );
-        let cb = commands.begin(vk)?;
         rays.accumulated = self.accumulated;
-        unsafe { self.record(vk, cb, gbuffers, layouts, &rays, timestamps) };
-        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-        commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
-        let layouts = [gbuffer_to_gl, gbuffer_to_gl, ao_to_gl];
-        handoff.gl_acquire(vk, gl, *commands.fence, &textures, &layouts)?;
+        // Positions and normals in (the albedo stays GL's: Vulkan does not use it), the AO out.
+        let images = Traced {
+            inputs: &[&gbuffers.images[0], &gbuffers.images[1]],
+            output: &self.image,
+            gl_has_output: self.gl_has_image,
+        };
+        let (vk, pipeline, extent) = (apis.vk, &self.pipeline, gbuffers.extent);
+        hand_over_around(
+            apis,
+            &images,
+            timestamps,
+            || {},
+            |cb| pipeline.trace(vk, cb, push_bytes(&rays), extent),
+        )?;
         self.gl_has_image = true;
         self.accumulated += rays.samples;
         Ok(())
     }
     // ANCHOR_END: frame
-
-    // ANCHOR: record
-    /// Take the G-buffers and the AO image from GL, trace, give them back.
-    unsafe fn record(
-        &self,
-        vk: &VulkanContext,
-        cb: vk::CommandBuffer,
-        gbuffers: &GBuffers,
-        (gbuffer_layouts, ao_layouts): (HandOver, HandOver),
-        rays: &AoRays,
-        timestamps: Option<&Timestamps>,
-    ) {
-        let general = vk::ImageLayout::GENERAL;
-        let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
-        let [positions, normals] = [&gbuffers.images[0], &gbuffers.images[1]];
-        let ao = if self.gl_has_image {
-            // Its contents are the running mean so far, which the shader reads and updates.
-            acquire_from_gl(vk, &self.image, ao_layouts.to_vulkan, general, read | write)
-        } else {
-            // Never GL's yet: undefined contents, which the first frame overwrites (weight 1).
-            first_use(*self.image.image, general, read | write)
-        };
-        let acquire = [
-            acquire_from_gl(vk, positions, gbuffer_layouts.to_vulkan, general, read),
-            acquire_from_gl(vk, normals, gbuffer_layouts.to_vulkan, general, read),
-            ao,
-        ];
-        // Back to GL: the G-buffers for the next frame's draw (nothing written here), the AO
-        // image to sample, its writes made available.
-        let release = [
-            release_to_gl(vk, positions, general, gbuffer_layouts.to_gl, vk::AccessFlags::NONE),
-            release_to_gl(vk, normals, general, gbuffer_layouts.to_gl, vk::AccessFlags::NONE),
-            release_to_gl(vk, &self.image, general, ao_layouts.to_gl, write),
-        ];
-        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-        let none = vk::DependencyFlags::empty();
-        unsafe {
-            // From the stage the submission waits for GL at: the acquire must follow GL's signal.
-            vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
-            timed(vk, cb, timestamps, stage, || {
-                self.pipeline.trace(vk, cb, push_bytes(rays), gbuffers.extent)
-            });
-            let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
-            vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
-        }
-    }
-    // ANCHOR_END: record
 }
+
+// ANCHOR: record
+/// The shared images of one frame's Vulkan work between GL's passes: `inputs` GL has just drawn
+/// and Vulkan only reads (chapter 07's positions and normals, chapter 12's ids), and `output`,
+/// the running mean Vulkan reads and updates and GL samples (the AO image, chapter 12's surface).
+pub struct Traced<'a> {
+    pub inputs: &'a [&'a SharedImage],
+    pub output: &'a SharedImage,
+    /// Has GL had `output` yet? A new one starts undefined, never handed over.
+    pub gl_has_output: bool,
+}
+
+/// One frame of Vulkan work between GL's passes: GL hands over the inputs it just drew (and the
+/// output, once it has had it), Vulkan records `work` between the barriers that take them from
+/// GL and give them back, and GL is told to wait for that before it samples the output.
+/// `between` runs once Vulkan's work is submitted and before GL is told to wait (chapter 12's
+/// `overlap.rs`). Chapter 07's tracer and chapter 12's both hand over through it.
+pub fn hand_over_around(
+    apis: Apis,
+    images: &Traced,
+    timestamps: Option<&Timestamps>,
+    between: impl FnOnce(),
+    work: impl FnOnce(vk::CommandBuffer),
+) -> Result<()> {
+    let Apis { vk, gl, handoff, commands } = apis;
+    // The inputs come to Vulkan in GENERAL, the layout storage images need, and go back as
+    // attachments for GL's next draw; the output is sampled by GL. On the host path `hand_over`
+    // makes all of them GENERAL both ways (GL moves no layout there).
+    let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
+    let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
+    let layouts =
+        (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only));
+    let ((input_to_vulkan, input_to_gl), (output_to_vulkan, output_to_gl)) = (layouts.0.gl(), layouts.1.gl());
+    let mut textures: Vec<glow::Texture> = images.inputs.iter().map(|i| i.texture.texture).collect();
+    textures.push(images.output.texture.texture);
+    let mut to_vulkan = vec![input_to_vulkan; images.inputs.len()];
+    to_vulkan.push(output_to_vulkan);
+    // The output only once GL has had it.
+    let handed = if images.gl_has_output { textures.len() } else { images.inputs.len() };
+    handoff.gl_release(gl, &textures[..handed], &to_vulkan[..handed]);
+    let cb = commands.begin(vk)?;
+    unsafe { record(vk, cb, images, layouts, timestamps, work) };
+    let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
+    between();
+    let mut to_gl = vec![input_to_gl; images.inputs.len()];
+    to_gl.push(output_to_gl);
+    handoff.gl_acquire(vk, gl, *commands.fence, &textures, &to_gl)
+}
+
+/// Take the inputs and the output from GL, record `work`, give them back.
+unsafe fn record(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    images: &Traced,
+    (input_layouts, output_layouts): (HandOver, HandOver),
+    timestamps: Option<&Timestamps>,
+    work: impl FnOnce(vk::CommandBuffer),
+) {
+    let general = vk::ImageLayout::GENERAL;
+    let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
+    let output = if images.gl_has_output {
+        // Its contents are the running mean so far, which the shader reads and updates.
+        acquire_from_gl(vk, images.output, output_layouts.to_vulkan, general, read | write)
+    } else {
+        // Never GL's yet: undefined contents, which the first frame overwrites (weight 1).
+        first_use(*images.output.image, general, read | write)
+    };
+    let inputs = images.inputs.iter();
+    let mut acquire: Vec<_> =
+        inputs.clone().map(|i| acquire_from_gl(vk, i, input_layouts.to_vulkan, general, read)).collect();
+    acquire.push(output);
+    // Back to GL: the inputs for the next frame's draw (nothing written here), the output to
+    // sample, its writes made available.
+    let none = vk::AccessFlags::NONE;
+    let mut release: Vec<_> =
+        inputs.map(|i| release_to_gl(vk, i, general, input_layouts.to_gl, none)).collect();
+    release.push(release_to_gl(vk, images.output, general, output_layouts.to_gl, write));
+    let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+    let none = vk::DependencyFlags::empty();
+    unsafe {
+        // From the stage the submission waits for GL at: the acquire must follow GL's signal.
+        vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
+        timed(vk, cb, timestamps, stage, || work(cb));
+        let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+        vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
+    }
+}
+// ANCHOR_END: record
 
 // ANCHOR: ao_rays
 /// The push constants of `shaders/ao.rgen` (std430: four 4-byte members, 16 bytes).

@@ -25,6 +25,19 @@ pub struct RayPipeline {
     pub regions: [vk::StridedDeviceAddressRegionKHR; 4],
 }
 
+/// The descriptor set layout of a ray generation shader: binding `i` of `types[i]`, one
+/// descriptor each, seen by the ray generation stage only (chapter 06 writes its two out).
+pub fn raygen_bindings(types: &[vk::DescriptorType]) -> Vec<vk::DescriptorSetLayoutBinding<'static>> {
+    let binding = |(i, ty): (usize, &vk::DescriptorType)| {
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(i as u32)
+            .descriptor_type(*ty)
+            .descriptor_count(1)
+            .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR)
+    };
+    types.iter().enumerate().map(binding).collect()
+}
+
 /// The two shaders of a [`RayPipeline`], as SPIR-V.
 pub struct RayShaders<'a> {
     pub raygen: &'a [u8],

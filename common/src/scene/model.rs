@@ -1,7 +1,7 @@
-//! Scenes (chapter 05): meshes, instances, and the default scene of many tetrahedra over a
-//! ground plane. OBJ files are read in `obj.rs`, the camera is in `camera.rs`.
+//! Scenes (chapter 05): meshes, instances, and the seeded generator that places them. The
+//! lowest module of the scene layer: OBJ files are read in `obj.rs`, the default scene is built
+//! in `builtin.rs`, the flags that choose one are in `args.rs`, the camera is in `camera.rs`.
 
-use super::obj::{Normals, meshes_from_obj};
 use anyhow::{Result, bail};
 use glam::{Mat4, Vec3};
 use std::ops::Range;
@@ -143,59 +143,6 @@ impl Scene {
     }
 }
 
-// ---------------------------------------------------------------------------------------------
-// The default scene
-
-/// `count` faceted tetrahedra, placed and scaled by a seeded normal distribution, over a
-/// 20 x 20 ground plane: two meshes, `count + 1` instances. The same seed gives the same scene.
-pub fn default_scene(count: u32, seed: u64) -> Scene {
-    let mut random = Random(seed);
-    let ground = Instance::new(Mat4::IDENTITY, [200, 200, 200]);
-    let tetrahedra = (0..count).map(|_| {
-        let scale = 0.15 + 0.1 * random.normal().abs();
-        let x = (2.5 * random.normal()).clamp(-9.5, 9.5);
-        let z = (2.5 * random.normal()).clamp(-9.5, 9.5);
-        let y = scale + 1.5 * random.normal().abs();
-        let rotation = glam::Quat::from_euler(
-            glam::EulerRot::YXZ,
-            random.uniform() * std::f32::consts::TAU,
-            random.uniform() * std::f32::consts::TAU,
-            0.0,
-        );
-        let transform =
-            Mat4::from_scale_rotation_translation(Vec3::splat(scale), rotation, Vec3::new(x, y, z));
-        Instance::new(transform, hue_to_rgb(random.uniform()))
-    });
-    let instances: Vec<Instance> = std::iter::once(ground).chain(tetrahedra).collect();
-    Scene::new(vec![ground_plane(), tetrahedron()], instances, vec![0..1, 1..count + 1])
-        .expect("the ground plane alone has a size")
-}
-
-/// The default scene's meshes, kept as OBJ files in `assets/` and built into the binaries.
-const TETRAHEDRON_OBJ: &str = include_str!("../../../assets/tetrahedron.obj");
-const GROUND_OBJ: &str = include_str!("../../../assets/ground.obj");
-
-/// A regular tetrahedron of circumradius 1 with one normal per face (12 vertices).
-pub fn tetrahedron() -> Mesh {
-    embedded(TETRAHEDRON_OBJ, "assets/tetrahedron.obj", Normals::Flat)
-}
-
-/// A 20 x 20 square in the y = 0 plane, facing up.
-pub fn ground_plane() -> Mesh {
-    embedded(GROUND_OBJ, "assets/ground.obj", Normals::Flat)
-}
-
-fn embedded(text: &str, name: &str, normals: Normals) -> Mesh {
-    let mut reader = std::io::BufReader::new(text.as_bytes());
-    let options = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    let loaded = tobj::load_obj_buf(&mut reader, &options, |_| Err(tobj::LoadError::OpenFileFailed))
-        .map_err(|e| anyhow::anyhow!("{name}: not a valid OBJ file ({e})"))
-        .and_then(|(models, _)| meshes_from_obj(models, &[], name, normals, [0.0; 3]));
-    // Our own files, built in: a failure here is a bug, and the unit tests below would catch it.
-    let mut meshes = loaded.expect("the built-in OBJ files parse");
-    meshes.remove(0).0
-}
-
 /// A small, seeded generator (SplitMix64): the scene must be the same on every machine.
 pub struct Random(pub u64);
 
@@ -209,24 +156,16 @@ impl Random {
     }
 
     /// Uniform in [0, 1).
-    fn uniform(&mut self) -> f32 {
+    pub(super) fn uniform(&mut self) -> f32 {
         (self.next() >> 40) as f32 / (1u64 << 24) as f32
     }
 
     /// Standard normal (Box-Muller).
-    fn normal(&mut self) -> f32 {
+    pub(super) fn normal(&mut self) -> f32 {
         let u = self.uniform().max(f32::MIN_POSITIVE);
         let v = self.uniform();
         (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
     }
-}
-
-fn hue_to_rgb(hue: f32) -> [u8; 3] {
-    let channel = |offset: f32| {
-        let x = ((hue + offset).fract() * 6.0 - 3.0).abs() - 1.0;
-        (60.0 + 180.0 * x.clamp(0.0, 1.0)) as u8
-    };
-    [channel(0.0), channel(2.0 / 3.0), channel(1.0 / 3.0)]
 }
 
 #[cfg(test)]
@@ -244,26 +183,5 @@ mod tests {
         assert_eq!(instance.transform[0], [2.0, 0.0, 0.0, 1.0], "row-major, translation last");
         assert_eq!(instance.custom_index_and_mask, 0xFF03_0201);
         assert_eq!(instance.object_to_world(), m);
-    }
-
-    #[test]
-    fn default_scene_is_deterministic_and_sized() {
-        let a = default_scene(100, 7);
-        let b = default_scene(100, 7);
-        assert_eq!(a.instances, b.instances);
-        assert_eq!(a.instances.len(), 101);
-        assert_eq!(a.triangles(), 2 + 100 * 4);
-        // Re-centred: the bounds sit around the origin, `origin` says where they were.
-        let centre = (a.bounds.0 + a.bounds.1) / 2.0;
-        assert!(centre.length() < 1e-5, "{centre}");
-        assert!((a.origin[1] as f32 + a.bounds.0.y).abs() < 1e-3, "the ground was at y = 0");
-    }
-
-    #[test]
-    fn tetrahedron_normals_point_outwards() {
-        let t = tetrahedron();
-        for v in &t.vertices {
-            assert!(Vec3::from(v.normal).dot(Vec3::from(v.position)) > 0.0);
-        }
     }
 }

@@ -1,47 +1,24 @@
-//! A scene from the command line (chapter 05 on): the default scene, a builtin one, or an OBJ
-//! file, read with tobj, its normals made where it has none.
+//! OBJ files (chapter 05 on), read with tobj, their normals made where they have none.
 
-use super::model::{Instance, Mesh, Scene, Vertex, default_scene};
+use super::model::{Instance, Mesh, Scene, Vertex};
 use anyhow::{Result, bail};
 use glam::{Mat4, Vec3};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-/// The flags of every chapter that draws a scene (05 on).
-#[derive(clap::Args, Debug, Clone)]
-pub struct SceneArgs {
-    /// An OBJ file to use instead of the default scene.
-    #[arg(long)]
-    pub scene: Option<std::path::PathBuf>,
-    /// Normals for an OBJ file that has none.
-    #[arg(long, value_enum, default_value = "smooth")]
-    pub normals: Normals,
-    /// Tetrahedra in the default scene (0 to a million).
-    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
-    pub instances: u32,
-    /// One of the scenes `bench` measures instead: `large` (the default scene's tetrahedra over a
-    /// million-triangle rippled ground) or `ceiling` (one triangle every ray misses).
-    #[arg(long, value_enum, conflicts_with = "scene")]
-    pub builtin: Option<super::builtin::SceneKind>,
-}
-
-impl SceneArgs {
-    /// The OBJ file's scene, or the default one (seeded: the same on every run).
-    pub fn load(&self) -> Result<Scene> {
-        match (&self.scene, self.builtin) {
-            (Some(path), _) => load_obj(path, self.normals),
-            (None, Some(kind)) => kind.build(super::builtin::Ground::Fine),
-            (None, None) => Ok(default_scene(self.instances, 1)),
-        }
+/// One of the tutorial's own files in `assets/`, for a chapter's default model: found in the
+/// checkout the binary was built from, so that the chapter runs from any directory (a path the
+/// user gives stays relative to the current directory). An error names the path tried and
+/// `flag`, which gives a file instead.
+pub fn default_asset(name: &str, flag: &str) -> Result<PathBuf> {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(|root| root.join("assets"));
+    let path = assets.unwrap_or_default().join(name);
+    if !path.is_file() {
+        bail!(
+            "{}: the default for {flag} is not there (binaries look for it in the checkout they              were built from); name a file with {flag} PATH",
+            path.display()
+        );
     }
-
-    /// Picture names: `<chapter>` for the default scene, `<chapter>-<file stem>` for a model.
-    pub fn picture_name(&self, chapter: &str) -> String {
-        match (self.scene.as_ref().and_then(|p| p.file_stem()), self.builtin) {
-            (Some(stem), _) => format!("{chapter}-{}", stem.to_string_lossy()),
-            (None, Some(kind)) => format!("{chapter}-{}", kind.name()),
-            (None, None) => chapter.to_owned(),
-        }
-    }
+    Ok(path)
 }
 
 /// How to make normals for a file that has none.
@@ -212,12 +189,20 @@ pub fn compute_normals(mesh: &mut Mesh, normals: Normals) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::{Random, ground_plane, tetrahedron};
+    use crate::scene::Random;
 
     /// The OBJ loader on random and mutated files (truncated lines, huge and negative indices,
     /// NaN and infinity, missing and zero normals, stray bytes, many faces): it never panics, and
     /// returns either a scene whose numbers are all finite, with unit normals, or an error that
     /// names the file.
+    #[test]
+    fn default_assets_are_found_or_named() {
+        let bunny = default_asset("bunny.obj", "--model").unwrap();
+        assert!(bunny.is_absolute() && bunny.ends_with("assets/bunny.obj"), "{}", bunny.display());
+        let missing = default_asset("no-such.obj", "--model").unwrap_err().to_string();
+        assert!(missing.contains("assets/no-such.obj") && missing.contains("--model PATH"), "{missing}");
+    }
+
     #[test]
     fn obj_loader_never_panics_on_bad_input() {
         let base = "o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 1\nvn 0 0 1\nvn 0 0 1\n\
@@ -291,15 +276,5 @@ mod tests {
         let scene = load_obj(&path, Normals::Flat).unwrap();
         assert_eq!(scene.triangles(), 2_000_000);
         std::fs::remove_dir_all(&dir).unwrap();
-    }
-
-    #[test]
-    fn smooth_and_flat_normals() {
-        let mut m = tetrahedron();
-        compute_normals(&mut m, Normals::Flat);
-        assert_eq!(m.vertices.len(), 12);
-        let mut shared = ground_plane();
-        compute_normals(&mut shared, Normals::Smooth);
-        assert!(shared.vertices.iter().all(|v| (Vec3::from(v.normal) - Vec3::Y).length() < 1e-6));
     }
 }

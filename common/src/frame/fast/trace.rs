@@ -5,13 +5,12 @@ use super::visibility::{MeshIds, Targets};
 use anyhow::Result;
 use ash::vk;
 use crate::base::vulkan::VulkanContext;
-use crate::base::commands::first_use;
-use crate::base::timestamps::{Timestamps, timed};
-use crate::interop::handoff::{Apis, HandOver};
-use crate::interop::{acquire_from_gl, release_to_gl};
+use crate::base::timestamps::Timestamps;
+use crate::interop::handoff::Apis;
 use crate::rt::RayTracedScene;
+use crate::rt::ao::Traced;
 use crate::rt::accel::{BufferDesc, DeviceBuffer};
-use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
+use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes, raygen_bindings};
 use crate::scene::Camera;
 use gpu_allocator::MemoryLocation;
 
@@ -113,18 +112,9 @@ impl SurfaceTracer {
         targets: &Targets,
     ) -> Result<Self> {
         // ANCHOR: pipeline
-        let binding = |binding, ty| {
-            vk::DescriptorSetLayoutBinding::default()
-                .binding(binding)
-                .descriptor_type(ty)
-                .descriptor_count(1)
-                .stage_flags(vk::ShaderStageFlags::RAYGEN_KHR)
-        };
-        let bindings = [
-            binding(0, vk::DescriptorType::ACCELERATION_STRUCTURE_KHR),
-            binding(1, vk::DescriptorType::STORAGE_IMAGE), // the ids, from GL
-            binding(2, vk::DescriptorType::STORAGE_IMAGE), // the surface, for GL
-        ];
+        // Bindings 0-2: the TLAS, the ids (from GL), the surface (for GL).
+        let image = vk::DescriptorType::STORAGE_IMAGE;
+        let bindings = raygen_bindings(&[vk::DescriptorType::ACCELERATION_STRUCTURE_KHR, image, image]);
         let allocator = &shared.allocator;
         let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
         let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<SurfaceRays>() as u32)?;
@@ -244,11 +234,11 @@ impl SurfaceTracer {
 }
 
 // ANCHOR: hand_over
-/// One frame of Vulkan work between GL's passes: GL hands over the ids it just drew (and the
-/// surface, once it has had it), Vulkan records `work` between the barriers that take both from
-/// GL and give them back, and GL is told to wait for that before it composites. `between` runs
-/// once Vulkan's work is submitted and before GL is told to wait (`overlap.rs`). Chapter 13's
-/// tracer hands the same two images over around its own work.
+/// One frame of Vulkan work between GL's passes, through chapter 07's hand-over: GL hands over
+/// the ids it just drew (and the surface, once it has had it), Vulkan records `work` between the
+/// barriers that take both from GL and give them back, and GL is told to wait for that before it
+/// composites. `between` runs once Vulkan's work is submitted and before GL is told to wait
+/// (`overlap.rs`). Chapter 13's tracer hands the same two images over around its own work.
 pub fn hand_over_around(
     apis: Apis,
     targets: &Targets,
@@ -256,66 +246,18 @@ pub fn hand_over_around(
     between: impl FnOnce(),
     work: impl FnOnce(vk::CommandBuffer),
 ) -> Result<()> {
-    let Apis { vk, gl, handoff, commands } = apis;
-    // The ids come to Vulkan in GENERAL (storage images) and go back as GL's attachment; the
-    // surface is sampled by GL. On the host path both stay GENERAL (`Handoff::hand_over`).
-    let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
-    let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-    let layouts =
-        (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only));
-    let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) = (layouts.0.gl(), layouts.1.gl());
-    let textures = [targets.visibility.texture.texture, targets.surface.texture.texture];
-    let handed = if targets.gl_has_surface.get() { 2 } else { 1 };
-    handoff.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
-    let cb = commands.begin(vk)?;
-    unsafe { record(vk, cb, targets, layouts, timestamps, work) };
-    let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-    commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
-    between();
-    handoff.gl_acquire(vk, gl, *commands.fence, &textures, &[ids_to_gl, surface_to_gl])?;
+    // Two images, where chapter 08 hands over three and reads 32 bytes a pixel: the ids in, the
+    // surface (the running mean, and all the composite reads) out.
+    let images = Traced {
+        inputs: &[&targets.visibility],
+        output: &targets.surface,
+        gl_has_output: targets.gl_has_surface.get(),
+    };
+    crate::rt::ao::hand_over_around(apis, &images, timestamps, between, work)?;
     targets.gl_has_surface.set(true);
     Ok(())
 }
 // ANCHOR_END: hand_over
-
-// ANCHOR: record
-/// Take the ids and the surface from GL, trace, give them back: two images, where chapter
-/// 08 hands over three and reads 32 bytes a pixel.
-unsafe fn record(
-    vk: &VulkanContext,
-    cb: vk::CommandBuffer,
-    targets: &Targets,
-    (ids_layouts, surface_layouts): (HandOver, HandOver),
-    timestamps: Option<&Timestamps>,
-    work: impl FnOnce(vk::CommandBuffer),
-) {
-    let general = vk::ImageLayout::GENERAL;
-    let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
-    let surface = if targets.gl_has_surface.get() {
-        // The running mean so far: read and updated.
-        acquire_from_gl(vk, &targets.surface, surface_layouts.to_vulkan, general, read | write)
-    } else {
-        // Never GL's yet: undefined, and the first frame overwrites every pixel.
-        first_use(*targets.surface.image, general, read | write)
-    };
-    let acquire = [acquire_from_gl(vk, &targets.visibility, ids_layouts.to_vulkan, general, read), surface];
-    // Back to GL: the ids for the next frame's draw (nothing written here), the surface to
-    // sample, its writes made available.
-    let release = [
-        release_to_gl(vk, &targets.visibility, general, ids_layouts.to_gl, vk::AccessFlags::NONE),
-        release_to_gl(vk, &targets.surface, general, surface_layouts.to_gl, write),
-    ];
-    let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-    let none = vk::DependencyFlags::empty();
-    unsafe {
-        // From the stage the submission waits for GL at: the acquire must follow GL's signal.
-        vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[], &[], &acquire);
-        timed(vk, cb, timestamps, stage, || work(cb));
-        let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
-        vk.device.cmd_pipeline_barrier(cb, stage, bottom, none, &[], &[], &release);
-    }
-}
-// ANCHOR_END: record
 
 #[cfg(test)]
 mod tests {

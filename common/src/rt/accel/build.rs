@@ -1,9 +1,9 @@
 //! The scene's structures built in one go: one compacted BLAS per mesh (or one flat BLAS for
 //! the whole scene) and the TLAS over the shared instance buffer.
 
-use super::memory::{BufferDesc, DeviceBuffer, GpuAllocator, Scratch, query_pool};
+use super::memory::{BufferDesc, DeviceBuffer, GpuAllocator, query_pool};
 use super::structure::{
-    AccelerationStructure, build_barrier, build_sizes, instances_at, instances_geometry, set_blas_address,
+    AccelerationStructure, Scratch, build_barrier, build_sizes, instances_at, instances_geometry, set_blas_address,
     tlas_built_barrier, triangles_geometry,
 };
 use crate::base::commands::Commands;

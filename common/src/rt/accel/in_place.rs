@@ -1,7 +1,8 @@
 //! Structures that move (chapters 09 and 10): one structure rebuilt or updated in place every
 //! frame, with a persistent scratch buffer.
 
-use super::memory::{GpuAllocator, Scratch};
+use super::memory::GpuAllocator;
+use super::structure::Scratch;
 use super::structure::build_sizes;
 use crate::base::vulkan::VulkanContext;
 use crate::base::commands::Commands;

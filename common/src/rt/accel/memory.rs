@@ -1,5 +1,5 @@
-//! Memory Vulkan keeps to itself: gpu-allocator, buffers in it with their device addresses,
-//! scratch space for builds, and query pools.
+//! Memory Vulkan keeps to itself: gpu-allocator, buffers in it with their device addresses, and
+//! query pools. It knows nothing of acceleration structures (`structure` stands on it).
 
 use crate::base::fail;
 use crate::base::owned::{Owned, create};
@@ -125,41 +125,4 @@ pub(super) fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> R
     let pool = create(&vk.device, &what, || unsafe { vk.device.create_query_pool(&info, None) })?;
     crate::base::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
     Ok(pool)
-}
-
-/// Scratch memory for several builds: one buffer, each region aligned as the device requires.
-pub(super) struct Scratch {
-    buffer: DeviceBuffer,
-    offsets: Vec<u64>,
-}
-
-impl Scratch {
-    pub(super) fn new(vk: &VulkanContext, allocator: &GpuAllocator, sizes: &[u64]) -> Result<Self> {
-        let properties = super::structure::properties(vk);
-        let alignment = properties.min_acceleration_structure_scratch_offset_alignment.max(1) as u64;
-        let mut offsets = Vec::new();
-        let mut total = 0;
-        for size in sizes {
-            offsets.push(total);
-            total += size.next_multiple_of(alignment);
-        }
-        // Room to slide the start up to the next aligned address.
-        let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
-        let buffer = DeviceBuffer::new(
-            vk,
-            allocator,
-            BufferDesc {
-                name: "build scratch",
-                size: total + alignment,
-                usage,
-                location: MemoryLocation::GpuOnly,
-            },
-        )?;
-        let start = buffer.address.next_multiple_of(alignment) - buffer.address;
-        Ok(Scratch { buffer, offsets: offsets.into_iter().map(|o| o + start).collect() })
-    }
-
-    pub(super) fn address(&self, i: usize) -> vk::DeviceAddress {
-        self.buffer.address + self.offsets[i]
-    }
 }

@@ -1,5 +1,6 @@
 //! One acceleration structure in its own buffer, the geometries it is built from, and what a
-//! build needs around it: sizes, barriers, the device's limits, the instances' BLAS addresses.
+//! build needs around it: sizes, scratch space, barriers, the device's limits, the instances' BLAS
+//! addresses.
 
 use super::memory::{BufferDesc, DeviceBuffer, GpuAllocator};
 use crate::base::owned::{Owned, create};
@@ -196,4 +197,41 @@ pub fn structure_size(
         .flags(flags)
         .geometries(std::slice::from_ref(geometry));
     build_sizes(loader, &info, &[primitives]).acceleration_structure_size
+}
+
+/// Scratch memory for several builds: one buffer, each region aligned as the device requires.
+pub(super) struct Scratch {
+    buffer: DeviceBuffer,
+    offsets: Vec<u64>,
+}
+
+impl Scratch {
+    pub(super) fn new(vk: &VulkanContext, allocator: &GpuAllocator, sizes: &[u64]) -> Result<Self> {
+        let properties = properties(vk);
+        let alignment = properties.min_acceleration_structure_scratch_offset_alignment.max(1) as u64;
+        let mut offsets = Vec::new();
+        let mut total = 0;
+        for size in sizes {
+            offsets.push(total);
+            total += size.next_multiple_of(alignment);
+        }
+        // Room to slide the start up to the next aligned address.
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
+        let buffer = DeviceBuffer::new(
+            vk,
+            allocator,
+            BufferDesc {
+                name: "build scratch",
+                size: total + alignment,
+                usage,
+                location: MemoryLocation::GpuOnly,
+            },
+        )?;
+        let start = buffer.address.next_multiple_of(alignment) - buffer.address;
+        Ok(Scratch { buffer, offsets: offsets.into_iter().map(|o| o + start).collect() })
+    }
+
+    pub(super) fn address(&self, i: usize) -> vk::DeviceAddress {
+        self.buffer.address + self.offsets[i]
+    }
 }
