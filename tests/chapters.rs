@@ -956,6 +956,18 @@ fn ch14_a_killed_renderer_leaves_the_viewer_clean() {
     assert!(dir.path().join("14-two-processes.png").exists(), "the last frame is kept:\n{seen}");
 }
 
+/// The leak check can fail: a viewer that keeps a copy of one fd it received (a hidden flag)
+/// fails `viewer_no_fd_leaked`, naming the memory it kept, and the run exits 1.
+#[test]
+fn ch14_a_kept_fd_fails_the_leak_check() {
+    let run = run_chapter(CH14, &["--size", "32x24", "--frames", "3", "--keep-a-received-fd"], &[]);
+    assert_eq!(run.output.status.code(), Some(1), "{}", run.stderr);
+    let report: serde_json::Value = serde_json::from_slice(&run.output.stdout).unwrap();
+    assert_eq!(report["checks"]["viewer_no_fd_leaked"], false, "{}", run.stderr);
+    assert_eq!(report["checks"]["no_fd_leaked"], true, "the renderer's own fds are all closed");
+    assert!(run.stderr.contains("viewer: fds left open: [\"/memfd:"), "{}", run.stderr);
+}
+
 /// What cannot work is refused before anything is made: a ring of one, a kill rate that would
 /// never let a frame through, a kill in a viewer the renderer did not start.
 #[test]

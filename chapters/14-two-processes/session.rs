@@ -173,6 +173,9 @@ pub fn spawn_viewer(args: &Args, width: u32, height: u32) -> Result<(Socket, Opt
     let (size, timeout) = (format!("{width}x{height}"), args.timeout.to_string());
     command.args(["--viewer-fd", &fd.to_string(), "--headless", "--size", &size, "--timeout", &timeout]);
     command.arg("--out").arg(args.common.out_dir(CHAPTER));
+    if args.keep_a_received_fd {
+        command.arg("--keep-a-received-fd");
+    }
     command.stdout(std::process::Stdio::null()); // --json's one document is the renderer's
     // Failure injection is the renderer's; the viewer's comes from VKGL_VIEWER_FAIL_AT.
     command.env_remove("VKGL_FAIL_AT");

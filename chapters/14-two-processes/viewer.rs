@@ -5,10 +5,10 @@
 use super::{Args, CHAPTER, picture, wire};
 use anyhow::{Context as _, Result, bail, ensure};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::base::output;
+use common::base::{output, resources};
 use common::base::vulkan::DeviceInfo;
 use common::interop::{self, exportable::MemoryTerms};
-use common::{Report, open_fd_count, settled_fd_count};
+use common::Report;
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::time::Duration;
@@ -71,7 +71,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         renderer: gl_context.renderer.clone(),
     };
     ensure!(socket.send(&welcome, &[])?, "the renderer hung up during the handshake");
-    let open_fds_before = open_fd_count()?;
+    let fds_before = resources::open_fd_targets();
 
     // 3. Import the ring
     // ANCHOR: import
@@ -91,6 +91,9 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         let size = hello.memory_size;
         ensure!(memory_size == size, "slot {slot} is {memory_size} bytes; the Hello said {size}");
         let fd = wire::check_memory_fd(fd, memory_size)?;
+        if args.keep_a_received_fd && slot == 0 {
+            std::mem::forget(fd.try_clone().context("dup, for --keep-a-received-fd")?); // a leak, on purpose
+        }
         // A successful import takes the fd (GL closes it with the memory object); a failed one
         // does not, and `import_texture_2d` closes it.
         let texture = interop::import_texture_2d(&gl_context, memory, fd, glow::RGBA8, (width, height))?;
@@ -157,7 +160,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
     drop(ring); // each framebuffer, then its texture and memory object: GL lets go of the memory
     gl_context.check_error("cleaning up")?;
     // Each slot's fd was GL's from its import, and went with its memory object.
-    report.check("no_fd_leaked", settled_fd_count(open_fds_before)? == open_fds_before);
+    super::check_no_fd_leaked(report, "viewer", &fds_before);
     if gone.is_none() {
         let mut summary = serde_json::to_value(&*report)?;
         summary["gl_errors"] = common::base::gl::gl_error_count().into();
