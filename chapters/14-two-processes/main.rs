@@ -58,7 +58,8 @@ struct Args {
     /// How many viewers that died are replaced before the renderer gives up.
     #[arg(long, default_value_t = 3)]
     restarts: u32,
-    /// Kill the viewer (SIGKILL) each time it has been sent K frames, to see it replaced.
+    /// Kill the viewer (SIGKILL) each time it has been sent K frames, to see it replaced (as
+    /// long as --restarts allows one more).
     #[arg(long, value_name = "K")]
     kill_viewer_every: Option<u32>,
     /// Ping/Pong round trips to time with each viewer, before its frames.
@@ -203,8 +204,9 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
             None => session::spawn_viewer(args, hello.width, hello.height)?,
         };
         socket.set_timeout(timeout)?;
-        let session =
-            Session { socket: &socket, child: child.as_mut(), kill_every: args.kill_viewer_every, pings: args.pings };
+        // Killed on purpose only while a replacement is allowed: the run then finishes.
+        let kill_every = args.kill_viewer_every.filter(|_| restarts < args.restarts);
+        let session = Session { socket: &socket, child: child.as_mut(), kill_every, pings: args.pings };
         let outcome = session.serve(&shared, &mut next_frame, frames, &mut measured, report);
         let outcome = match outcome {
             Ok(outcome) => outcome,

@@ -44,7 +44,13 @@ pub fn run(args: &Args, report: &mut Report) -> Result<()> {
             }
             (None, Some(path)) if viewed.sessions.is_empty() => wire::connect(path)?,
             // The next renderer: its socket appears when it starts listening.
-            (None, Some(path)) => connect_within(path, Duration::from_secs_f64(args.timeout))?,
+            (None, Some(path)) => match connect_within(path, Duration::from_secs_f64(args.timeout)) {
+                Ok(socket) => socket,
+                Err(error) => {
+                    eprintln!("viewer: no renderer came back within {} s ({error:#}); stopping", args.timeout);
+                    return record(report, &viewed);
+                }
+            },
             (None, None) => unreachable!("main runs the viewer only with --viewer-fd or --connect"),
         };
         match view(args, report, &socket, &mut viewed) {
@@ -56,9 +62,21 @@ pub fn run(args: &Args, report: &mut Report) -> Result<()> {
             Ok(true) if args.reconnect && args.connect.is_some() => {
                 eprintln!("viewer: waiting for the next renderer (--reconnect)");
             }
-            Ok(_) => return Ok(()),
+            Ok(true) => return record(report, &viewed), // the renderer is gone: so are we
+            Ok(false) => return Ok(()),                 // recorded before the summary went
         }
     }
+}
+
+/// The viewer's checks and counts, over every renderer it served: recorded once, at its end.
+fn record(report: &mut Report, viewed: &Viewed) -> Result<()> {
+    report.check("every_frame_is_the_one_announced", viewed.all_right);
+    report.check("no_fd_leaked", viewed.no_fd_leaked);
+    report.set("frames_shown", viewed.shown);
+    if !viewed.sessions.is_empty() {
+        report.set("sessions", &viewed.sessions);
+    }
+    Ok(())
 }
 
 /// Connects to the renderer at `path`, trying again until one listens there or `timeout` passes.
@@ -80,6 +98,8 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
     let hello = match socket.recv()? {
         Received::Message(Message::Hello(hello), _) => hello,
         Received::Message(other, _) => bail!("the renderer began with {}, not Hello", other.name()),
+        // A renderer that died as we connected (its listening socket closes last): the next one.
+        Received::HungUp if !viewed.sessions.is_empty() => return Ok(true),
         Received::HungUp => bail!("the renderer hung up before saying Hello"),
         Received::TimedOut => bail!("the renderer said nothing for {} s", args.timeout),
     };
@@ -228,15 +248,12 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
     gl_context.check_error("cleaning up")?;
     // Each slot's fd was GL's from its import, and went with its memory object.
     viewed.no_fd_leaked &= gauges::no_fd_leaked("viewer", &fds_before);
-    report.check("every_frame_is_the_one_announced", viewed.all_right);
-    report.check("no_fd_leaked", viewed.no_fd_leaked);
-    report.set("frames_shown", viewed.shown);
     report.set("renderer_gone", gone.is_some());
     if args.reconnect {
         viewed.sessions.push(gauges::sample(Some(gl_context)));
-        report.set("sessions", &viewed.sessions);
     }
     if gone.is_none() {
+        record(report, viewed)?;
         let mut summary = serde_json::to_value(&*report)?;
         summary["gl_errors"] = common::base::gl::gl_error_count().into();
         let summary = Message::Summary { json: summary.to_string() };
