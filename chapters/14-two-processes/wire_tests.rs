@@ -2,7 +2,8 @@
 //! malformed messages are refused by name; the decoder survives fuzzing; no fd is left open.
 
 use super::*;
-use std::os::fd::AsFd;
+use std::os::fd::{AsFd, BorrowedFd};
+use std::time::Duration;
 
 fn hello() -> Hello {
     Hello {
