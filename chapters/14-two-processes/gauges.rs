@@ -59,7 +59,8 @@ pub fn median_max(values: &[f64]) -> serde_json::Value {
 /// picture it kept, and its resources after each renderer (`--reconnect`).
 pub fn merge_summary(report: &mut Report, json: &str) -> anyhow::Result<()> {
     use anyhow::Context as _;
-    let summary: serde_json::Value = serde_json::from_str(json).context("the viewer's summary is not JSON")?;
+    let summary: serde_json::Value =
+        serde_json::from_str(json).context("the viewer's summary is not JSON")?;
     let text = |v: &serde_json::Value| v.as_str().unwrap_or_default().to_owned();
     let gl = &summary["gl"];
     report.gl = Some(common::base::report::GlReport {

@@ -18,11 +18,11 @@ use anyhow::{Result, bail, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, image_barrier};
+use common::base::timing::PassTimes;
 use common::base::{fail, resources};
 use common::interop::exportable::{self, Dedicated};
-use common::{CommonArgs, Report, Requirements, VulkanContext};
-use common::base::timing::PassTimes;
 use common::interop::handoff;
+use common::{CommonArgs, Report, Requirements, VulkanContext};
 use session::{Measured, Outcome, Ring, Session};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -262,7 +262,6 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", gauges::no_fd_leaked("renderer", &fds_before));
     Ok(())
 }
-
 
 // ANCHOR: draw
 /// Frame `frame` into `image`: clear to the background, copy the white square in, and hand the

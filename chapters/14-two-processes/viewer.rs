@@ -6,12 +6,12 @@
 
 use super::{Args, CHAPTER, gauges, picture, wire};
 use anyhow::{Context as _, Result, bail, ensure};
+use common::Report;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, layout};
 use common::base::vulkan::DeviceInfo;
 use common::base::{fail, output, resources};
 use common::interop::handoff::GlSemaphore;
 use common::interop::{self, exportable::MemoryTerms};
-use common::Report;
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::time::{Duration, Instant};
@@ -47,7 +47,10 @@ pub fn run(args: &Args, report: &mut Report) -> Result<()> {
             (None, Some(path)) => match connect_within(path, Duration::from_secs_f64(args.timeout)) {
                 Ok(socket) => socket,
                 Err(error) => {
-                    eprintln!("viewer: no renderer came back within {} s ({error:#}); stopping", args.timeout);
+                    eprintln!(
+                        "viewer: no renderer came back within {} s ({error:#}); stopping",
+                        args.timeout
+                    );
                     return record(report, &viewed);
                 }
             },
@@ -149,7 +152,9 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
     for expected in 0..hello.slots {
         let (slot, memory_size, fd) = match socket.recv()? {
             Received::Message(Message::Slot { slot, memory_size }, Some(fd)) => (slot, memory_size, fd),
-            Received::Message(other, _) => bail!("expected slot {expected}, the renderer sent {}", other.name()),
+            Received::Message(other, _) => {
+                bail!("expected slot {expected}, the renderer sent {}", other.name())
+            }
             Received::HungUp | Received::TimedOut => bail!("the renderer went away while sending the slots"),
         };
         // From here until the import succeeds, the fd is ours: every `?` below closes it.
@@ -175,8 +180,12 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
                 Received::Message(Message::SlotSemaphore { slot: s }, Some(fd)) if s == slot => {
                     Some(GlSemaphore::import(gl_context, wire::check_semaphore_fd(fd)?)?)
                 }
-                Received::Message(other, _) => bail!("expected slot {slot}'s semaphore, got {}", other.name()),
-                Received::HungUp | Received::TimedOut => bail!("the renderer went away while sending the slots"),
+                Received::Message(other, _) => {
+                    bail!("expected slot {slot}'s semaphore, got {}", other.name())
+                }
+                Received::HungUp | Received::TimedOut => {
+                    bail!("the renderer went away while sending the slots")
+                }
             },
         };
         ring.push((framebuffer, texture, frame_written)); // dropped in that order
@@ -212,7 +221,16 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
             // had signalled: this wait is already satisfied, and cannot be left hanging.)
             let ext = gl_context.semaphores.as_ref().expect("semaphores were negotiated with GL's");
             let (textures, layouts) = ([texture.texture.0.get()], [layout::GENERAL]);
-            unsafe { (ext.WaitSemaphoreEXT)(frame_written.name, 0, std::ptr::null(), 1, textures.as_ptr(), layouts.as_ptr()) };
+            unsafe {
+                (ext.WaitSemaphoreEXT)(
+                    frame_written.name,
+                    0,
+                    std::ptr::null(),
+                    1,
+                    textures.as_ptr(),
+                    layouts.as_ptr(),
+                )
+            };
         }
         // Everything GL was asked so far is done, or the renderer lied: waited on the CPU, with
         // a timeout, so that a wait that never ends is an error rather than a hang.
@@ -240,7 +258,9 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
     }
     if let Some(why) = gone {
         let kept = viewed.last.as_ref().map_or("no frame".to_owned(), |(frame, _)| format!("frame {frame}"));
-        eprintln!("viewer: the renderer {why}; keeping {kept}, the last one shown, and letting go of the ring");
+        eprintln!(
+            "viewer: the renderer {why}; keeping {kept}, the last one shown, and letting go of the ring"
+        );
     }
 
     // 6. Clean up

@@ -147,7 +147,9 @@ pub fn is_shared_object(target: &str) -> bool {
     target.starts_with("socket:")
         || target.starts_with("/memfd:")
         || target.starts_with("/dmabuf:")
-        || ["dmabuf", "sync_file", "syncobj"].iter().any(|kind| target.starts_with(&format!("anon_inode:{kind}")))
+        || ["dmabuf", "sync_file", "syncobj"]
+            .iter()
+            .any(|kind| target.starts_with(&format!("anon_inode:{kind}")))
 }
 
 /// The fds of shared objects ([`is_shared_object`]) open now beyond those open in `before`

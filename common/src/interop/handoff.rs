@@ -16,7 +16,8 @@ use std::sync::Mutex;
 /// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Handoff::Host`].
 pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
 /// The one handle type semaphores are shared as: an opaque fd, meaningful to the same driver only.
-const SEMAPHORE_HANDLE_TYPE: vk::ExternalSemaphoreHandleTypeFlags = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
+const SEMAPHORE_HANDLE_TYPE: vk::ExternalSemaphoreHandleTypeFlags =
+    vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
 
 /// One semaphore, seen by both APIs. Deleted on both sides when dropped (fields, in order: GL's
 /// first). No submission may still wait on it or signal it then.
@@ -341,7 +342,9 @@ impl GlSemaphore {
         crate::base::resources::alive("gl_semaphore");
         let gl_semaphore = GlSemaphore { name, fns: *ext };
         fail::step("glImportSemaphoreFdEXT")?;
-        unsafe { (ext.ImportSemaphoreFdEXT)(name, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+        unsafe {
+            (ext.ImportSemaphoreFdEXT)(name, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
+        };
         // On failure `fd` is dropped, and so closed (the failed import did not take it), and
         // GL's semaphore is deleted.
         gl.check_error("glImportSemaphoreFdEXT")?;
