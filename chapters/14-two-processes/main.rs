@@ -9,6 +9,7 @@
 //! Run: `cargo run --release --bin 14-two-processes` (the renderer starts its own viewer), or by
 //! hand in two terminals: `-- --listen /tmp/vkgl.sock` and `-- --connect /tmp/vkgl.sock`.
 
+mod gauges;
 mod session;
 mod viewer;
 mod wire;
@@ -17,10 +18,12 @@ use anyhow::{Result, bail, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, image_barrier};
-use common::base::fail;
+use common::base::timing::PassTimes;
+use common::base::{fail, resources};
 use common::interop::exportable::{self, Dedicated};
+use common::interop::handoff;
 use common::{CommonArgs, Report, Requirements, VulkanContext};
-use session::{Outcome, Session};
+use session::{Measured, Outcome, Ring, Session};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -55,12 +58,23 @@ struct Args {
     /// How many viewers that died are replaced before the renderer gives up.
     #[arg(long, default_value_t = 3)]
     restarts: u32,
-    /// Kill the viewer (SIGKILL) each time it has been sent K frames, to see it replaced.
+    /// Kill the viewer (SIGKILL) each time it has been sent K frames, to see it replaced (as
+    /// long as --restarts allows one more).
     #[arg(long, value_name = "K")]
     kill_viewer_every: Option<u32>,
+    /// Ping/Pong round trips to time with each viewer, before its frames.
+    #[arg(long, default_value_t = 20)]
+    pings: u32,
+    /// (The viewer, with --connect) outlive the renderer: wait for the next one at the same path.
+    #[arg(long, requires = "connect")]
+    reconnect: bool,
     /// (Internal) be the viewer, on this inherited socket.
     #[arg(long, hide = true)]
     viewer_fd: Option<i32>,
+    /// (Internal) the viewer keeps a copy of the first fd it receives: a leak, to prove that
+    /// the leak check sees one.
+    #[arg(long, hide = true)]
+    keep_a_received_fd: bool,
 }
 
 fn main() -> ExitCode {
@@ -105,10 +119,14 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Vulkan alone: the renderer has no GL
     let vk = VulkanContext::new(&Requirements {
         extensions: &[ash::khr::external_memory_fd::NAME],
+        // Shared semaphores where the driver has them (NVIDIA); the host path where not.
+        optional_extensions: &[handoff::SEMAPHORE_EXTENSION],
         ..Default::default()
     })?;
     report.vulkan = Some(vk.report());
-    let open_fds_before = common::open_fd_count()?;
+    let offer_semaphores =
+        vk.has_extension(handoff::SEMAPHORE_EXTENSION) && handoff::vulkan_can_export_semaphores(&vk);
+    let fds_before = resources::open_fd_targets();
 
     // 2. A ring of exportable images
     // ANCHOR: ring
@@ -157,20 +175,39 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         height,
         memory_size: ring[0].1.size,
         slots,
+        semaphores: offer_semaphores,
     };
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-    let draw =
-        |frame: u64, slot: usize| draw(&vk, &commands, *ring[slot].0, &square, picture(frame, width, height));
+    let memory_fd = |slot: usize| exportable::export_fd(&fd_loader, *ring[slot].1.memory);
     let (mut next_frame, mut restarts, mut redrawn) = (0u64, 0u32, 0u64);
+    let mut measured =
+        Measured { times: PassTimes::new(), viewer_died_at: None, death_to_frame: vec![], sync: "host" };
+    let mut sessions = Vec::new(); // the renderer's resources after each viewer
     let summary = loop {
+        // ANCHOR: frame_written
+        // Per viewer, where Vulkan can share them: one "frame written" semaphore per slot, which
+        // Vulkan signals and GL waits on. New for each viewer: one that died may have left a
+        // semaphore signalled with no wait to come, and signalling it again would be an error.
+        let frame_written = match offer_semaphores {
+            true => (0..slots).map(|_| handoff::exportable_semaphore(&vk)).collect::<Result<Vec<_>>>()?,
+            false => Vec::new(),
+        };
+        let semaphore_fd = |slot: usize| handoff::semaphore_fd(&vk, *frame_written[slot]);
+        // ANCHOR_END: frame_written
+        let draw = |frame: u64, slot: usize, signal: bool| {
+            let frame_written = signal.then(|| *frame_written[slot]);
+            draw(&vk, &commands, *ring[slot].0, &square, picture(frame, width, height), frame_written)
+        };
+        let shared = Ring { hello: &hello, memory_fd: &memory_fd, semaphore_fd: &semaphore_fd, draw: &draw };
         let (socket, mut child) = match &listener {
             Some(listener) => (session::accept(listener, timeout)?, None),
             None => session::spawn_viewer(args, hello.width, hello.height)?,
         };
         socket.set_timeout(timeout)?;
-        let session = Session { socket: &socket, child: child.as_mut(), kill_every: args.kill_viewer_every };
-        let exported = || ring.iter().map(|(_, memory)| exportable::export_fd(&fd_loader, *memory.memory));
-        let outcome = session.serve(&hello, exported, &draw, &mut next_frame, frames, report);
+        // Killed on purpose only while a replacement is allowed: the run then finishes.
+        let kill_every = args.kill_viewer_every.filter(|_| restarts < args.restarts);
+        let session = Session { socket: &socket, child: child.as_mut(), kill_every, pings: args.pings };
+        let outcome = session.serve(&shared, &mut next_frame, frames, &mut measured, report);
         let outcome = match outcome {
             Ok(outcome) => outcome,
             Err(error) => {
@@ -185,7 +222,9 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
                 break summary;
             }
             Outcome::Gone { why, lost } => {
+                measured.viewer_died_at = Some(std::time::Instant::now());
                 session::end_viewer(socket, child, GRACE);
+                sessions.push(gauges::sample(None));
                 restarts += 1;
                 redrawn += lost;
                 eprintln!("renderer: the viewer {why}; {lost} frame(s) in flight will be drawn again");
@@ -198,9 +237,13 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
             }
         }
     };
-    viewer::merge_summary(report, &summary)?;
-    // No semaphores cross the socket yet: the CPU waits for each side, as chapter 03's host path.
-    report.sync = Some("host");
+    gauges::merge_summary(report, &summary)?;
+    report.sync = Some(measured.sync);
+    measured.times.record(report);
+    if restarts > 0 {
+        report.set("death_to_next_frame_ms", gauges::median_max(&measured.death_to_frame));
+        report.set("sessions", &sessions);
+    }
     report.set("frames", frames);
     report.set("slots", slots);
     report.set("restarts", restarts);
@@ -215,20 +258,22 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(path) = &args.listen {
         let _ = std::fs::remove_file(path);
     }
-    // Every fd exported went to a viewer, and ours was closed once sent.
-    report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
+    // Every fd exported went to a viewer, and ours was closed once sent; every socket is closed.
+    report.check("no_fd_leaked", gauges::no_fd_leaked("renderer", &fds_before));
     Ok(())
 }
 
 // ANCHOR: draw
 /// Frame `frame` into `image`: clear to the background, copy the white square in, and hand the
-/// image back outside Vulkan. Waits for the fence: the caller announces the frame only then.
+/// image back outside Vulkan, signalling `frame_written` if given. Waits for the fence: the
+/// caller announces the frame only then.
 fn draw(
     vk: &VulkanContext,
     commands: &Commands,
     image: vk::Image,
     square: &HostBuffer,
     (background, (x, y, side)): ([u8; 4], (u32, u32, u32)),
+    frame_written: Option<vk::Semaphore>,
 ) -> Result<()> {
     let cb = commands.begin(vk)?;
     let (ours, external) = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
@@ -267,8 +312,9 @@ fn draw(
             .image_offset(vk::Offset3D { x: x as i32, y: y as i32, z: 0 })
             .image_extent(vk::Extent3D { width: side, height: side, depth: 1 });
         vk.device.cmd_copy_buffer_to_image(cb, *square.buffer, image, dst, &[region]);
-        // Release to the viewer: make the writes available, leave it in GENERAL (GL, on the host
-        // path, names no layout), and hand ownership outside Vulkan.
+        // Release to the viewer: make the writes available, leave it in GENERAL, and hand
+        // ownership outside Vulkan. GENERAL is what GL's wait on `frame_written` names (and, on
+        // the host path, where GL names no layout, what GL finds and leaves).
         let release = image_barrier(
             image,
             (dst, vk::ImageLayout::GENERAL),
@@ -278,7 +324,9 @@ fn draw(
         let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
         vk.device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &[release]);
     }
-    commands.submit(vk, None, None)?;
+    // With semaphores, the submission signals the slot's `frame_written` once the release is
+    // done; GL's wait names the same layout. Nothing of the viewer's is ever waited on here.
+    commands.submit(vk, None, frame_written)?;
     commands.wait(vk, "vkWaitForFences for the frame")
 }
 // ANCHOR_END: draw

@@ -8,7 +8,7 @@ use common::base::fail;
 use common::base::timing::PassTimes;
 use common::{Report, ms_since};
 use std::collections::VecDeque;
-use std::os::fd::{AsFd, AsRawFd};
+use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 use std::process::Child;
 use std::time::{Duration, Instant};
 
@@ -25,31 +25,53 @@ pub struct Session<'a> {
     pub socket: &'a Socket,
     pub child: Option<&'a mut Child>,
     pub kill_every: Option<u32>,
+    /// Ping/Pong round trips to time once the ring is shared.
+    pub pings: u32,
+}
+
+/// What the renderer shares with a viewer, and how it draws into it.
+pub struct Ring<'a> {
+    pub hello: &'a wire::Hello,
+    /// A new fd for slot i's memory.
+    pub memory_fd: &'a dyn Fn(usize) -> Result<OwnedFd>,
+    /// A new fd for slot i's "frame written" semaphore (asked only when both sides share them).
+    pub semaphore_fd: &'a dyn Fn(usize) -> Result<OwnedFd>,
+    /// Draws frame k into slot i, signalling the slot's semaphore if told to, and waits for
+    /// its fence.
+    pub draw: &'a dyn Fn(u64, usize, bool) -> Result<()>,
+}
+
+/// What the renderer measures across viewers, for its report.
+pub struct Measured {
+    /// `frame`, `handover` and `round_trip` (ms).
+    pub times: PassTimes,
+    /// When the renderer noticed its last viewer's death, until the next one shows a frame.
+    pub viewer_died_at: Option<Instant>,
+    /// From each death noticed to the next frame shown (ms).
+    pub death_to_frame: Vec<f64>,
+    /// What the last handshake chose: "semaphores" or "host".
+    pub sync: &'static str,
 }
 
 impl Session<'_> {
-    pub fn serve<I>(
+    pub fn serve(
         mut self,
-        hello: &wire::Hello,
-        exported: impl Fn() -> I,
-        draw: &dyn Fn(u64, usize) -> Result<()>,
+        ring: &Ring,
         next_frame: &mut u64,
         frames: u64,
+        measured: &mut Measured,
         report: &mut Report,
-    ) -> Result<Outcome>
-    where
-        I: Iterator<Item = Result<std::os::fd::OwnedFd>>,
-    {
+    ) -> Result<Outcome> {
+        let hello = ring.hello;
         let gone = |why| Ok(Outcome::Gone { why, lost: 0 });
-        let mut times = PassTimes::new();
         // ANCHOR: handshake
         // Hello: who we are and what we share. The viewer checks GL runs on our device.
         if !self.socket.send(&Message::Hello(hello.clone()), &[])? {
             return self.hung_up("hung up before the handshake", 0);
         }
-        let (device_uuid, driver_uuid, renderer) = match self.recv()? {
-            Some(Message::Welcome { device_uuid, driver_uuid, renderer }) => {
-                (device_uuid, driver_uuid, renderer)
+        let (device_uuid, driver_uuid, renderer, semaphores) = match self.recv()? {
+            Some(Message::Welcome { device_uuid, driver_uuid, renderer, semaphores }) => {
+                (device_uuid, driver_uuid, renderer, semaphores)
             }
             Some(other) => bail!("the viewer answered Hello with {}", other.name()),
             None => return gone("hung up during the handshake"),
@@ -66,13 +88,20 @@ impl Session<'_> {
             hex(&hello.device_uuid),
             hex(&hello.driver_uuid)
         );
-        // The fds, one message per slot. Each is ours until sendmsg returns; then the kernel
-        // has given the viewer its own, and ours is closed (dropped) at the end of the loop body.
-        for (slot, fd) in exported().enumerate() {
-            let fd = fd?;
-            let slot_message = Message::Slot { slot: slot as u32, memory_size: hello.memory_size };
-            let sent = self.socket.send(&slot_message, &[fd.as_fd()])?;
+        // Semaphores only where both sides have them: the viewer accepts only what we offered.
+        ensure!(!semaphores || hello.semaphores, "the viewer accepted semaphores that were not offered");
+        measured.sync = if semaphores { "semaphores" } else { "host" };
+        // The fds, one message per slot (and one per slot's semaphore). Each is ours until
+        // sendmsg returns; then the kernel has given the viewer its own, and ours is closed.
+        for slot in 0..hello.slots {
+            let fd = (ring.memory_fd)(slot as usize)?;
+            let slot_message = Message::Slot { slot, memory_size: hello.memory_size };
+            let mut sent = self.socket.send(&slot_message, &[fd.as_fd()])?;
             drop(fd); // sent or not, ours is closed: the viewer has its own, or is gone
+            if sent && semaphores {
+                let fd = (ring.semaphore_fd)(slot as usize)?;
+                sent = self.socket.send(&Message::SlotSemaphore { slot }, &[fd.as_fd()])?;
+            }
             if !sent {
                 return self.hung_up("hung up while the slots were sent", 0);
             }
@@ -83,41 +112,63 @@ impl Session<'_> {
             None => return gone("hung up while importing the slots"),
         }
         // ANCHOR_END: handshake
+        // A round trip, Ping to Pong, timed: what one message each way costs.
+        for n in 0..self.pings as u64 {
+            let started = Instant::now();
+            if !self.socket.send(&Message::Ping { n }, &[])? {
+                return self.hung_up("hung up", 0);
+            }
+            match self.recv()? {
+                Some(Message::Pong { n: m }) if m == n => measured.times.add("round_trip", ms_since(started)),
+                Some(other) => bail!("the viewer answered Ping {n} with {}", other.name()),
+                None => return gone("hung up"),
+            }
+        }
         // ANCHOR: frames
-        let mut in_flight: VecDeque<(u64, u32)> = VecDeque::new(); // sent, not yet free, oldest first
+        // Sent and not yet free, oldest first: (frame, slot, when its fence had signalled).
+        let mut in_flight: VecDeque<(u64, u32, u64)> = VecDeque::new();
         let mut sent = 0u32;
         while *next_frame < frames || !in_flight.is_empty() {
             let slot = (*next_frame % hello.slots as u64) as u32;
             // The slot is the viewer's until it says it is free: wait for that, on the CPU, with a
             // timeout. Never on a GPU semaphore: a dead viewer would never signal it.
-            let must_wait = *next_frame == frames || in_flight.iter().any(|&(_, s)| s == slot);
+            let must_wait = *next_frame == frames || in_flight.iter().any(|&(_, s, _)| s == slot);
             if must_wait {
                 let lost = in_flight.len() as u64;
                 match self.recv()? {
-                    Some(Message::SlotFree { slot: freed }) => {
-                        let oldest = in_flight.pop_front().map(|(_, s)| s);
-                        ensure!(oldest == Some(freed), "the viewer freed slot {freed}, not {oldest:?}");
+                    Some(Message::SlotFree { slot: freed, sent_ns }) => {
+                        let oldest = in_flight.pop_front();
+                        let (_, oldest, written_ns) = oldest.context("a slot freed with none in flight")?;
+                        ensure!(oldest == freed, "the viewer freed slot {freed}, not slot {oldest}");
+                        // From our fence to the viewer's "free": the whole hand-over, one clock.
+                        measured.times.add("handover", sent_ns.saturating_sub(written_ns) as f64 / 1e6);
+                        if let Some(died) = measured.viewer_died_at.take() {
+                            measured.death_to_frame.push(ms_since(died)); // a new viewer showed one
+                        }
                     }
                     Some(other) => bail!("the viewer sent {} during the frames", other.name()),
                     None => {
                         // Everything in flight is lost: draw it again for the next viewer.
-                        *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _)| frame);
+                        *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
                         return Ok(Outcome::Gone { why: "hung up or fell silent", lost });
                     }
                 }
                 continue;
             }
             let started = Instant::now();
-            // On lavapipe, with no shared semaphores, the message is the synchronisation: draw
-            // waits for the frame's fence before we say the frame is ready.
-            draw(*next_frame, slot as usize)?;
+            // Either way, "frame ready" goes only once the fence says Vulkan is done. On the host
+            // path the message is the synchronisation. With semaphores, the slot's semaphore is
+            // signalled by then too: GL's wait on it is satisfied, and cannot be left hanging by
+            // our death (a signal submitted, then cut short, would leave it waiting for ever).
+            (ring.draw)(*next_frame, slot as usize, semaphores)?;
+            let written_ns = wire::monotonic_ns();
             let ready = Message::FrameReady { frame: *next_frame, slot };
             if !self.socket.send(&ready, &[])? {
-                *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _)| frame);
+                *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
                 return self.hung_up("hung up", in_flight.len() as u64);
             }
-            times.add("frame", ms_since(started));
-            in_flight.push_back((*next_frame, slot));
+            measured.times.add("frame", ms_since(started));
+            in_flight.push_back((*next_frame, slot, written_ns));
             *next_frame += 1;
             sent += 1;
             if let (Some(k), Some(child)) = (self.kill_every, self.child.as_deref_mut()) {
@@ -128,7 +179,6 @@ impl Session<'_> {
             }
         }
         // ANCHOR_END: frames
-        times.record(report);
         if !self.socket.send(&Message::Bye, &[])? {
             while self.recv()?.is_some() {} // its refusal, if it left one, is the error
             bail!("the viewer hung up after the last frame, before its summary");
@@ -173,6 +223,9 @@ pub fn spawn_viewer(args: &Args, width: u32, height: u32) -> Result<(Socket, Opt
     let (size, timeout) = (format!("{width}x{height}"), args.timeout.to_string());
     command.args(["--viewer-fd", &fd.to_string(), "--headless", "--size", &size, "--timeout", &timeout]);
     command.arg("--out").arg(args.common.out_dir(CHAPTER));
+    if args.keep_a_received_fd {
+        command.arg("--keep-a-received-fd");
+    }
     command.stdout(std::process::Stdio::null()); // --json's one document is the renderer's
     // Failure injection is the renderer's; the viewer's comes from VKGL_VIEWER_FAIL_AT.
     command.env_remove("VKGL_FAIL_AT");

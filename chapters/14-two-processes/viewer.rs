@@ -1,45 +1,108 @@
 //! Chapter 14's viewer: GL in a process of its own. It learns from the renderer's Hello which
-//! device to open GL on, imports the ring's fds as textures, and for each "frame k is in slot i"
-//! reads the slot back, checks it is frame k's picture, and answers "slot i is free".
+//! device to open GL on, imports the ring's fds as textures (and, where both sides share them,
+//! each slot's "frame written" semaphore), and for each "frame k is in slot i" reads the slot
+//! back, checks it is frame k's picture, and answers "slot i is free". With `--reconnect` it
+//! outlives its renderer and waits for the next one.
 
-use super::{Args, CHAPTER, picture, wire};
+use super::{Args, CHAPTER, gauges, picture, wire};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::base::output;
+use common::Report;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS, layout};
 use common::base::vulkan::DeviceInfo;
+use common::base::{fail, output, resources};
+use common::interop::handoff::GlSemaphore;
 use common::interop::{self, exportable::MemoryTerms};
-use common::{Report, open_fd_count, settled_fd_count};
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use wire::{Message, Received, Socket};
 
-pub fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let socket = match (args.viewer_fd, &args.connect) {
-        (Some(fd), _) => {
-            // Is it open at all? A mistyped --viewer-fd must not become someone else's fd.
-            let borrowed = unsafe { std::os::fd::BorrowedFd::borrow_raw(fd) };
-            rustix::io::fcntl_getfd(borrowed).with_context(|| format!("--viewer-fd {fd} is not open"))?;
-            // SAFETY: the renderer started us with this end of its socket pair, for us alone.
-            Socket { fd: unsafe { OwnedFd::from_raw_fd(fd) } }
-        }
-        (None, Some(path)) => wire::connect(path)?,
-        (None, None) => unreachable!("main runs the viewer only with --viewer-fd or --connect"),
-    };
-    let result = view(args, report, &socket);
-    if let Err(error) = &result {
-        // The renderer learns why, rather than only that we hung up (which it would survive).
-        let _ = socket.send(&Message::Refused { reason: format!("{error:#}") }, &[]);
-    }
-    result
+/// What the viewer keeps from one renderer to the next (`--reconnect`).
+struct Viewed {
+    /// Made at the first Hello; every later renderer must run on the same device.
+    gl: Option<GlContext>,
+    shown: u64,
+    all_right: bool,
+    no_fd_leaked: bool,
+    /// The last complete frame read, and its number.
+    last: Option<(u64, Vec<u8>)>,
+    /// The viewer's resources after each renderer, for the soak.
+    sessions: Vec<gauges::Sample>,
 }
 
-fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
+pub fn run(args: &Args, report: &mut Report) -> Result<()> {
+    let mut viewed =
+        Viewed { gl: None, shown: 0, all_right: true, no_fd_leaked: true, last: None, sessions: vec![] };
+    loop {
+        let socket = match (args.viewer_fd, &args.connect) {
+            (Some(fd), _) => {
+                // Is it open at all? A mistyped --viewer-fd must not become someone else's fd.
+                let borrowed = unsafe { std::os::fd::BorrowedFd::borrow_raw(fd) };
+                rustix::io::fcntl_getfd(borrowed).with_context(|| format!("--viewer-fd {fd} is not open"))?;
+                // SAFETY: the renderer started us with this end of its socket pair, for us alone.
+                Socket { fd: unsafe { OwnedFd::from_raw_fd(fd) } }
+            }
+            (None, Some(path)) if viewed.sessions.is_empty() => wire::connect(path)?,
+            // The next renderer: its socket appears when it starts listening.
+            (None, Some(path)) => match connect_within(path, Duration::from_secs_f64(args.timeout)) {
+                Ok(socket) => socket,
+                Err(error) => {
+                    eprintln!(
+                        "viewer: no renderer came back within {} s ({error:#}); stopping",
+                        args.timeout
+                    );
+                    return record(report, &viewed);
+                }
+            },
+            (None, None) => unreachable!("main runs the viewer only with --viewer-fd or --connect"),
+        };
+        match view(args, report, &socket, &mut viewed) {
+            Err(error) => {
+                // The renderer learns why, rather than only that we hung up (which it would survive).
+                let _ = socket.send(&Message::Refused { reason: format!("{error:#}") }, &[]);
+                return Err(error);
+            }
+            Ok(true) if args.reconnect && args.connect.is_some() => {
+                eprintln!("viewer: waiting for the next renderer (--reconnect)");
+            }
+            Ok(true) => return record(report, &viewed), // the renderer is gone: so are we
+            Ok(false) => return Ok(()),                 // recorded before the summary went
+        }
+    }
+}
+
+/// The viewer's checks and counts, over every renderer it served: recorded once, at its end.
+fn record(report: &mut Report, viewed: &Viewed) -> Result<()> {
+    report.check("every_frame_is_the_one_announced", viewed.all_right);
+    report.check("no_fd_leaked", viewed.no_fd_leaked);
+    report.set("frames_shown", viewed.shown);
+    if !viewed.sessions.is_empty() {
+        report.set("sessions", &viewed.sessions);
+    }
+    Ok(())
+}
+
+/// Connects to the renderer at `path`, trying again until one listens there or `timeout` passes.
+fn connect_within(path: &std::path::Path, timeout: Duration) -> Result<Socket> {
+    let started = Instant::now();
+    loop {
+        match wire::connect(path) {
+            Ok(socket) => return Ok(socket),
+            Err(error) if started.elapsed() > timeout => return Err(error),
+            Err(_) => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+}
+
+/// One renderer, from its Hello to its Bye (`Ok(false)`) or its hang-up (`Ok(true)`).
+fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) -> Result<bool> {
     socket.set_timeout(Duration::from_secs_f64(args.timeout))?;
     // 1. Hear the renderer's Hello
     let hello = match socket.recv()? {
         Received::Message(Message::Hello(hello), _) => hello,
         Received::Message(other, _) => bail!("the renderer began with {}, not Hello", other.name()),
+        // A renderer that died as we connected (its listening socket closes last): the next one.
+        Received::HungUp if !viewed.sessions.is_empty() => return Ok(true),
         Received::HungUp => bail!("the renderer hung up before saying Hello"),
         Received::TimedOut => bail!("the renderer said nothing for {} s", args.timeout),
     };
@@ -56,22 +119,30 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         device_uuid: hello.device_uuid,
         driver_uuid: hello.driver_uuid,
     };
-    let gl_context = GlContext::headless(&vulkan, &MEMORY_EXTENSIONS)?;
+    if viewed.gl.is_none() {
+        let gl_context = GlContext::headless(&vulkan, &MEMORY_EXTENSIONS)?;
+        report.gl = Some(gl_context.report());
+        viewed.gl = Some(gl_context);
+    }
+    let gl_context = viewed.gl.as_ref().expect("made above");
     let gl = &gl_context.gl;
-    report.gl = Some(gl_context.report());
-    report.uuids_match = Some(common::base::gl::uuids_match(&vulkan, &gl_context));
+    report.uuids_match = Some(common::base::gl::uuids_match(&vulkan, gl_context));
     // Another device's fd would import as garbage, or crash the driver: refuse, naming both.
-    common::base::gl::ensure_same_device(&vulkan, &gl_context)?;
+    common::base::gl::ensure_same_device(&vulkan, gl_context)?;
     // ANCHOR_END: same_device
     let largest = unsafe { gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE) }.max(0) as u32;
     ensure!(width <= largest && height <= largest, "{width}x{height}: GL_MAX_TEXTURE_SIZE is {largest} here");
+    // Semaphores where the renderer offers them and GL can import them; else the host path.
+    let semaphores = hello.semaphores && gl_context.semaphores.is_some();
     let welcome = Message::Welcome {
         device_uuid: gl_context.device_uuid,
         driver_uuid: gl_context.driver_uuid,
         renderer: gl_context.renderer.clone(),
+        semaphores,
     };
     ensure!(socket.send(&welcome, &[])?, "the renderer hung up during the handshake");
-    let open_fds_before = open_fd_count()?;
+    report.sync = Some(if semaphores { "semaphores" } else { "host" });
+    let fds_before = resources::open_fd_targets();
 
     // 3. Import the ring
     // ANCHOR: import
@@ -91,37 +162,79 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         let size = hello.memory_size;
         ensure!(memory_size == size, "slot {slot} is {memory_size} bytes; the Hello said {size}");
         let fd = wire::check_memory_fd(fd, memory_size)?;
+        if args.keep_a_received_fd && slot == 0 {
+            std::mem::forget(fd.try_clone().context("dup, for --keep-a-received-fd")?); // a leak, on purpose
+        }
         // A successful import takes the fd (GL closes it with the memory object); a failed one
         // does not, and `import_texture_2d` closes it.
-        let texture = interop::import_texture_2d(&gl_context, memory, fd, glow::RGBA8, (width, height))?;
+        let texture = interop::import_texture_2d(gl_context, memory, fd, glow::RGBA8, (width, height))?;
         let framebuffer = common::base::gl::create(gl, "glCreateFramebuffers", |gl| unsafe {
             gl.create_named_framebuffer()
         })?;
         let attached = Some(texture.texture);
         unsafe { gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, attached, 0) };
-        ring.push((framebuffer, texture)); // dropped in that order
+        // The slot's "frame written" semaphore follows its memory, where both sides share them.
+        let frame_written = match semaphores {
+            false => None,
+            true => match socket.recv()? {
+                Received::Message(Message::SlotSemaphore { slot: s }, Some(fd)) if s == slot => {
+                    Some(GlSemaphore::import(gl_context, wire::check_semaphore_fd(fd)?)?)
+                }
+                Received::Message(other, _) => {
+                    bail!("expected slot {slot}'s semaphore, got {}", other.name())
+                }
+                Received::HungUp | Received::TimedOut => {
+                    bail!("the renderer went away while sending the slots")
+                }
+            },
+        };
+        ring.push((framebuffer, texture, frame_written)); // dropped in that order
     }
     ensure!(socket.send(&Message::Ready, &[])?, "the renderer hung up after sending the slots");
     // ANCHOR_END: import
-    eprintln!("viewer: showing frames ({} slots of {width}x{height})", hello.slots);
+    let sync = if semaphores { "semaphores" } else { "host" };
+    eprintln!("viewer: showing frames ({} slots of {width}x{height}, sync {sync})", hello.slots);
 
     // 4. Show each frame, then free its slot
     // ANCHOR: frames
-    let (mut shown, mut all_right, mut last) = (0u64, true, None::<(u64, Vec<u8>)>);
+    let mut previous = None; // this renderer's frames only: a new one counts from 0 again
     let gone = loop {
         let (frame, slot) = match socket.recv()? {
             Received::Message(Message::FrameReady { frame, slot }, _) => (frame, slot),
+            Received::Message(Message::Ping { n }, _) => match socket.send(&Message::Pong { n }, &[])? {
+                true => continue,
+                false => break Some("hung up"),
+            },
             Received::Message(Message::Bye, _) => break None,
             Received::Message(other, _) => bail!("the renderer sent {} during the frames", other.name()),
             Received::HungUp => break Some("hung up"),
             Received::TimedOut => break Some("fell silent"),
         };
-        let (framebuffer, _) =
+        let (framebuffer, texture, frame_written) =
             ring.get(slot as usize).with_context(|| format!("slot {slot} of {}", hello.slots))?;
-        if let Some((previous, _)) = &last {
-            ensure!(frame > *previous, "frame {frame} came after frame {previous}");
+        if let Some(previous) = previous.replace(frame) {
+            ensure!(frame > previous, "frame {frame} came after frame {previous}");
         }
-        // The renderer waited for its fence before saying "ready": Vulkan's writes are done.
+        if let Some(frame_written) = frame_written {
+            // GL's queue waits for Vulkan's signal, and takes the image in the layout Vulkan's
+            // release left it in: GENERAL. (The renderer announced the frame only once its fence
+            // had signalled: this wait is already satisfied, and cannot be left hanging.)
+            let ext = gl_context.semaphores.as_ref().expect("semaphores were negotiated with GL's");
+            let (textures, layouts) = ([texture.texture.0.get()], [layout::GENERAL]);
+            unsafe {
+                (ext.WaitSemaphoreEXT)(
+                    frame_written.name,
+                    0,
+                    std::ptr::null(),
+                    1,
+                    textures.as_ptr(),
+                    layouts.as_ptr(),
+                )
+            };
+        }
+        // Everything GL was asked so far is done, or the renderer lied: waited on the CPU, with
+        // a timeout, so that a wait that never ends is an error rather than a hang.
+        gl_finished(gl_context, Duration::from_secs_f64(args.timeout))?;
         unsafe { gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(**framebuffer)) };
         // glReadPixels returns when the pixels are in our memory: GL is done with the slot.
         // (GL numbers rows from the bottom; flipped back, row 0 is Vulkan's row 0.)
@@ -129,42 +242,64 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         // Unbound, the slot is held by nothing of GL's state between frames.
         unsafe { gl.bind_framebuffer(glow::READ_FRAMEBUFFER, None) };
         gl_context.check_error("reading a slot")?;
-        all_right &= is_picture_of(&pixels, frame, width, height);
-        shown += 1;
-        last = Some((frame, pixels));
-        if !socket.send(&Message::SlotFree { slot }, &[])? {
+        viewed.all_right &= is_picture_of(&pixels, frame, width, height);
+        viewed.shown += 1;
+        viewed.last = Some((frame, pixels));
+        if !socket.send(&Message::SlotFree { slot, sent_ns: wire::monotonic_ns() }, &[])? {
             break Some("hung up");
         }
     };
     // ANCHOR_END: frames
 
     // 5. Keep the last complete frame
-    if let Some((frame, pixels)) = &last {
+    if let Some((frame, pixels)) = &viewed.last {
         output::save_rgba8(report, &args.common.out_dir(CHAPTER), CHAPTER, (width, height), pixels)?;
         report.set("last_frame", frame);
     }
     if let Some(why) = gone {
-        let kept = last.as_ref().map_or("no frame".to_owned(), |(frame, _)| format!("frame {frame}"));
+        let kept = viewed.last.as_ref().map_or("no frame".to_owned(), |(frame, _)| format!("frame {frame}"));
         eprintln!(
             "viewer: the renderer {why}; keeping {kept}, the last one shown, and letting go of the ring"
         );
     }
-    report.check("every_frame_is_the_one_announced", all_right);
-    report.set("frames_shown", shown);
-    report.set("renderer_gone", gone.is_some());
 
     // 6. Clean up
-    drop(ring); // each framebuffer, then its texture and memory object: GL lets go of the memory
+    drop(ring); // each framebuffer, then its texture and memory object, then its semaphore
     gl_context.check_error("cleaning up")?;
     // Each slot's fd was GL's from its import, and went with its memory object.
-    report.check("no_fd_leaked", settled_fd_count(open_fds_before)? == open_fds_before);
+    viewed.no_fd_leaked &= gauges::no_fd_leaked("viewer", &fds_before);
+    report.set("renderer_gone", gone.is_some());
+    if args.reconnect {
+        viewed.sessions.push(gauges::sample(Some(gl_context)));
+    }
     if gone.is_none() {
+        record(report, viewed)?;
         let mut summary = serde_json::to_value(&*report)?;
         summary["gl_errors"] = common::base::gl::gl_error_count().into();
         let summary = Message::Summary { json: summary.to_string() };
         ensure!(socket.send(&summary, &[])?, "the renderer hung up before the summary");
     }
-    Ok(())
+    Ok(gone.is_some())
+}
+
+/// Waits, on the CPU, for every GL command issued so far (a fence, `glClientWaitSync`), for up
+/// to `timeout`. GL takes a wait of at most about two seconds at a time: it is asked again.
+fn gl_finished(gl_context: &GlContext, timeout: Duration) -> Result<()> {
+    let gl = &gl_context.gl;
+    let fence = common::base::gl::create(gl, "glFenceSync", |gl| unsafe {
+        gl.fence_sync(glow::SYNC_GPU_COMMANDS_COMPLETE, 0)
+    })?;
+    fail::step("glClientWaitSync")?;
+    let started = Instant::now();
+    loop {
+        // FLUSH: the fence is sent to the GPU, or the wait could outlast every timeout.
+        match unsafe { gl.client_wait_sync(*fence, glow::SYNC_FLUSH_COMMANDS_BIT, 100_000_000) } {
+            glow::ALREADY_SIGNALED | glow::CONDITION_SATISFIED => return Ok(()),
+            glow::TIMEOUT_EXPIRED if started.elapsed() < timeout => {}
+            glow::TIMEOUT_EXPIRED => bail!("GL's work on a slot did not finish within {timeout:?}"),
+            _ => bail!("glClientWaitSync failed (GL_WAIT_FAILED)"),
+        }
+    }
 }
 
 /// Is `pixels` (row 0 first, as Vulkan wrote it) frame `frame`'s picture? Probes the corner
@@ -175,31 +310,4 @@ fn is_picture_of(pixels: &[u8], frame: u64, width: u32, height: u32) -> bool {
     let close = |p: &[u8], q: [u8; 4]| p.iter().zip(q).all(|(&a, b)| a.abs_diff(b) <= 1);
     let left_ok = x == 0 || close(at(x - 1, y + side / 2), background);
     close(at(0, 0), background) && close(at(x + side / 2, y + side / 2), [255; 4]) && left_ok
-}
-
-/// Puts the viewer's summary into the renderer's report: its GL, its checks (as `viewer_*`), the
-/// picture it kept.
-pub fn merge_summary(report: &mut Report, json: &str) -> Result<()> {
-    let summary: serde_json::Value =
-        serde_json::from_str(json).context("the viewer's summary is not JSON")?;
-    let text = |v: &serde_json::Value| v.as_str().unwrap_or_default().to_owned();
-    let gl = &summary["gl"];
-    report.gl = Some(common::base::report::GlReport {
-        renderer: text(&gl["renderer"]),
-        version: text(&gl["version"]),
-        device_uuid: text(&gl["device_uuid"]),
-        driver_uuid: text(&gl["driver_uuid"]),
-        extensions: gl["extensions"].as_array().into_iter().flatten().map(text).collect(),
-    });
-    for (name, ok) in summary["checks"].as_object().into_iter().flatten() {
-        report.check(&format!("viewer_{name}"), ok.as_bool() == Some(true));
-    }
-    report.check("viewer_no_gl_errors", summary["gl_errors"] == 0);
-    for image in summary["images"].as_array().into_iter().flatten() {
-        let size = |key: &str| image[key].as_u64().unwrap_or(0) as u32;
-        let path = std::path::PathBuf::from(text(&image["path"]));
-        report.image(&text(&image["name"]), &path, size("width"), size("height"), &text(&image["format"]));
-    }
-    report.set("frames_shown_by_the_last_viewer", &summary["frames_shown"]);
-    Ok(())
 }

@@ -122,6 +122,69 @@ pub fn settled_fd_count(before: usize) -> anyhow::Result<usize> {
     Ok(count)
 }
 
+// ANCHOR: shared_fds
+/// What each open fd points at (`socket:[4711]`, `/memfd:... (deleted)`, `/dev/nvidiactl` ...),
+/// with how many fds point at it. The numbers are left out: a file closed and opened again may
+/// come back under another.
+pub fn open_fd_targets() -> BTreeMap<String, usize> {
+    let mut targets = BTreeMap::new();
+    for fd in open_fds() {
+        let target = fd.split_once(" -> ").map_or(fd.as_str(), |(_, target)| target);
+        // The listing's own directory fd is open while it is listed, under a number of its own.
+        if !target.ends_with("/fd") {
+            *targets.entry(target.to_owned()).or_insert(0) += 1;
+        }
+    }
+    targets
+}
+
+/// Is `target` (what an fd points at) a file a program makes or receives itself when it shares
+/// memory across processes: a socket, exported memory (a memfd, a dma-buf) or an exported
+/// semaphore (a sync file, a DRM syncobj)? Device files (`/dev/nvidia0`), regular files (a
+/// shader cache) and directories are the driver's: it opens them when it likes (some only at
+/// the first draw or read) and keeps them, so they prove nothing about the program.
+pub fn is_shared_object(target: &str) -> bool {
+    target.starts_with("socket:")
+        || target.starts_with("/memfd:")
+        || target.starts_with("/dmabuf:")
+        || ["dmabuf", "sync_file", "syncobj"]
+            .iter()
+            .any(|kind| target.starts_with(&format!("anon_inode:{kind}")))
+}
+
+/// The fds of shared objects ([`is_shared_object`]) open now beyond those open in `before`
+/// ([`open_fd_targets`]), one line each; counted again for up to a second while there are any,
+/// as [`settled_fd_count`] does. Empty: nothing leaked.
+pub fn new_shared_fds(before: &BTreeMap<String, usize>) -> Vec<String> {
+    let new = || -> Vec<String> {
+        open_fd_targets()
+            .into_iter()
+            .filter(|(target, n)| is_shared_object(target) && *n > before.get(target).copied().unwrap_or(0))
+            .map(|(target, n)| format!("{target} (x{})", n - before.get(&target).copied().unwrap_or(0)))
+            .collect()
+    };
+    let mut left = new();
+    for _ in 0..20 {
+        if left.is_empty() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        left = new();
+    }
+    left
+}
+// ANCHOR_END: shared_fds
+
+/// This process's resident memory (`VmRSS` in `/proc/self/status`), in KiB; 0 if unknown.
+pub fn resident_kib() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find_map(|line| line.strip_prefix("VmRSS:"))
+        .and_then(|kib| kib.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap_or(0)
+}
+
 /// The open file descriptors and what each points at (`/proc/self/fd`), sorted: which fds a run
 /// left open, beyond a count.
 pub fn open_fds() -> Vec<String> {

@@ -15,6 +15,9 @@ use std::sync::Mutex;
 
 /// The Vulkan device extension for semaphores shared as fds. Optional: without it, [`Handoff::Host`].
 pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd::NAME;
+/// The one handle type semaphores are shared as: an opaque fd, meaningful to the same driver only.
+const SEMAPHORE_HANDLE_TYPE: vk::ExternalSemaphoreHandleTypeFlags =
+    vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
 
 /// One semaphore, seen by both APIs. Deleted on both sides when dropped (fields, in order: GL's
 /// first). No submission may still wait on it or signal it then.
@@ -281,9 +284,8 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
 
 // ANCHOR: can_export_semaphores
 /// Can this device export binary semaphores as opaque fds?
-fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
-    let info = vk::PhysicalDeviceExternalSemaphoreInfo::default()
-        .handle_type(vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD);
+pub fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
+    let info = vk::PhysicalDeviceExternalSemaphoreInfo::default().handle_type(SEMAPHORE_HANDLE_TYPE);
     let mut properties = vk::ExternalSemaphoreProperties::default();
     unsafe {
         vk.instance.get_physical_device_external_semaphore_properties(
@@ -300,34 +302,55 @@ impl SharedSemaphore {
     // ANCHOR: share_semaphore
     /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd.
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Self> {
-        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
-        let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
-        let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
-        let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
         // Each side is owned as it is made: an early return deletes what exists.
-        let semaphore = create(&vk.device, "vkCreateSemaphore (exportable)", || unsafe {
-            vk.device.create_semaphore(&info, None)
-        })?;
-        crate::base::resources::created("vk_semaphore_exportable", 0);
-        let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
-        let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(*semaphore).handle_type(handle_type);
-        let fd = fail::call("vkGetSemaphoreFdKHR", || unsafe { loader.get_semaphore_fd(&get) })?;
-        // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns. Until the import
-        // succeeds, `fd` closes it on every way out.
-        let fd = unsafe { OwnedFd::from_raw_fd(fd) };
+        let semaphore = exportable_semaphore(vk)?;
+        let fd = semaphore_fd(vk, *semaphore)?;
+        let gl_semaphore = GlSemaphore::import(gl, fd)?;
+        Ok(SharedSemaphore { gl: gl_semaphore, vk: semaphore })
+    }
+}
+
+/// A binary Vulkan semaphore whose payload can be exported as an opaque fd.
+pub fn exportable_semaphore(vk: &VulkanContext) -> Result<Owned<vk::Semaphore>> {
+    let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(SEMAPHORE_HANDLE_TYPE);
+    let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
+    let semaphore = create(&vk.device, "vkCreateSemaphore (exportable)", || unsafe {
+        vk.device.create_semaphore(&info, None)
+    })?;
+    crate::base::resources::created("vk_semaphore_exportable", 0);
+    Ok(semaphore)
+}
+
+/// A new fd for `semaphore`'s payload (`vkGetSemaphoreFdKHR`), ours to close or to hand on.
+pub fn semaphore_fd(vk: &VulkanContext, semaphore: vk::Semaphore) -> Result<OwnedFd> {
+    let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
+    let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(semaphore).handle_type(SEMAPHORE_HANDLE_TYPE);
+    let fd = fail::call("vkGetSemaphoreFdKHR", || unsafe { loader.get_semaphore_fd(&get) })?;
+    // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns. Until an import
+    // succeeds, `fd` closes it on every way out.
+    Ok(unsafe { OwnedFd::from_raw_fd(fd) })
+}
+
+impl GlSemaphore {
+    /// GL's semaphore for the payload `fd` refers to (`glImportSemaphoreFdEXT`). A successful
+    /// import takes the fd; a failed one does not, and `fd` is closed on the way out.
+    pub fn import(gl: &GlContext, fd: OwnedFd) -> Result<GlSemaphore> {
+        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
         fail::step("glGenSemaphoresEXT")?;
         let mut name = 0;
         unsafe { (ext.GenSemaphoresEXT)(1, &mut name) };
         crate::base::resources::alive("gl_semaphore");
         let gl_semaphore = GlSemaphore { name, fns: *ext };
         fail::step("glImportSemaphoreFdEXT")?;
-        unsafe { (ext.ImportSemaphoreFdEXT)(name, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+        unsafe {
+            (ext.ImportSemaphoreFdEXT)(name, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
+        };
         // On failure `fd` is dropped, and so closed (the failed import did not take it), and
-        // GL's semaphore and Vulkan's are deleted.
+        // GL's semaphore is deleted.
         gl.check_error("glImportSemaphoreFdEXT")?;
         // SAFETY: the import succeeded; the fd is GL's now.
         let _ = fd.into_raw_fd();
-        Ok(SharedSemaphore { gl: gl_semaphore, vk: semaphore })
+        Ok(gl_semaphore)
     }
-    // ANCHOR_END: share_semaphore
 }
+// ANCHOR_END: share_semaphore

@@ -98,6 +98,7 @@ objects! {
     NativeVertexArray, "vertex array" => delete_vertex_array,
     NativeShader, "shader" => delete_shader,
     NativeQuery, "query" => delete_query,
+    NativeFence, "fence" => delete_sync,
 }
 
 impl Object for glow::NativeProgram {
