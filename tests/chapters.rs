@@ -960,6 +960,19 @@ fn ch14_a_killed_viewer_is_replaced() {
     assert_eq!(report["checks"]["viewer_no_fd_leaked"], true);
 }
 
+/// Waits until a renderer started with `--listen` (its stderr piped) says it listens, then drains
+/// the rest of its stderr on a thread. Not the socket's path appearing: it appears at bind(),
+/// before listen(), and a viewer that connects in between is refused.
+fn until_listening(renderer: &mut std::process::Child) -> std::thread::JoinHandle<std::io::Result<u64>> {
+    use std::io::BufRead;
+    let mut says = std::io::BufReader::new(renderer.stderr.take().expect("the renderer's stderr piped"));
+    let mut heard = String::new();
+    while !heard.contains("for a viewer (--connect)") {
+        assert!(says.read_line(&mut heard).unwrap() > 0, "the renderer stopped early:\n{heard}");
+    }
+    std::thread::spawn(move || std::io::copy(&mut says, &mut std::io::sink()))
+}
+
 /// A renderer killed mid-run: its viewer notices the hang-up, keeps the last complete frame,
 /// lets go of what it imported and exits 0, saying so.
 #[test]
@@ -976,9 +989,7 @@ fn ch14_a_killed_renderer_leaves_the_viewer_clean() {
     };
     let socket_arg = socket.to_str().unwrap();
     let mut renderer = spawn(&["--listen", socket_arg, "--frames", "100000", "--timeout", "30"]);
-    while !socket.exists() {
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
+    let drain = until_listening(&mut renderer);
     let mut viewer = spawn(&["--connect", socket_arg, "--timeout", "30"]);
     let mut stderr = BufReader::new(viewer.stderr.take().unwrap());
     let mut seen = String::new();
@@ -988,6 +999,7 @@ fn ch14_a_killed_renderer_leaves_the_viewer_clean() {
     std::thread::sleep(std::time::Duration::from_millis(500)); // frames flow
     renderer.kill().unwrap(); // SIGKILL: no Bye, no clean-up of its own
     renderer.wait().unwrap();
+    drain.join().unwrap().unwrap();
     stderr.read_to_string(&mut seen).unwrap();
     let status = viewer.wait().unwrap();
     assert_eq!(status.code(), Some(0), "{seen}");
@@ -1049,10 +1061,10 @@ fn ch14_soak_with(viewer_kills: u32, renderer_kills: u32) {
         command.stderr(std::process::Stdio::null()).spawn().unwrap()
     };
     let listen = ["--listen", socket_arg, "--frames", "1000000", "--timeout", "30"];
-    let mut first = Some(renderer(&listen)); // the viewer's first connect does not wait
-    while !socket.exists() {
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
+    // The viewer's first connect does not wait: the first renderer must be listening.
+    let mut first = command(&listen).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let first_drained = until_listening(&mut first);
+    let mut first = Some(first);
     let mut viewer =
         command(&["--connect", socket_arg, "--reconnect", "--timeout", "30"]).stderr(std::process::Stdio::piped()).spawn().unwrap();
     let (lines, seen) = std::sync::mpsc::channel();
@@ -1080,6 +1092,7 @@ fn ch14_soak_with(viewer_kills: u32, renderer_kills: u32) {
         renderer.wait().unwrap();
         wait_for("viewer: waiting for the next renderer");
     }
+    first_drained.join().unwrap().unwrap();
     let last = run_chapter(CH14, &["--size", "32x24", "--listen", socket_arg, "--frames", "5", "--timeout", "30"], &[]);
     let status = viewer.wait().unwrap();
     let stderr = reader.join().unwrap();
