@@ -121,7 +121,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     unsafe {
         let vao = *vertex_array;
         // The imported buffer is an ordinary GL buffer now: bind it like any other.
-        gl.vertex_array_vertex_buffer(vao, 0, Some(shared.buffer), 0, STRIDE);
+        gl.vertex_array_vertex_buffer(vao, 0, Some(*shared.buffer), 0, STRIDE);
         for (location, offset) in [(0, 0), (1, 8)] {
             gl.enable_vertex_array_attrib(vao, location);
             gl.vertex_array_attrib_format_f32(vao, location, 2, glow::FLOAT, false, offset);
@@ -163,7 +163,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let second = draw(&format!("{CHAPTER}-flipped"), report)?;
     let mut seen_by_gl = [0u8; BUFFER_BYTES as usize];
     unsafe {
-        gl.bind_buffer(glow::COPY_READ_BUFFER, Some(shared.buffer));
+        gl.bind_buffer(glow::COPY_READ_BUFFER, Some(*shared.buffer));
         gl.get_buffer_sub_data(glow::COPY_READ_BUFFER, 0, &mut seen_by_gl);
         gl.bind_buffer(glow::COPY_READ_BUFFER, None);
     }
@@ -175,7 +175,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 7. GL writes, Vulkan reads
     // ANCHOR: gl_writes
-    unsafe { gl.named_buffer_sub_data_u8_slice(shared.buffer, 0, &bytes_of(&TRIANGLE)) };
+    unsafe { gl.named_buffer_sub_data_u8_slice(*shared.buffer, 0, &bytes_of(&TRIANGLE)) };
     // glFinish: the write has reached memory before the CPU looks (no semaphores yet: chapter 03).
     unsafe { gl.finish() };
     let seen_by_vulkan = unsafe { mapped.read_unaligned() };

@@ -71,7 +71,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: shared_image
     let framebuffer =
         common::base::gl::create(gl, "glCreateFramebuffers", |gl| unsafe { gl.create_named_framebuffer() })?;
-    let texture = Some(image.texture.texture);
+    let texture = Some(*image.texture.texture);
     unsafe { gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, texture, 0) };
 
     // 2. Share two semaphores, or fall back to the host
@@ -117,7 +117,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gl_timer.time(gl, "gl_clear", || unsafe { gl.clear(glow::COLOR_BUFFER_BIT) })?;
         let handshake = Instant::now();
         if !args.unsynchronised {
-            handoff.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
+            handoff.gl_release(&gl_context, &[*image.texture.texture], &[signal_layout]);
         }
         let mut handshake_cpu = ms_since(handshake);
         // ANCHOR_END: gl_turn
@@ -153,7 +153,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         // 5. GL waits for Vulkan and reads its pattern
         // ANCHOR: gl_reads
         if !args.unsynchronised {
-            let texture = image.texture.texture;
+            let texture = *image.texture.texture;
             handoff.gl_acquire(&vk, &gl_context, *commands.fence, &[texture], &[wait_layout])?;
         }
         handshake_cpu += ms_since(handshake);

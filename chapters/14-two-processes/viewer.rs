@@ -97,7 +97,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket) -> Result<()> {
         let framebuffer = common::base::gl::create(gl, "glCreateFramebuffers", |gl| unsafe {
             gl.create_named_framebuffer()
         })?;
-        let attached = Some(texture.texture);
+        let attached = Some(*texture.texture);
         unsafe { gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, attached, 0) };
         ring.push((framebuffer, texture)); // dropped in that order
     }

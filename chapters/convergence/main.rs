@@ -196,7 +196,7 @@ fn measure(
             }
         }
         let ao =
-            output::read_texture_f32(&gl.gl, tracer.image.texture.texture, extent.width, extent.height, 1);
+            output::read_texture_f32(&gl.gl, *tracer.image.texture.texture, extent.width, extent.height, 1);
         Ok((gpu_ms, ao))
     };
 

@@ -2,7 +2,7 @@
 //! semaphores where both drivers can share them, or the CPU waiting for each side where not.
 
 use crate::base::fail;
-use crate::base::gl::GlContext;
+use crate::base::gl::{self, GlContext};
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
@@ -19,21 +19,8 @@ pub const SEMAPHORE_EXTENSION: &std::ffi::CStr = ash::khr::external_semaphore_fd
 /// One semaphore, seen by both APIs. Deleted on both sides when dropped (fields, in order: GL's
 /// first). No submission may still wait on it or signal it then.
 pub struct SharedSemaphore {
-    pub gl: GlSemaphore,
+    pub gl: gl::Owned<gl::Semaphore>,
     pub vk: Owned<vk::Semaphore>,
-}
-
-/// GL's semaphore object (`GL_EXT_semaphore`), deleted when dropped.
-pub struct GlSemaphore {
-    pub name: u32,
-    fns: crate::base::gl::SemaphoreFns,
-}
-
-impl Drop for GlSemaphore {
-    fn drop(&mut self) {
-        unsafe { (self.fns.DeleteSemaphoresEXT)(1, &self.name) };
-        crate::base::resources::gone("gl_semaphore");
-    }
 }
 
 /// Both APIs and how work passes between them, as every frame that hands images over needs
@@ -82,6 +69,23 @@ pub(crate) fn vulkan_left(texture: u32, layout: Option<u32>) {
     };
 }
 
+/// A shared texture's line in that record: forgotten when dropped, with the texture (a field of
+/// `interop::SharedTexture`), so that a later texture given the same name starts with none.
+#[derive(Debug)]
+pub struct LeftByVulkan(u32);
+
+impl LeftByVulkan {
+    pub(crate) fn new(texture: glow::Texture) -> Self {
+        LeftByVulkan(texture.0.get())
+    }
+}
+
+impl Drop for LeftByVulkan {
+    fn drop(&mut self) {
+        vulkan_left(self.0, None);
+    }
+}
+
 // ANCHOR: hand_over
 /// The layouts of one shared image at the two hand-overs of a frame. Vulkan's acquire barrier
 /// starts from `to_vulkan` and its release barrier ends in `to_gl`; GL's signal and wait name the
@@ -98,7 +102,7 @@ pub struct HandOver {
 impl HandOver {
     /// GL's names for the two layouts, for [`Handoff::gl_release`] and [`Handoff::gl_acquire`].
     pub fn gl(self) -> (u32, u32) {
-        let name = |layout| crate::base::gl::layout::of(layout).expect("a layout GL can name");
+        let name = |layout| gl::layout::of(layout).expect("a layout GL can name");
         (name(self.to_vulkan), name(self.to_gl))
     }
 }
@@ -176,7 +180,7 @@ impl Handoff {
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.SignalSemaphoreEXT)(
-                        gl_done.gl.name,
+                        gl_done.gl.0,
                         0,
                         std::ptr::null(),
                         names.len() as u32,
@@ -235,7 +239,7 @@ impl Handoff {
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.WaitSemaphoreEXT)(
-                        vulkan_done.gl.name,
+                        vulkan_done.gl.0,
                         0,
                         std::ptr::null(),
                         names.len() as u32,
@@ -266,13 +270,13 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
         if actual != Some(layout) {
             misnamed += 1;
             let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
-                format!("{} (Vulkan's last release)", crate::base::gl::layout::name(*l))
+                format!("{} (Vulkan's last release)", gl::layout::name(*l))
             });
             eprintln!(
                 "sync: host path: texture {} handed to Vulkan as {}, but GL moves no layout here \
                  and it is in {actual}",
                 texture.0.get(),
-                crate::base::gl::layout::name(*layout)
+                gl::layout::name(*layout)
             );
         }
     }
@@ -315,13 +319,13 @@ impl SharedSemaphore {
         // SAFETY: vkGetSemaphoreFdKHR returned a new fd that nothing else owns. Until the import
         // succeeds, `fd` closes it on every way out.
         let fd = unsafe { OwnedFd::from_raw_fd(fd) };
-        fail::step("glGenSemaphoresEXT")?;
-        let mut name = 0;
-        unsafe { (ext.GenSemaphoresEXT)(1, &mut name) };
-        crate::base::resources::alive("gl_semaphore");
-        let gl_semaphore = GlSemaphore { name, fns: *ext };
+        let gl_semaphore = gl::create(ext, "glGenSemaphoresEXT", |ext| {
+            let mut name = 0;
+            unsafe { (ext.GenSemaphoresEXT)(1, &mut name) };
+            gl::made(name, "glGenSemaphoresEXT").map(gl::Semaphore)
+        })?;
         fail::step("glImportSemaphoreFdEXT")?;
-        unsafe { (ext.ImportSemaphoreFdEXT)(name, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+        unsafe { (ext.ImportSemaphoreFdEXT)(gl_semaphore.0, gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
         // On failure `fd` is dropped, and so closed (the failed import did not take it), and
         // GL's semaphore and Vulkan's are deleted.
         gl.check_error("glImportSemaphoreFdEXT")?;

@@ -62,7 +62,7 @@ pub fn check_occlusion(
 ) {
     let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
     let positions = crate::base::output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
-    let visibility = crate::base::output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
+    let visibility = crate::base::output::read_texture_f32(gl, *tracer.image.texture.texture, w, h, 1);
     report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
     let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
     report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
@@ -160,7 +160,7 @@ impl AoTracer {
             gl.named_framebuffer_texture(
                 Some(*framebuffer),
                 glow::COLOR_ATTACHMENT0,
-                Some(self.image.texture.texture),
+                Some(*self.image.texture.texture),
                 0,
             );
             gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*framebuffer));
@@ -195,7 +195,7 @@ impl AoTracer {
         apis.commands.wait(vk, "vkWaitForFences after a measured trace")?;
         let ms = timestamps.map(|t| t.read_ms(vk)).transpose()?;
         let extent = gbuffers.extent;
-        let texture = self.image.texture.texture;
+        let texture = *self.image.texture.texture;
         Ok((crate::base::output::read_texture_f32(&apis.gl.gl, texture, extent.width, extent.height, 1), ms))
     }
 
@@ -234,7 +234,7 @@ impl AoTracer {
             handoff.hand_over(read_only, read_only),
         );
         let ((gbuffer_to_vulkan, gbuffer_to_gl), (ao_to_vulkan, ao_to_gl)) = (layouts.0.gl(), layouts.1.gl());
-        let textures = [gbuffer_textures[0], gbuffer_textures[1], self.image.texture.texture];
+        let textures = [gbuffer_textures[0], gbuffer_textures[1], *self.image.texture.texture];
         // The AO image only once GL has had it.
         let handed = if self.gl_has_image { 3 } else { 2 };
         handoff.gl_release(

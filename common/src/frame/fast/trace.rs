@@ -264,7 +264,7 @@ pub fn hand_over_around(
     let layouts =
         (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only));
     let ((ids_to_vulkan, ids_to_gl), (surface_to_vulkan, surface_to_gl)) = (layouts.0.gl(), layouts.1.gl());
-    let textures = [targets.visibility.texture.texture, targets.surface.texture.texture];
+    let textures = [*targets.visibility.texture.texture, *targets.surface.texture.texture];
     let handed = if targets.gl_has_surface.get() { 2 } else { 1 };
     handoff.gl_release(gl, &textures[..handed], &[ids_to_vulkan, surface_to_vulkan][..handed]);
     let cb = commands.begin(vk)?;

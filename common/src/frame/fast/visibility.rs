@@ -133,7 +133,7 @@ impl Targets {
                     Some(depth),
                 )
             };
-            let ids = targets.visibility.texture.texture;
+            let ids = *targets.visibility.texture.texture;
             g.named_framebuffer_texture(Some(visibility_framebuffer), glow::COLOR_ATTACHMENT0, Some(ids), 0);
             depth_attachment(visibility_framebuffer);
             g.named_framebuffer_texture(Some(picture_framebuffer), glow::COLOR_ATTACHMENT0, Some(picture), 0);
