@@ -74,7 +74,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 3. Share the G-buffers, and make the AO tracer with its shared image
     // ANCHOR: tracer
     // The ray tracer reads the G-buffers as storage images.
-    let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer =
         AoTracer::new(&vk, &gl_context, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
     // ANCHOR_END: tracer
@@ -95,7 +95,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(reason) = nothing_to_trace {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
         report.set("ao_skipped", reason);
-        tracer.fill_unoccluded(&vk, &gl_context)?;
+        tracer.fill_unoccluded(&vk, &gl_context, &handoff)?;
     }
     for frame in 0..args.common.headless_frames() {
         // ANCHOR: loop

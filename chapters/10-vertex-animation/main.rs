@@ -174,7 +174,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         frequency: 14.0,
         speed: 4.0,
     };
-    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, *tlas.handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
     let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);

@@ -112,6 +112,16 @@ impl Handoff {
     /// Semaphores when both sides support them (and `VKGL_HIDE_EXTENSIONS` hides neither), else
     /// the host fallback; says which on stderr.
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Handoff> {
+        Handoff::with(vk, gl, SharedSemaphore::new)
+    }
+
+    /// As [`Handoff::new`], each semaphore shared by `share` (chapter 03, which teaches it, shares
+    /// its own).
+    pub fn with(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        share: impl Fn(&VulkanContext, &GlContext) -> Result<SharedSemaphore>,
+    ) -> Result<Handoff> {
         let vulkan_can = vk.has_extension(SEMAPHORE_EXTENSION) && vulkan_can_export_semaphores(vk);
         let (Some(_), true) = (&gl.semaphores, vulkan_can) else {
             let missing = match (vulkan_can, gl.semaphores.is_some()) {
@@ -122,9 +132,9 @@ impl Handoff {
             eprintln!("sync: host ({missing}): the CPU waits for each API in turn");
             return Ok(Handoff::Host { disagreements: Cell::new(0) });
         };
-        let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
+        let gl_done = share(vk, gl).context("sharing the gl_done semaphore")?;
         // Should this one fail, `gl_done` is dropped on the way out, which deletes it.
-        let vulkan_done = SharedSemaphore::new(vk, gl).context("sharing the vulkan_done semaphore")?;
+        let vulkan_done = share(vk, gl).context("sharing the vulkan_done semaphore")?;
         eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
         Ok(Handoff::Semaphores { gl_done, vulkan_done })
     }
@@ -302,7 +312,8 @@ fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
 
 impl SharedSemaphore {
     // ANCHOR: share_semaphore
-    /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd.
+    /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd (taught
+    /// in chapter 03, whose `main.rs` makes these calls itself).
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Self> {
         let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
         let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;

@@ -10,6 +10,7 @@ use crate::base::gl::{
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::{self, Dedicated, ExportableMemory, MemoryTerms};
+use crate::interop::handoff::Handoff;
 use anyhow::Result;
 use ash::vk;
 use glow::HasContext;
@@ -239,26 +240,67 @@ impl SharedImage {
 /// them out of `UNDEFINED` (which may initialise what the driver keeps beside the pixels) and
 /// releases them to `VK_QUEUE_FAMILY_EXTERNAL`. For images GL uses first (chapter 03's, the
 /// G-buffers): from here on each is in a layout both sides know, the one the host path hands it
-/// over in (`Handoff::hand_over`). Set-up work: the CPU waits for it.
-pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Result<()> {
+/// over in (`Handoff::hand_over`). `images`: each image and its GL texture. Set-up work: the CPU
+/// waits for Vulkan's part.
+pub fn hand_new_images_to_gl(
+    vk: &VulkanContext,
+    gl: &GlContext,
+    handoff: &Handoff,
+    images: &[(vk::Image, glow::Texture)],
+) -> Result<()> {
     let general = vk::ImageLayout::GENERAL;
     let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
     let none = vk::AccessFlags::NONE; // nothing written yet, nothing to make available
     let barriers: Vec<_> = images
         .iter()
-        .map(|image| {
-            image_barrier(*image.image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
+        .map(|&(image, _)| {
+            image_barrier(image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
         })
         .collect();
+    let textures: Vec<glow::Texture> = images.iter().map(|&(_, texture)| texture).collect();
     let commands = crate::base::commands::Commands::new(vk)?;
-    commands.run_once(vk, |cb| unsafe {
-        let (top, bottom) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
-        vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
-    })?;
-    for image in images {
-        crate::interop::handoff::vulkan_left(image.texture.texture.0.get(), gl::layout::of(general));
+    let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+    match handoff {
+        Handoff::Host { .. } => {
+            commands.run_once(vk, |cb| unsafe {
+                let top = vk::PipelineStageFlags::TOP_OF_PIPE;
+                vk.device.cmd_pipeline_barrier(
+                    cb,
+                    top,
+                    bottom,
+                    vk::DependencyFlags::empty(),
+                    &[],
+                    &[],
+                    &barriers,
+                );
+            })?;
+            // No layout travels with a fence: record where Vulkan left each, for the next acquire.
+            for texture in &textures {
+                crate::interop::handoff::vulkan_left(texture.0.get(), gl::layout::of(general));
+            }
+            Ok(())
+        }
+        Handoff::Semaphores { gl_done, vulkan_done } => {
+            // A round trip, as a frame makes one, so that each binary semaphore is waited on
+            // before it is signalled again (a resize makes new images between two frames). GL
+            // signals first: it has not used these images, so its signal names none.
+            handoff.gl_release(gl, &[], &[]);
+            let cb = commands.begin(vk)?;
+            // From ALL_COMMANDS, the stage the submission waits for GL at: the layout transition
+            // comes after GL's signal. To BOTTOM_OF_PIPE: a release, nothing later here uses them.
+            let all = vk::PipelineStageFlags::ALL_COMMANDS;
+            let no_flags = vk::DependencyFlags::empty();
+            unsafe { vk.device.cmd_pipeline_barrier(cb, all, bottom, no_flags, &[], &[], &barriers) };
+            commands.submit(vk, Some((*gl_done.vk, all)), Some(*vulkan_done.vk))?;
+            commands.wait(vk, "vkWaitForFences for one-shot work")?;
+            // GL's half of the ownership transfer: the wait names each texture's layout, GENERAL,
+            // before GL's first use. EXT_external_objects: "the current layout of the textures
+            // must be specified to initialize internal GL state prior to using the textures after
+            // an external access".
+            let layouts = vec![gl::layout::GENERAL; textures.len()];
+            handoff.gl_acquire(vk, gl, *commands.fence, &textures, &layouts)
+        }
     }
-    Ok(())
 }
 // ANCHOR_END: hand_new_images_to_gl
 

@@ -5,7 +5,7 @@ use crate::base::commands::first_use;
 use crate::base::gl::GlContext;
 use crate::base::timestamps::{Timestamps, timed};
 use crate::base::vulkan::VulkanContext;
-use crate::interop::handoff::{Apis, HandOver};
+use crate::interop::handoff::{Apis, HandOver, Handoff};
 use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
 use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes};
@@ -145,12 +145,13 @@ impl AoTracer {
     /// image to 1 through a framebuffer of its own, once per image. GL uses the image first, so
     /// Vulkan hands it over (in GENERAL) before, as it does the G-buffers; it stays GL's until a
     /// trace takes it.
-    pub fn fill_unoccluded(&mut self, vk: &VulkanContext, gl: &GlContext) -> Result<()> {
+    pub fn fill_unoccluded(&mut self, vk: &VulkanContext, gl: &GlContext, handoff: &Handoff) -> Result<()> {
         if self.unoccluded {
             return Ok(());
         }
         anyhow::ensure!(!self.gl_has_image, "fill_unoccluded: the AO image was already traced into");
-        crate::interop::hand_new_images_to_gl(vk, &[&self.image])?;
+        let new = [(*self.image.image, *self.image.texture.texture)];
+        crate::interop::hand_new_images_to_gl(vk, gl, handoff, &new)?;
         let framebuffer =
             crate::base::gl::create(&gl.gl, "glCreateFramebuffers to fill the AO image", |gl| unsafe {
                 gl.create_named_framebuffer()

@@ -3,6 +3,7 @@
 
 use crate::base::gl::{GlContext, Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::interop::handoff::Handoff;
 use crate::interop::{BufferPair, SharedBuffer, SharedFormat, SharedImage, share_buffer};
 use crate::scene::{Camera, Instance, Scene, Vertex};
 use anyhow::{Result, ensure};
@@ -88,6 +89,7 @@ impl GBuffers {
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
+        handoff: &Handoff,
         buffers: &SceneBuffers,
         extent: vk::Extent2D,
         usage: vk::ImageUsageFlags,
@@ -100,7 +102,8 @@ impl GBuffers {
             images.push(SharedImage::new(vk, gl, format, usage, extent)?);
         }
         // GL draws into them first: Vulkan hands them over, in GENERAL, before it does.
-        crate::interop::hand_new_images_to_gl(vk, &images.iter().collect::<Vec<_>>())?;
+        let new: Vec<_> = images.iter().map(|i| (*i.image, *i.texture.texture)).collect();
+        crate::interop::hand_new_images_to_gl(vk, gl, handoff, &new)?;
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };

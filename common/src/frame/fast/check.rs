@@ -302,7 +302,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     use crate::rt::ao::AoTracer;
     use crate::scene::gbuffer::GBuffers;
     let storage = ash::vk::ImageUsageFlags::STORAGE;
-    let gbuffers = GBuffers::new(vk, gl, buffers, extent, storage)?;
+    let gbuffers = GBuffers::new(vk, gl, apis.handoff, buffers, extent, storage)?;
     gbuffers.draw(&gl.gl, scene, camera);
     let mut tracer = AoTracer::new(vk, gl, allocator, tlas, &gbuffers)?;
     // Its own command buffer, made after what it traces with: dropped first on an early return,
@@ -311,7 +311,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     let apis = Apis { commands: &commands, ..apis };
     let scene_scale = scene.size() / 2.0;
     if per_frame == 0 || total == 0 || radius == 0.0 {
-        tracer.fill_unoccluded(vk, gl)?;
+        tracer.fill_unoccluded(vk, gl, apis.handoff)?;
     }
     while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
         let samples = per_frame.min(total - tracer.accumulated);
