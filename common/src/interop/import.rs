@@ -165,9 +165,10 @@ impl SharedTexture {
 }
 
 /// A Vulkan image with its own exported memory and a view, and the GL texture that is the same
-/// memory (taught in chapter 03). Resizing means dropping it and making a new one. Dropped, its
-/// fields go in the order written: GL's side first (texture, memory object), then Vulkan's
-/// (view, image, memory); the GPU must be done with it.
+/// memory (taught in chapter 03, whose `main.rs` makes the parts; one call from chapter 04 on).
+/// Resizing means dropping it and making a new one. Dropped, its fields go in the order written:
+/// GL's side first (texture, memory object), then Vulkan's (view, image, memory); the GPU must be
+/// done with it.
 pub struct SharedImage {
     /// First: GL lets go of the memory before Vulkan frees it.
     pub texture: SharedTexture,
