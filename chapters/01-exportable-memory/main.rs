@@ -11,15 +11,20 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::{Largest, Smallest};
 use common::base::fail;
+use common::base::image::image_info;
 use common::base::owned::create;
 use common::base::report::uuid_hex;
-use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
+use common::interop::exportable::{BUFFER_IMPORT_SLACK, HANDLE_TYPE};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use serde_json::json;
 use std::ffi::CStr;
-use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
+use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
 use std::process::ExitCode;
 use std::time::Instant;
+
+mod describe;
+
+use describe::{describe_support, fd_target, is_open, memory_json, requirements_json, support_json};
 
 const CHAPTER: &str = "01-exportable-memory";
 /// Any size: nothing checked here depends on how many pixels there are.
@@ -105,13 +110,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .push_next(&mut external_query);
     let mut external_support = vk::ExternalImageFormatProperties::default();
     let mut image_format = vk::ImageFormatProperties2::default().push_next(&mut external_support);
-    unsafe {
+    // VK_ERROR_FORMAT_NOT_SUPPORTED when no such image can be exported at all.
+    fail::call("vkGetPhysicalDeviceImageFormatProperties2", || unsafe {
         ctx.instance.get_physical_device_image_format_properties2(
             ctx.physical_device,
             &image_query,
             &mut image_format,
         )
-    }
+    })
     .context("this device cannot make an exportable RGBA8 storage image")?;
     let max_extent = image_format.image_format_properties.max_extent;
     let image_support = external_support.external_memory_properties;
@@ -139,12 +145,21 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .push_next(&mut buffer_external);
     // `create`: the call, as a step `VKGL_FAIL_AT` can make fail, its error named; and the new
     // buffer owned from the moment it exists: any early return from here on destroys it.
-    let buffer = create(&ctx.device, "vkCreateBuffer", || unsafe { ctx.device.create_buffer(&buffer_info, None) })?
-        .counted("vk_buffer_exportable", 0); // for the report's list of resources
+    let buffer =
+        create(&ctx.device, "vkCreateBuffer", || unsafe { ctx.device.create_buffer(&buffer_info, None) })?
+            .counted("vk_buffer_exportable", 0); // for the report's list of resources
 
-    // The image is made the same way, with ExternalMemoryImageCreateInfo (see exportable.rs).
+    // The image likewise, with the same format, tiling, usage and flags step 2 asked about.
+    let mut image_external = vk::ExternalMemoryImageCreateInfo::default().handle_types(HANDLE_TYPE);
     let extent = vk::Extent2D { width: size.width, height: size.height };
-    let image = exportable::create_image(&ctx, IMAGE_FORMAT, image_usage, extent)?;
+    let image_info = image_info(IMAGE_FORMAT, image_usage, extent)
+        // Some drivers corrupt shared images unless views of other formats are allowed.
+        .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
+        .push_next(&mut image_external);
+    let image = create(&ctx.device, "vkCreateImage (exportable, R8G8B8A8_UNORM)", || unsafe {
+        ctx.device.create_image(&image_info, None)
+    })?
+    .counted("vk_image_exportable", 0);
     // ANCHOR_END: create
 
     // 4. Ask whether each needs memory of its own
@@ -171,31 +186,60 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Allocate exportable memory and bind at offset 0
     // ANCHOR: allocate
-    // The buffer is host-visible so that we can write the triangle into it from the CPU.
+    // The buffer is host-visible so that we can write the triangle into it from the CPU. Its
+    // allocation gets BUFFER_IMPORT_SLACK extra bytes, which llvmpipe's GL import needs.
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-    // Owned as the buffer is: `exportable::allocate` hands back memory that frees itself.
-    let buffer_memory = exportable::allocate(&ctx, &buffer_requirements, host_visible, Dedicated::No)?;
-    // Images always get a dedicated allocation: the only kind every driver can share, and GL is
-    // told so on import (GL_DEDICATED_MEMORY_OBJECT_EXT).
-    let device_local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
+    let buffer_type = ctx.find_memory_type(buffer_requirements.memory_type_bits, host_visible)?;
+    let buffer_size = buffer_requirements.size + BUFFER_IMPORT_SLACK;
+    // The promise on the memory: this allocation will be exported as an opaque fd.
+    let mut export = vk::ExportMemoryAllocateInfo::default().handle_types(HANDLE_TYPE);
+    let info = vk::MemoryAllocateInfo::default()
+        .allocation_size(buffer_size)
+        .memory_type_index(buffer_type)
+        .push_next(&mut export);
+    let buffer_memory = create(&ctx.device, "vkAllocateMemory for the buffer (exportable)", || unsafe {
+        ctx.device.allocate_memory(&info, None)
+    })?
+    .counted("vk_memory_exportable", buffer_size);
+
+    // Images always get a dedicated allocation, of exactly the required size: the only kind
+    // every driver can share, and GL is told so on import (GL_DEDICATED_MEMORY_OBJECT_EXT).
+    let image_type =
+        ctx.find_memory_type(image_requirements.memory_type_bits, vk::MemoryPropertyFlags::DEVICE_LOCAL)?;
+    let image_size = image_requirements.size;
+    let mut export = vk::ExportMemoryAllocateInfo::default().handle_types(HANDLE_TYPE);
+    let mut dedicated = vk::MemoryDedicatedAllocateInfo::default().image(*image);
+    let info = vk::MemoryAllocateInfo::default()
+        .allocation_size(image_size)
+        .memory_type_index(image_type)
+        .push_next(&mut export)
+        .push_next(&mut dedicated);
     let image_memory =
-        exportable::allocate(&ctx, &image_requirements, device_local, Dedicated::Image(*image))?;
+        create(&ctx.device, "vkAllocateMemory for the image (exportable, dedicated)", || unsafe {
+            ctx.device.allocate_memory(&info, None)
+        })?
+        .counted("vk_memory_exportable", image_size);
     // Offset 0, always: llvmpipe ignores offsets into imported memory.
     fail::call("vkBindBufferMemory", || unsafe {
-        ctx.device.bind_buffer_memory(*buffer, *buffer_memory.memory, 0)
+        ctx.device.bind_buffer_memory(*buffer, *buffer_memory, 0)
     })?;
-    fail::call("vkBindImageMemory", || unsafe {
-        ctx.device.bind_image_memory(*image, *image_memory.memory, 0)
-    })?;
+    fail::call("vkBindImageMemory", || unsafe { ctx.device.bind_image_memory(*image, *image_memory, 0) })?;
     // ANCHOR_END: allocate
-    report.check("buffer_memory_has_import_slack", buffer_memory.size >= buffer_requirements.size + 48);
-    report.check("image_memory_is_exact", image_memory.size == image_requirements.size);
+    report.check("buffer_memory_has_import_slack", buffer_size >= buffer_requirements.size + 48);
+    report.check("image_memory_is_exact", image_size == image_requirements.size);
 
     // 6. Export file descriptors
     // ANCHOR: export
+    // An extension function: it comes from a loader made for the device, not from ash::Device.
     let fd_loader = ash::khr::external_memory_fd::Device::new(&ctx.instance, &ctx.device);
-    let buffer_fd = exportable::export_fd(&fd_loader, *buffer_memory.memory)?;
-    let image_fd = exportable::export_fd(&fd_loader, *image_memory.memory)?;
+    let export_fd = |memory: vk::DeviceMemory| -> Result<OwnedFd> {
+        let info = vk::MemoryGetFdInfoKHR::default().memory(memory).handle_type(HANDLE_TYPE);
+        let fd = fail::call("vkGetMemoryFdKHR", || unsafe { fd_loader.get_memory_fd(&info) })?;
+        // SAFETY: a new fd that nothing else owns; until an import takes it, dropping closes it.
+        Ok(unsafe { OwnedFd::from_raw_fd(fd) })
+    };
+    let buffer_fd = export_fd(*buffer_memory)?;
+    let image_fd = export_fd(*image_memory)?;
     // ANCHOR_END: export
     eprintln!("buffer fd {} -> {}", buffer_fd.as_raw_fd(), fd_target(&buffer_fd));
     eprintln!("image  fd {} -> {}", image_fd.as_raw_fd(), fd_target(&image_fd));
@@ -207,7 +251,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 7. Prove the descriptor is the memory: import it back and read the triangle through it
     // ANCHOR: reimport
     let mapped = fail::call("vkMapMemory for the exported buffer", || unsafe {
-        ctx.device.map_memory(*buffer_memory.memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
+        ctx.device.map_memory(*buffer_memory, 0, BUFFER_BYTES, vk::MemoryMapFlags::empty())
     })?;
     // SAFETY: the mapping is BUFFER_BYTES long and host-coherent; nothing else uses it.
     unsafe {
@@ -217,13 +261,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             BUFFER_BYTES as usize,
         )
     };
-    unsafe { ctx.device.unmap_memory(*buffer_memory.memory) };
+    unsafe { ctx.device.unmap_memory(*buffer_memory) };
 
     // Same size and memory type as the export: for OPAQUE_FD the importer must match both.
     let mut import = vk::ImportMemoryFdInfoKHR::default().handle_type(HANDLE_TYPE).fd(buffer_fd.as_raw_fd());
     let import_info = vk::MemoryAllocateInfo::default()
-        .allocation_size(buffer_memory.size)
-        .memory_type_index(buffer_memory.memory_type_index)
+        .allocation_size(buffer_size)
+        .memory_type_index(buffer_type)
         .push_next(&mut import);
     // Freeing the imported allocation (when `imported` is dropped) releases the fd the driver
     // took over.
@@ -249,7 +293,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             "usage": format!("{buffer_usage:?}"),
             "external": support_json(&buffer_support),
             "requirements": requirements_json(&buffer_requirements, &buffer_dedicated),
-            "memory": memory_json(&buffer_memory),
+            "memory": memory_json(&ctx, buffer_size, buffer_type),
         }),
     );
     report.set(
@@ -261,7 +305,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             "usage": format!("{image_usage:?}"),
             "external": support_json(&image_support),
             "requirements": requirements_json(&image_requirements, &image_dedicated),
-            "memory": memory_json(&image_memory),
+            "memory": memory_json(&ctx, image_size, image_type),
         }),
     );
 
@@ -279,46 +323,4 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     eprintln!("open fds: {open_fds_before} before exporting, {open_fds_after} after cleaning up");
     report.check("no_fd_leaked", open_fds_after == open_fds_before);
     Ok(())
-}
-
-fn describe_support(what: &str, p: &vk::ExternalMemoryProperties) {
-    eprintln!(
-        "{what}: {:?}; compatible handle types {:?}",
-        p.external_memory_features, p.compatible_handle_types
-    );
-}
-
-fn support_json(p: &vk::ExternalMemoryProperties) -> serde_json::Value {
-    let f = p.external_memory_features;
-    json!({
-        "exportable": f.contains(vk::ExternalMemoryFeatureFlags::EXPORTABLE),
-        "importable": f.contains(vk::ExternalMemoryFeatureFlags::IMPORTABLE),
-        "dedicated_only": f.contains(vk::ExternalMemoryFeatureFlags::DEDICATED_ONLY),
-        "compatible_handle_types": format!("{:?}", p.compatible_handle_types),
-    })
-}
-
-fn requirements_json(r: &vk::MemoryRequirements, d: &vk::MemoryDedicatedRequirements) -> serde_json::Value {
-    json!({
-        "size": r.size,
-        "alignment": r.alignment,
-        "prefers_dedicated": d.prefers_dedicated_allocation == vk::TRUE,
-        "requires_dedicated": d.requires_dedicated_allocation == vk::TRUE,
-    })
-}
-
-fn memory_json(m: &exportable::ExportableMemory) -> serde_json::Value {
-    json!({ "size": m.size, "type_index": m.memory_type_index, "flags": format!("{:?}", m.property_flags) })
-}
-
-/// Is `fd` an open descriptor of this process?
-fn is_open(fd: &OwnedFd) -> bool {
-    std::fs::metadata(format!("/proc/self/fd/{}", fd.as_raw_fd())).is_ok()
-}
-
-/// What the kernel says the descriptor points at (a memfd on lavapipe, a device node on NVIDIA).
-fn fd_target(fd: &OwnedFd) -> String {
-    std::fs::read_link(format!("/proc/self/fd/{}", fd.as_raw_fd()))
-        .map(|p| p.display().to_string())
-        .unwrap_or_else(|e| format!("? ({e})"))
 }

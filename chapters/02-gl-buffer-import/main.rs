@@ -10,14 +10,17 @@ use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::fail;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, ensure_same_device};
-use common::base::owned::create;
+use common::base::gl::{
+    DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MEMORY_EXTENSIONS, MemoryObject,
+    RenderTarget, ensure_same_device, made, program, uuids_match,
+};
 use common::base::output;
-use common::interop;
+use common::base::owned::create;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
 use std::ffi::CStr;
+use std::os::fd::{AsRawFd, IntoRawFd};
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -73,7 +76,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Check that both run on the same device
     // ANCHOR: uuids
-    report.uuids_match = Some(common::base::gl::uuids_match(&vk.info, &gl_context));
+    report.uuids_match = Some(uuids_match(&vk.info, &gl_context));
     ensure_same_device(&vk.info, &gl_context)?;
     // ANCHOR_END: uuids
     common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
@@ -87,8 +90,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
         .push_next(&mut external);
     // Each handle is owned as it is made (chapter 01): an early return destroys it.
-    let buffer = create(&vk.device, "vkCreateBuffer", || unsafe { vk.device.create_buffer(&buffer_info, None) })?
-        .counted("vk_buffer_exportable", 0); // for the report's list of resources
+    let buffer =
+        create(&vk.device, "vkCreateBuffer", || unsafe { vk.device.create_buffer(&buffer_info, None) })?
+            .counted("vk_buffer_exportable", 0); // for the report's list of resources
     let requirements = unsafe { vk.device.get_buffer_memory_requirements(*buffer) };
     let host_visible = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
     let memory = exportable::allocate(&vk, &requirements, host_visible, Dedicated::No)?;
@@ -107,21 +111,54 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 4. Import it into GL
     // ANCHOR: import
     let started = Instant::now();
-    // From here on GL owns the fd: `import_buffer` takes the OwnedFd and never gives it back.
-    let shared = interop::import_buffer(&gl_context, &memory, fd, BUFFER_BYTES)?;
+    let ext = gl_context.memory_fns()?; // GL_EXT_memory_object(_fd), loaded by hand: glow lacks them
+    // GL's counterpart of VkDeviceMemory: a handle on an allocation, empty until the import.
+    // Owned from the moment it exists (chapter 01's rule, for GL): any `?` below deletes it.
+    let memory_object = common::base::gl::create(ext, "glCreateMemoryObjectsEXT", |ext| {
+        let mut name = 0;
+        unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
+        made(name, "glCreateMemoryObjectsEXT").map(MemoryObject)
+    })?
+    .counted("gl_memory_object", 0); // for the report (its bytes are Vulkan's allocation)
+    if memory.dedicated {
+        // Must say what Vulkan's allocation said, and before the import: GL cannot be told after.
+        let yes = glow::TRUE as i32;
+        unsafe { (ext.MemoryObjectParameterivEXT)(memory_object.0, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
+    }
+    fail::step("glImportMemoryFdEXT")?;
+    // An earlier call's error would be read below as the import's, and the fd then closed
+    // although GL took it: look now, while the fd is still only ours.
+    gl_context.check_error("a GL call before glImportMemoryFdEXT")?;
+    // The size of the whole allocation (slack included), as Vulkan's own re-import stated it.
+    let opaque_fd = HANDLE_TYPE_OPAQUE_FD_EXT; // the only fd type GL_EXT_memory_object_fd takes
+    unsafe { (ext.ImportMemoryFdEXT)(memory_object.0, memory.size, opaque_fd, fd.as_raw_fd()) };
+    // Some drivers list the extension yet fail the import: always look. On failure the `?`
+    // drops `fd`, which closes it: a failed import did not take it.
+    gl_context.check_error("glImportMemoryFdEXT")?;
+    // SAFETY: the import succeeded, so the fd is GL's now; closing it too would be a double close.
+    let _ = fd.into_raw_fd();
+
+    // A GL buffer whose storage is the memory object: glNamedBufferStorage for storage that
+    // already exists. Immutable, like any buffer with storage; offset 0, as in Vulkan.
+    let what = "glCreateBuffers (imported)";
+    let buffer_gl = common::base::gl::create(gl, what, |gl| unsafe { gl.create_named_buffer() })?
+        .counted("gl_buffer_imported", 0);
+    fail::step("glNamedBufferStorageMemEXT")?;
+    unsafe { (ext.NamedBufferStorageMemEXT)(buffer_gl.0.get(), BUFFER_BYTES as isize, memory_object.0, 0) };
+    gl_context.check_error("glNamedBufferStorageMemEXT")?;
     report.time_ms("import", ms_since(started));
     // ANCHOR_END: import
 
     // 5. Draw from it
     // ANCHOR: draw_setup
-    let program = common::base::gl::program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
-    // A GL object that deletes itself when dropped, as every one made from here on does.
+    let program = program(gl, VERTEX_SHADER, FRAGMENT_SHADER)?;
+    // Owned as the memory object is, as every GL object made from here on is.
     let vertex_array =
         common::base::gl::create(gl, "glCreateVertexArrays", |gl| unsafe { gl.create_named_vertex_array() })?;
     unsafe {
         let vao = *vertex_array;
         // The imported buffer is an ordinary GL buffer now: bind it like any other.
-        gl.vertex_array_vertex_buffer(vao, 0, Some(shared.buffer), 0, STRIDE);
+        gl.vertex_array_vertex_buffer(vao, 0, Some(*buffer_gl), 0, STRIDE);
         for (location, offset) in [(0, 0), (1, 8)] {
             gl.enable_vertex_array_attrib(vao, location);
             gl.vertex_array_attrib_format_f32(vao, location, 2, glow::FLOAT, false, offset);
@@ -163,7 +200,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let second = draw(&format!("{CHAPTER}-flipped"), report)?;
     let mut seen_by_gl = [0u8; BUFFER_BYTES as usize];
     unsafe {
-        gl.bind_buffer(glow::COPY_READ_BUFFER, Some(shared.buffer));
+        gl.bind_buffer(glow::COPY_READ_BUFFER, Some(*buffer_gl));
         gl.get_buffer_sub_data(glow::COPY_READ_BUFFER, 0, &mut seen_by_gl);
         gl.bind_buffer(glow::COPY_READ_BUFFER, None);
     }
@@ -175,7 +212,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 7. GL writes, Vulkan reads
     // ANCHOR: gl_writes
-    unsafe { gl.named_buffer_sub_data_u8_slice(shared.buffer, 0, &bytes_of(&TRIANGLE)) };
+    unsafe { gl.named_buffer_sub_data_u8_slice(*buffer_gl, 0, &bytes_of(&TRIANGLE)) };
     // glFinish: the write has reached memory before the CPU looks (no semaphores yet: chapter 03).
     unsafe { gl.finish() };
     let seen_by_vulkan = unsafe { mapped.read_unaligned() };
@@ -193,7 +230,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(target); // the framebuffer, then its renderbuffer
     drop(vertex_array);
     drop(program);
-    drop(shared); // the GL buffer, then its memory object: releases the fd GL took over
+    drop(buffer_gl); // glDeleteBuffers
+    drop(memory_object); // glDeleteMemoryObjectsEXT: releases the fd GL took over
     drop(buffer); // vkDestroyBuffer
     drop(memory); // vkFreeMemory, which unmaps it too
     // ANCHOR_END: cleanup

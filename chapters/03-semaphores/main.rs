@@ -8,21 +8,34 @@
 //!
 //! Run: `cargo run --bin 03-semaphores -- --frames 60` (add `--unsynchronised` to see it break).
 
-use anyhow::Result;
+mod pattern;
+mod vulkan_turn;
+
+use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::commands::{COLOR_RANGE, Commands, HostBuffer};
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::commands::{Commands, HostBuffer};
+use common::base::fail;
+use common::base::gl::{
+    GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MEMORY_EXTENSIONS, OPTIMAL_TILING_EXT, Semaphore,
+    TEXTURE_TILING_EXT, made,
+};
 use common::base::output;
+use common::base::owned::create;
 use common::base::timestamps::{Timestamps, median_p95};
 use common::base::timing::{GlPassTimer, PassTimes};
-use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
-use common::interop::{self, SharedFormat, SharedImage};
+use common::interop::exportable::{self, Dedicated};
+use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION, SharedSemaphore};
+use common::interop::{self, SharedTexture};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
+use pattern::{checkerboard, first_pixel_is, frame_colours};
 use std::ffi::CStr;
+use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
 use std::process::ExitCode;
+use std::ptr::null;
 use std::time::Instant;
+use vulkan_turn::record_vulkan_turn;
 
 const CHAPTER: &str = "03-semaphores";
 /// Any size: nothing checked here depends on how many pixels there are.
@@ -65,20 +78,50 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let usage = vk::ImageUsageFlags::COLOR_ATTACHMENT // GL draws into it
         | vk::ImageUsageFlags::TRANSFER_SRC // Vulkan copies GL's pixels out
         | vk::ImageUsageFlags::TRANSFER_DST; // Vulkan writes its own
-    let image = SharedImage::new(&vk, &gl_context, SharedFormat::RGBA8, usage, extent)?;
-    // GL draws into it first: Vulkan moves it out of UNDEFINED and hands it over before that.
-    interop::hand_new_images_to_gl(&vk, &[&image])?;
+    // Vulkan's side, as chapter 01 made it: an exportable image in dedicated memory, bound at 0.
+    let image = exportable::create_image(&vk, vk::Format::R8G8B8A8_UNORM, usage, extent)?;
+    let requirements = unsafe { vk.device.get_image_memory_requirements(*image) };
+    let local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
+    let memory = exportable::allocate(&vk, &requirements, local, Dedicated::Image(*image))?;
+    fail::call("vkBindImageMemory", || unsafe { vk.device.bind_image_memory(*image, *memory.memory, 0) })?;
+    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
+    let fd = exportable::export_fd(&fd_loader, *memory.memory)?;
+    // GL's side: chapter 02's import (dedicated, so GL_DEDICATED_MEMORY_OBJECT_EXT is set first),
+    // then a texture whose storage is the memory object, as chapter 02's buffer was.
+    let memory_object = interop::import_memory(&gl_context, memory.terms(), fd)?;
+    let what = "glCreateTextures (imported)";
+    let texture =
+        common::base::gl::create(gl, what, |gl| unsafe { gl.create_named_texture(glow::TEXTURE_2D) })?
+            .counted("gl_texture_imported", 0);
+    let ext = gl_context.memory_fns()?;
+    fail::step("glTextureStorageMem2DEXT")?;
+    unsafe {
+        // Vulkan made the image VK_IMAGE_TILING_OPTIMAL, the driver's private layout: GL must be
+        // told so before the storage exists.
+        gl.texture_parameter_i32(*texture, TEXTURE_TILING_EXT, OPTIMAL_TILING_EXT as i32);
+        // One level of GL_RGBA8, GL's R8G8B8A8_UNORM, at offset 0 of the memory object.
+        let (width, height) = (extent.width as i32, extent.height as i32);
+        (ext.TextureStorageMem2DEXT)(texture.0.get(), 1, glow::RGBA8, width, height, memory_object.0, 0);
+    }
+    gl_context.check_error("glTextureStorageMem2DEXT")?;
+    // The texture and its memory object, to drop in that order (`SharedTexture`'s fields).
+    let texture = SharedTexture::new(texture, memory_object);
     // ANCHOR_END: shared_image
-    let framebuffer =
-        common::base::gl::create(gl, "glCreateFramebuffers", |gl| unsafe { gl.create_named_framebuffer() })?;
-    let texture = Some(image.texture.texture);
-    unsafe { gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, texture, 0) };
 
     // 2. Share two semaphores, or fall back to the host
     // ANCHOR: sync
-    let handoff = Handoff::new(&vk, &gl_context)?;
+    let handoff = Handoff::with(&vk, &gl_context, share_semaphore)?;
     report.sync = Some(if args.unsynchronised { "none" } else { handoff.name() });
     // ANCHOR_END: sync
+    // ANCHOR: first_hand_over
+    // GL draws into the image first: Vulkan moves it out of UNDEFINED and hands it to GL, in
+    // GENERAL, before that (with semaphores, GL's wait names GENERAL).
+    interop::hand_new_images_to_gl(&vk, &gl_context, &handoff, &[(*image, *texture.texture)])?;
+    // ANCHOR_END: first_hand_over
+    let framebuffer =
+        common::base::gl::create(gl, "glCreateFramebuffers", |gl| unsafe { gl.create_named_framebuffer() })?;
+    let attached = Some(*texture.texture);
+    unsafe { gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, attached, 0) };
     // ANCHOR: layouts
     // Where GL leaves the image for Vulkan: ready to be copied from. Where Vulkan leaves it for GL:
     // ready to be a framebuffer attachment, which is how GL both reads Vulkan's pattern and draws
@@ -88,6 +131,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         handoff.hand_over(vk::ImageLayout::TRANSFER_SRC_OPTIMAL, vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL);
     let (signal_layout, wait_layout) = layouts.gl(); // the same two, as GL's signal and wait name them
     // ANCHOR_END: layouts
+    let semaphore_fns = gl_context.semaphores; // GL_EXT_semaphore, when the driver has it
+    let texture_name = texture.texture.0.get();
 
     let pixels = (extent.width * extent.height) as usize;
     let timestamps = Timestamps::new(&vk)?;
@@ -116,8 +161,19 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         gl_timer.time(gl, "gl_clear", || unsafe { gl.clear(glow::COLOR_BUFFER_BIT) })?;
         let handshake = Instant::now();
-        if !args.unsynchronised {
-            handoff.gl_release(&gl_context, &[image.texture.texture], &[signal_layout]);
+        match &handoff {
+            _ if args.unsynchronised => {}
+            Handoff::Semaphores { gl_done, .. } => unsafe {
+                let ext = semaphore_fns.expect("Handoff::Semaphores implies GL semaphores");
+                // Queued behind the clear: GL moves the texture to the layout Vulkan's acquire
+                // names, makes its writes available, then signals. (No buffers: 0, null.)
+                (ext.SignalSemaphoreEXT)(gl_done.gl.0, 0, null(), 1, &texture_name, &signal_layout);
+                // The signal sits in GL's queue until flushed: without this, Vulkan could wait
+                // for it for ever.
+                gl.flush();
+            },
+            // glFinish: the CPU waits until the clear is in memory.
+            Handoff::Host { .. } => handoff.gl_release(&gl_context, &[*texture.texture], &[signal_layout]),
         }
         let mut handshake_cpu = ms_since(handshake);
         // ANCHOR_END: gl_turn
@@ -136,7 +192,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             t.reset(&vk, cb);
         }
         let buffers = (&vulkan_pattern, &gl_pixels_seen_by_vulkan);
-        record_vulkan_turn(&vk, cb, &image, layouts, buffers, timestamps.as_ref());
+        record_vulkan_turn(&vk, cb, (*image, extent), layouts, buffers, timestamps.as_ref());
         let handshake = Instant::now();
         // ANCHOR: submit
         // Wait for GL's signal before the copy (TRANSFER) stage; nothing earlier touches the image.
@@ -152,9 +208,19 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
         // 5. GL waits for Vulkan and reads its pattern
         // ANCHOR: gl_reads
-        if !args.unsynchronised {
-            let texture = image.texture.texture;
-            handoff.gl_acquire(&vk, &gl_context, *commands.fence, &[texture], &[wait_layout])?;
+        match &handoff {
+            _ if args.unsynchronised => {}
+            Handoff::Semaphores { vulkan_done, .. } => unsafe {
+                let ext = semaphore_fns.expect("Handoff::Semaphores implies GL semaphores");
+                // GL's queue, not the CPU, waits for Vulkan's signal. The texture is in the layout
+                // Vulkan's release left it in: GL's half of that ownership transfer.
+                (ext.WaitSemaphoreEXT)(vulkan_done.gl.0, 0, null(), 1, &texture_name, &wait_layout);
+            },
+            // The CPU waits for the submission's fence.
+            Handoff::Host { .. } => {
+                let fence = *commands.fence;
+                handoff.gl_acquire(&vk, &gl_context, fence, &[*texture.texture], &[wait_layout])?;
+            }
         }
         handshake_cpu += ms_since(handshake);
         let seen = output::read_gl_rgba8(gl, extent.width, extent.height);
@@ -178,21 +244,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_timer.finish(gl, &mut times);
     report.check("vulkan_sees_each_frame_gl_drew", vulkan_saw_gl);
     report.check("gl_sees_each_frame_vulkan_wrote", gl_saw_vulkan);
-    output::save_rgba8(
-        report,
-        &args.common.out_dir(CHAPTER),
-        CHAPTER,
-        (extent.width, extent.height),
-        &last_seen_by_gl,
-    )?;
-    let from_gl = gl_pixels_seen_by_vulkan.bytes().to_vec();
-    output::save_rgba8(
-        report,
-        &args.common.out_dir(CHAPTER),
-        &format!("{CHAPTER}-gl"),
-        (extent.width, extent.height),
-        &from_gl,
-    )?;
+    let out_dir = args.common.out_dir(CHAPTER);
+    pattern::save_last_frame(report, &out_dir, extent, &last_seen_by_gl, &gl_pixels_seen_by_vulkan)?;
     times.record(report);
     let (median, _) = median_p95(times.samples("handshake_cpu"));
     eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", handoff.name());
@@ -212,7 +265,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     drop(timestamps);
     drop(handoff); // the semaphores, GL's first: it holds the imported payload
     drop(framebuffer);
-    drop(image); // GL's texture and memory object, then Vulkan's view, memory and image
+    drop(texture); // GL's texture, then its memory object: releases the fd GL took over
+    drop(memory); // vkFreeMemory
+    drop(image); // vkDestroyImage
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     // Every fd (image memory, two semaphores) went to GL and was released with its object.
@@ -220,123 +275,35 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
-// ANCHOR: vulkan_turn
-/// Copy GL's pixels out, write Vulkan's pattern in. Every barrier says which earlier work must
-/// finish (src) before which later work may start (dst), and moves the image between layouts.
-fn record_vulkan_turn(
-    vk: &VulkanContext,
-    cb: vk::CommandBuffer,
-    image: &SharedImage,
-    layouts: HandOver,
-    (pattern, readback): (&HostBuffer, &HostBuffer),
-    timestamps: Option<&Timestamps>,
-) {
-    let barrier = |old, new, src_access, dst_access, src_family, dst_family| {
-        vk::ImageMemoryBarrier::default()
-            .image(*image.image)
-            .subresource_range(COLOR_RANGE)
-            .old_layout(old)
-            .new_layout(new)
-            .src_access_mask(src_access)
-            .dst_access_mask(dst_access)
-            .src_queue_family_index(src_family)
-            .dst_queue_family_index(dst_family)
-    };
-    let (external, ours) = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
-    let region = vk::BufferImageCopy::default()
-        .image_subresource(vk::ImageSubresourceLayers {
-            aspect_mask: vk::ImageAspectFlags::COLOR,
-            mip_level: 0,
-            base_array_layer: 0,
-            layer_count: 1,
-        })
-        .image_extent(vk::Extent3D { width: image.extent.width, height: image.extent.height, depth: 1 });
-    let device = &vk.device;
-    unsafe {
-        // Acquire from GL: ownership moves from "outside Vulkan" to our queue family, and the
-        // image from the layout GL left it in (its signal's; on the host path GENERAL, where
-        // Vulkan's last release left it) to the one the copy wants. The semaphore wait (or
-        // glFinish) already made GL's writes available: no source access to wait for.
-        let acquire = barrier(
-            layouts.to_vulkan,
-            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-            vk::AccessFlags::NONE,
-            vk::AccessFlags::TRANSFER_READ,
-            external,
-            ours,
-        );
-        // From TRANSFER, the stage the submission waits for GL at (step 4): a barrier chains after
-        // a semaphore wait only through the stages they share, so an acquire from an earlier
-        // stage could change the layout before GL has signalled.
-        let transfer = vk::PipelineStageFlags::TRANSFER;
-        let none = vk::DependencyFlags::empty();
-        device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &[acquire]);
-        if let Some(t) = timestamps {
-            t.start(vk, cb, transfer);
-        }
-        let transfer_src = vk::ImageLayout::TRANSFER_SRC_OPTIMAL;
-        device.cmd_copy_image_to_buffer(cb, *image.image, transfer_src, *readback.buffer, &[region]);
-        // The copy's reads must finish before the image is overwritten: a write-after-read hazard,
-        // so an execution dependency is enough, plus the move to TRANSFER_DST for the write.
-        let to_write = barrier(
-            transfer_src,
-            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            vk::AccessFlags::NONE,
-            vk::AccessFlags::TRANSFER_WRITE,
-            ours,
-            ours,
-        );
-        device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &[to_write]);
-        device.cmd_copy_buffer_to_image(
-            cb,
-            *pattern.buffer,
-            *image.image,
-            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            &[region],
-        );
-        // Release to GL: make the write available, move to the layout GL will wait with (on the
-        // host path, GENERAL: the layout the next frame's acquire starts from), and hand ownership
-        // back outside Vulkan. GL's wait on our semaphore (or the fence) does the rest.
-        let release = barrier(
-            vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-            layouts.to_gl,
-            vk::AccessFlags::TRANSFER_WRITE,
-            vk::AccessFlags::NONE,
-            ours,
-            external,
-        );
-        let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
-        device.cmd_pipeline_barrier(cb, transfer, bottom, none, &[], &[], &[release]);
-        // The CPU reads `readback` after the fence: make the copy's writes visible to the host.
-        let to_host = vk::MemoryBarrier::default()
-            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-            .dst_access_mask(vk::AccessFlags::HOST_READ);
-        device.cmd_pipeline_barrier(cb, transfer, vk::PipelineStageFlags::HOST, none, &[to_host], &[], &[]);
-        if let Some(t) = timestamps {
-            t.end(vk, cb);
-        }
-    }
+// ANCHOR: share_semaphore
+/// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd. Each side
+/// is owned as it is made: an early return deletes what exists, GL's first.
+fn share_semaphore(vk: &VulkanContext, gl: &GlContext) -> Result<SharedSemaphore> {
+    let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
+    // The promise, at creation, that this semaphore's payload may leave Vulkan as an opaque fd.
+    let handle_type = vk::ExternalSemaphoreHandleTypeFlags::OPAQUE_FD;
+    let mut export = vk::ExportSemaphoreCreateInfo::default().handle_types(handle_type);
+    let info = vk::SemaphoreCreateInfo::default().push_next(&mut export);
+    let semaphore_vk = create(&vk.device, "vkCreateSemaphore (exportable)", || unsafe {
+        vk.device.create_semaphore(&info, None)
+    })?;
+    common::base::resources::created("vk_semaphore_exportable", 0);
+    let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
+    let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(*semaphore_vk).handle_type(handle_type);
+    let fd = fail::call("vkGetSemaphoreFdKHR", || unsafe { loader.get_semaphore_fd(&get) })?;
+    // SAFETY: a new fd that nothing else owns. Until the import succeeds, dropping it closes it.
+    let fd = unsafe { OwnedFd::from_raw_fd(fd) };
+    let semaphore_gl = common::base::gl::create(ext, "glGenSemaphoresEXT", |ext| {
+        let mut name = 0;
+        unsafe { (ext.GenSemaphoresEXT)(1, &mut name) };
+        made(name, "glGenSemaphoresEXT").map(Semaphore)
+    })?;
+    fail::step("glImportSemaphoreFdEXT")?;
+    unsafe { (ext.ImportSemaphoreFdEXT)(semaphore_gl.0, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+    // On failure `fd` is dropped, and so closed: the failed import did not take it.
+    gl.check_error("glImportSemaphoreFdEXT")?;
+    // SAFETY: the import succeeded; the fd is GL's now.
+    let _ = fd.into_raw_fd();
+    Ok(SharedSemaphore { gl: semaphore_gl, vk: semaphore_vk })
 }
-// ANCHOR_END: vulkan_turn
-
-/// Colours no earlier frame used: GL's for the frame, and Vulkan's.
-fn frame_colours(frame: u32) -> ([u8; 3], [u8; 3]) {
-    let step = (40 + 50 * (frame % 4)) as u8;
-    let shade = (frame * 23 % 200) as u8 + 40;
-    ([shade, step, 230], [230, shade, step])
-}
-
-/// Vulkan's pattern: a checkerboard of `colour` and black, in 16-pixel squares.
-fn checkerboard(bytes: &mut [u8], extent: vk::Extent2D, colour: [u8; 3]) {
-    for (i, pixel) in bytes.chunks_exact_mut(4).enumerate() {
-        let (x, y) = (i as u32 % extent.width, i as u32 / extent.width);
-        let lit = (x / 16 + y / 16) % 2 == 0;
-        let [r, g, b] = if lit { colour } else { [0, 0, 0] };
-        pixel.copy_from_slice(&[r, g, b, 255]);
-    }
-}
-
-/// Does the image Vulkan copied out start with GL's colour? (Its first square is all GL's.)
-fn first_pixel_is(readback: &HostBuffer, colour: [u8; 3]) -> bool {
-    readback.bytes()[..3].iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 1)
-}
+// ANCHOR_END: share_semaphore

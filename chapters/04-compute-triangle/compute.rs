@@ -178,7 +178,7 @@ pub fn share_image(
     // STORAGE: the compute shader's imageStore. SAMPLED: GL's texture().
     let usage = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
     let image = SharedImage::new(vk, gl, SharedFormat::RGBA8, usage, extent)?;
-    let texture = image.texture.texture;
+    let texture = *image.texture.texture;
     for (parameter, value) in [
         (glow::TEXTURE_MIN_FILTER, glow::LINEAR), // one mip level: no mipmap filter
         (glow::TEXTURE_MAG_FILTER, glow::LINEAR),

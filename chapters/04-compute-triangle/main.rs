@@ -249,7 +249,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
         // 8. GL hands the image to Vulkan, which computes
         // ANCHOR: compute
-        let texture = [image.texture.texture];
+        let texture = [*image.texture.texture];
         // GL names the layout its release leaves the image in; Vulkan's barrier starts from the same.
         let handed = if previous == Previous::Gl { 1 } else { 0 };
         handoff.gl_release(&gl_context, &texture[..handed], &[layout::SHADER_READ_ONLY][..handed]);
@@ -276,9 +276,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             gl.use_program(Some(*program));
             // This frame's copy of the triangle: an offset inside GL's buffer, not the memory object.
             let offset = (slot * TRIANGLE_BYTES) as i32;
-            gl.vertex_array_vertex_buffer(*vertex_array, 0, Some(vertices_gl.buffer), offset, STRIDE);
+            gl.vertex_array_vertex_buffer(*vertex_array, 0, Some(*vertices_gl.buffer), offset, STRIDE);
             gl.bind_vertex_array(Some(*vertex_array));
-            gl.bind_texture_unit(0, Some(image.texture.texture)); // `binding = 0` in the shader
+            gl.bind_texture_unit(0, Some(*image.texture.texture)); // `binding = 0` in the shader
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
         })?;
         gl_timer.end_frame(gl, &mut checks.times);

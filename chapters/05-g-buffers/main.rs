@@ -87,7 +87,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: gbuffers
     // TRANSFER_SRC: this chapter copies them out. STORAGE: chapter 07's ray tracer reads them.
     let usage = vk::ImageUsageFlags::TRANSFER_SRC | vk::ImageUsageFlags::STORAGE;
-    let mut gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, usage)?;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, usage)?;
     // ANCHOR_END: gbuffers
 
     // 5. Rasterise: one instanced draw per mesh
@@ -199,7 +199,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         };
         // Nothing may still use the old images: GL finishes, and Vulkan's last copy has (fence above).
         unsafe { gl.finish() };
-        let new = GBuffers::new(&vk, &gl_context, &buffers, size, usage)?;
+        let new = GBuffers::new(&vk, &gl_context, &handoff, &buffers, size, usage)?;
         drop(std::mem::replace(&mut gbuffers, new)); // GL's objects, then each image, GL's side first
         gbuffers.draw(gl, &scene, &camera);
         fds_after_first = fds_after_first.or(Some(open_fd_count()?));

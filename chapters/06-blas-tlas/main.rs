@@ -118,7 +118,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("compaction_did_not_grow", stats.compacted_bytes <= stats.blas_bytes);
 
     // 5. GL draws the G-buffers (chapter 05)
-    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
     let mut gl_timer = GlPassTimer::new(gl)?; // common::base::timing, as in chapter 05
     gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;

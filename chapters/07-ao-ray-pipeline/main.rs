@@ -74,7 +74,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 3. Share the G-buffers, and make the AO tracer with its shared image
     // ANCHOR: tracer
     // The ray tracer reads the G-buffers as storage images.
-    let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer =
         AoTracer::new(&vk, &gl_context, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
     // ANCHOR_END: tracer
@@ -95,7 +95,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     if let Some(reason) = nothing_to_trace {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
         report.set("ao_skipped", reason);
-        tracer.fill_unoccluded(&vk, &gl_context)?;
+        tracer.fill_unoccluded(&vk, &gl_context, &handoff)?;
     }
     for frame in 0..args.common.headless_frames() {
         // ANCHOR: loop
@@ -118,7 +118,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // For the checks, once: GL reads the first frame's AO and the positions back (the
             // CPU waits for them). The last frame's AO is read after the loop.
             let ao =
-                output::read_texture_f32(gl, tracer.image.texture.texture, extent.width, extent.height, 1);
+                output::read_texture_f32(gl, *tracer.image.texture.texture, extent.width, extent.height, 1);
             positions = output::read_texture_f32(gl, gbuffers.textures()[0], extent.width, extent.height, 4);
             // No pixel on the scene: no ray traced, and the mean and checks below would be over none.
             covered_pixels = positions.chunks_exact(4).filter(|p| p[3] > 0.0).count() as u64;
@@ -136,7 +136,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     times.record(report);
     gl_context.check_error("the frame loop")?;
     let visibility =
-        output::read_texture_f32(gl, tracer.image.texture.texture, extent.width, extent.height, 1);
+        output::read_texture_f32(gl, *tracer.image.texture.texture, extent.width, extent.height, 1);
 
     // 5. Check the occlusion, and show it
     let covered: Vec<usize> = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] > 0.0).collect();

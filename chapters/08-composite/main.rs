@@ -101,7 +101,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let extent = |size: common::base::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
-    let mut gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent(size), storage)?;
     let mut tracer =
         AoTracer::new(&vk, &gl_context, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
 
@@ -173,7 +173,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             unsafe { gl.finish() };
             commands.wait(&vk, "vkWaitForFences before a resize")?;
             size = new;
-            let fresh = GBuffers::new(&vk, &gl_context, &shared.buffers, extent(size), storage)?;
+            let fresh = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent(size), storage)?;
             let old = std::mem::replace(&mut gbuffers, fresh);
             tracer.resize(&vk, &gl_context, &gbuffers)?;
             composite.resize(gl, &gbuffers)?;
@@ -193,7 +193,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             if skipped.replace(reason).is_none() {
                 eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
             }
-            tracer.fill_unoccluded(&vk, &gl_context)?; // once per AO image
+            tracer.fill_unoccluded(&vk, &gl_context, &handoff)?; // once per AO image
         } else if tracer.accumulated < args.ao.max_samples {
             let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
             let scene_scale = scene.size() / 2.0;

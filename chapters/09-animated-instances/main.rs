@@ -118,7 +118,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 3. G-buffers, the AO tracer and chapter 08's composite
     let storage = vk::ImageUsageFlags::STORAGE;
-    let gbuffers = GBuffers::new(&vk, &gl_context, &shared.buffers, extent, storage)?;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, storage)?;
     let tlas_handle = *shared.structures.tlas.handle;
     let mut tracer = AoTracer::new(&vk, &gl_context, &shared.allocator, tlas_handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;

@@ -112,7 +112,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let buffers = SceneBuffers::share(&vk, &gl_context, &scene, usage)?;
     // The sphere's vertex buffer goes from Vulkan's compute shader to GL's vertex fetch and
     // back every frame, with semaphores of its own where the images have theirs.
-    let vertices = VertexHandoff::new(&vk, &gl_context, &handoff, buffers.meshes[1][0].gl.buffer)?;
+    let vertices = VertexHandoff::new(&vk, &gl_context, &handoff, *buffers.meshes[1][0].gl.buffer)?;
     // ANCHOR_END: share
 
     // 3. The structures: the ground's BLAS, the sphere's refittable one, an updatable TLAS
@@ -174,7 +174,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         frequency: 14.0,
         speed: 4.0,
     };
-    let gbuffers = GBuffers::new(&vk, &gl_context, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, *tlas.handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers)?;
     let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);

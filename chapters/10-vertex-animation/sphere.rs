@@ -171,7 +171,7 @@ impl VertexHandoff {
         let ext = gl.semaphores.as_ref().expect("semaphores were shared");
         let buffers = [self.gl_buffer.0.get()];
         unsafe {
-            (ext.SignalSemaphoreEXT)(drawn.gl.name, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
+            (ext.SignalSemaphoreEXT)(drawn.gl.0, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
             gl.gl.flush(); // a signal waits in GL's queue until flushed
         }
         Some((*drawn.vk, vk::PipelineStageFlags::COMPUTE_SHADER))
@@ -189,7 +189,7 @@ impl VertexHandoff {
             Some([moved, _]) => unsafe {
                 let ext = gl.semaphores.as_ref().expect("semaphores were shared");
                 let buffers = [self.gl_buffer.0.get()];
-                (ext.WaitSemaphoreEXT)(moved.gl.name, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
+                (ext.WaitSemaphoreEXT)(moved.gl.0, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
             },
             None => commands::wait_for(vk, fence, "vkWaitForFences for the moved vertices")?,
         }

@@ -297,7 +297,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
                     times[1].push(gl_time_ms(gl, || pbo.upload(gl))?);
                     Source::Textures(&pbo)
                 }
-                Path::ZeroCopy => Source::Buffer(shared.buffer),
+                Path::ZeroCopy => Source::Buffer(*shared.buffer),
             };
             times[2].push(gl_time_ms(gl, || {
                 composite.draw_traced(gl, source, &s.depth);
@@ -310,7 +310,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
         // 7. Check what this path drew
         let (source, buffer) = match path {
             Path::Pbo => (Source::Textures(&pbo), *pbo.pbo),
-            Path::ZeroCopy => (Source::Buffer(shared.buffer), shared.buffer),
+            Path::ZeroCopy => (Source::Buffer(*shared.buffer), *shared.buffer),
         };
         let traced = check::read_buffer(gl, buffer, bytes);
         let frame = check::Frame {

@@ -101,7 +101,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. The images of one size, and the three passes: ids (GL), rays (Vulkan), composite (GL)
     // ANCHOR: setup
-    let mut targets = Targets::new(&vk, &gl_context, extent(size))?;
+    let mut targets = Targets::new(&vk, &gl_context, &handoff, extent(size))?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
     let mut tracer = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
     let composite = ComputeComposite::new(gl)?;
@@ -168,7 +168,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             unsafe { gl.finish() };
             commands.wait(&vk, "vkWaitForFences before a resize")?;
             size = new;
-            drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, extent(size))?));
+            drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, &handoff, extent(size))?));
             tracer.resized(&vk, &targets);
             resizes += 1;
             // What exists after one resize must be what exists after every later one.

@@ -31,7 +31,7 @@ pub struct Probe<'a> {
 /// Medians over `rounds` of each order, in milliseconds: (during, after, the second pass alone).
 pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: &Probe, rounds: u32) -> Result<(f64, f64, f64)> {
     let Apis { vk, gl, commands, .. } = apis;
-    let spare = Targets::new(vk, gl, p.targets.extent)?;
+    let spare = Targets::new(vk, gl, apis.handoff, p.targets.extent)?;
     let g = &gl.gl;
     let draw_spare = || p.visibility.draw(g, &spare, p.scene, p.ids, p.camera);
     let done = || -> Result<()> {

@@ -72,7 +72,7 @@ pub fn measure(
     let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
     let layouts = handoff.hand_over(read_only, read_only);
     let (to_vulkan, to_gl) = layouts.gl();
-    let texture = [targets.surface.texture.texture];
+    let texture = [*targets.surface.texture.texture];
     handoff.gl_release(gl, &texture, &[to_vulkan]);
     let cb = commands.begin(vk)?;
     let (general, compute) = (vk::ImageLayout::GENERAL, vk::PipelineStageFlags::COMPUTE_SHADER);

@@ -128,7 +128,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. Chapter 12's images and passes, the history, and the command buffers
     let extent = |size: Size| vk::Extent2D { width: size.width, height: size.height };
-    let targets = Targets::new(&vk, &gl_context, extent(size))?;
+    let targets = Targets::new(&vk, &gl_context, &handoff, extent(size))?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
     let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
     let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets)?;
@@ -218,7 +218,7 @@ pub fn resize(passes: &Passes, sized: &mut Sized, size: Size) -> Result<()> {
     unsafe { gl.gl.finish() };
     commands.wait(vk, "vkWaitForFences before a resize")?;
     let extent = vk::Extent2D { width: size.width, height: size.height };
-    drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, extent)?));
+    drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, passes.apis.handoff, extent)?));
     sized.fresh.resized(vk, &sized.targets);
     sized.temporal.resized(vk, &passes.shared.allocator, &sized.targets)
 }

@@ -10,7 +10,7 @@ use common::Report;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, layout};
 use common::base::vulkan::DeviceInfo;
 use common::base::{fail, output, resources};
-use common::interop::handoff::GlSemaphore;
+use common::interop::handoff::import_semaphore;
 use common::interop::{self, exportable::MemoryTerms};
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
@@ -173,7 +173,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
             false => None,
             true => match socket.recv()? {
                 Received::Message(Message::SlotSemaphore { slot: s }, Some(fd)) if s == slot => {
-                    Some(GlSemaphore::import(gl_context, wire::check_semaphore_fd(fd)?)?)
+                    Some(import_semaphore(gl_context, wire::check_semaphore_fd(fd)?)?)
                 }
                 Received::Message(other, _) => {
                     bail!("expected slot {slot}'s semaphore, got {}", other.name())
@@ -218,7 +218,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
             let (textures, layouts) = ([texture.texture.0.get()], [layout::GENERAL]);
             unsafe {
                 (ext.WaitSemaphoreEXT)(
-                    frame_written.name,
+                    frame_written.name.0,
                     0,
                     std::ptr::null(),
                     1,
@@ -233,7 +233,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
         // glGetTexImage returns when the pixels are in our memory: GL is done with the slot. (Not
         // glReadPixels through a framebuffer: on NVIDIA's driver that takes about 27 ms from an
         // imported texture, glGetTexImage a fraction of one.) Flipped: row 0 is Vulkan's row 0.
-        let read = output::read_texture_rgba8(gl, texture.texture, width, height);
+        let read = output::read_texture_rgba8(gl, *texture.texture, width, height);
         let pixels = output::flip_rows(&read, width, height);
         gl_context.check_error("reading a slot")?;
         viewed.all_right &= is_picture_of(&pixels, frame, width, height);

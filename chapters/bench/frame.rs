@@ -10,7 +10,7 @@ use common::base::timeline::{self, Timeline};
 use common::base::timestamps::{Timestamps, median_p95};
 use common::base::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Overlays, Uniforms, View};
-use common::interop::handoff::Apis;
+use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoRays, AoTracer};
 use common::scene::gbuffer::GBuffers;
@@ -79,6 +79,7 @@ impl<'s> Frame<'s> {
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
+        handoff: &Handoff,
         shared: &RayTracedScene,
         scene: &'s Scene,
         extent: vk::Extent2D,
@@ -86,7 +87,7 @@ impl<'s> Frame<'s> {
     ) -> Result<Self> {
         let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
         let storage = vk::ImageUsageFlags::STORAGE;
-        let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, storage)?;
+        let gbuffers = GBuffers::new(vk, gl, handoff, &shared.buffers, extent, storage)?;
         let tracer = AoTracer::new(vk, gl, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
         let composite = Composite::new(&gl.gl, &gbuffers)?;
         let overlays = Overlays::new(&gl.gl, scene, 0)?;

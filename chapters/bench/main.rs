@@ -226,7 +226,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             // its own layouts, from the first frame to the last.
             let mut frames = Vec::new();
             for mode in Mode::ALL {
-                frames.push(Frame::new(&vk, &gl, &shared, &scene, extent, mode)?);
+                // The hand-over its frames will use hands its new images to GL too.
+                let handoff = if mode == Mode::ZeroCopy { &zero_copy } else { &host };
+                frames.push(Frame::new(&vk, &gl, handoff, &shared, &scene, extent, mode)?);
             }
             // Made after what the frames use: dropped first on an early return, it waits for
             // the last submission before the frames go.
@@ -278,7 +280,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let scene = SceneKind::Default.build(ground)?;
         let shared = RayTracedScene::with_layout(&vk, &gl, &scene, TlasFlags::STATIC, args.blas)?;
         let extent = vk::Extent2D { width: size.width, height: size.height };
-        let mut frame = Frame::new(&vk, &gl, &shared, &scene, extent, Mode::ZeroCopy)?;
+        let mut frame = Frame::new(&vk, &gl, &zero_copy, &shared, &scene, extent, Mode::ZeroCopy)?;
         let mut timeline = Some(Timeline::new(&gl.gl, args.timeline, ["gbuffer", "composite"])?);
         let commands = Commands::new(&vk)?; // made last: dropped first, it waits for its work
         let apis = Apis { vk: &vk, gl: &gl, handoff: &zero_copy, commands: &commands };

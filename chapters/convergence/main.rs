@@ -175,7 +175,7 @@ fn measure(
 ) -> Result<CaseReport> {
     let &Grid { extent, spps, frame_counts, quick } = grid;
     let shared = RayTracedScene::new(vk, gl, &case.scene)?;
-    let gbuffers = GBuffers::new(vk, gl, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let gbuffers = GBuffers::new(vk, gl, handoff, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer = AoTracer::new(vk, gl, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
     // Made after what the traces use: dropped first on an early return, it waits for the last.
     let commands = Commands::new(vk)?;
@@ -196,7 +196,7 @@ fn measure(
             }
         }
         let ao =
-            output::read_texture_f32(&gl.gl, tracer.image.texture.texture, extent.width, extent.height, 1);
+            output::read_texture_f32(&gl.gl, *tracer.image.texture.texture, extent.width, extent.height, 1);
         Ok((gpu_ms, ao))
     };
 

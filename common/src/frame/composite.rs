@@ -110,7 +110,7 @@ impl Composite {
             gl.depth_mask(false);
             gl.use_program(Some(*self.program));
             for (unit, texture) in
-                gbuffers.textures().into_iter().chain([tracer.image.texture.texture]).enumerate()
+                gbuffers.textures().into_iter().chain([*tracer.image.texture.texture]).enumerate()
             {
                 gl.bind_texture_unit(unit as u32, Some(texture));
             }

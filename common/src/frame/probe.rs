@@ -39,7 +39,7 @@ impl Pixels {
             positions: output::read_texture_f32(gl, textures[0], w, h, 4),
             normals: output::read_texture_f32(gl, textures[1], w, h, 4),
             albedo: output::read_texture_f32(gl, textures[2], w, h, 4),
-            visibility: output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1),
+            visibility: output::read_texture_f32(gl, *tracer.image.texture.texture, w, h, 1),
         }
     }
 

@@ -2,7 +2,7 @@
 //! semaphores where both drivers can share them, or the CPU waiting for each side where not.
 
 use crate::base::fail;
-use crate::base::gl::GlContext;
+use crate::base::gl::{self, GlContext};
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
@@ -22,21 +22,8 @@ const SEMAPHORE_HANDLE_TYPE: vk::ExternalSemaphoreHandleTypeFlags =
 /// One semaphore, seen by both APIs. Deleted on both sides when dropped (fields, in order: GL's
 /// first). No submission may still wait on it or signal it then.
 pub struct SharedSemaphore {
-    pub gl: GlSemaphore,
+    pub gl: gl::Owned<gl::Semaphore>,
     pub vk: Owned<vk::Semaphore>,
-}
-
-/// GL's semaphore object (`GL_EXT_semaphore`), deleted when dropped.
-pub struct GlSemaphore {
-    pub name: u32,
-    fns: crate::base::gl::SemaphoreFns,
-}
-
-impl Drop for GlSemaphore {
-    fn drop(&mut self) {
-        unsafe { (self.fns.DeleteSemaphoresEXT)(1, &self.name) };
-        crate::base::resources::gone("gl_semaphore");
-    }
 }
 
 /// Both APIs and how work passes between them, as every frame that hands images over needs
@@ -85,6 +72,23 @@ pub(crate) fn vulkan_left(texture: u32, layout: Option<u32>) {
     };
 }
 
+/// A shared texture's line in that record: forgotten when dropped, with the texture (a field of
+/// `interop::SharedTexture`), so that a later texture given the same name starts with none.
+#[derive(Debug)]
+pub struct LeftByVulkan(u32);
+
+impl LeftByVulkan {
+    pub(crate) fn new(texture: glow::Texture) -> Self {
+        LeftByVulkan(texture.0.get())
+    }
+}
+
+impl Drop for LeftByVulkan {
+    fn drop(&mut self) {
+        vulkan_left(self.0, None);
+    }
+}
+
 // ANCHOR: hand_over
 /// The layouts of one shared image at the two hand-overs of a frame. Vulkan's acquire barrier
 /// starts from `to_vulkan` and its release barrier ends in `to_gl`; GL's signal and wait name the
@@ -101,7 +105,7 @@ pub struct HandOver {
 impl HandOver {
     /// GL's names for the two layouts, for [`Handoff::gl_release`] and [`Handoff::gl_acquire`].
     pub fn gl(self) -> (u32, u32) {
-        let name = |layout| crate::base::gl::layout::of(layout).expect("a layout GL can name");
+        let name = |layout| gl::layout::of(layout).expect("a layout GL can name");
         (name(self.to_vulkan), name(self.to_gl))
     }
 }
@@ -111,6 +115,16 @@ impl Handoff {
     /// Semaphores when both sides support them (and `VKGL_HIDE_EXTENSIONS` hides neither), else
     /// the host fallback; says which on stderr.
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Handoff> {
+        Handoff::with(vk, gl, SharedSemaphore::new)
+    }
+
+    /// As [`Handoff::new`], each semaphore shared by `share` (chapter 03, which teaches it, shares
+    /// its own).
+    pub fn with(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        share: impl Fn(&VulkanContext, &GlContext) -> Result<SharedSemaphore>,
+    ) -> Result<Handoff> {
         let vulkan_can = vk.has_extension(SEMAPHORE_EXTENSION) && vulkan_can_export_semaphores(vk);
         let (Some(_), true) = (&gl.semaphores, vulkan_can) else {
             let missing = match (vulkan_can, gl.semaphores.is_some()) {
@@ -121,9 +135,9 @@ impl Handoff {
             eprintln!("sync: host ({missing}): the CPU waits for each API in turn");
             return Ok(Handoff::Host { disagreements: Cell::new(0) });
         };
-        let gl_done = SharedSemaphore::new(vk, gl).context("sharing the gl_done semaphore")?;
+        let gl_done = share(vk, gl).context("sharing the gl_done semaphore")?;
         // Should this one fail, `gl_done` is dropped on the way out, which deletes it.
-        let vulkan_done = SharedSemaphore::new(vk, gl).context("sharing the vulkan_done semaphore")?;
+        let vulkan_done = share(vk, gl).context("sharing the vulkan_done semaphore")?;
         eprintln!("sync: semaphores (GL and Vulkan wait for each other on the GPU)");
         Ok(Handoff::Semaphores { gl_done, vulkan_done })
     }
@@ -179,7 +193,7 @@ impl Handoff {
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.SignalSemaphoreEXT)(
-                        gl_done.gl.name,
+                        gl_done.gl.0,
                         0,
                         std::ptr::null(),
                         names.len() as u32,
@@ -238,7 +252,7 @@ impl Handoff {
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
                     (ext.WaitSemaphoreEXT)(
-                        vulkan_done.gl.name,
+                        vulkan_done.gl.0,
                         0,
                         std::ptr::null(),
                         names.len() as u32,
@@ -269,13 +283,13 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
         if actual != Some(layout) {
             misnamed += 1;
             let actual = actual.map_or("UNDEFINED: Vulkan never handed it to GL".into(), |l| {
-                format!("{} (Vulkan's last release)", crate::base::gl::layout::name(*l))
+                format!("{} (Vulkan's last release)", gl::layout::name(*l))
             });
             eprintln!(
                 "sync: host path: texture {} handed to Vulkan as {}, but GL moves no layout here \
                  and it is in {actual}",
                 texture.0.get(),
-                crate::base::gl::layout::name(*layout)
+                gl::layout::name(*layout)
             );
         }
     }
@@ -300,12 +314,13 @@ pub fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
 
 impl SharedSemaphore {
     // ANCHOR: share_semaphore
-    /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd.
+    /// A Vulkan semaphore exported as an fd and imported into GL, which then owns the fd (taught
+    /// in chapter 03, whose `main.rs` makes these calls itself).
     pub fn new(vk: &VulkanContext, gl: &GlContext) -> Result<Self> {
         // Each side is owned as it is made: an early return deletes what exists.
         let semaphore = exportable_semaphore(vk)?;
         let fd = semaphore_fd(vk, *semaphore)?;
-        let gl_semaphore = GlSemaphore::import(gl, fd)?;
+        let gl_semaphore = import_semaphore(gl, fd)?;
         Ok(SharedSemaphore { gl: gl_semaphore, vk: semaphore })
     }
 }
@@ -331,26 +346,23 @@ pub fn semaphore_fd(vk: &VulkanContext, semaphore: vk::Semaphore) -> Result<Owne
     Ok(unsafe { OwnedFd::from_raw_fd(fd) })
 }
 
-impl GlSemaphore {
-    /// GL's semaphore for the payload `fd` refers to (`glImportSemaphoreFdEXT`). A successful
-    /// import takes the fd; a failed one does not, and `fd` is closed on the way out.
-    pub fn import(gl: &GlContext, fd: OwnedFd) -> Result<GlSemaphore> {
-        let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
-        fail::step("glGenSemaphoresEXT")?;
+/// GL's semaphore for the payload `fd` refers to (`glImportSemaphoreFdEXT`), owned from the call
+/// that makes it. A successful import takes the fd; a failed one does not, and `fd` is closed on
+/// the way out.
+pub fn import_semaphore(gl: &GlContext, fd: OwnedFd) -> Result<gl::Owned<gl::Semaphore>> {
+    let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
+    let gl_semaphore = gl::create(ext, "glGenSemaphoresEXT", |ext| {
         let mut name = 0;
         unsafe { (ext.GenSemaphoresEXT)(1, &mut name) };
-        crate::base::resources::alive("gl_semaphore");
-        let gl_semaphore = GlSemaphore { name, fns: *ext };
-        fail::step("glImportSemaphoreFdEXT")?;
-        unsafe {
-            (ext.ImportSemaphoreFdEXT)(name, crate::base::gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
-        };
-        // On failure `fd` is dropped, and so closed (the failed import did not take it), and
-        // GL's semaphore is deleted.
-        gl.check_error("glImportSemaphoreFdEXT")?;
-        // SAFETY: the import succeeded; the fd is GL's now.
-        let _ = fd.into_raw_fd();
-        Ok(gl_semaphore)
-    }
+        gl::made(name, "glGenSemaphoresEXT").map(gl::Semaphore)
+    })?;
+    fail::step("glImportSemaphoreFdEXT")?;
+    unsafe { (ext.ImportSemaphoreFdEXT)(gl_semaphore.0, gl::HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+    // On failure `fd` is dropped, and so closed (the failed import did not take it), and GL's
+    // semaphore is deleted.
+    gl.check_error("glImportSemaphoreFdEXT")?;
+    // SAFETY: the import succeeded; the fd is GL's now.
+    let _ = fd.into_raw_fd();
+    Ok(gl_semaphore)
 }
 // ANCHOR_END: share_semaphore

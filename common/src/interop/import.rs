@@ -4,69 +4,64 @@
 use crate::base::commands::image_barrier;
 use crate::base::fail;
 use crate::base::gl::{
-    DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MemoryObjectFns, OPTIMAL_TILING_EXT,
+    self, DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, OPTIMAL_TILING_EXT,
     TEXTURE_TILING_EXT,
 };
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::exportable::{self, Dedicated, ExportableMemory, MemoryTerms};
+use crate::interop::handoff::Handoff;
 use anyhow::Result;
 use ash::vk;
 use glow::HasContext;
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
-use std::rc::Rc;
 
-/// A GL buffer whose storage is Vulkan memory. Deleted (buffer, then memory object) when
-/// dropped, so an early return leaks nothing.
+/// A GL buffer whose storage is Vulkan memory. Fields drop in the order written: the buffer,
+/// then the memory object it is stored in (which releases GL's hold on the memory).
 pub struct SharedBuffer {
-    pub buffer: glow::Buffer,
-    pub memory_object: MemoryObject,
-    gl: Rc<glow::Context>,
+    pub buffer: gl::Owned<glow::Buffer>,
+    pub memory_object: gl::Owned<gl::MemoryObject>,
 }
 
-/// A GL texture whose storage is a Vulkan image's dedicated memory; deleted when dropped.
+/// A GL texture whose storage is a Vulkan image's dedicated memory. Fields drop in the order
+/// written: the layout the host path recorded for it, the texture, then its memory object.
 pub struct SharedTexture {
-    pub texture: glow::Texture,
-    pub memory_object: MemoryObject,
-    gl: Rc<glow::Context>,
-}
-
-/// A GL memory object, which holds an imported fd's memory; deleted when dropped.
-pub struct MemoryObject {
-    pub name: u32,
-    fns: MemoryObjectFns,
-}
-
-impl Drop for MemoryObject {
-    fn drop(&mut self) {
-        unsafe { (self.fns.DeleteMemoryObjectsEXT)(1, &self.name) };
-        crate::base::resources::destroyed("gl_memory_object");
-    }
+    /// First: a later texture may get this one's name, and must not inherit its layout.
+    pub layout: crate::interop::handoff::LeftByVulkan,
+    pub texture: gl::Owned<glow::Texture>,
+    pub memory_object: gl::Owned<gl::MemoryObject>,
 }
 
 // ANCHOR: import_memory
 /// Imports `fd`, exported from memory of these `terms`, as a GL memory object of the same size
 /// (the Vulkan `allocationSize`). On success GL owns the fd; on failure it is closed here, and
-/// the memory object deleted.
-pub fn import_memory(gl: &GlContext, memory: MemoryTerms, fd: OwnedFd) -> Result<MemoryObject> {
+/// the memory object deleted. (Taught in chapter 02, whose `main.rs` makes these calls itself.)
+pub fn import_memory(
+    gl: &GlContext,
+    memory: MemoryTerms,
+    fd: OwnedFd,
+) -> Result<gl::Owned<gl::MemoryObject>> {
     let ext = gl.memory_fns()?;
-    fail::step("glCreateMemoryObjectsEXT")?;
-    let mut name = 0;
-    unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
-    crate::base::resources::created("gl_memory_object", 0); // its bytes are Vulkan's allocation
-    // From here on its owner deletes the memory object on every early return.
-    let memory_object = MemoryObject { name, fns: *ext };
+    // Owned from here on: every early return deletes the memory object.
+    let memory_object = gl::create(ext, "glCreateMemoryObjectsEXT", |ext| {
+        let mut name = 0;
+        unsafe { (ext.CreateMemoryObjectsEXT)(1, &mut name) };
+        gl::made(name, "glCreateMemoryObjectsEXT").map(gl::MemoryObject)
+    })?
+    .counted("gl_memory_object", 0); // its bytes are Vulkan's allocation
     if memory.dedicated {
         // Must match how Vulkan allocated it, and must be said before the import.
         let yes = glow::TRUE as i32;
-        unsafe { (ext.MemoryObjectParameterivEXT)(name, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
+        unsafe { (ext.MemoryObjectParameterivEXT)(memory_object.0, DEDICATED_MEMORY_OBJECT_EXT, &yes) };
     }
     // A step that can fail as a driver that refuses the import would.
     fail::step("glImportMemoryFdEXT")?;
     // An error left by an earlier call would be read below as the import's own, and the fd then
     // closed although GL took it: report it now, while the fd is still only ours.
     gl.check_error("a GL call before glImportMemoryFdEXT")?;
-    unsafe { (ext.ImportMemoryFdEXT)(name, memory.size, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd()) };
+    unsafe {
+        (ext.ImportMemoryFdEXT)(memory_object.0, memory.size, HANDLE_TYPE_OPAQUE_FD_EXT, fd.as_raw_fd())
+    };
     // Some drivers list the extension yet fail the import: always look. On failure `fd` is
     // dropped, and so closed: the failed import did not take it.
     gl.check_error("glImportMemoryFdEXT")?;
@@ -77,7 +72,8 @@ pub fn import_memory(gl: &GlContext, memory: MemoryTerms, fd: OwnedFd) -> Result
 // ANCHOR_END: import_memory
 
 // ANCHOR: import_buffer
-/// A GL buffer of `bytes` bytes stored at offset 0 of the exported `memory`.
+/// A GL buffer of `bytes` bytes stored at offset 0 of the exported `memory` (taught in chapter
+/// 02, whose `main.rs` makes these calls itself).
 pub fn import_buffer(
     gl: &GlContext,
     memory: &ExportableMemory,
@@ -85,16 +81,15 @@ pub fn import_buffer(
     bytes: u64,
 ) -> Result<SharedBuffer> {
     let memory_object = import_memory(gl, memory.terms(), fd)?;
-    // A failure from here on drops `memory_object`, which deletes it.
-    let buffer = fail::call("glCreateBuffers (imported)", || unsafe { gl.gl.create_named_buffer() })?;
-    crate::base::resources::created("gl_buffer_imported", 0);
-    let shared = SharedBuffer { buffer, memory_object, gl: gl.gl.clone() };
+    // A failure from here on drops what was made, newest first.
+    let buffer = gl::create(&gl.gl, "glCreateBuffers (imported)", |gl| unsafe { gl.create_named_buffer() })?
+        .counted("gl_buffer_imported", 0);
     // Like glNamedBufferStorage, but the storage already exists: it is the memory object.
     let ext = gl.memory_fns()?;
     fail::step("glNamedBufferStorageMemEXT")?;
-    unsafe { (ext.NamedBufferStorageMemEXT)(buffer.0.get(), bytes as isize, shared.memory_object.name, 0) };
-    gl.check_error("glNamedBufferStorageMemEXT")?; // on failure `shared` deletes both
-    Ok(shared)
+    unsafe { (ext.NamedBufferStorageMemEXT)(buffer.0.get(), bytes as isize, memory_object.0, 0) };
+    gl.check_error("glNamedBufferStorageMemEXT")?;
+    Ok(SharedBuffer { buffer, memory_object })
 }
 // ANCHOR_END: import_buffer
 
@@ -124,7 +119,8 @@ pub fn share_buffer(
 }
 
 // ANCHOR: import_texture_2d
-/// A GL 2D texture (one mip level) stored in an image's dedicated, exported `memory`.
+/// A GL 2D texture (one mip level) stored in an image's dedicated, exported `memory` (taught in
+/// chapter 03, whose `main.rs` makes these calls itself).
 /// `internal_format` must be the GL twin of the Vulkan format (GL_RGBA8 for R8G8B8A8_UNORM).
 pub fn import_texture_2d(
     gl: &GlContext,
@@ -136,53 +132,43 @@ pub fn import_texture_2d(
     let memory_object = import_memory(gl, memory, fd)?;
     // The import succeeded: a failure from here on must still delete the memory object, and
     // does, by dropping it.
-    let texture = fail::call("glCreateTextures (imported)", || unsafe {
-        gl.gl.create_named_texture(glow::TEXTURE_2D)
-    })?;
-    crate::base::resources::created("gl_texture_imported", 0);
-    let shared = SharedTexture { texture, memory_object, gl: gl.gl.clone() };
+    let texture = gl::create(&gl.gl, "glCreateTextures (imported)", |gl| unsafe {
+        gl.create_named_texture(glow::TEXTURE_2D)
+    })?
+    .counted("gl_texture_imported", 0);
     let ext = gl.memory_fns()?;
     fail::step("glTextureStorageMem2DEXT")?;
     unsafe {
         // The Vulkan image was created with VK_IMAGE_TILING_OPTIMAL: the driver's private layout.
-        gl.gl.texture_parameter_i32(texture, TEXTURE_TILING_EXT, OPTIMAL_TILING_EXT as i32);
+        gl.gl.texture_parameter_i32(*texture, TEXTURE_TILING_EXT, OPTIMAL_TILING_EXT as i32);
         (ext.TextureStorageMem2DEXT)(
             texture.0.get(),
             1,
             internal_format,
             width as i32,
             height as i32,
-            shared.memory_object.name,
+            memory_object.0,
             0,
         );
     }
-    gl.check_error("glTextureStorageMem2DEXT")?; // on failure `shared` deletes both
-    Ok(shared)
+    gl.check_error("glTextureStorageMem2DEXT")?; // on failure both are dropped, newest first
+    Ok(SharedTexture::new(texture, memory_object))
 }
 // ANCHOR_END: import_texture_2d
 
-impl Drop for SharedBuffer {
-    /// Deletes the buffer, then the memory object (which releases GL's hold on the memory).
-    fn drop(&mut self) {
-        unsafe { self.gl.delete_buffer(self.buffer) };
-        crate::base::resources::destroyed("gl_buffer_imported");
-        // `memory_object` is dropped next (fields drop after this), which deletes it.
-    }
-}
-
-impl Drop for SharedTexture {
-    /// Deletes the texture, then (a field) the memory object.
-    fn drop(&mut self) {
-        crate::interop::handoff::vulkan_left(self.texture.0.get(), None); // a later texture may get its name
-        unsafe { self.gl.delete_texture(self.texture) };
-        crate::base::resources::destroyed("gl_texture_imported");
+impl SharedTexture {
+    /// A texture stored in `memory_object`, in no layout Vulkan has recorded yet.
+    pub fn new(texture: gl::Owned<glow::Texture>, memory_object: gl::Owned<gl::MemoryObject>) -> Self {
+        let layout = crate::interop::handoff::LeftByVulkan::new(*texture);
+        SharedTexture { layout, texture, memory_object }
     }
 }
 
 /// A Vulkan image with its own exported memory and a view, and the GL texture that is the same
-/// memory (taught in chapter 03). Resizing means dropping it and making a new one. Dropped, its
-/// fields go in the order written: GL's side first (texture, memory object), then Vulkan's
-/// (view, image, memory); the GPU must be done with it.
+/// memory (taught in chapter 03, whose `main.rs` makes the parts; one call from chapter 04 on).
+/// Resizing means dropping it and making a new one. Dropped, its fields go in the order written:
+/// GL's side first (texture, memory object), then Vulkan's (view, image, memory); the GPU must be
+/// done with it.
 pub struct SharedImage {
     /// First: GL lets go of the memory before Vulkan frees it.
     pub texture: SharedTexture,
@@ -255,29 +241,67 @@ impl SharedImage {
 /// them out of `UNDEFINED` (which may initialise what the driver keeps beside the pixels) and
 /// releases them to `VK_QUEUE_FAMILY_EXTERNAL`. For images GL uses first (chapter 03's, the
 /// G-buffers): from here on each is in a layout both sides know, the one the host path hands it
-/// over in (`Handoff::hand_over`). Set-up work: the CPU waits for it.
-pub fn hand_new_images_to_gl(vk: &VulkanContext, images: &[&SharedImage]) -> Result<()> {
+/// over in (`Handoff::hand_over`). `images`: each image and its GL texture. Set-up work: the CPU
+/// waits for Vulkan's part.
+pub fn hand_new_images_to_gl(
+    vk: &VulkanContext,
+    gl: &GlContext,
+    handoff: &Handoff,
+    images: &[(vk::Image, glow::Texture)],
+) -> Result<()> {
     let general = vk::ImageLayout::GENERAL;
     let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
     let none = vk::AccessFlags::NONE; // nothing written yet, nothing to make available
     let barriers: Vec<_> = images
         .iter()
-        .map(|image| {
-            image_barrier(*image.image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
+        .map(|&(image, _)| {
+            image_barrier(image, (vk::ImageLayout::UNDEFINED, general), (none, none), families)
         })
         .collect();
+    let textures: Vec<glow::Texture> = images.iter().map(|&(_, texture)| texture).collect();
     let commands = crate::base::commands::Commands::new(vk)?;
-    commands.run_once(vk, |cb| unsafe {
-        let (top, bottom) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
-        vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
-    })?;
-    for image in images {
-        crate::interop::handoff::vulkan_left(
-            image.texture.texture.0.get(),
-            crate::base::gl::layout::of(general),
-        );
+    let bottom = vk::PipelineStageFlags::BOTTOM_OF_PIPE;
+    match handoff {
+        Handoff::Host { .. } => {
+            commands.run_once(vk, |cb| unsafe {
+                let top = vk::PipelineStageFlags::TOP_OF_PIPE;
+                vk.device.cmd_pipeline_barrier(
+                    cb,
+                    top,
+                    bottom,
+                    vk::DependencyFlags::empty(),
+                    &[],
+                    &[],
+                    &barriers,
+                );
+            })?;
+            // No layout travels with a fence: record where Vulkan left each, for the next acquire.
+            for texture in &textures {
+                crate::interop::handoff::vulkan_left(texture.0.get(), gl::layout::of(general));
+            }
+            Ok(())
+        }
+        Handoff::Semaphores { gl_done, vulkan_done } => {
+            // A round trip, as a frame makes one, so that each binary semaphore is waited on
+            // before it is signalled again (a resize makes new images between two frames). GL
+            // signals first: it has not used these images, so its signal names none.
+            handoff.gl_release(gl, &[], &[]);
+            let cb = commands.begin(vk)?;
+            // From ALL_COMMANDS, the stage the submission waits for GL at: the layout transition
+            // comes after GL's signal. To BOTTOM_OF_PIPE: a release, nothing later here uses them.
+            let all = vk::PipelineStageFlags::ALL_COMMANDS;
+            let no_flags = vk::DependencyFlags::empty();
+            unsafe { vk.device.cmd_pipeline_barrier(cb, all, bottom, no_flags, &[], &[], &barriers) };
+            commands.submit(vk, Some((*gl_done.vk, all)), Some(*vulkan_done.vk))?;
+            commands.wait(vk, "vkWaitForFences for one-shot work")?;
+            // GL's half of the ownership transfer: the wait names each texture's layout, GENERAL,
+            // before GL's first use. EXT_external_objects: "the current layout of the textures
+            // must be specified to initialize internal GL state prior to using the textures after
+            // an external access".
+            let layouts = vec![gl::layout::GENERAL; textures.len()];
+            handoff.gl_acquire(vk, gl, *commands.fence, &textures, &layouts)
+        }
     }
-    Ok(())
 }
 // ANCHOR_END: hand_new_images_to_gl
 

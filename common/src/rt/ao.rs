@@ -5,7 +5,7 @@ use crate::base::commands::first_use;
 use crate::base::gl::GlContext;
 use crate::base::timestamps::{Timestamps, timed};
 use crate::base::vulkan::VulkanContext;
-use crate::interop::handoff::{Apis, HandOver};
+use crate::interop::handoff::{Apis, HandOver, Handoff};
 use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
 use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes, raygen_bindings};
@@ -62,7 +62,7 @@ pub fn check_occlusion(
 ) {
     let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
     let positions = crate::base::output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
-    let visibility = crate::base::output::read_texture_f32(gl, tracer.image.texture.texture, w, h, 1);
+    let visibility = crate::base::output::read_texture_f32(gl, *tracer.image.texture.texture, w, h, 1);
     report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
     let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
     report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
@@ -136,12 +136,13 @@ impl AoTracer {
     /// image to 1 through a framebuffer of its own, once per image. GL uses the image first, so
     /// Vulkan hands it over (in GENERAL) before, as it does the G-buffers; it stays GL's until a
     /// trace takes it.
-    pub fn fill_unoccluded(&mut self, vk: &VulkanContext, gl: &GlContext) -> Result<()> {
+    pub fn fill_unoccluded(&mut self, vk: &VulkanContext, gl: &GlContext, handoff: &Handoff) -> Result<()> {
         if self.unoccluded {
             return Ok(());
         }
         anyhow::ensure!(!self.gl_has_image, "fill_unoccluded: the AO image was already traced into");
-        crate::interop::hand_new_images_to_gl(vk, &[&self.image])?;
+        let new = [(*self.image.image, *self.image.texture.texture)];
+        crate::interop::hand_new_images_to_gl(vk, gl, handoff, &new)?;
         let framebuffer =
             crate::base::gl::create(&gl.gl, "glCreateFramebuffers to fill the AO image", |gl| unsafe {
                 gl.create_named_framebuffer()
@@ -151,7 +152,7 @@ impl AoTracer {
             gl.named_framebuffer_texture(
                 Some(*framebuffer),
                 glow::COLOR_ATTACHMENT0,
-                Some(self.image.texture.texture),
+                Some(*self.image.texture.texture),
                 0,
             );
             gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*framebuffer));
@@ -186,7 +187,7 @@ impl AoTracer {
         apis.commands.wait(vk, "vkWaitForFences after a measured trace")?;
         let ms = timestamps.map(|t| t.read_ms(vk)).transpose()?;
         let extent = gbuffers.extent;
-        let texture = self.image.texture.texture;
+        let texture = *self.image.texture.texture;
         Ok((crate::base::output::read_texture_f32(&apis.gl.gl, texture, extent.width, extent.height, 1), ms))
     }
 
@@ -267,8 +268,8 @@ pub fn hand_over_around(
     let layouts =
         (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only));
     let ((input_to_vulkan, input_to_gl), (output_to_vulkan, output_to_gl)) = (layouts.0.gl(), layouts.1.gl());
-    let mut textures: Vec<glow::Texture> = images.inputs.iter().map(|i| i.texture.texture).collect();
-    textures.push(images.output.texture.texture);
+    let mut textures: Vec<glow::Texture> = images.inputs.iter().map(|i| *i.texture.texture).collect();
+    textures.push(*images.output.texture.texture);
     let mut to_vulkan = vec![input_to_vulkan; images.inputs.len()];
     to_vulkan.push(output_to_vulkan);
     // The output only once GL has had it.

@@ -3,6 +3,7 @@
 
 use crate::base::gl::{GlContext, Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::interop::handoff::Handoff;
 use crate::interop::{BufferPair, SharedBuffer, SharedFormat, SharedImage, share_buffer};
 use crate::scene::{Camera, Instance, Scene, Vertex};
 use anyhow::{Result, ensure};
@@ -88,6 +89,7 @@ impl GBuffers {
     pub fn new(
         vk: &VulkanContext,
         gl: &GlContext,
+        handoff: &Handoff,
         buffers: &SceneBuffers,
         extent: vk::Extent2D,
         usage: vk::ImageUsageFlags,
@@ -100,7 +102,8 @@ impl GBuffers {
             images.push(SharedImage::new(vk, gl, format, usage, extent)?);
         }
         // GL draws into them first: Vulkan hands them over, in GENERAL, before it does.
-        crate::interop::hand_new_images_to_gl(vk, &images.iter().collect::<Vec<_>>())?;
+        let new: Vec<_> = images.iter().map(|i| (*i.image, *i.texture.texture)).collect();
+        crate::interop::hand_new_images_to_gl(vk, gl, handoff, &new)?;
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
@@ -117,7 +120,7 @@ impl GBuffers {
 
     /// GL's textures, in `GBUFFERS` order, for the hand-overs.
     pub fn textures(&self) -> Vec<glow::Texture> {
-        self.images.iter().map(|i| i.texture.texture).collect()
+        self.images.iter().map(|i| *i.texture.texture).collect()
     }
 
     // ANCHOR: draw
@@ -264,9 +267,9 @@ pub unsafe fn vertex_array(
         create(gl, "glCreateVertexArrays for a mesh", |gl| unsafe { gl.create_named_vertex_array() })?;
     let vao = *owned;
     unsafe {
-        gl.vertex_array_vertex_buffer(vao, 0, Some(vertices.buffer), 0, size_of::<Vertex>() as i32);
-        gl.vertex_array_vertex_buffer(vao, 1, Some(instances.buffer), 0, size_of::<Instance>() as i32);
-        gl.vertex_array_element_buffer(vao, Some(indices.buffer));
+        gl.vertex_array_vertex_buffer(vao, 0, Some(*vertices.buffer), 0, size_of::<Vertex>() as i32);
+        gl.vertex_array_vertex_buffer(vao, 1, Some(*instances.buffer), 0, size_of::<Instance>() as i32);
+        gl.vertex_array_element_buffer(vao, Some(*indices.buffer));
         // (location, binding, components, byte offset): position, normal, the transform's rows.
         let float_attributes = [(0, 0, 3, 0), (1, 0, 3, 12), (2, 1, 4, 0), (3, 1, 4, 16), (4, 1, 4, 32)];
         for (location, binding, size, offset) in float_attributes {
@@ -308,7 +311,7 @@ unsafe fn framebuffer(
         let mut draw_buffers = Vec::new();
         for (i, image) in images.iter().enumerate() {
             let attachment = glow::COLOR_ATTACHMENT0 + i as u32;
-            gl.named_framebuffer_texture(Some(*fb), attachment, Some(image.texture.texture), 0);
+            gl.named_framebuffer_texture(Some(*fb), attachment, Some(*image.texture.texture), 0);
             draw_buffers.push(attachment);
         }
         // Fragment output location i goes to attachment i.

@@ -1,6 +1,7 @@
 //! Small GL helpers every drawing chapter uses: GL objects that delete themselves, programs
 //! compiled from GLSL, and an offscreen colour target.
 
+use super::{MemoryObjectFns, SemaphoreFns};
 use crate::base::fail;
 use anyhow::{Result, bail};
 use glow::HasContext;
@@ -8,10 +9,11 @@ use std::rc::Rc;
 
 // ANCHOR: owned
 /// A GL object that deletes itself when dropped, with the `glDelete*` of its own type: a texture
-/// cannot be deleted as a buffer. `*object` is the glow name, for GL calls.
+/// cannot be deleted as a buffer, nor a memory object as a semaphore. `*object` is the name, for
+/// GL calls.
 pub struct Owned<T: Object> {
     pub name: T,
-    gl: Rc<glow::Context>,
+    by: T::By,
     /// Its count in `base::resources`, for the kinds counted there (see [`Owned::counted`]).
     counted: Option<crate::base::resources::Counted>,
 }
@@ -20,21 +22,25 @@ pub struct Owned<T: Object> {
 pub trait Object: Copy {
     /// Its kind in `base::resources`' live counts ("gl_object: buffer").
     const KIND: &'static str;
+    /// What makes the `glDelete*` call: the context for glow's kinds, the entry points loaded by
+    /// hand for the `GL_EXT_memory_object` / `GL_EXT_semaphore` kinds glow does not know.
+    type By: Clone;
     /// # Safety
-    /// `self` is a live object of `gl`'s, and nothing uses it afterwards.
-    unsafe fn delete(self, gl: &glow::Context);
+    /// `self` is a live object of `by`'s context, and nothing uses it afterwards.
+    unsafe fn delete(self, by: &Self::By);
 }
 
 /// Creates a GL object with `create`, as one fallible step whose error names `what`
-/// (`"glCreateBuffers for the overlay lines"`), and owns it from then on.
-pub fn create<T: Object>(
-    gl: &Rc<glow::Context>,
+/// (`"glCreateBuffers for the overlay lines"`), and owns it from then on. `by` is the context
+/// (`&gl_context.gl`), or the loaded extension entry points for a memory object or semaphore.
+pub fn create<B: Clone, T: Object<By = B>>(
+    by: &B,
     what: &str,
-    create: impl FnOnce(&glow::Context) -> std::result::Result<T, String>,
+    create: impl FnOnce(&B) -> std::result::Result<T, String>,
 ) -> Result<Owned<T>> {
-    let name = fail::call(what, || create(gl))?;
+    let name = fail::call(what, || create(by))?;
     crate::base::resources::alive(T::KIND);
-    Ok(Owned { name, gl: gl.clone(), counted: None })
+    Ok(Owned { name, by: by.clone(), counted: None })
 }
 
 impl<T: Object> Owned<T> {
@@ -46,7 +52,7 @@ impl<T: Object> Owned<T> {
 }
 
 /// `n` GL objects of one kind, made as one fallible step (a timer's queries).
-pub fn create_n<T: Object>(
+pub fn create_n<T: Object<By = Rc<glow::Context>>>(
     gl: &Rc<glow::Context>,
     what: &str,
     n: usize,
@@ -57,7 +63,7 @@ pub fn create_n<T: Object>(
     for _ in 0..n {
         let name = create(gl).map_err(|error| anyhow::Error::msg(error).context(what.to_owned()))?;
         crate::base::resources::alive(T::KIND);
-        made.push(Owned { name, gl: gl.clone(), counted: None });
+        made.push(Owned { name, by: gl.clone(), counted: None });
     }
     Ok(made)
 }
@@ -65,8 +71,9 @@ pub fn create_n<T: Object>(
 impl<T: Object> Drop for Owned<T> {
     fn drop(&mut self) {
         // SAFETY: made by `create` on this context, and owned by nothing else.
-        unsafe { self.name.delete(&self.gl) };
+        unsafe { self.name.delete(&self.by) };
         crate::base::resources::gone(T::KIND);
+        // `counted`, a field, is dropped next: the count goes with the object.
     }
 }
 // ANCHOR_END: owned
@@ -82,7 +89,8 @@ macro_rules! objects {
     ($($ty:ident, $kind:literal => $delete:ident),* $(,)?) => {
         $(impl Object for glow::$ty {
             const KIND: &'static str = concat!("gl_object: ", $kind);
-            unsafe fn delete(self, gl: &glow::Context) {
+            type By = Rc<glow::Context>;
+            unsafe fn delete(self, gl: &Rc<glow::Context>) {
                 unsafe { gl.$delete(self) }
             }
         })*
@@ -93,6 +101,8 @@ macro_rules! objects {
 objects! {
     NativeBuffer, "buffer" => delete_buffer,
     NativeTexture, "texture" => delete_texture,
+    // A framebuffer bound when deleted is unbound by GL itself (as if glBindFramebuffer(0) had
+    // been called): deleting one leaves no binding behind.
     NativeFramebuffer, "framebuffer" => delete_framebuffer,
     NativeRenderbuffer, "renderbuffer" => delete_renderbuffer,
     NativeVertexArray, "vertex array" => delete_vertex_array,
@@ -103,7 +113,8 @@ objects! {
 
 impl Object for glow::NativeProgram {
     const KIND: &'static str = "gl_object: program";
-    unsafe fn delete(self, gl: &glow::Context) {
+    type By = Rc<glow::Context>;
+    unsafe fn delete(self, gl: &Rc<glow::Context>) {
         unsafe {
             // The program in use is only flagged for deletion: unbind it first, so that it goes
             // now, not whenever another program is bound.
@@ -114,6 +125,41 @@ impl Object for glow::NativeProgram {
         }
     }
 }
+
+// ANCHOR: ext_objects
+/// A GL memory object (`GL_EXT_memory_object`): GL's handle on an imported allocation, as
+/// `VkDeviceMemory` is Vulkan's. glow has no type for it, so this is its name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryObject(pub u32);
+
+impl Object for MemoryObject {
+    const KIND: &'static str = "gl_object: memory object";
+    type By = MemoryObjectFns;
+    unsafe fn delete(self, ext: &MemoryObjectFns) {
+        // Lets go of the imported memory (and of the fd GL took with it), once no texture or
+        // buffer stored in it is left.
+        unsafe { (ext.DeleteMemoryObjectsEXT)(1, &self.0) }
+    }
+}
+
+/// A GL semaphore (`GL_EXT_semaphore`), holding a payload imported from Vulkan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Semaphore(pub u32);
+
+impl Object for Semaphore {
+    const KIND: &'static str = "gl_semaphore";
+    type By = SemaphoreFns;
+    unsafe fn delete(self, ext: &SemaphoreFns) {
+        unsafe { (ext.DeleteSemaphoresEXT)(1, &self.0) }
+    }
+}
+
+/// A name from a `glCreate*EXT` / `glGen*EXT` call, which reports no error but leaves 0 when it
+/// makes nothing.
+pub fn made(name: u32, call: &str) -> std::result::Result<u32, String> {
+    if name == 0 { Err(format!("{call} made no object")) } else { Ok(name) }
+}
+// ANCHOR_END: ext_objects
 
 /// Compiles and links a program from GLSL sources; a failure carries GL's info log.
 pub fn program(gl: &Rc<glow::Context>, vertex: &str, fragment: &str) -> Result<Owned<glow::Program>> {
@@ -181,7 +227,7 @@ fn program_from(gl: &Rc<glow::Context>, stages: &[(u32, &str, &str)]) -> Result<
 }
 
 /// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::base::output`].
-/// Deleted when dropped.
+/// Deleted when dropped: the framebuffer, then its renderbuffer (fields drop in order).
 pub struct RenderTarget {
     pub framebuffer: Owned<glow::Framebuffer>,
     pub colour: Owned<glow::Renderbuffer>,
@@ -225,13 +271,5 @@ impl RenderTarget {
             gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*self.framebuffer));
             gl.viewport(0, 0, self.width as i32, self.height as i32);
         }
-    }
-}
-
-impl Drop for RenderTarget {
-    /// The framebuffer, then its renderbuffer (fields drop in order); unbound first, so that
-    /// deleting it leaves no binding behind.
-    fn drop(&mut self) {
-        unsafe { self.framebuffer.gl.bind_framebuffer(glow::FRAMEBUFFER, None) };
     }
 }

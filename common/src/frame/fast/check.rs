@@ -26,7 +26,7 @@ pub struct Surface {
 impl Surface {
     pub fn read(gl: &glow::Context, targets: &Targets) -> Surface {
         let (w, h) = (targets.extent.width, targets.extent.height);
-        let texels = output::read_texture_f32(gl, targets.surface.texture.texture, w, h, 4);
+        let texels = output::read_texture_f32(gl, *targets.surface.texture.texture, w, h, 4);
         Surface { width: w as usize, height: h as usize, texels }
     }
 
@@ -74,7 +74,7 @@ pub fn read_ids(gl: &glow::Context, targets: &Targets) -> Vec<u32> {
     let mut bytes = vec![0u8; w * h * 4];
     unsafe {
         gl.pixel_store_i32(glow::PACK_ALIGNMENT, 4);
-        gl.bind_texture(glow::TEXTURE_2D, Some(targets.visibility.texture.texture));
+        gl.bind_texture(glow::TEXTURE_2D, Some(*targets.visibility.texture.texture));
         let data = glow::PixelPackData::Slice(Some(&mut bytes));
         gl.get_tex_image(glow::TEXTURE_2D, 0, glow::RED_INTEGER, glow::UNSIGNED_INT, data);
         gl.bind_texture(glow::TEXTURE_2D, None);
@@ -302,7 +302,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     use crate::rt::ao::AoTracer;
     use crate::scene::gbuffer::GBuffers;
     let storage = ash::vk::ImageUsageFlags::STORAGE;
-    let gbuffers = GBuffers::new(vk, gl, buffers, extent, storage)?;
+    let gbuffers = GBuffers::new(vk, gl, apis.handoff, buffers, extent, storage)?;
     gbuffers.draw(&gl.gl, scene, camera);
     let mut tracer = AoTracer::new(vk, gl, allocator, tlas, &gbuffers)?;
     // Its own command buffer, made after what it traces with: dropped first on an early return,
@@ -311,7 +311,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     let apis = Apis { commands: &commands, ..apis };
     let scene_scale = scene.size() / 2.0;
     if per_frame == 0 || total == 0 || radius == 0.0 {
-        tracer.fill_unoccluded(vk, gl)?;
+        tracer.fill_unoccluded(vk, gl, apis.handoff)?;
     }
     while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
         let samples = per_frame.min(total - tracer.accumulated);
@@ -320,7 +320,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     }
     let (w, h) = (extent.width, extent.height);
     let positions = output::read_texture_f32(&gl.gl, gbuffers.textures()[0], w, h, 4);
-    let visibility = output::read_texture_f32(&gl.gl, tracer.image.texture.texture, w, h, 1);
+    let visibility = output::read_texture_f32(&gl.gl, *tracer.image.texture.texture, w, h, 1);
     let ids = read_ids(&gl.gl, targets);
     let subpixel_bits = unsafe { gl.gl.get_parameter_i32(glow::SUBPIXEL_BITS) }.clamp(1, 16) as u32;
     unsafe { gl.gl.finish() };

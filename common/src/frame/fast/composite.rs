@@ -60,7 +60,7 @@ impl ComputeComposite {
         let (width, height) = (targets.extent.width, targets.extent.height);
         unsafe {
             gl.use_program(Some(*self.program));
-            gl.bind_texture_unit(0, Some(targets.surface.texture.texture));
+            gl.bind_texture_unit(0, Some(*targets.surface.texture.texture));
             gl.bind_image_texture(0, Some(*targets.picture), 0, false, 0, glow::WRITE_ONLY, glow::RGBA8);
             let at = |name| gl.get_uniform_location(*self.program, name);
             gl.uniform_1_i32(at("blur_radius").as_ref(), u.blur_radius);

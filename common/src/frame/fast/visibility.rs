@@ -2,14 +2,15 @@
 //! size (the visibility buffer GL draws and Vulkan reads, the surface Vulkan writes and GL reads,
 //! GL's depth and picture), and the pass that draws the ids.
 
-use anyhow::{Context as _, Result, ensure};
-use ash::vk;
+use crate::base::gl::GlContext;
 use crate::base::gl::{Owned, create};
+use crate::base::vulkan::VulkanContext;
+use crate::interop::handoff::Handoff;
 use crate::interop::{SharedFormat, SharedImage};
 use crate::scene::gbuffer::SceneBuffers;
 use crate::scene::{Camera, Scene};
-use crate::base::gl::GlContext;
-use crate::base::vulkan::VulkanContext;
+use anyhow::{Context as _, Result, ensure};
+use ash::vk;
 use glow::HasContext;
 
 const VERTEX_SHADER: &str = include_str!("../../../../shaders/gl/visibility.vert");
@@ -85,7 +86,7 @@ pub struct Targets {
 // ANCHOR_END: targets
 
 impl Targets {
-    pub fn new(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> Result<Self> {
+    pub fn new(vk: &VulkanContext, gl: &GlContext, handoff: &Handoff, extent: vk::Extent2D) -> Result<Self> {
         crate::scene::gbuffer::check_size(vk, gl, extent)?;
         // ANCHOR: images
         // GL draws the ids (COLOR_ATTACHMENT), Vulkan reads them (STORAGE); Vulkan writes the
@@ -95,7 +96,8 @@ impl Targets {
         let sampled = vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::SAMPLED;
         let surface = SharedImage::new(vk, gl, SharedFormat::RGBA32F, sampled, extent)?;
         // GL draws the ids first: Vulkan hands the image over, in GENERAL, before it does.
-        crate::interop::hand_new_images_to_gl(vk, &[&visibility])?;
+        let new = [(*visibility.image, *visibility.texture.texture)];
+        crate::interop::hand_new_images_to_gl(vk, gl, handoff, &new)?;
         // ANCHOR_END: images
         let g = &gl.gl;
         let (w, h) = (extent.width as i32, extent.height as i32);
@@ -133,7 +135,7 @@ impl Targets {
                     Some(depth),
                 )
             };
-            let ids = targets.visibility.texture.texture;
+            let ids = *targets.visibility.texture.texture;
             g.named_framebuffer_texture(Some(visibility_framebuffer), glow::COLOR_ATTACHMENT0, Some(ids), 0);
             depth_attachment(visibility_framebuffer);
             g.named_framebuffer_texture(Some(picture_framebuffer), glow::COLOR_ATTACHMENT0, Some(picture), 0);
