@@ -191,10 +191,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 5. Check the last frame's occlusion, the motion, and write the frames
     let (w, h) = (extent.width, extent.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
-    if frames > 1 && args.animation.step > 0.0 {
-        output::check_frames_differ(report, (w, h), &pictures); // something moved: it must show
-    }
-    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures)?;
+    let moved = frames > 1 && args.animation.step > 0.0; // then the frames must show it
+    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
     // 6. Measure: the same rays through the updated TLAS, then through a rebuilt one
     // ANCHOR: measure
@@ -214,14 +212,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         times.add("tlas_rebuild", u.read_ms(&vk)?);
     }
     times.record(report);
-    if let (Some(updated), Some(rebuilt)) = (updated_ms, rebuilt_ms) {
-        report.time_ms("trace_after_updates", updated);
-        report.time_ms("trace_after_rebuild", rebuilt);
-        eprintln!(
-            "trace through the updated TLAS {updated:.3} ms, through a rebuilt one {rebuilt:.3} ms ({:.2}x)",
-            updated / rebuilt
-        );
-    }
+    let said = ["trace through the updated TLAS", "through a rebuilt one"];
+    AoTracer::report_traces(report, "updates", said, (updated_ms, rebuilt_ms));
 
     common::interop::report_handoff(report, &handoff);
     // 7. Clean up, newest first
