@@ -97,11 +97,6 @@ impl Size {
     pub fn extent(self) -> ash::vk::Extent2D {
         ash::vk::Extent2D { width: self.width, height: self.height }
     }
-
-    /// Width over height, for a camera's projection.
-    pub fn aspect(self) -> f32 {
-        self.width as f32 / self.height as f32
-    }
 }
 
 impl std::fmt::Display for Size {
