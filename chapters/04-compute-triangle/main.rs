@@ -119,7 +119,6 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("window", windowed);
     let open_fds_before = open_fd_count()?;
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let timestamps = Timestamps::new(&vk)?;
 
     // 2. Share the vertex buffer
@@ -312,8 +311,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("resizes", resizes);
     report.set("compute_image", [extent.width, extent.height]);
 
-    // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
     // 11. Clean up, newest first, once both APIs are idle
     // ANCHOR: cleanup
     unsafe { gl.finish() };

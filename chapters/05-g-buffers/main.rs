@@ -10,14 +10,13 @@ use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::scene::gbuffer::{GBUFFERS, GBuffer, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
+use common::{CommonArgs, Report, Requirements, ms_since, open_fd_count};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::process::ExitCode;
@@ -52,8 +51,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
-    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    let extent = args.common.size.extent();
 
     // 1. Load the scene
     // ANCHOR: load
@@ -66,15 +64,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 2. Create both contexts
     let requirements =
         Requirements { extensions: REQUIRED, optional_extensions: OPTIONAL, ..Default::default() };
-    let vk = VulkanContext::new(&requirements)?;
-    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let (vk, gl_context) =
+        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. Share the scene's buffers
@@ -209,8 +204,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // ANCHOR_END: resize
 
-    // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
     // 9. Clean up, newest first
     // ANCHOR: cleanup
     // The wait before teardown (the book's "Waiting before teardown"): GL, then Vulkan, once.

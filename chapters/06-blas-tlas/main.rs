@@ -14,7 +14,6 @@ use common::base::cli::Smallest;
 use common::base::commands::{
     Commands, HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
@@ -60,8 +59,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
-    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    let extent = args.common.size.extent();
     let aspect = extent.width as f32 / extent.height as f32;
 
     // 1. Load the scene (chapter 05)
@@ -72,16 +70,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR: context
     let requirements =
         Requirements { extensions: &REQUIRED, optional_extensions: OPTIONAL, ray_tracing: true };
-    let vk = VulkanContext::new(&requirements)?;
+    let (vk, gl_context) =
+        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
     // ANCHOR_END: context
-    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     let allocator = accel::allocator(&vk)?;
 
@@ -240,8 +235,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         &upright,
     )?;
 
-    // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     // The wait before teardown (the book's "Waiting before teardown"): GL, then Vulkan, once.

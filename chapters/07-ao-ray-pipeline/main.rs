@@ -12,7 +12,6 @@ use ash::vk;
 use glow::HasContext as _;
 use common::base::cli::{Smallest, check_covered};
 use common::base::commands::Commands;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timestamps::Timestamps;
 use common::base::timing::{self, GlPassTimer, PassTimes};
@@ -21,7 +20,7 @@ use common::rt::RayTracedScene;
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::GBuffers;
 use common::scene::{Camera, SceneArgs};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, open_fd_count};
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
@@ -49,8 +48,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
-    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    let extent = args.common.size.extent();
     let aspect = extent.width as f32 / extent.height as f32;
 
     // 1. Load the scene, and choose a radius that suits its size
@@ -59,15 +57,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let radius = args.ao.radius(&scene)?;
 
     // 2. Create both contexts, share the scene, build its acceleration structures (05, 06)
-    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let (vk, gl_context) =
+        common::contexts(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     let shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
 
@@ -186,8 +181,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         &upright,
     )?;
 
-    // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
     // 6. Clean up, newest first
     // ANCHOR: cleanup
     // The wait before teardown (the book's "Waiting before teardown"): GL, then Vulkan, once.

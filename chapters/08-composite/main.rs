@@ -13,10 +13,9 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
-use common::base::window::{Key, NamedKey, Window};
+use common::base::window::{Key, NamedKey};
 use common::frame::{Composite, Overlays, View};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
@@ -24,7 +23,7 @@ use common::rt::accel::TlasFlags;
 use common::rt::ao::{AoRays, AoTracer};
 use common::scene::Camera;
 use common::scene::gbuffer::GBuffers;
-use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -48,7 +47,6 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
@@ -72,29 +70,12 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
-    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let headless = args.common.headless || !common::base::window::display_available();
-    if !args.common.headless && headless {
-        eprintln!("window: no display (DISPLAY / WAYLAND_DISPLAY unset): running headless");
-    }
-    let (mut window, gl_context) = if headless {
-        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
-    } else {
-        let (window, gl) = Window::open("08 · composite", size, &MEMORY_EXTENSIONS)?;
-        (Some(window), gl)
-    };
+    let (vk, mut window, gl_context) =
+        common::contexts_in_window(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     // A size the device cannot hold is refused here, before anything is allocated.
-    common::scene::gbuffer::check_size(
-        &vk,
-        &gl_context,
-        vk::Extent2D { width: size.width, height: size.height },
-    )?;
-    report.set("window", window.is_some());
+    common::scene::gbuffer::check_size(&vk, &gl_context, size.extent())?;
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
@@ -279,8 +260,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
     }
 
-    // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };

@@ -12,7 +12,6 @@ use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
@@ -67,8 +66,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
-    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    let extent = args.common.size.extent();
     args.animation.check()?;
 
     // 1. Make the ring, as it stands at the first frame
@@ -87,14 +85,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("ring_radius", (ring.radius as f64 * 1e3).round() / 1e3);
 
     // 2. Both contexts, the shared scene, and a TLAS that may be updated
-    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let (vk, gl_context) =
+        common::contexts(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     let update_timer = Timestamps::new(&vk)?; // before `updates`, whose submissions write it
     // ANCHOR: updatable
@@ -196,10 +191,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 5. Check the last frame's occlusion, the motion, and write the frames
     let (w, h) = (extent.width, extent.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
-    if frames > 1 && args.animation.step > 0.0 {
-        output::check_frames_differ(report, (w, h), &pictures); // something moved: it must show
-    }
-    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures)?;
+    let moved = frames > 1 && args.animation.step > 0.0; // then the frames must show it
+    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
     // 6. Measure: the same rays through the updated TLAS, then through a rebuilt one
     // ANCHOR: measure
@@ -219,17 +212,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         times.add("tlas_rebuild", u.read_ms(&vk)?);
     }
     times.record(report);
-    if let (Some(updated), Some(rebuilt)) = (updated_ms, rebuilt_ms) {
-        report.time_ms("trace_after_updates", updated);
-        report.time_ms("trace_after_rebuild", rebuilt);
-        eprintln!(
-            "trace through the updated TLAS {updated:.3} ms, through a rebuilt one {rebuilt:.3} ms ({:.2}x)",
-            updated / rebuilt
-        );
-    }
+    let said = ["trace through the updated TLAS", "through a rebuilt one"];
+    AoTracer::report_traces(report, "updates", said, (updated_ms, rebuilt_ms));
 
-    // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
     // 7. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };

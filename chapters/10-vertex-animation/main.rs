@@ -12,7 +12,6 @@ use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::output;
 use common::base::timestamps::Timestamps;
 use common::base::timing::{self, GlPassTimer, PassTimes};
@@ -24,7 +23,7 @@ use common::rt::accel::{
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::{GBuffers, SceneBuffers};
 use common::scene::{Camera, Instance, Scene, ground_plane};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::{CommonArgs, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glam::{Mat4, Vec3};
 use glow::HasContext;
 use gpu_allocator::MemoryLocation;
@@ -69,8 +68,7 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
-    let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
+    let extent = args.common.size.extent();
     args.animation.check()?;
     ensure!(
         (0.0..=0.3).contains(&args.amplitude),
@@ -95,14 +93,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("triangles", scene.triangles());
 
     // 2. Both contexts; the scene shared with GL, and writable by compute
-    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    let (vk, gl_context) =
+        common::contexts(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
     common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
     // ANCHOR: share
     // STORAGE_BUFFER: the compute shader writes the vertices in place.
@@ -276,10 +271,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("vertices_match_cpu_reference", sphere::vertices_match(&wave, &directions, gpu));
     let (w, h) = (extent.width, extent.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
-    if frames > 1 && args.animation.step > 0.0 {
-        output::check_frames_differ(report, (w, h), &pictures); // something moved: it must show
-    }
-    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures)?;
+    let moved = frames > 1 && args.animation.step > 0.0; // then the frames must show it
+    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
 
     // 7. Measure: the same rays through the refitted BLAS, then through a rebuilt one
     // ANCHOR: measure
@@ -301,17 +294,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         sphere::add_times(&vk, a, Refresh::Rebuild, &mut times)?;
     }
     times.record(report);
-    if let (Some(refitted), Some(rebuilt)) = (refitted_ms, rebuilt_ms) {
-        report.time_ms("trace_after_refits", refitted);
-        report.time_ms("trace_after_rebuild", rebuilt);
-        eprintln!(
-            "trace after refits {refitted:.3} ms, after a rebuild {rebuilt:.3} ms ({:.2}x)",
-            refitted / rebuilt
-        );
-    }
+    let said = ["trace after refits", "after a rebuild"];
+    AoTracer::report_traces(report, "refits", said, (refitted_ms, rebuilt_ms));
 
-    // On the host path GL moves no image: each hand-over named the layout the image was in.
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
     // 8. Clean up, newest first
     // ANCHOR: cleanup
     unsafe { gl.finish() };

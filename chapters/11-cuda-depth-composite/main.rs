@@ -14,7 +14,7 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::fail;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
+use common::base::gl::GlContext;
 use common::base::owned::create;
 use common::interop;
 use common::interop::cuda::CudaDevice;
@@ -95,7 +95,6 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
     let (width, height) = (args.common.size.width, args.common.size.height);
     let bytes = traced_bytes(width, height);
     let paths = match args.path {
@@ -115,10 +114,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 2. Vulkan and GL on one device
     let extensions = [ash::khr::external_memory_fd::NAME];
-    let vk = VulkanContext::new(&Requirements { extensions: &extensions, ..Default::default() })?;
-    let gl_context = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
+    let requirements = Requirements { extensions: &extensions, ..Default::default() };
+    let (vk, gl_context) =
+        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
     // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
     // cannot hold, before anything else exists.
     anyhow::ensure!(

@@ -14,17 +14,16 @@ use ash::vk;
 use common::base::cli::Size;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timeline::{self, Timeline};
 use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
-use common::base::window::{Key, NamedKey, Window};
+use common::base::window::{Key, NamedKey};
 use common::frame::Overlays;
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
 use common::scene::Camera;
-use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -59,7 +58,6 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
@@ -78,20 +76,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
-    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let headless = args.common.headless || !common::base::window::display_available();
-    let (mut window, gl_context) = if headless {
-        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
-    } else {
-        let (window, gl) = Window::open("12 · fast frame", size, &MEMORY_EXTENSIONS)?;
-        (Some(window), gl)
-    };
+    let (vk, mut window, gl_context) =
+        common::contexts_in_window(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, args.common.size)?;
-    report.set("window", window.is_some());
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. The shared scene and its structures (chapters 05-06), every triangle numbered
@@ -318,7 +306,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("frames", frame);
     report.set("resizes", resizes);
     report.set("pattern", settings.pattern);
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
 
     // 7. Clean up, newest first
     // ANCHOR: cleanup

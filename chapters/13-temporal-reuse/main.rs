@@ -13,16 +13,14 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::{Size, Smallest};
 use common::base::commands::Commands;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timestamps::Timestamps;
-use common::base::window::Window;
 use common::frame::Overlays;
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
 use common::rt::ao::AoArgs;
 use common::scene::{Camera, Instance};
-use common::{RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -60,7 +58,6 @@ fn main() -> ExitCode {
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
     ensure!(
         !(args.compare && args.resize_every.is_some()),
         "--compare walks every method at one size: leave out --resize-every"
@@ -89,20 +86,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
-    let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;
-    let headless = args.common.headless || !common::base::window::display_available();
-    let (mut window, gl_context) = if headless {
-        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
-    } else {
-        let (window, gl) = Window::open("13 · temporal reuse", size, &MEMORY_EXTENSIONS)?;
-        (Some(window), gl)
-    };
+    let (vk, mut window, gl_context) =
+        common::contexts_in_window(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
-    common::connect(report, &vk, &gl_context)?;
-    common::largest_size(&vk, &gl_context).check(CHAPTER, size)?;
-    report.set("window", window.is_some());
     let handoff = Handoff::new(&vk, &gl_context)?;
-    report.sync = Some(handoff.name());
     let open_fds_before = open_fd_count()?;
 
     // 3. The shared scene and its structures; a TLAS that can be updated where an instance moves
@@ -187,7 +174,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
     }
     gl_context.check_error("the frames")?;
-    report.check("hand_over_layouts_agree", handoff.layouts_agreed());
+    common::interop::report_handoff(report, &handoff);
 
     // 6. Clean up, newest first
     // ANCHOR: cleanup

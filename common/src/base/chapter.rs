@@ -1,10 +1,11 @@
 //! The contract every chapter shares: run, report, exit code; and the few steps every chapter
 //! from 03 on repeats (both contexts connected, open fds counted, CPU time measured).
 
-use super::cli::{CommonArgs, Largest};
-use super::gl::{self, GlContext};
+use super::cli::{CommonArgs, Largest, Size, Smallest};
+use super::gl::{self, GlContext, MEMORY_EXTENSIONS};
 use super::report::{Print, Report};
-use super::vulkan::{self, VulkanContext};
+use super::vulkan::{self, Requirements, VulkanContext};
+use super::window::Window;
 use super::{fail, resources, window};
 use std::process::ExitCode;
 
@@ -105,6 +106,58 @@ pub fn connect(report: &mut Report, vk: &VulkanContext, gl: &GlContext) -> anyho
     gl::ensure_same_device(&vk.info, gl)
 }
 // ANCHOR_END: connect
+
+// ANCHOR: contexts
+/// Both contexts on one device, as chapter 03 made them, for a picture of `size`: refused first
+/// if it is smaller than the chapter's checks need (`smallest`); then Vulkan with
+/// `requirements`, and a headless GL context on the EGL device with Vulkan's UUID and the
+/// memory-object extensions; [`connect`]ed, and `size` refused if either API cannot hold it
+/// ([`largest_size`]).
+pub fn contexts(
+    chapter: &str,
+    smallest: Smallest,
+    report: &mut Report,
+    requirements: &Requirements,
+    size: Size,
+) -> anyhow::Result<(VulkanContext, GlContext)> {
+    smallest.check(chapter, size)?;
+    let vk = VulkanContext::new(requirements)?;
+    let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
+    connect(report, &vk, &gl)?;
+    largest_size(&vk, &gl).check(chapter, size)?;
+    Ok((vk, gl))
+}
+// ANCHOR_END: contexts
+
+/// [`contexts`], with GL in a window as chapter 04 opened it, titled with the chapter's number and
+/// name ("08 · composite"): unless `--headless` is given or there is no display (said on
+/// stderr), when GL is headless. The report's `window`
+/// says which. Dropped in the order bound: GL's context, the window, then Vulkan's.
+pub fn contexts_in_window(
+    chapter: &str,
+    smallest: Smallest,
+    report: &mut Report,
+    requirements: &Requirements,
+    common: &CommonArgs,
+) -> anyhow::Result<(VulkanContext, Option<Window>, GlContext)> {
+    smallest.check(chapter, common.size)?;
+    let vk = VulkanContext::new(requirements)?;
+    let headless = common.headless || !window::display_available();
+    if !common.headless && headless {
+        eprintln!("window: no display (DISPLAY / WAYLAND_DISPLAY unset): running headless");
+    }
+    let (window, gl) = if headless {
+        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
+    } else {
+        let title = chapter.replacen('-', " · ", 1).replace('-', " ");
+        let (window, gl) = Window::open(&title, common.size, &MEMORY_EXTENSIONS)?;
+        (Some(window), gl)
+    };
+    connect(report, &vk, &gl)?;
+    largest_size(&vk, &gl).check(chapter, common.size)?;
+    report.set("window", window.is_some());
+    Ok((vk, window, gl))
+}
 
 // ANCHOR: largest_size
 /// The largest picture both APIs allow on this device: Vulkan's `maxImageDimension2D`, and GL's

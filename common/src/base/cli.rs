@@ -92,6 +92,13 @@ pub struct Size {
     pub height: u32,
 }
 
+impl Size {
+    /// The same size as Vulkan's `VkExtent2D`.
+    pub fn extent(self) -> ash::vk::Extent2D {
+        ash::vk::Extent2D { width: self.width, height: self.height }
+    }
+}
+
 impl std::fmt::Display for Size {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}x{}", self.width, self.height)

@@ -74,14 +74,18 @@ pub fn save_rgba8(
 }
 
 /// An animation's frames (frame number, RGBA8 pixels top row first), written as
-/// `<chapter>-frame-NNN.png`.
+/// `<chapter>-frame-NNN.png`; where something `moved`, checked first ([`check_frames_differ`]).
 pub fn save_frames(
     report: &mut Report,
     dir: &Path,
     chapter: &str,
     size: (u32, u32),
     frames: &[(u32, Vec<u8>)],
+    moved: bool,
 ) -> Result<()> {
+    if moved {
+        check_frames_differ(report, size, frames);
+    }
     for (frame, pixels) in frames {
         save_rgba8(report, dir, &format!("{chapter}-frame-{frame:03}"), size, pixels)?;
     }

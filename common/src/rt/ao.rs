@@ -3,6 +3,7 @@
 
 use crate::base::commands::first_use;
 use crate::base::gl::GlContext;
+use crate::base::report::Report;
 use crate::base::timestamps::{Timestamps, timed};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::handoff::{Apis, HandOver, Handoff};
@@ -189,6 +190,19 @@ impl AoTracer {
         let extent = gbuffers.extent;
         let texture = *self.image.texture.texture;
         Ok((crate::base::output::read_texture_f32(&apis.gl.gl, texture, extent.width, extent.height, 1), ms))
+    }
+
+    /// The GPU times of [`trace_once`](Self::trace_once)'s two traces in chapters 09 and 10, when
+    /// there are timestamps: through the structure as the frames kept it (`trace_after_<kept>`)
+    /// and through a rebuilt one (`trace_after_rebuild`), reported, and said on stderr with their
+    /// ratio, each named as `said` names it.
+    pub fn report_traces(report: &mut Report, kept: &str, said: [&str; 2], ms: (Option<f64>, Option<f64>)) {
+        if let (Some(kept_ms), Some(rebuilt_ms)) = ms {
+            report.time_ms(&format!("trace_after_{kept}"), kept_ms);
+            report.time_ms("trace_after_rebuild", rebuilt_ms);
+            let ratio = kept_ms / rebuilt_ms;
+            eprintln!("{} {kept_ms:.3} ms, {} {rebuilt_ms:.3} ms ({ratio:.2}x)", said[0], said[1]);
+        }
     }
 
     /// After the G-buffers were made anew (a resize): a new AO image of their size, the
