@@ -15,7 +15,8 @@ use common::base::cli::Smallest;
 use common::base::commands::Commands;
 use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
-use common::base::window::{Key, NamedKey};
+use common::base::window::Key;
+use common::frame::input::{resize_every, window_input};
 use common::frame::{Composite, Overlays, View};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
@@ -97,7 +98,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
     let mut frame = 0;
     let mut drew_a_frame = false;
-    let (mut new_size, mut resizes, mut fds_after_first_resize) = (None, 0, None);
+    let (mut resizes, mut fds_after_first_resize) = (0, None);
     // Each pass's GPU time: GL's read when they arrive, the trace's once its fence has signalled
     // for the next frame's trace (the wait that frame makes anyway): timing adds no wait.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
@@ -110,45 +111,34 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut skipped = None;
     loop {
         // ANCHOR: input
+        let new_size;
         if let Some(window) = window.as_mut() {
-            let keys: Vec<Key> = window.poll(&gl_context).collect();
-            if keys.contains(&Key::Named(NamedKey::Escape)) {
-                break;
-            }
             let before = (settings, camera.eye);
-            for key in keys {
-                settings::apply_key(&key, &mut settings);
-            }
-            let ((dx, dy), wheel) = window.take_mouse();
-            if dx != 0.0 || dy != 0.0 || wheel != 0.0 {
-                camera.orbit(-dx * 0.01, dy * 0.01, 1.1f32.powf(wheel), scene.bounds);
-            }
+            let apply_key = |key: &Key| {
+                settings.apply_key(key, &View::ALL);
+            };
+            let Some(resized) = window_input(window, &gl_context, (&mut camera, scene.bounds), (size, 1), apply_key)
+            else {
+                break; // Esc, or the window closed
+            };
+            new_size = resized;
             // The running mean describes what each pixel showed, with this radius: a moved camera or
             // a new radius makes it describe something else. Rays per frame, blur and power do not.
             if settings.radius != before.0.radius || camera.eye != before.1 {
                 tracer.reset();
             }
-            if window.close_requested() || (frame_limit > 0 && frame >= frame_limit) {
+            if frame_limit > 0 && frame >= frame_limit {
                 break;
-            }
-            let (width, height) = window.size();
-            if (width, height) != (size.width, size.height) && width > 0 && height > 0 {
-                new_size = Some(common::base::cli::Size { width, height });
             }
         } else if frame >= frame_limit {
             break;
-        } else if let Some(every) = args.resize_every.filter(|&k| frame > 0 && frame % k == 0) {
+        } else {
             // Headless, the same path a window's resize takes: three quarters, whole, half.
-            let quarters = [2, 3, 4][(frame / every) as usize % 3];
-            let scale = |side: u32| (side * quarters / 4).max(8);
-            new_size = Some(common::base::cli::Size {
-                width: scale(args.common.size.width),
-                height: scale(args.common.size.height),
-            });
+            new_size = resize_every(args.resize_every, frame, args.common.size, 8);
         }
         // ANCHOR_END: input
         // ANCHOR: resize
-        if let Some(new) = new_size.take() {
+        if let Some(new) = new_size {
             // Every shared image is made anew at the new size, once the GPU is done with the old
             // ones (the reference sample leaked them and kept descriptors pointing at them).
             unsafe { gl.finish() };

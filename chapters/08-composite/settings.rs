@@ -1,8 +1,6 @@
-//! Chapter 08's flags and settings: what the flags start with and the keys change, and the
-//! composite's uniforms that follow from them.
+//! Chapter 08's flags, and the composite's uniforms that follow from the settings the keys change.
 
 use common::CommonArgs;
-use common::base::window::Key;
 use common::frame::{Uniforms, View};
 use common::rt::accel::BlasLayout;
 use common::rt::ao::AoArgs;
@@ -44,35 +42,8 @@ pub struct Args {
     pub blas: BlasLayout,
 }
 
-/// What the keys change. Only the radius changes what the occlusion measures; the rest change how
-/// many rays a frame adds or how the mean is shown.
-#[derive(Clone, Copy, PartialEq)]
-pub struct Settings {
-    pub samples: u32,
-    pub radius: f32,
-    pub power: f32,
-    pub blur: u32,
-    pub view: View,
-    pub overlays: bool,
-}
-
-// ANCHOR: keys
-pub fn apply_key(key: &Key, s: &mut Settings) {
-    // Named keys do nothing here: Esc ends the loop before keys get here.
-    let Key::Character(c) = key.as_ref() else { return };
-    match c {
-        "1" | "2" | "3" | "4" | "5" | "6" => s.view = View::from_index(c.parse::<u32>().unwrap() - 1),
-        "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
-        "-" => s.samples = (s.samples / 2).max(1),
-        "]" => s.radius *= 1.25,
-        "[" => s.radius /= 1.25,
-        "b" | "B" => s.blur = (s.blur + 1) % 5,
-        "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0, // 1, 2, 3, 1 ...
-        "o" | "O" => s.overlays = !s.overlays,
-        _ => {}
-    }
-}
-// ANCHOR_END: keys
+/// What the keys change (`common::frame::input`, whose `apply_key` takes the views 1 to 6).
+pub type Settings = common::frame::input::Settings<View>;
 
 pub fn uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> Uniforms {
     Uniforms {

@@ -17,8 +17,9 @@ use common::base::commands::Commands;
 use common::base::timeline::{self, Timeline};
 use common::base::timestamps::Timestamps;
 use common::base::timing::{GlPassTimer, PassTimes};
-use common::base::window::{Key, NamedKey};
+use common::base::window::Key;
 use common::frame::Overlays;
+use common::frame::input::{Settings as Keys, resize_every, window_input};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
@@ -65,15 +66,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
     camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
     let radius = args.ao.radius(&scene)?;
-    let mut settings = Settings {
-        samples: args.ao.samples,
-        radius,
-        power: args.ao.power,
-        blur: args.blur,
-        view: args.view,
-        overlays: true,
-        pattern: args.pattern,
-    };
+    let keys = Keys { samples: args.ao.samples, radius, power: args.ao.power, blur: args.blur, view: args.view, overlays: true };
+    let mut settings = Settings { keys, pattern: args.pattern };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
     let (vk, mut window, gl_context) =
@@ -118,37 +112,26 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     loop {
         let mut new_size = None;
         if let Some(window) = window.as_mut() {
-            let keys: Vec<Key> = window.poll(&gl_context).collect();
-            if keys.contains(&Key::Named(NamedKey::Escape)) || window.close_requested() {
-                break;
-            }
             let before = (settings, camera.eye);
-            keys.iter().for_each(|key| settings::apply_key(key, &mut settings));
-            let ((dx, dy), wheel) = window.take_mouse();
-            if dx != 0.0 || dy != 0.0 || wheel != 0.0 {
-                camera.orbit(-dx * 0.01, dy * 0.01, 1.1f32.powf(wheel), scene.bounds);
-            }
+            let apply_key = |key: &Key| settings::apply_key(key, &mut settings);
+            let Some(resized) =
+                window_input(window, &gl_context, (&mut camera, scene.bounds), (size, SMALLEST_SIDE), apply_key)
+            else {
+                break; // Esc, or the window closed
+            };
+            new_size = resized;
             // A new camera, radius or sample pattern makes the running mean describe another thing.
             let changed = (settings.radius, settings.pattern) != (before.0.radius, before.0.pattern);
             if changed || camera.eye != before.1 {
                 tracer.accumulated = 0;
             }
-            let (width, height) = window.size();
-            if (width, height) != (size.width, size.height)
-                && width >= SMALLEST_SIDE
-                && height >= SMALLEST_SIDE
-            {
-                new_size = Some(Size { width, height });
-            }
         }
         if frame_limit > 0 && frame >= frame_limit {
             break;
         }
-        if let Some(every) = args.resize_every.filter(|&k| window.is_none() && frame > 0 && frame % k == 0) {
+        if window.is_none() {
             // Three quarters, whole, half, as chapter 08's `--resize-every`.
-            let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(SMALLEST_SIDE);
-            new_size =
-                Some(Size { width: scale(args.common.size.width), height: scale(args.common.size.height) });
+            new_size = resize_every(args.resize_every, frame, args.common.size, SMALLEST_SIDE);
         }
         // ANCHOR: resize
         if let Some(new) = new_size {

@@ -5,6 +5,7 @@ use common::frame::fast::composite::{Uniforms, View};
 use common::frame::fast::trace::{Pattern, Rays};
 use common::CommonArgs;
 use common::base::window::Key;
+use common::frame::input;
 use common::rt::accel::BlasLayout;
 use common::rt::ao::AoArgs;
 use common::scene::{Camera, SceneArgs};
@@ -61,32 +62,24 @@ pub struct Args {
     pub resize_every: Option<u32>,
 }
 
-/// What the keys change (chapter 08's, less its debug views of positions).
+/// What the keys change: chapter 08's (`common::frame::input`, less its debug views of
+/// positions), and T for the sample pattern.
 #[derive(Clone, Copy, PartialEq)]
 pub struct Settings {
-    pub samples: u32,
-    pub radius: f32,
-    pub power: f32,
-    pub blur: u32,
-    pub view: View,
-    pub overlays: bool,
+    pub keys: input::Settings<View>,
     pub pattern: Pattern,
 }
 
+impl std::ops::Deref for Settings {
+    type Target = input::Settings<View>;
+    fn deref(&self) -> &Self::Target {
+        &self.keys
+    }
+}
+
 pub fn apply_key(key: &Key, s: &mut Settings) {
-    if let Key::Character(c) = key.as_ref() {
-        match c {
-            "1" | "2" | "3" | "4" | "5" => s.view = View::ALL[c.parse::<usize>().unwrap() - 1],
-            "+" | "=" => s.samples = (s.samples * 2).clamp(1, 256),
-            "-" => s.samples = (s.samples / 2).max(1),
-            "]" => s.radius *= 1.25,
-            "[" => s.radius /= 1.25,
-            "b" | "B" => s.blur = (s.blur + 1) % 5,
-            "p" | "P" => s.power = s.power.floor() % 3.0 + 1.0,
-            "o" | "O" => s.overlays = !s.overlays,
-            "t" | "T" => s.pattern = Pattern::ALL[(s.pattern as usize + 1) % Pattern::ALL.len()],
-            _ => {}
-        }
+    if !s.keys.apply_key(key, &View::ALL) && matches!(key.as_ref(), Key::Character("t" | "T")) {
+        s.pattern = Pattern::ALL[(s.pattern as usize + 1) % Pattern::ALL.len()];
     }
 }
 

@@ -2,10 +2,11 @@
 //! chapter 12's fast frame (`fast`), which chapter 13 draws again. The
 //! composite pass (albedo x occlusion into an offscreen target over the G-buffer pass's depth),
 //! the overlay lines drawn into any target whose depth is the scene's, and the pixel probes and
-//! CPU reference the checks compare them with.
+//! CPU reference the checks compare them with, and a frame's input (`input`).
 
 pub mod composite;
 pub mod fast;
+pub mod input;
 pub mod overlay;
 pub mod probe;
 
