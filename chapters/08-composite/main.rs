@@ -89,7 +89,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. The composite pass and the overlays: GL only
     // ANCHOR: setup
-    let mut composite = Composite::new(gl, &gbuffers)?;
+    let mut composite = Composite::new(gl, &gbuffers, scene.bounds)?;
     let overlays = Overlays::new(gl, &scene, select)?;
     // ANCHOR_END: setup
 
@@ -182,7 +182,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             traced += samples as u64 * (size.width * size.height) as u64;
             trace_pending = timestamps.is_some();
         }
-        let uniforms = settings::uniforms(&settings, &scene, &camera);
+        let uniforms = settings.uniforms(camera.far);
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(aspect);
@@ -229,7 +229,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             composite: &composite,
             overlays: settings.overlays.then_some(&overlays),
             camera: &camera,
-            uniforms: settings::uniforms(&settings, &scene, &camera),
+            uniforms: settings.uniforms(camera.far),
         };
         for (name, ok) in last_frame.check(&overlays)? {
             report.check(name, ok);

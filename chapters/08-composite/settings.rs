@@ -1,10 +1,10 @@
-//! Chapter 08's flags, and the composite's uniforms that follow from the settings the keys change.
+//! Chapter 08's flags, and the settings the keys change.
 
 use common::CommonArgs;
-use common::frame::{Uniforms, View};
+use common::frame::View;
 use common::rt::accel::BlasLayout;
 use common::rt::ao::AoArgs;
-use common::scene::{Camera, Scene, SceneArgs};
+use common::scene::SceneArgs;
 
 /// Chapter 08: albedo x ray-traced AO, composited by GL, with depth-correct overlays.
 #[derive(clap::Parser)]
@@ -44,15 +44,3 @@ pub struct Args {
 
 /// What the keys change (`common::frame::input`, whose `apply_key` takes the views 1 to 6).
 pub type Settings = common::frame::input::Settings<View>;
-
-pub fn uniforms(s: &Settings, scene: &Scene, camera: &Camera) -> Uniforms {
-    Uniforms {
-        blur_radius: s.blur as i32,
-        depth_tolerance: 0.02,
-        normal_tolerance: 0.9,
-        power: s.power,
-        view: s.view,
-        bounds: scene.bounds,
-        far_depth: camera.far,
-    }
-}

@@ -116,8 +116,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, storage)?;
     let tlas_handle = *shared.structures.tlas.handle;
     let mut tracer = AoTracer::new(&vk, &gl_context, &shared.allocator, tlas_handle, &gbuffers)?;
-    let composite = Composite::new(gl, &gbuffers)?;
-    let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);
+    let composite = Composite::new(gl, &gbuffers, scene.bounds)?;
+    let uniforms = Uniforms::final_picture(args.ao.power, camera.far);
     let trace_timer = Timestamps::new(&vk)?;
     // Made after everything the traces use: an early return drops it first, and its Drop waits
     // for the last trace before the tracer or the G-buffers are destroyed.

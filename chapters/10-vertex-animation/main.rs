@@ -171,8 +171,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, *tlas.handle, &gbuffers)?;
-    let composite = Composite::new(gl, &gbuffers)?;
-    let uniforms = Uniforms::final_picture(args.ao.power, scene.bounds, camera.far);
+    let composite = Composite::new(gl, &gbuffers, scene.bounds)?;
+    let uniforms = Uniforms::final_picture(args.ao.power, camera.far);
     let animation_timer = Timestamps::with_count(&vk, 4)?;
     let trace_timer = Timestamps::new(&vk)?;
     // Made after everything their submissions use: an early return drops them first, and each

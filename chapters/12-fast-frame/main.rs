@@ -170,7 +170,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             tracer.trace(apis, &targets, &camera, rays, timestamps.as_ref())?;
             trace_pending = timestamps.is_some().then_some(slot);
         }
-        let uniforms = settings::uniforms(&settings, &camera);
+        let uniforms = settings.uniforms(camera.far);
         timeline::stamp(&timeline, slot, 2);
         gl_timer.time(gl, "composite", || composite.draw(gl, &targets, &uniforms))?;
         if settings.overlays {
@@ -233,13 +233,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         layouts::measure(&gl_context, &probe, &shared.buffers, args.layout_rounds, report)?;
     }
     if args.vulkan_composite_rounds > 0 {
-        let settled = (&settings::uniforms(&settings, &camera), args.vulkan_composite_rounds);
+        let settled = (&settings.uniforms(camera.far), args.vulkan_composite_rounds);
         vk_composite::compare(apis, &shared.allocator, (&targets, &composite), settled, report)?;
     }
     let surface = check::Surface::read(gl, &targets);
     surface.require_covered(CHAPTER)?;
     if frame > 0 {
-        let uniforms = settings::uniforms(&settings, &camera);
+        let uniforms = settings.uniforms(camera.far);
         let last = check::LastFrame {
             gl,
             targets: &targets,

@@ -1,14 +1,14 @@
 //! Chapter 12's flags and settings: what the flags start with and the keys change, and what
-//! follows from them (the rays a frame traces, the composite's uniforms).
+//! follows from them (the rays a frame traces).
 
-use common::frame::fast::composite::{Uniforms, View};
+use common::frame::fast::composite::View;
 use common::frame::fast::trace::{Pattern, Rays};
 use common::CommonArgs;
 use common::base::window::Key;
 use common::frame::input;
 use common::rt::accel::BlasLayout;
 use common::rt::ao::AoArgs;
-use common::scene::{Camera, SceneArgs};
+use common::scene::SceneArgs;
 
 /// Chapter 12: chapter 08's frame from a visibility buffer, with a compute composite.
 #[derive(clap::Parser)]
@@ -86,16 +86,5 @@ pub fn apply_key(key: &Key, s: &mut Settings) {
 impl Settings {
     pub fn rays(&self, samples: u32, scene_scale: f32) -> Rays {
         Rays { samples, radius: self.radius, scene_scale, pattern: self.pattern, salt: 0 }
-    }
-}
-
-pub fn uniforms(s: &Settings, camera: &Camera) -> Uniforms {
-    Uniforms {
-        blur_radius: s.blur as i32,
-        depth_tolerance: 0.02,
-        normal_tolerance: 0.9,
-        power: s.power,
-        view: s.view,
-        far_depth: camera.far,
     }
 }

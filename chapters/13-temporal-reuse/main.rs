@@ -128,14 +128,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // for the last frame's Vulkan work before any of that is destroyed.
     let commands = Commands::new(&vk)?;
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
-    let uniforms = Uniforms {
-        blur_radius: args.blur as i32,
-        depth_tolerance: 0.02,
-        normal_tolerance: 0.9,
-        power: args.power,
-        view: args.view,
-        far_depth: start.far,
-    };
+    let uniforms = Uniforms::new(args.blur, args.power, args.view, start.far);
     let passes = Passes {
         apis,
         scene: &scene,

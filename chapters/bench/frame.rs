@@ -9,7 +9,7 @@ use common::base::cli::Size;
 use common::base::timeline::{self, Timeline};
 use common::base::timestamps::{Timestamps, median_p95};
 use common::base::timing::{GlPassTimer, PassTimes};
-use common::frame::{Composite, Overlays, Uniforms, View};
+use common::frame::{Composite, Overlays, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoRays, AoTracer};
@@ -89,22 +89,14 @@ impl<'s> Frame<'s> {
         let storage = vk::ImageUsageFlags::STORAGE;
         let gbuffers = GBuffers::new(vk, gl, handoff, &shared.buffers, extent, storage)?;
         let tracer = AoTracer::new(vk, gl, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
-        let composite = Composite::new(&gl.gl, &gbuffers)?;
+        let composite = Composite::new(&gl.gl, &gbuffers, scene.bounds)?;
         let overlays = Overlays::new(&gl.gl, scene, 0)?;
         let round_trip = match mode {
             Mode::CpuRoundTrip => Some(RoundTrip::new(vk, gl, &shared.allocator, extent)?),
             _ => None,
         };
         // Chapter 08's defaults: blur radius 2, power 2, the final view.
-        let uniforms = Uniforms {
-            blur_radius: 2,
-            depth_tolerance: 0.02,
-            normal_tolerance: 0.9,
-            power: 2.0,
-            view: View::Final,
-            bounds: scene.bounds,
-            far_depth: camera.far,
-        };
+        let uniforms = Uniforms::final_picture(2.0, camera.far);
         Ok(Frame {
             mode,
             scene,

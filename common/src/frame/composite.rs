@@ -37,33 +37,40 @@ impl View {
     }
 }
 
-/// The composite shader's uniforms.
+/// The composite shaders' uniforms: chapter 08's fragment shader's (`V` = [`View`]) and chapter
+/// 12's compute shader's (`V` = `fast::composite::View`, which shows no positions).
 #[derive(Clone, Copy)]
-pub struct Uniforms {
+pub struct Uniforms<V = View> {
     pub blur_radius: i32,
     /// Relative: a neighbour is on the same surface if its view depth is within this fraction.
     pub depth_tolerance: f32,
     /// A neighbour is on the same surface if the dot product of the normals is at least this.
     pub normal_tolerance: f32,
     pub power: f32,
-    pub view: View,
-    pub bounds: (Vec3, Vec3),
+    pub view: V,
     pub far_depth: f32,
 }
 
-impl Uniforms {
-    /// Chapter 08's final picture as its flags start it (a blur of radius 2, a neighbour within
-    /// 2% of the depth and facing within about 25 degrees), for the chapters that show only that.
-    pub fn final_picture(power: f32, bounds: (Vec3, Vec3), far_depth: f32) -> Uniforms {
+impl<V> Uniforms<V> {
+    /// Chapter 08's blur as its flags start it (a neighbour within 2% of the depth and facing
+    /// within about 25 degrees), with a blur radius, a power and a view.
+    pub fn new(blur_radius: u32, power: f32, view: V, far_depth: f32) -> Uniforms<V> {
         Uniforms {
-            blur_radius: 2,
+            blur_radius: blur_radius as i32,
             depth_tolerance: 0.02,
             normal_tolerance: 0.9,
             power,
-            view: View::Final,
-            bounds,
+            view,
             far_depth,
         }
+    }
+}
+
+impl Uniforms {
+    /// Chapter 08's final picture as its flags start it (a blur of radius 2), for the chapters
+    /// that show only that.
+    pub fn final_picture(power: f32, far_depth: f32) -> Uniforms {
+        Uniforms::new(2, power, View::Final, far_depth)
     }
 }
 
@@ -71,6 +78,8 @@ impl Uniforms {
 /// buffer is the G-buffer pass's, so that overlays drawn next are tested against the scene.
 /// Deleted when dropped too, so that an early return from `run` leaves nothing behind.
 pub struct Composite {
+    /// The scene's box, which the position view maps to colours.
+    bounds: (Vec3, Vec3),
     framebuffer: Owned<glow::Framebuffer>,
     colour: Owned<glow::Renderbuffer>,
     empty: Owned<glow::VertexArray>,
@@ -80,7 +89,7 @@ pub struct Composite {
 }
 
 impl Composite {
-    pub fn new(gl: &Rc<glow::Context>, gbuffers: &GBuffers) -> Result<Self> {
+    pub fn new(gl: &Rc<glow::Context>, gbuffers: &GBuffers, bounds: (Vec3, Vec3)) -> Result<Self> {
         let program = crate::base::gl::program(gl, FULLSCREEN, COMPOSITE)?;
         // Core profile draws need a vertex array bound, even one that feeds nothing.
         let empty = create(gl, "glCreateVertexArrays for the composite", |gl| unsafe {
@@ -88,7 +97,7 @@ impl Composite {
         })?;
         let (framebuffer, colour) = new_target(gl, gbuffers)?;
         let (width, height) = (gbuffers.extent.width, gbuffers.extent.height);
-        Ok(Composite { framebuffer, colour, empty, program, width, height })
+        Ok(Composite { bounds, framebuffer, colour, empty, program, width, height })
     }
 
     /// After the G-buffers were made anew: a colour buffer of their size, their depth buffer.
@@ -120,7 +129,7 @@ impl Composite {
             gl.uniform_1_f32(at("normal_tolerance").as_ref(), u.normal_tolerance);
             gl.uniform_1_f32(at("power").as_ref(), u.power);
             gl.uniform_1_i32(at("view").as_ref(), u.view as i32);
-            let (low, high) = u.bounds;
+            let (low, high) = self.bounds;
             gl.uniform_3_f32(at("bounds_low").as_ref(), low.x, low.y, low.z);
             gl.uniform_3_f32(at("bounds_high").as_ref(), high.x, high.y, high.z);
             gl.uniform_1_f32(at("far_depth").as_ref(), u.far_depth);

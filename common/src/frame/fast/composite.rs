@@ -28,18 +28,8 @@ impl View {
     pub const ALL: [View; 5] = [View::Final, View::Ao, View::Depth, View::Normal, View::Albedo];
 }
 
-/// The composite shader's uniforms (chapter 08's, less what it showed of positions).
-#[derive(Clone, Copy)]
-pub struct Uniforms {
-    pub blur_radius: i32,
-    /// Relative: a neighbour is on the same surface if its view depth is within this fraction.
-    pub depth_tolerance: f32,
-    /// A neighbour is on the same surface if the dot product of the normals is at least this.
-    pub normal_tolerance: f32,
-    pub power: f32,
-    pub view: View,
-    pub far_depth: f32,
-}
+/// The composite shader's uniforms: chapter 08's, over these views.
+pub type Uniforms = crate::frame::composite::Uniforms<View>;
 
 /// Deleted when dropped (its program).
 pub struct ComputeComposite {
