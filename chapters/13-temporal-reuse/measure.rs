@@ -306,34 +306,20 @@ fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
         .filter_map(|(i, w)| Some((w.gpu_median_ms?, w.error_mean?, i)))
         .filter(|(t, e, _)| *t > 0.0 && *e > 0.0)
         .collect();
-    anyhow::ensure!(!points.is_empty(), "nothing to plot (no GPU timestamps?)");
-    let (t0, t1) = points.iter().fold((f64::MAX, 0f64), |(a, b), p| (a.min(p.0), b.max(p.0)));
-    let (e0, e1) = points.iter().fold((f64::MAX, 0f64), |(a, b), p| (a.min(p.1), b.max(p.1)));
-    let root = SVGBackend::new(path, (720, 420)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(format!("Mean AO error against GPU time per frame ({device})"), ("sans-serif", 18))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.5..e1 * 1.5).log_scale())?;
-    chart
-        .configure_mesh()
-        .x_desc("GPU time per frame, ms")
-        .y_desc("mean RMSE over the path")
-        .x_label_formatter(&|v| format!("{v:.2}"))
-        .y_label_formatter(&|v| format!("{v:.3}"))
-        .draw()?;
-    for (t, e, i) in points {
-        let colour = COLOURS[i % COLOURS.len()];
-        chart
-            .draw_series([Circle::new((t, e), 5, colour.filled())])?
-            .label(walks[i].method.clone())
-            .legend(move |(x, y)| Circle::new((x + 8, y), 4, colour.filled()));
-    }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
-    root.present()?;
-    Ok(())
+    let caption = format!("Mean AO error against GPU time per frame ({device})");
+    let axes = ("GPU time per frame, ms", "mean RMSE over the path");
+    let labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String) = (&|v| format!("{v:.2}"), &|v| format!("{v:.3}"));
+    let span = points.iter().map(|&(t, e, _)| (t, e));
+    output::log_log_plot(path, ((720, 420), &caption), axes, labels, span, |chart| {
+        for &(t, e, i) in &points {
+            let colour = COLOURS[i % COLOURS.len()];
+            chart
+                .draw_series([Circle::new((t, e), 5, colour.filled())])?
+                .label(walks[i].method.clone())
+                .legend(move |(x, y)| Circle::new((x + 8, y), 4, colour.filled()));
+        }
+        Ok(())
+    })
 }
 // ANCHOR_END: plot
 

@@ -24,31 +24,15 @@ pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
     for case in cases {
         for r in &case.rows {
             let rays = r.spp * r.frames;
-            writeln!(
-                csv,
-                "{},{},{},{},{rays},{:.4},{:.6},{:.6},{:.6},{:.6}",
-                case.scene,
-                case.reference,
-                r.spp,
-                r.frames,
-                r.gpu_ms,
-                r.rmse,
-                r.max_abs,
-                r.mean_error,
-                r.standard_error
-            )?;
-            writeln!(
-                table,
-                "| {} | {} | {} | {} | {rays} | {:.3} | {:.4} | {:.3} | {} |",
-                case.scene,
-                case.reference,
-                r.spp,
-                r.frames,
-                r.gpu_ms,
-                r.rmse,
-                r.max_abs,
-                r.independent_rmse.map_or("".into(), |e| format!("{e:.4}"))
-            )?;
+            // The same five columns lead both: which case, and how many rays.
+            let head = [case.scene, case.reference].map(String::from);
+            let head = [&head[..], &[r.spp, r.frames, rays].map(|n| n.to_string())].concat();
+            let (gpu_ms, rmse, max_abs) = (r.gpu_ms, r.rmse, r.max_abs);
+            let (mean, standard) = (r.mean_error, r.standard_error);
+            writeln!(csv, "{},{gpu_ms:.4},{rmse:.6},{max_abs:.6},{mean:.6},{standard:.6}", head.join(","))?;
+            let independent = r.independent_rmse.map_or("".into(), |e| format!("{e:.4}"));
+            let cells = format!("{gpu_ms:.3} | {rmse:.4} | {max_abs:.3} | {independent}");
+            writeln!(table, "| {} | {cells} |", head.join(" | "))?;
         }
     }
     let path = dir.join("convergence.csv");
@@ -65,49 +49,35 @@ pub fn write(dir: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
 /// RMSE against GPU time, both axes logarithmic: one line per case and rays per frame, each
 /// point one number of frames (more frames: further right, lower).
 fn plot(path: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
-    let rows = || cases.iter().flat_map(|c| &c.rows).filter(|r| r.rmse > 0.0 && r.gpu_ms > 0.0);
-    let (t0, t1) = rows().fold((f64::MAX, 0f64), |(a, b), r| (a.min(r.gpu_ms), b.max(r.gpu_ms)));
-    let (e0, e1) = rows().fold((f64::MAX, 0f64), |(a, b), r| (a.min(r.rmse), b.max(r.rmse)));
-    anyhow::ensure!(t1 > 0.0 && e1 > 0.0, "nothing to plot (no GPU timestamps?)");
-    let root = SVGBackend::new(path, (720, 480)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(format!("AO error against GPU time ({device})"), ("sans-serif", 18))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.5..e1 * 1.5).log_scale())?;
-    chart
-        .configure_mesh()
-        .x_desc("GPU time, ms (thicker: more rays per frame)")
-        .y_desc("RMSE of visibility")
-        .x_label_formatter(&|v| format!("{v}"))
-        .y_label_formatter(&|v| format!("{v:.3}"))
-        .draw()?;
-    let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
-    for (i, case) in cases.iter().enumerate() {
-        let colour = colours[i % colours.len()];
-        let mut spps: Vec<u32> = case.rows.iter().map(|r| r.spp).collect();
-        spps.dedup();
-        for (j, &spp) in spps.iter().enumerate() {
-            let points: Vec<(f64, f64)> = case
-                .rows
-                .iter()
-                .filter(|r| r.spp == spp && r.rmse > 0.0 && r.gpu_ms > 0.0)
-                .map(|r| (r.gpu_ms, r.rmse))
-                .collect();
-            let series =
-                chart.draw_series(LineSeries::new(points.clone(), colour.stroke_width(1 + j as u32)))?;
-            if j == 0 {
-                series
-                    .label(case.scene)
-                    .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour));
+    let rows = cases.iter().flat_map(|c| &c.rows).filter(|r| r.rmse > 0.0 && r.gpu_ms > 0.0);
+    let caption = format!("AO error against GPU time ({device})");
+    let axes = ("GPU time, ms (thicker: more rays per frame)", "RMSE of visibility");
+    let labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String) = (&|v| format!("{v}"), &|v| format!("{v:.3}"));
+    let points = rows.map(|r| (r.gpu_ms, r.rmse));
+    output::log_log_plot(path, ((720, 480), &caption), axes, labels, points, |chart| {
+        let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];
+        for (i, case) in cases.iter().enumerate() {
+            let colour = colours[i % colours.len()];
+            let mut spps: Vec<u32> = case.rows.iter().map(|r| r.spp).collect();
+            spps.dedup();
+            for (j, &spp) in spps.iter().enumerate() {
+                let points: Vec<(f64, f64)> = case
+                    .rows
+                    .iter()
+                    .filter(|r| r.spp == spp && r.rmse > 0.0 && r.gpu_ms > 0.0)
+                    .map(|r| (r.gpu_ms, r.rmse))
+                    .collect();
+                let series =
+                    chart.draw_series(LineSeries::new(points.clone(), colour.stroke_width(1 + j as u32)))?;
+                if j == 0 {
+                    series
+                        .label(case.scene)
+                        .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], colour));
+                }
+                chart.draw_series(points.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
             }
-            chart.draw_series(points.into_iter().map(|p| Circle::new(p, 3, colour.filled())))?;
         }
-    }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
-    root.present()?;
-    Ok(())
+        Ok(())
+    })
 }
 // ANCHOR_END: plot

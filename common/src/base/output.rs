@@ -161,3 +161,48 @@ pub fn grey(values: &[f32]) -> Vec<u8> {
         })
         .collect()
 }
+
+/// The chart [`log_log_plot`] draws into: both axes logarithmic.
+pub type LogLogChart<'a, 'b> = plotters::prelude::ChartContext<
+    'a,
+    plotters::prelude::SVGBackend<'b>,
+    plotters::prelude::Cartesian2d<plotters::prelude::LogCoord<f64>, plotters::prelude::LogCoord<f64>>,
+>;
+
+/// A log-log plot as an SVG of `size` pixels: `caption` above, the axes named and their labels
+/// written by `labels`, each axis half as wide again each way as `points` span; `draw` adds the
+/// series, then the legend is drawn over a white box. An error if there is no point to span.
+pub fn log_log_plot(
+    path: &Path,
+    (size, caption): ((u32, u32), &str),
+    (x_desc, y_desc): (&str, &str),
+    labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String),
+    points: impl Iterator<Item = (f64, f64)> + Clone,
+    draw: impl FnOnce(&mut LogLogChart) -> Result<()>,
+) -> Result<()> {
+    use plotters::prelude::*;
+    let span = |axis: fn(&(f64, f64)) -> f64| {
+        points.clone().map(|p| axis(&p)).fold((f64::MAX, 0f64), |(a, b), v| (a.min(v), b.max(v)))
+    };
+    let ((x0, x1), (y0, y1)) = (span(|p| p.0), span(|p| p.1));
+    anyhow::ensure!(x1 > 0.0 && y1 > 0.0, "nothing to plot (no GPU timestamps?)");
+    let root = SVGBackend::new(path, size).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(caption, ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((x0 / 1.5..x1 * 1.5).log_scale(), (y0 / 1.5..y1 * 1.5).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .x_label_formatter(labels.0)
+        .y_label_formatter(labels.1)
+        .draw()?;
+    draw(&mut chart)?;
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+    root.present()?;
+    Ok(())
+}
