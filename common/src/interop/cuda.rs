@@ -165,25 +165,22 @@ impl Destroy for PrimaryContext {
     }
 }
 
-impl Destroy for sys::CUmodule {
-    type By = ();
-    unsafe fn destroy(self, _: &()) {
-        released("cuModuleUnload", unsafe { cu::module::unload(self) });
-    }
+/// CUDA objects that one call frees, its failure logged (a `Drop` cannot return it).
+macro_rules! destroyed_by {
+    ($($handle:ty => $name:literal, $call:path;)*) => {$(
+        impl Destroy for $handle {
+            type By = ();
+            unsafe fn destroy(self, _: &()) {
+                released($name, unsafe { $call(self) });
+            }
+        }
+    )*};
 }
 
-impl Destroy for sys::CUstream {
-    type By = ();
-    unsafe fn destroy(self, _: &()) {
-        released("cuStreamDestroy", unsafe { cu::stream::destroy(self) });
-    }
-}
-
-impl Destroy for sys::CUevent {
-    type By = ();
-    unsafe fn destroy(self, _: &()) {
-        released("cuEventDestroy", unsafe { cu::event::destroy(self) });
-    }
+destroyed_by! {
+    sys::CUmodule => "cuModuleUnload", cu::module::unload;
+    sys::CUstream => "cuStreamDestroy", cu::stream::destroy;
+    sys::CUevent => "cuEventDestroy", cu::event::destroy;
 }
 
 impl Destroy for sys::CUgraphicsResource {
