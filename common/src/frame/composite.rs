@@ -64,6 +64,19 @@ impl<V> Uniforms<V> {
             far_depth,
         }
     }
+
+    /// Sets what both composite shaders declare alike (all but `view`, whose numbering is each
+    /// shader's own) on `program`, which is in use: the blur, its edge tests and the power.
+    pub fn set_blur(&self, gl: &glow::Context, program: glow::Program) {
+        let at = |name| unsafe { gl.get_uniform_location(program, name) };
+        unsafe {
+            gl.uniform_1_i32(at("blur_radius").as_ref(), self.blur_radius);
+            gl.uniform_1_f32(at("depth_tolerance").as_ref(), self.depth_tolerance);
+            gl.uniform_1_f32(at("normal_tolerance").as_ref(), self.normal_tolerance);
+            gl.uniform_1_f32(at("power").as_ref(), self.power);
+            gl.uniform_1_f32(at("far_depth").as_ref(), self.far_depth);
+        }
+    }
 }
 
 impl Uniforms {
@@ -123,16 +136,12 @@ impl Composite {
             {
                 gl.bind_texture_unit(unit as u32, Some(texture));
             }
+            u.set_blur(gl, *self.program);
             let at = |name| gl.get_uniform_location(*self.program, name);
-            gl.uniform_1_i32(at("blur_radius").as_ref(), u.blur_radius);
-            gl.uniform_1_f32(at("depth_tolerance").as_ref(), u.depth_tolerance);
-            gl.uniform_1_f32(at("normal_tolerance").as_ref(), u.normal_tolerance);
-            gl.uniform_1_f32(at("power").as_ref(), u.power);
             gl.uniform_1_i32(at("view").as_ref(), u.view as i32);
             let (low, high) = self.bounds;
             gl.uniform_3_f32(at("bounds_low").as_ref(), low.x, low.y, low.z);
             gl.uniform_3_f32(at("bounds_high").as_ref(), high.x, high.y, high.z);
-            gl.uniform_1_f32(at("far_depth").as_ref(), u.far_depth);
             gl.bind_vertex_array(Some(*self.empty));
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
             gl.bind_vertex_array(None);

@@ -52,13 +52,9 @@ impl ComputeComposite {
             gl.use_program(Some(*self.program));
             gl.bind_texture_unit(0, Some(*targets.surface.texture.texture));
             gl.bind_image_texture(0, Some(*targets.picture), 0, false, 0, glow::WRITE_ONLY, glow::RGBA8);
-            let at = |name| gl.get_uniform_location(*self.program, name);
-            gl.uniform_1_i32(at("blur_radius").as_ref(), u.blur_radius);
-            gl.uniform_1_f32(at("depth_tolerance").as_ref(), u.depth_tolerance);
-            gl.uniform_1_f32(at("normal_tolerance").as_ref(), u.normal_tolerance);
-            gl.uniform_1_f32(at("power").as_ref(), u.power);
-            gl.uniform_1_i32(at("view").as_ref(), u.view as i32);
-            gl.uniform_1_f32(at("far_depth").as_ref(), u.far_depth);
+            u.set_blur(gl, *self.program);
+            let view = gl.get_uniform_location(*self.program, "view");
+            gl.uniform_1_i32(view.as_ref(), u.view as i32);
             gl.dispatch_compute(width.div_ceil(16), height.div_ceil(16), 1);
             // Image stores are not ordered with what follows until a barrier names its use:
             // drawing into the picture (the overlays), and reading or blitting it.
