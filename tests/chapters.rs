@@ -945,6 +945,34 @@ fn ch14_two_processes() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+/// Without --headless, under an X server: the viewer it starts opens a window and shows each
+/// frame in it as it arrives (its top-left pixel is the frame's background), every frame read
+/// back is still the one announced, and neither process leaks an fd or a GL error.
+#[test]
+fn ch14_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch14_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "96x64", "--frames", "8"];
+    let run = harness::run_chapter_with(CH14, &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert!(run.stderr.contains("window: 96x64"), "{}", run.stderr);
+    assert_eq!(report["frames"], 8);
+    assert_eq!(report["frames_shown_by_the_last_viewer"], 8);
+    assert_eq!(report["restarts"], 0);
+    for check in [
+        "viewer_the_window_shows_each_frame",
+        "viewer_every_frame_is_the_one_announced",
+        "viewer_no_fd_leaked",
+        "viewer_no_gl_errors",
+        "viewer_exited_cleanly",
+        "no_fd_leaked",
+    ] {
+        assert_eq!(report["checks"][check], true, "{check}: {}", run.stderr);
+    }
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
 /// A viewer killed (SIGKILL) every 5 frames is noticed by its hang-up, replaced, and the frames
 /// it lost drawn again: every frame is shown, in the end, and nothing leaks on either side.
 #[test]

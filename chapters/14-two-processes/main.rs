@@ -114,7 +114,13 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         ensure!(args.listen.is_none(), "--kill-viewer-every: the renderer kills only a viewer it started");
     }
     let (width, height) = (args.common.size.width, args.common.size.height);
-    let frames = args.common.headless_frames() as u64;
+    // The renderer has no window; the viewer it starts opens one where there is a display, and
+    // then, as every windowed chapter, runs until it is closed unless --frames says otherwise.
+    let windowed = !args.common.headless && common::base::window::display_available();
+    let frames = match windowed {
+        true => Some(args.common.window_frames()).filter(|&n| n > 0).map_or(u64::MAX, u64::from),
+        false => args.common.headless_frames() as u64,
+    };
 
     // 1. Vulkan alone: the renderer has no GL
     let vk = VulkanContext::new(&Requirements {
@@ -131,8 +137,8 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     // 2. A ring of exportable images
     // ANCHOR: ring
     let usage = vk::ImageUsageFlags::TRANSFER_DST // Vulkan clears and copies into it
-        | vk::ImageUsageFlags::COLOR_ATTACHMENT // GL attaches it to a framebuffer to read it
-        | vk::ImageUsageFlags::SAMPLED; // a viewer with a window would sample it
+        | vk::ImageUsageFlags::COLOR_ATTACHMENT // a windowed viewer blits from a framebuffer on it
+        | vk::ImageUsageFlags::SAMPLED; // GL reads it as a texture (glGetTexImage)
     let extent = vk::Extent2D { width, height };
     let ring = (0..slots)
         .map(|_| -> Result<_> {
@@ -201,7 +207,7 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         let shared = Ring { hello: &hello, memory_fd: &memory_fd, semaphore_fd: &semaphore_fd, draw: &draw };
         let (socket, mut child) = match &listener {
             Some(listener) => (session::accept(listener, timeout)?, None),
-            None => session::spawn_viewer(args, hello.width, hello.height)?,
+            None => session::spawn_viewer(args, hello.width, hello.height, windowed)?,
         };
         socket.set_timeout(timeout)?;
         // Killed on purpose only while a replacement is allowed: the run then finishes.
@@ -244,7 +250,7 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         report.set("death_to_next_frame_ms", gauges::median_max(&measured.death_to_frame));
         report.set("sessions", &sessions);
     }
-    report.set("frames", frames);
+    report.set("frames", next_frame); // `frames`, or as many as were shown until the window closed
     report.set("slots", slots);
     report.set("restarts", restarts);
     report.set("frames_drawn_again", redrawn);
