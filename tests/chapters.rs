@@ -970,6 +970,7 @@ fn ch14_in_a_window_under_xvfb() {
     ] {
         assert_eq!(report["checks"][check], true, "{check}: {}", run.stderr);
     }
+    assert_report_snapshot("14-two-processes-window", report);
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
