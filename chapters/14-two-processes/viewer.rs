@@ -9,12 +9,12 @@ use super::{Args, CHAPTER, gauges, picture, wire};
 use anyhow::{Context as _, Result, bail, ensure};
 use common::Report;
 use common::base::cli::Size;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS, create, layout};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS, Owned, Semaphore, create, layout};
 use common::base::vulkan::DeviceInfo;
 use common::base::window::{self, Key, NamedKey, Window};
 use common::base::{fail, output, resources};
 use common::interop::handoff::import_semaphore;
-use common::interop::{self, exportable::MemoryTerms};
+use common::interop::{self, SharedTexture, exportable::MemoryTerms};
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::time::{Duration, Instant};
@@ -262,21 +262,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
             ensure!(frame > previous, "frame {frame} came after frame {previous}");
         }
         if let Some(frame_written) = frame_written {
-            // GL's queue waits for Vulkan's signal, and takes the image in the layout Vulkan's
-            // release left it in: GENERAL. (The renderer announced the frame only once its fence
-            // had signalled: this wait is already satisfied, and cannot be left hanging.)
-            let ext = gl_context.semaphores.as_ref().expect("semaphores were negotiated with GL's");
-            let (textures, layouts) = ([texture.texture.0.get()], [layout::GENERAL]);
-            unsafe {
-                (ext.WaitSemaphoreEXT)(
-                    frame_written.name.0,
-                    0,
-                    std::ptr::null(),
-                    1,
-                    textures.as_ptr(),
-                    layouts.as_ptr(),
-                )
-            };
+            wait_until_written(gl_context, texture, frame_written);
         }
         // ANCHOR: show
         // In a window: copy the slot into the back buffer, scaled to the window, upside down (row
@@ -291,15 +277,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
             };
         }
         // ANCHOR_END: show
-        // Everything GL was asked so far is done, or the renderer lied: waited on the CPU, with
-        // a timeout, so that a wait that never ends is an error rather than a hang.
-        gl_finished(gl_context, Duration::from_secs_f64(args.timeout))?;
-        // glGetTexImage returns when the pixels are in our memory: GL is done with the slot. (Not
-        // glReadPixels through a framebuffer: on NVIDIA's driver that takes about 27 ms from an
-        // imported texture, glGetTexImage a fraction of one.) Flipped: row 0 is Vulkan's row 0.
-        let read = output::read_texture_rgba8(gl, *texture.texture, width, height);
-        let pixels = output::flip_rows(&read, width, height);
-        gl_context.check_error("reading a slot")?;
+        let pixels = read_slot(gl_context, texture, (width, height), Duration::from_secs_f64(args.timeout))?;
         viewed.all_right &= is_picture_of(&pixels, frame, width, height);
         viewed.shown += 1;
         viewed.last = Some((frame, pixels));
@@ -351,6 +329,44 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
     }
     Ok(gone.is_some())
 }
+
+// ANCHOR: read_slot
+/// GL's queue waits for Vulkan's signal on `frame_written`, and takes `texture`'s image in the
+/// layout Vulkan's release left it in: GENERAL. (The renderer announces a frame only once its
+/// fence has signalled: this wait is already satisfied, and cannot be left hanging.)
+pub fn wait_until_written(gl_context: &GlContext, texture: &SharedTexture, frame_written: &Owned<Semaphore>) {
+    let ext = gl_context.semaphores.as_ref().expect("semaphores were negotiated with GL's");
+    let (textures, layouts) = ([texture.texture.0.get()], [layout::GENERAL]);
+    unsafe {
+        (ext.WaitSemaphoreEXT)(
+            frame_written.name.0,
+            0,
+            std::ptr::null(),
+            1,
+            textures.as_ptr(),
+            layouts.as_ptr(),
+        )
+    };
+}
+
+/// The slot's pixels, row 0 first as Vulkan wrote it, once everything GL was asked so far is
+/// done (or the renderer lied): waited on the CPU, with `timeout`, so that a wait that never
+/// ends is an error rather than a hang.
+pub fn read_slot(
+    gl_context: &GlContext,
+    texture: &SharedTexture,
+    (width, height): (u32, u32),
+    timeout: Duration,
+) -> Result<Vec<u8>> {
+    gl_finished(gl_context, timeout)?;
+    // glGetTexImage returns when the pixels are in our memory: GL is done with the slot. (Not
+    // glReadPixels through a framebuffer: on NVIDIA's driver that takes about 27 ms from an
+    // imported texture, glGetTexImage a fraction of one.)
+    let read = output::read_texture_rgba8(&gl_context.gl, *texture.texture, width, height);
+    gl_context.check_error("reading a slot")?;
+    Ok(output::flip_rows(&read, width, height))
+}
+// ANCHOR_END: read_slot
 
 /// After `Closed`: the frames the renderer sent meanwhile are not shown, nor freed (it let go
 /// of them), until its Bye (`None`) or its hang-up.
@@ -404,7 +420,7 @@ fn gl_finished(gl_context: &GlContext, timeout: Duration) -> Result<()> {
 
 /// Is `pixels` (row 0 first, as Vulkan wrote it) frame `frame`'s picture? Probes the corner
 /// (background), the square's centre (white) and the pixel left of it (background, if any).
-fn is_picture_of(pixels: &[u8], frame: u64, width: u32, height: u32) -> bool {
+pub fn is_picture_of(pixels: &[u8], frame: u64, width: u32, height: u32) -> bool {
     let (background, (x, y, side)) = picture(frame, width, height);
     let at = |px: u32, py: u32| &pixels[(py * width + px) as usize * 4..][..4];
     let close = |p: &[u8], q: [u8; 4]| p.iter().zip(q).all(|(&a, b)| a.abs_diff(b) <= 1);
