@@ -945,6 +945,53 @@ fn ch14_two_processes() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+/// Without --headless, under an X server: the viewer it starts opens a window and shows each
+/// frame in it as it arrives (its top-left pixel is the frame's background), every frame read
+/// back is still the one announced, and neither process leaks an fd or a GL error.
+#[test]
+fn ch14_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch14_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "96x64", "--frames", "8"];
+    let run = harness::run_chapter_with(CH14, &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert!(run.stderr.contains("window: 96x64"), "{}", run.stderr);
+    assert_eq!(report["frames"], 8);
+    assert_eq!(report["frames_shown_by_the_last_viewer"], 8);
+    assert_eq!(report["restarts"], 0);
+    for check in [
+        "viewer_the_window_shows_each_frame",
+        "viewer_every_frame_is_the_one_announced",
+        "viewer_no_fd_leaked",
+        "viewer_no_gl_errors",
+        "viewer_exited_cleanly",
+        "no_fd_leaked",
+    ] {
+        assert_eq!(report["checks"][check], true, "{check}: {}", run.stderr);
+    }
+    assert_report_snapshot("14-two-processes-window", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+/// `--one-process`: the same ring, imported into GL in the renderer's own process and read back
+/// with the viewer's code; every frame is the one drawn, the hand-over is timed as with two
+/// processes, and the imports give back every fd.
+#[test]
+fn ch14_one_process_for_comparison() {
+    let run = run_chapter(CH14, &["--size", "96x64", "--frames", "8", "--one-process"], &[]);
+    let report = run.succeeded();
+    assert_eq!(report["mode"], "one process");
+    assert_eq!(report["uuids_match"], true);
+    assert_eq!(report["frames"], 8);
+    assert_eq!(report["sync"], "host", "lavapipe shares no semaphores");
+    assert_eq!(report["checks"]["every_frame_is_the_one_announced"], true);
+    assert_eq!(report["checks"]["no_fd_leaked"], true);
+    assert!(report["timings_ms"]["handover_median"].as_f64().is_some(), "{}", report["timings_ms"]);
+    assert!(!run.stderr.contains("started the viewer"), "{}", run.stderr);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
 /// A viewer killed (SIGKILL) every 5 frames is noticed by its hang-up, replaced, and the frames
 /// it lost drawn again: every frame is shown, in the end, and nothing leaks on either side.
 #[test]
@@ -1136,10 +1183,11 @@ fn ch14_a_kept_fd_fails_the_leak_check() {
 /// never let a frame through, a kill in a viewer the renderer did not start.
 #[test]
 fn ch14_refuses_what_cannot_work() {
-    let cases: [(&[&str], &str); 3] = [
+    let cases: [(&[&str], &str); 4] = [
         (&["--slots", "1"], "--slots 1: a ring has 2 to 16 slots"),
         (&["--kill-viewer-every", "2"], "--kill-viewer-every 2: more than --slots 2"),
         (&["--kill-viewer-every", "5", "--listen", "/tmp/unused.sock"], "kills only a viewer it started"),
+        (&["--one-process", "--listen", "/tmp/unused.sock"], "'--one-process' cannot be used with '--listen"),
     ];
     for (args, expected) in cases {
         let run = run_chapter(CH14, args, &[]);

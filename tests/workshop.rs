@@ -124,6 +124,13 @@ const SOLUTIONS: &[Solution] = &[
         args: &["--headless", "--size", "96x72", "--hidden-alpha", "0.4"],
         proof: Proof::Flag("--hidden-alpha"),
     },
+    Solution {
+        // Two processes: the viewer's check comes back in the renderer's report, renamed.
+        patch: "14-skipped-frame.diff",
+        chapter: "14-two-processes",
+        args: &["--headless", "--size", "64x48", "--frames", "8"],
+        proof: Proof::Check("viewer_frames_follow_one_another"),
+    },
 ];
 
 fn root() -> &'static Path {

@@ -80,6 +80,7 @@ pub fn merge_summary(report: &mut Report, json: &str) -> anyhow::Result<()> {
         report.image(&text(&image["name"]), &path, size("width"), size("height"), &text(&image["format"]));
     }
     report.set("frames_shown_by_the_last_viewer", &summary["frames_shown"]);
+    report.set("window", summary["window"] == true); // the viewer's: the renderer has none
     if let Some(sessions) = summary.get("sessions") {
         report.set("viewer_sessions", sessions);
     }

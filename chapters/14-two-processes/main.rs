@@ -7,9 +7,11 @@
 //! cleanly).
 //!
 //! Run: `cargo run --release --bin 14-two-processes` (the renderer starts its own viewer), or by
-//! hand in two terminals: `-- --listen /tmp/vkgl.sock` and `-- --connect /tmp/vkgl.sock`.
+//! hand in two terminals: `-- --listen /tmp/vkgl.sock` and `-- --connect /tmp/vkgl.sock`; or, to
+//! compare, `-- --one-process` (the same hand-over, with GL in the renderer's own process).
 
 mod gauges;
+mod one_process;
 mod session;
 mod viewer;
 mod wire;
@@ -18,6 +20,7 @@ use anyhow::{Result, bail, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, image_barrier};
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::base::timing::PassTimes;
 use common::base::{fail, resources};
 use common::interop::exportable::{self, Dedicated};
@@ -65,6 +68,10 @@ struct Args {
     /// Ping/Pong round trips to time with each viewer, before its frames.
     #[arg(long, default_value_t = 20)]
     pings: u32,
+    /// No viewer: import the ring into GL in this same process and read each frame back there,
+    /// timing the same hand-over, to compare with two processes.
+    #[arg(long, conflicts_with_all = ["listen", "connect", "kill_viewer_every"])]
+    one_process: bool,
     /// (The viewer, with --connect) outlive the renderer: wait for the next one at the same path.
     #[arg(long, requires = "connect")]
     reconnect: bool,
@@ -114,7 +121,13 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         ensure!(args.listen.is_none(), "--kill-viewer-every: the renderer kills only a viewer it started");
     }
     let (width, height) = (args.common.size.width, args.common.size.height);
-    let frames = args.common.headless_frames() as u64;
+    // The renderer has no window; the viewer it starts opens one where there is a display, and
+    // then, as every windowed chapter, runs until it is closed unless --frames says otherwise.
+    let windowed = !args.common.headless && common::base::window::display_available() && !args.one_process;
+    let frames = match windowed {
+        true => Some(args.common.window_frames()).filter(|&n| n > 0).map_or(u64::MAX, u64::from),
+        false => args.common.headless_frames() as u64,
+    };
 
     // 1. Vulkan alone: the renderer has no GL
     let vk = VulkanContext::new(&Requirements {
@@ -126,13 +139,19 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     report.vulkan = Some(vk.report());
     let offer_semaphores =
         vk.has_extension(handoff::SEMAPHORE_EXTENSION) && handoff::vulkan_can_export_semaphores(&vk);
+    // --one-process: GL in this process too, on the same device, opened before the fds are
+    // counted, as the viewer's is (the driver may keep files of its own for the context's life).
+    let gl_context = match args.one_process {
+        true => Some(GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?),
+        false => None,
+    };
     let fds_before = resources::open_fd_targets();
 
     // 2. A ring of exportable images
     // ANCHOR: ring
     let usage = vk::ImageUsageFlags::TRANSFER_DST // Vulkan clears and copies into it
-        | vk::ImageUsageFlags::COLOR_ATTACHMENT // GL attaches it to a framebuffer to read it
-        | vk::ImageUsageFlags::SAMPLED; // a viewer with a window would sample it
+        | vk::ImageUsageFlags::COLOR_ATTACHMENT // a windowed viewer blits from a framebuffer on it
+        | vk::ImageUsageFlags::SAMPLED; // GL reads it as a texture (glGetTexImage)
     let extent = vk::Extent2D { width, height };
     let ring = (0..slots)
         .map(|_| -> Result<_> {
@@ -199,9 +218,22 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
             draw(&vk, &commands, *ring[slot].0, &square, picture(frame, width, height), frame_written)
         };
         let shared = Ring { hello: &hello, memory_fd: &memory_fd, semaphore_fd: &semaphore_fd, draw: &draw };
+        if let Some(gl_context) = &gl_context {
+            let out_dir = args.common.out_dir(CHAPTER);
+            one_process::serve(
+                (&vk.info, gl_context),
+                &shared,
+                frames,
+                (timeout, &out_dir),
+                &mut measured,
+                report,
+            )?;
+            next_frame = frames;
+            break None; // no viewer, no summary
+        }
         let (socket, mut child) = match &listener {
             Some(listener) => (session::accept(listener, timeout)?, None),
-            None => session::spawn_viewer(args, hello.width, hello.height)?,
+            None => session::spawn_viewer(args, hello.width, hello.height, windowed)?,
         };
         socket.set_timeout(timeout)?;
         // Killed on purpose only while a replacement is allowed: the run then finishes.
@@ -219,7 +251,7 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
             Outcome::Done(summary) => {
                 let exited = session::end_viewer(socket, child, GRACE);
                 report.check("viewer_exited_cleanly", exited != Some(false));
-                break summary;
+                break Some(summary);
             }
             Outcome::Gone { why, lost } => {
                 measured.viewer_died_at = Some(std::time::Instant::now());
@@ -237,24 +269,32 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
             }
         }
     };
-    gauges::merge_summary(report, &summary)?;
+    if let Some(summary) = &summary {
+        gauges::merge_summary(report, summary)?;
+    }
     report.sync = Some(measured.sync);
     measured.times.record(report);
     if restarts > 0 {
         report.set("death_to_next_frame_ms", gauges::median_max(&measured.death_to_frame));
         report.set("sessions", &sessions);
     }
-    report.set("frames", frames);
+    report.set("frames", next_frame); // `frames`, or as many as were shown until the window closed
     report.set("slots", slots);
     report.set("restarts", restarts);
     report.set("frames_drawn_again", redrawn);
-    report.set("mode", if listener.is_some() { "listen" } else { "one command" });
+    let mode = match (args.one_process, &listener) {
+        (true, _) => "one process",
+        (false, Some(_)) => "listen",
+        (false, None) => "one command",
+    };
+    report.set("mode", mode);
 
     // 4. Clean up, newest first (the last frame's fence has signalled)
     drop(listener);
     drop(commands);
     drop(square);
     drop(ring); // each image, then its memory
+    drop(gl_context); // --one-process: its textures went in `one_process::serve`
     if let Some(path) = &args.listen {
         let _ = std::fs::remove_file(path);
     }

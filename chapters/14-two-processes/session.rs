@@ -146,6 +146,12 @@ impl Session<'_> {
                             measured.death_to_frame.push(ms_since(died)); // a new viewer showed one
                         }
                     }
+                    Some(Message::Closed) => {
+                        // Its window was closed: the frames in flight are not shown, nor drawn again.
+                        *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
+                        eprintln!("renderer: the viewer's window was closed; {} frame(s) shown", *next_frame);
+                        break;
+                    }
                     Some(other) => bail!("the viewer sent {} during the frames", other.name()),
                     None => {
                         // Everything in flight is lost: draw it again for the next viewer.
@@ -215,13 +221,16 @@ impl Session<'_> {
 /// Starts this same program as the viewer, on one end of a socket pair: `--viewer-fd N` names
 /// the end it inherits. Our copy of that end is closed once it has started, so that its death is
 /// our hang-up (a socket reads as hung up only when every copy of the other end is closed).
-pub fn spawn_viewer(args: &Args, width: u32, height: u32) -> Result<(Socket, Option<Child>)> {
+pub fn spawn_viewer(args: &Args, width: u32, height: u32, windowed: bool) -> Result<(Socket, Option<Child>)> {
     let (ours, theirs) = wire::socketpair()?;
     let exe = std::env::current_exe().context("finding this program, to start the viewer")?;
     let mut command = std::process::Command::new(exe);
     let fd = theirs.fd.as_raw_fd();
     let (size, timeout) = (format!("{width}x{height}"), args.timeout.to_string());
-    command.args(["--viewer-fd", &fd.to_string(), "--headless", "--size", &size, "--timeout", &timeout]);
+    command.args(["--viewer-fd", &fd.to_string(), "--size", &size, "--timeout", &timeout]);
+    if !windowed {
+        command.arg("--headless"); // and in a window, it shows each frame as it arrives
+    }
     command.arg("--out").arg(args.common.out_dir(CHAPTER));
     if args.keep_a_received_fd {
         command.arg("--keep-a-received-fd");

@@ -1,17 +1,20 @@
 //! Chapter 14's viewer: GL in a process of its own. It learns from the renderer's Hello which
 //! device to open GL on, imports the ring's fds as textures (and, where both sides share them,
 //! each slot's "frame written" semaphore), and for each "frame k is in slot i" reads the slot
-//! back, checks it is frame k's picture, and answers "slot i is free". With `--reconnect` it
+//! back, checks it is frame k's picture, and answers "slot i is free". Without `--headless`, where
+//! there is a display, it also shows each frame in a window as it arrives. With `--reconnect` it
 //! outlives its renderer and waits for the next one.
 
 use super::{Args, CHAPTER, gauges, picture, wire};
 use anyhow::{Context as _, Result, bail, ensure};
 use common::Report;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS, layout};
+use common::base::cli::Size;
+use common::base::gl::{GlContext, MEMORY_EXTENSIONS, Owned, Semaphore, create, layout};
 use common::base::vulkan::DeviceInfo;
+use common::base::window::{self, Key, NamedKey, Window};
 use common::base::{fail, output, resources};
 use common::interop::handoff::import_semaphore;
-use common::interop::{self, exportable::MemoryTerms};
+use common::interop::{self, SharedTexture, exportable::MemoryTerms};
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::time::{Duration, Instant};
@@ -21,6 +24,10 @@ use wire::{Message, Received, Socket};
 struct Viewed {
     /// Made at the first Hello; every later renderer must run on the same device.
     gl: Option<GlContext>,
+    /// The window GL draws into, if there is one: dropped after the context (declared after it).
+    window: Option<Window>,
+    /// Did the window show each frame (its top-left pixel, the frame's background)?
+    window_right: bool,
     shown: u64,
     all_right: bool,
     no_fd_leaked: bool,
@@ -31,8 +38,16 @@ struct Viewed {
 }
 
 pub fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let mut viewed =
-        Viewed { gl: None, shown: 0, all_right: true, no_fd_leaked: true, last: None, sessions: vec![] };
+    let mut viewed = Viewed {
+        gl: None,
+        window: None,
+        window_right: true,
+        shown: 0,
+        all_right: true,
+        no_fd_leaked: true,
+        last: None,
+        sessions: vec![],
+    };
     loop {
         let socket = match (args.viewer_fd, &args.connect) {
             (Some(fd), _) => {
@@ -75,6 +90,10 @@ pub fn run(args: &Args, report: &mut Report) -> Result<()> {
 fn record(report: &mut Report, viewed: &Viewed) -> Result<()> {
     report.check("every_frame_is_the_one_announced", viewed.all_right);
     report.check("no_fd_leaked", viewed.no_fd_leaked);
+    if viewed.window.is_some() {
+        report.check("the_window_shows_each_frame", viewed.window_right);
+    }
+    report.set("window", viewed.window.is_some());
     report.set("frames_shown", viewed.shown);
     if !viewed.sessions.is_empty() {
         report.set("sessions", &viewed.sessions);
@@ -120,9 +139,23 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
         driver_uuid: hello.driver_uuid,
     };
     if viewed.gl.is_none() {
-        let gl_context = GlContext::headless(&vulkan, &MEMORY_EXTENSIONS)?;
+        // A window's GL where there is a display (the window system's choice of device, which
+        // the UUID check below then holds to the renderer's), else GL on the renderer's device.
+        let windowed = !args.common.headless && window::display_available();
+        if !args.common.headless && !windowed {
+            eprintln!("viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset): running headless");
+        }
+        let (window, gl_context) = match windowed {
+            true => {
+                let title = format!("{CHAPTER} (viewer)");
+                Window::open(&title, Size { width, height }, &MEMORY_EXTENSIONS)
+                    .map(|(w, gl)| (Some(w), gl))?
+            }
+            false => (None, GlContext::headless(&vulkan, &MEMORY_EXTENSIONS)?),
+        };
         report.gl = Some(gl_context.report());
         viewed.gl = Some(gl_context);
+        viewed.window = window;
     }
     let gl_context = viewed.gl.as_ref().expect("made above");
     let gl = &gl_context.gl;
@@ -168,6 +201,24 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
         // A successful import takes the fd (GL closes it with the memory object); a failed one
         // does not, and `import_texture_2d` closes it.
         let texture = interop::import_texture_2d(gl_context, memory, fd, glow::RGBA8, (width, height))?;
+        // In a window: a framebuffer on the slot's texture, to blit from (COLOR_ATTACHMENT usage).
+        let framebuffer = match viewed.window {
+            Some(_) => {
+                let made = create(gl, "glCreateFramebuffers (a slot, to show it)", |gl| unsafe {
+                    gl.create_named_framebuffer()
+                })?;
+                unsafe {
+                    gl.named_framebuffer_texture(
+                        Some(*made),
+                        glow::COLOR_ATTACHMENT0,
+                        Some(*texture.texture),
+                        0,
+                    )
+                };
+                Some(made)
+            }
+            None => None,
+        };
         // The slot's "frame written" semaphore follows its memory, where both sides share them.
         let frame_written = match semaphores {
             false => None,
@@ -183,7 +234,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
                 }
             },
         };
-        ring.push((texture, frame_written)); // dropped in that order
+        ring.push((framebuffer, texture, frame_written)); // dropped in that order
     }
     ensure!(socket.send(&Message::Ready, &[])?, "the renderer hung up after sending the slots");
     // ANCHOR_END: import
@@ -205,42 +256,45 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
             Received::HungUp => break Some("hung up"),
             Received::TimedOut => break Some("fell silent"),
         };
-        let (texture, frame_written) =
+        let (framebuffer, texture, frame_written) =
             ring.get(slot as usize).with_context(|| format!("slot {slot} of {}", hello.slots))?;
         if let Some(previous) = previous.replace(frame) {
             ensure!(frame > previous, "frame {frame} came after frame {previous}");
         }
         if let Some(frame_written) = frame_written {
-            // GL's queue waits for Vulkan's signal, and takes the image in the layout Vulkan's
-            // release left it in: GENERAL. (The renderer announced the frame only once its fence
-            // had signalled: this wait is already satisfied, and cannot be left hanging.)
-            let ext = gl_context.semaphores.as_ref().expect("semaphores were negotiated with GL's");
-            let (textures, layouts) = ([texture.texture.0.get()], [layout::GENERAL]);
+            wait_until_written(gl_context, texture, frame_written);
+        }
+        // ANCHOR: show
+        // In a window: copy the slot into the back buffer, scaled to the window, upside down (row
+        // 0 is Vulkan's top row, GL's bottom one). The copy is GL's work on the slot: the fence
+        // below covers it, and the slot is freed only once it is done.
+        let window_size = viewed.window.as_ref().map(Window::size);
+        if let (Some(framebuffer), Some((ww, wh))) = (framebuffer, window_size) {
+            let (w, h, ww, wh) = (width as i32, height as i32, ww as i32, wh as i32);
+            let (all, linear) = (glow::COLOR_BUFFER_BIT, glow::LINEAR);
             unsafe {
-                (ext.WaitSemaphoreEXT)(
-                    frame_written.name.0,
-                    0,
-                    std::ptr::null(),
-                    1,
-                    textures.as_ptr(),
-                    layouts.as_ptr(),
-                )
+                gl.blit_named_framebuffer(Some(**framebuffer), None, 0, 0, w, h, 0, wh, ww, 0, all, linear)
             };
         }
-        // Everything GL was asked so far is done, or the renderer lied: waited on the CPU, with
-        // a timeout, so that a wait that never ends is an error rather than a hang.
-        gl_finished(gl_context, Duration::from_secs_f64(args.timeout))?;
-        // glGetTexImage returns when the pixels are in our memory: GL is done with the slot. (Not
-        // glReadPixels through a framebuffer: on NVIDIA's driver that takes about 27 ms from an
-        // imported texture, glGetTexImage a fraction of one.) Flipped: row 0 is Vulkan's row 0.
-        let read = output::read_texture_rgba8(gl, *texture.texture, width, height);
-        let pixels = output::flip_rows(&read, width, height);
-        gl_context.check_error("reading a slot")?;
+        // ANCHOR_END: show
+        let pixels = read_slot(gl_context, texture, (width, height), Duration::from_secs_f64(args.timeout))?;
         viewed.all_right &= is_picture_of(&pixels, frame, width, height);
         viewed.shown += 1;
         viewed.last = Some((frame, pixels));
         if !socket.send(&Message::SlotFree { slot, sent_ns: wire::monotonic_ns() }, &[])? {
             break Some("hung up");
+        }
+        // The back buffer holds a copy: show it (after the slot went back, so that waiting for
+        // the display never holds up the renderer), then hear Esc and the close button.
+        if let (Some(window), Some((ww, wh))) = (viewed.window.as_mut(), window_size) {
+            viewed.window_right &= window_shows(gl, frame, (width, height), (ww, wh));
+            window.swap_buffers(gl_context)?;
+            let escape = window.poll(gl_context).any(|key| key == Key::Named(NamedKey::Escape));
+            if escape || window.close_requested() {
+                eprintln!("viewer: the window was closed after frame {frame}");
+                ensure!(socket.send(&Message::Closed, &[])?, "the renderer hung up as the window closed");
+                break until_bye(socket)?;
+            }
         }
     };
     // ANCHOR_END: frames
@@ -258,7 +312,7 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
     }
 
     // 6. Clean up
-    drop(ring); // each texture and its memory object, then its semaphore
+    drop(ring); // each framebuffer, texture and its memory object, then its semaphore
     gl_context.check_error("cleaning up")?;
     // Each slot's fd was GL's from its import, and went with its memory object.
     viewed.no_fd_leaked &= gauges::no_fd_leaked("viewer", &fds_before);
@@ -274,6 +328,74 @@ fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) 
         ensure!(socket.send(&summary, &[])?, "the renderer hung up before the summary");
     }
     Ok(gone.is_some())
+}
+
+// ANCHOR: read_slot
+/// GL's queue waits for Vulkan's signal on `frame_written`, and takes `texture`'s image in the
+/// layout Vulkan's release left it in: GENERAL. (The renderer announces a frame only once its
+/// fence has signalled: this wait is already satisfied, and cannot be left hanging.)
+pub fn wait_until_written(gl_context: &GlContext, texture: &SharedTexture, frame_written: &Owned<Semaphore>) {
+    let ext = gl_context.semaphores.as_ref().expect("semaphores were negotiated with GL's");
+    let (textures, layouts) = ([texture.texture.0.get()], [layout::GENERAL]);
+    unsafe {
+        (ext.WaitSemaphoreEXT)(
+            frame_written.name.0,
+            0,
+            std::ptr::null(),
+            1,
+            textures.as_ptr(),
+            layouts.as_ptr(),
+        )
+    };
+}
+
+/// The slot's pixels, row 0 first as Vulkan wrote it, once everything GL was asked so far is
+/// done (or the renderer lied): waited on the CPU, with `timeout`, so that a wait that never
+/// ends is an error rather than a hang.
+pub fn read_slot(
+    gl_context: &GlContext,
+    texture: &SharedTexture,
+    (width, height): (u32, u32),
+    timeout: Duration,
+) -> Result<Vec<u8>> {
+    gl_finished(gl_context, timeout)?;
+    // glGetTexImage returns when the pixels are in our memory: GL is done with the slot. (Not
+    // glReadPixels through a framebuffer: on NVIDIA's driver that takes about 27 ms from an
+    // imported texture, glGetTexImage a fraction of one.)
+    let read = output::read_texture_rgba8(&gl_context.gl, *texture.texture, width, height);
+    gl_context.check_error("reading a slot")?;
+    Ok(output::flip_rows(&read, width, height))
+}
+// ANCHOR_END: read_slot
+
+/// After `Closed`: the frames the renderer sent meanwhile are not shown, nor freed (it let go
+/// of them), until its Bye (`None`) or its hang-up.
+fn until_bye(socket: &Socket) -> Result<Option<&'static str>> {
+    loop {
+        match socket.recv()? {
+            Received::Message(Message::FrameReady { .. }, _) => continue,
+            Received::Message(Message::Bye, _) => return Ok(None),
+            Received::Message(other, _) => bail!("the renderer sent {} after Closed", other.name()),
+            Received::HungUp => return Ok(Some("hung up")),
+            Received::TimedOut => return Ok(Some("fell silent")),
+        }
+    }
+}
+
+/// Does the window's back buffer show frame `frame`? Its top-left pixel, the background, is
+/// read (a window may be any size: the square lands elsewhere, the corner stays background).
+fn window_shows(gl: &glow::Context, frame: u64, (width, height): (u32, u32), (ww, wh): (u32, u32)) -> bool {
+    if ww == 0 || wh == 0 {
+        return true; // minimised: nothing to show
+    }
+    let mut pixel = [0u8; 4];
+    unsafe {
+        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, None);
+        let data = glow::PixelPackData::Slice(Some(&mut pixel));
+        gl.read_pixels(0, wh as i32 - 1, 1, 1, glow::RGBA, glow::UNSIGNED_BYTE, data);
+    }
+    let (background, _) = picture(frame, width, height);
+    pixel[..3].iter().zip(&background[..3]).all(|(a, b)| a.abs_diff(*b) <= 1)
 }
 
 /// Waits, on the CPU, for every GL command issued so far (a fence, `glClientWaitSync`), for up
@@ -298,7 +420,7 @@ fn gl_finished(gl_context: &GlContext, timeout: Duration) -> Result<()> {
 
 /// Is `pixels` (row 0 first, as Vulkan wrote it) frame `frame`'s picture? Probes the corner
 /// (background), the square's centre (white) and the pixel left of it (background, if any).
-fn is_picture_of(pixels: &[u8], frame: u64, width: u32, height: u32) -> bool {
+pub fn is_picture_of(pixels: &[u8], frame: u64, width: u32, height: u32) -> bool {
     let (background, (x, y, side)) = picture(frame, width, height);
     let at = |px: u32, py: u32| &pixels[(py * width + px) as usize * 4..][..4];
     let close = |p: &[u8], q: [u8; 4]| p.iter().zip(q).all(|(&a, b)| a.abs_diff(b) <= 1);

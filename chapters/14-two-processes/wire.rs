@@ -15,7 +15,7 @@ use std::os::fd::OwnedFd;
 /// "VKGL": the first four bytes of every message. Anything else did not come from this program.
 pub const MAGIC: [u8; 4] = *b"VKGL";
 /// Bumped whenever a message changes shape: both sides must speak the same one.
-pub const VERSION: u16 = 2;
+pub const VERSION: u16 = 3;
 const HEADER: usize = 12;
 /// The largest message (a summary at its longest): the receive buffer's size.
 pub const MAX_MESSAGE: usize = HEADER + 2 + MAX_SUMMARY;
@@ -81,6 +81,9 @@ pub enum Message {
     Bye,
     /// Viewer -> renderer: its report, as JSON, for the renderer's report.
     Summary { json: String },
+    /// Viewer -> renderer, instead of a `SlotFree`: its window was closed (Esc, or the window
+    /// manager). No more frames: the renderer stops, lets go of those in flight and says `Bye`.
+    Closed,
 }
 // ANCHOR_END: messages
 
@@ -99,6 +102,7 @@ impl Message {
             Message::SlotSemaphore { .. } => 10,
             Message::Ping { .. } => 11,
             Message::Pong { .. } => 12,
+            Message::Closed => 13,
         }
     }
 
@@ -108,7 +112,7 @@ impl Message {
     }
 }
 
-const KIND_NAMES: [&str; 13] = [
+const KIND_NAMES: [&str; 14] = [
     "?",
     "Hello",
     "Welcome",
@@ -122,6 +126,7 @@ const KIND_NAMES: [&str; 13] = [
     "SlotSemaphore",
     "Ping",
     "Pong",
+    "Closed",
 ];
 
 /// How many fds a message of `kind` carries: one with each slot and each slot's semaphore,
@@ -174,7 +179,7 @@ pub fn encode(message: &Message) -> Vec<u8> {
         }
         Message::SlotSemaphore { slot } => body.extend_from_slice(&slot.to_le_bytes()),
         Message::Ping { n } | Message::Pong { n } => body.extend_from_slice(&n.to_le_bytes()),
-        Message::Ready | Message::Bye => {}
+        Message::Ready | Message::Bye | Message::Closed => {}
         Message::Summary { json } => text(&mut body, json, MAX_SUMMARY),
     }
     let mut bytes = Vec::with_capacity(HEADER + body.len());
@@ -298,6 +303,7 @@ pub fn decode(bytes: &[u8], mut fds: Vec<OwnedFd>) -> Result<(Message, Option<Ow
         6 => Message::FrameReady { frame: r.u64("frame")?, slot: r.slot()? },
         7 => Message::SlotFree { slot: r.slot()?, sent_ns: r.u64("sent at")? },
         8 => Message::Bye,
+        13 => Message::Closed,
         9 => Message::Summary { json: r.text("summary", MAX_SUMMARY)? },
         10 => Message::SlotSemaphore { slot: r.slot()? },
         11 => Message::Ping { n: r.u64("ping")? },

@@ -37,6 +37,7 @@ fn every_kind() -> Vec<Message> {
         Message::Ping { n: 7 },
         Message::Pong { n: 7 },
         Message::Bye,
+        Message::Closed,
         Message::Summary { json: "{\"frames_shown\": 3}".into() },
     ]
 }
@@ -114,9 +115,9 @@ fn malformed_messages_are_refused_by_name() {
     };
     assert!(with(&|b| b.truncate(5)).contains("truncated"));
     assert!(with(&|b| b[0] = b'X').contains("magic"));
-    assert!(with(&|b| b[4] = 1).contains("protocol version 1; this program speaks version 2"));
+    assert!(with(&|b| b[4] = 1).contains("protocol version 1; this program speaks version 3"));
     assert!(with(&|b| b[6] = 99).contains("unknown kind 99"));
-    assert!(with(&|b| b[6] = 13).contains("unknown kind 13"));
+    assert!(with(&|b| b[6] = 14).contains("unknown kind 14"));
     assert!(with(&|b| b[6] = 0).contains("unknown kind 0"));
     assert!(with(&|b| b.push(0)).contains("the header says"));
     assert!(with(&|b| b.truncate(b.len() - 1)).contains("the header says"));
