@@ -4,7 +4,7 @@
 //! each frame back with the viewer's own `read_slot`. What is left out is all the two processes
 //! add: the socket, its messages, the second address space and the scheduler between the two.
 
-use super::{CHAPTER, viewer};
+use super::{CHAPTER, slot};
 use crate::session::{Measured, Ring};
 use crate::wire;
 use anyhow::Result;
@@ -62,12 +62,12 @@ pub fn serve(
         measured.times.add("frame", ms_since(started));
         let (texture, frame_written) = &ring_gl[slot];
         if let Some(frame_written) = frame_written {
-            viewer::wait_until_written(gl_context, texture, frame_written);
+            slot::wait_until_written(gl_context, texture, frame_written);
         }
-        let pixels = viewer::read_slot(gl_context, texture, (width, height), timeout)?;
+        let pixels = slot::read_slot(gl_context, texture, (width, height), timeout)?;
         // Where the viewer would send SlotFree: the same moment, on the same clock.
         measured.times.add("handover", wire::monotonic_ns().saturating_sub(written_ns) as f64 / 1e6);
-        all_right &= viewer::is_picture_of(&pixels, frame, width, height);
+        all_right &= slot::is_picture_of(&pixels, frame, width, height);
         last = Some((frame, pixels));
     }
     // ANCHOR_END: frames
