@@ -1195,4 +1195,9 @@ fn ch14_refuses_what_cannot_work() {
         assert!(run.stderr.contains(expected), "{args:?}: {}", run.stderr);
         assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
     }
+    // The stall probe needs semaphores on both sides: without GL's, it says so (on any stack).
+    let hidden = [("VKGL_HIDE_EXTENSIONS", "GL_EXT_semaphore_fd")];
+    let run = run_chapter(CH14, &["--one-process", "--stall-probe", "--timeout", "1"], &hidden);
+    assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+    assert!(run.stderr.contains("--stall-probe needs shared semaphores"), "{}", run.stderr);
 }

@@ -15,6 +15,7 @@ mod gauges;
 mod one_process;
 mod session;
 mod slot;
+mod stall;
 mod viewer;
 mod wire;
 
@@ -84,6 +85,10 @@ struct Args {
     /// the leak check sees one.
     #[arg(long, hide = true)]
     keep_a_received_fd: bool,
+    /// (Internal, with --one-process) GL waits on a semaphore nobody signals, to see what the
+    /// driver does: the wait this chapter's design rules out.
+    #[arg(long, hide = true, requires = "one_process")]
+    stall_probe: bool,
 }
 
 fn main() -> ExitCode {
@@ -147,6 +152,10 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
         true => Some(GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?),
         false => None,
     };
+    if args.stall_probe {
+        let gl_context = gl_context.expect("--stall-probe requires --one-process");
+        return stall::probe(&vk, gl_context, Duration::from_secs_f64(args.timeout), report);
+    }
     let fds_before = resources::open_fd_targets();
 
     // 2. A ring of exportable images
