@@ -1013,7 +1013,7 @@ fn ch14_a_killed_viewer_is_replaced() {
 #[test]
 fn ch14_refuses_a_viewer_on_another_device() {
     use rustix::net::{AddressFamily, SocketAddrUnix, SocketFlags, SocketType, connect, socket_with};
-    use std::io::{BufRead, BufReader, Read};
+    use std::io::Read;
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("vkgl.sock");
     let mut command = std::process::Command::new(CH14);
@@ -1022,11 +1022,7 @@ fn ch14_refuses_a_viewer_on_another_device() {
     harness::pin_software_stack(&mut command);
     command.stderr(std::process::Stdio::piped()).stdout(std::process::Stdio::null());
     let mut renderer = command.spawn().unwrap();
-    let mut says = BufReader::new(renderer.stderr.take().unwrap());
-    let mut heard = String::new();
-    while !heard.contains("for a viewer (--connect)") {
-        assert!(says.read_line(&mut heard).unwrap() > 0, "the renderer stopped early:\n{heard}");
-    }
+    let (mut says, mut heard) = listening(&mut renderer);
     let socket = socket_with(AddressFamily::UNIX, SocketType::SEQPACKET, SocketFlags::CLOEXEC, None).unwrap();
     connect(&socket, &SocketAddrUnix::new(&path).unwrap()).unwrap();
     let mut hello = [0u8; 4096];
@@ -1054,16 +1050,23 @@ fn ch14_refuses_a_viewer_on_another_device() {
     assert!(!heard.contains("panicked"), "{heard}");
 }
 
-/// Waits until a renderer started with `--listen` (its stderr piped) says it listens, then drains
-/// the rest of its stderr on a thread. Not the socket's path appearing: it appears at bind(),
-/// before listen(), and a viewer that connects in between is refused.
-fn until_listening(renderer: &mut std::process::Child) -> std::thread::JoinHandle<std::io::Result<u64>> {
+/// What a renderer started with `--listen` (its stderr piped) has said once it says it listens,
+/// and its stderr to read on. Not the socket's path appearing: it appears at bind(), before
+/// listen(), and a viewer that connects in between is refused.
+fn listening(renderer: &mut std::process::Child) -> (std::io::BufReader<std::process::ChildStderr>, String) {
     use std::io::BufRead;
     let mut says = std::io::BufReader::new(renderer.stderr.take().expect("the renderer's stderr piped"));
     let mut heard = String::new();
     while !heard.contains("for a viewer (--connect)") {
         assert!(says.read_line(&mut heard).unwrap() > 0, "the renderer stopped early:\n{heard}");
     }
+    (says, heard)
+}
+
+/// Waits until a renderer started with `--listen` listens ([`listening`]), then drains the rest
+/// of its stderr on a thread.
+fn until_listening(renderer: &mut std::process::Child) -> std::thread::JoinHandle<std::io::Result<u64>> {
+    let (mut says, _) = listening(renderer);
     std::thread::spawn(move || std::io::copy(&mut says, &mut std::io::sink()))
 }
 

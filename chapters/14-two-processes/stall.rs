@@ -27,24 +27,26 @@ pub fn probe(vk: &VulkanContext, gl_context: GlContext, timeout: Duration, repor
     let started = Instant::now();
     let finished = slot::gl_finished(&gl_context, timeout);
     report.set("stall_fence_signalled", finished.is_ok());
-    report.set("stall_waited_ms", (started.elapsed().as_secs_f64() * 1e4).round() / 10.0);
+    report.set("stall_waited_ms", started.elapsed().as_secs_f64() * 1e3);
     if let Err(error) = &finished {
         eprintln!("stall probe: {error:#}");
     }
     // Letting go, each timed: a driver that waits for the stalled queue here would hang the
-    // process that owns it, however careful its own waits.
-    let timed = |what: &str, report: &mut Report, let_go: &mut dyn FnMut()| {
-        eprintln!("stall probe: {what}..."); // the last such line names a step that never returned
-        let started = Instant::now();
-        let_go();
-        report.set(what, (started.elapsed().as_secs_f64() * 1e4).round() / 10.0);
-    };
-    let mut gl_never = Some(gl_never);
-    timed("stall_gl_semaphore_deleted_ms", report, &mut || drop(gl_never.take()));
-    let mut never = Some(never);
-    timed("stall_vulkan_semaphore_destroyed_ms", report, &mut || drop(never.take()));
-    let mut gl_context = Some(gl_context);
-    timed("stall_gl_context_destroyed_ms", report, &mut || drop(gl_context.take()));
+    // process that owns it, however careful its own waits. The last "letting go" line printed
+    // names a step that never returned.
+    let ms = |started: Instant| (started.elapsed().as_secs_f64() * 1e4).round() / 10.0;
+    eprintln!("stall probe: letting go of GL's semaphore");
+    let started = Instant::now();
+    drop(gl_never);
+    report.set("stall_gl_semaphore_deleted_ms", ms(started));
+    eprintln!("stall probe: letting go of Vulkan's semaphore");
+    let started = Instant::now();
+    drop(never);
+    report.set("stall_vulkan_semaphore_destroyed_ms", ms(started));
+    eprintln!("stall probe: letting go of the GL context");
+    let started = Instant::now();
+    drop(gl_context);
+    report.set("stall_gl_context_destroyed_ms", ms(started));
     eprintln!("stall probe: GL's fence {} within {timeout:?}", if finished.is_ok() { "signalled" } else { "did not signal" });
     Ok(())
 }
