@@ -1080,7 +1080,7 @@ fn commented_sources() -> Vec<PathBuf> {
 
 /// Every `common::...` path the book names, in its prose, in the comments of the code it
 /// includes, and in any comment of the chapters, `common` and the shaders, is a module or item
-/// of `common/src`, reachable as written: `common::base::timing::PassTimes`, not
+/// of `common/src`, reachable as written: `common::clocks::timing::PassTimes`, not
 /// `common::timing::PassTimes`.
 #[test]
 fn common_paths_the_book_and_comments_name_exist() {
@@ -1118,7 +1118,7 @@ fn common_paths_the_book_and_comments_name_exist() {
 
 #[test]
 fn the_path_checker_catches_a_wrong_path() {
-    assert_eq!(unresolved("common::base::timing::PassTimes"), None);
+    assert_eq!(unresolved("common::clocks::timing::PassTimes"), None);
     assert_eq!(unresolved("common::rt::ao::AoTracer::trace"), None);
     assert_eq!(unresolved("common::interop::import_memory"), None); // through `pub use import::*`
     assert_eq!(unresolved("common::connect"), None); // through the crate root's re-export

@@ -10,10 +10,10 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::{Largest, Smallest};
-use common::base::fail;
+use common::instruments::fail;
 use common::base::image::image_info;
 use common::base::owned::create;
-use common::base::report::uuid_hex;
+use common::instruments::report::uuid_hex;
 use common::interop::exportable::{BUFFER_IMPORT_SLACK, HANDLE_TYPE};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use serde_json::json;

@@ -9,12 +9,12 @@
 use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::fail;
+use common::instruments::fail;
 use common::base::gl::{
     DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MEMORY_EXTENSIONS, MemoryObject,
     RenderTarget, ensure_same_device, made, program, uuids_match,
 };
-use common::base::output;
+use common::instruments::output;
 use common::base::owned::create;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
@@ -167,9 +167,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     let target = RenderTarget::new(gl, width, height)?;
     // ANCHOR_END: draw_setup
-    // The draw's GPU time (common::base::timing; the read-back waits for it anyway).
+    // The draw's GPU time (common::clocks::timing; the read-back waits for it anyway).
     let (mut gl_timer, mut times) =
-        (common::base::timing::GlPassTimer::new(gl)?, common::base::timing::PassTimes::new());
+        (common::clocks::timing::GlPassTimer::new(gl)?, common::clocks::timing::PassTimes::new());
     let mut draw = |name: &str, report: &mut Report| -> Result<Vec<u8>> {
         gl_timer.time(gl, "gl_draw", || unsafe {
             target.bind(gl);

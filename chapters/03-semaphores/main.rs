@@ -15,15 +15,15 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer};
-use common::base::fail;
+use common::instruments::fail;
 use common::base::gl::{
     GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MEMORY_EXTENSIONS, OPTIMAL_TILING_EXT, Semaphore,
     TEXTURE_TILING_EXT, made,
 };
-use common::base::output;
+use common::instruments::output;
 use common::base::owned::create;
-use common::base::timestamps::{Timestamps, median_p95};
-use common::base::timing::{GlPassTimer, PassTimes};
+use common::clocks::timestamps::{Timestamps, median_p95};
+use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::interop::exportable::{self, Dedicated};
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION, SharedSemaphore};
 use common::interop::{self, SharedTexture};
@@ -144,7 +144,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let commands = Commands::new(&vk)?;
 
     let (mut vulkan_saw_gl, mut gl_saw_vulkan) = (true, true);
-    // Each frame's GL clear and Vulkan copies (GPU), handshake and whole frame (CPU): common::base::timing.
+    // Each frame's GL clear and Vulkan copies (GPU), handshake and whole frame (CPU): common::clocks::timing.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_seen_by_gl = Vec::new();
     for frame in 0..frames {
@@ -287,7 +287,7 @@ fn share_semaphore(vk: &VulkanContext, gl: &GlContext) -> Result<SharedSemaphore
     let semaphore_vk = create(&vk.device, "vkCreateSemaphore (exportable)", || unsafe {
         vk.device.create_semaphore(&info, None)
     })?;
-    common::base::resources::created("vk_semaphore_exportable", 0);
+    common::instruments::resources::created("vk_semaphore_exportable", 0);
     let loader = ash::khr::external_semaphore_fd::Device::new(&vk.instance, &vk.device);
     let get = vk::SemaphoreGetFdInfoKHR::default().semaphore(*semaphore_vk).handle_type(handle_type);
     let fd = fail::call("vkGetSemaphoreFdKHR", || unsafe { loader.get_semaphore_fd(&get) })?;

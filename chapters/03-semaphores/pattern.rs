@@ -3,7 +3,7 @@
 use ash::vk;
 use common::Report;
 use common::base::commands::HostBuffer;
-use common::base::output;
+use common::instruments::output;
 use std::path::Path;
 
 /// Colours no earlier frame used: GL's for the frame, and Vulkan's.

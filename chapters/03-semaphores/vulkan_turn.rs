@@ -4,7 +4,7 @@
 use ash::vk;
 use common::VulkanContext;
 use common::base::commands::{COLOR_RANGE, HostBuffer};
-use common::base::timestamps::Timestamps;
+use common::clocks::timestamps::Timestamps;
 use common::interop::handoff::HandOver;
 
 // ANCHOR: vulkan_turn

@@ -3,7 +3,7 @@
 use crate::{CLEAR, Triangle};
 use anyhow::Result;
 use ash::vk;
-use common::base::timing::PassTimes;
+use common::clocks::timing::PassTimes;
 use common::{Report, open_fd_count};
 use std::f32::consts::TAU;
 

@@ -4,9 +4,9 @@
 use anyhow::Result;
 use ash::vk;
 use common::base::commands::first_use;
-use common::base::fail;
+use common::instruments::fail;
 use common::base::owned::{Owned, create};
-use common::base::timestamps::Timestamps;
+use common::clocks::timestamps::Timestamps;
 use common::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use common::{GlContext, VulkanContext};
 use glow::HasContext;

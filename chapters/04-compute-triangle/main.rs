@@ -17,8 +17,8 @@ use check::Checks;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
-use common::base::output;
-use common::base::timestamps::Timestamps;
+use common::instruments::output;
+use common::clocks::timestamps::Timestamps;
 use common::base::window::{self, Key, NamedKey, Window};
 use common::interop;
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
@@ -161,7 +161,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     let out_dir = args.common.out_dir(CHAPTER);
     let started = Instant::now();
-    let (mut checks, mut gl_timer) = (Checks::default(), common::base::timing::GlPassTimer::new(gl)?);
+    let (mut checks, mut gl_timer) = (Checks::default(), common::clocks::timing::GlPassTimer::new(gl)?);
     // Made after everything its submissions use: an early return drops it first, and its Drop
     // waits for the last submission before the image or the pipeline it used is destroyed.
     let commands = Commands::new(&vk)?;
@@ -293,7 +293,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             checks.frame(pixels, (width, height), &triangle, extent, time);
         }
         if let Some(window) = &mut window {
-            window.show_times(&checks.times);
+            window.show_times(|| checks.times.line());
             window.swap_buffers(&gl_context)?;
         }
         checks.times.add("frame_cpu", ms_since(frame_started));

@@ -10,8 +10,8 @@ use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
-use common::base::output;
-use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
+use common::instruments::output;
+use common::clocks::timing::{GlPassTimer, PassTimes, VkPassTimer};
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::scene::gbuffer::{GBUFFERS, GBuffer, GBuffers, SceneBuffers};
@@ -87,7 +87,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Rasterise: one instanced draw per mesh
     let started = Instant::now();
-    // Each pass's GPU time (common::base::timing): GL's raster, Vulkan's copies.
+    // Each pass's GPU time (common::clocks::timing): GL's raster, Vulkan's copies.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     gl_timer.time(gl, "raster", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;

@@ -14,9 +14,9 @@ use common::base::cli::Smallest;
 use common::base::commands::{
     Commands, HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
-use common::base::output;
-use common::base::timestamps::Timestamps;
-use common::base::timing::{GlPassTimer, PassTimes};
+use common::instruments::output;
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel;
@@ -114,7 +114,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. GL draws the G-buffers (chapter 05)
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
-    let mut gl_timer = GlPassTimer::new(gl)?; // common::base::timing, as in chapter 05
+    let mut gl_timer = GlPassTimer::new(gl)?; // common::clocks::timing, as in chapter 05
     gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;
 

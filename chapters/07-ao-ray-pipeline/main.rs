@@ -12,9 +12,9 @@ use ash::vk;
 use glow::HasContext as _;
 use common::base::cli::{Smallest, check_covered};
 use common::base::commands::Commands;
-use common::base::output;
-use common::base::timestamps::Timestamps;
-use common::base::timing::{self, GlPassTimer, PassTimes};
+use common::instruments::output;
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{self, GlPassTimer, PassTimes};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
@@ -75,7 +75,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: tracer
 
     // 4. Every frame: GL draws, Vulkan traces and accumulates, GL reads
-    // Each pass's GPU time (common::base::timing): GL's read when they arrive, the trace's just before
+    // Each pass's GPU time (common::clocks::timing): GL's read when they arrive, the trace's just before
     // the next trace, which waits for the previous one's fence anyway.
     let (mut gl_timer, mut times, timestamps) =
         (GlPassTimer::new(gl)?, PassTimes::new(), Timestamps::new(&vk)?);

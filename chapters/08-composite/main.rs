@@ -13,8 +13,8 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::timestamps::Timestamps;
-use common::base::timing::{GlPassTimer, PassTimes};
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::base::window::Key;
 use common::frame::input::{resize_every, window_input};
 use common::frame::{Composite, Overlays, View};
@@ -152,7 +152,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             resizes += 1;
             if resizes == 1 {
                 // What exists after one resize must be what exists after every later one.
-                let live = (common::base::resources::live(), gl_context.live_objects());
+                let live = (common::instruments::resources::live(), gl_context.live_objects());
                 fds_after_first_resize = Some((open_fd_count()?, live));
             }
         }
@@ -170,7 +170,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let scene_scale = scene.size() / 2.0;
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
             if std::mem::take(&mut trace_pending) {
-                common::base::timing::read_after(
+                common::clocks::timing::read_after(
                     &vk,
                     *commands.fence,
                     timestamps.as_ref(),
@@ -191,7 +191,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
         if let Some(window) = &mut window {
-            window.show_times(&times);
+            window.show_times(|| times.line());
             composite.show(gl, window.size());
             window.swap_buffers(&gl_context)?;
         }
@@ -204,7 +204,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.check("no_fd_growth_across_resizes", open_fd_count()? == fds);
         // Exportable and host memory, exportable images, GL's memory objects, textures and
         // renderbuffers, as counted where they are made and destroyed...
-        let now = common::base::resources::live();
+        let now = common::instruments::resources::live();
         report.check("no_resource_growth_across_resizes", now == live);
         report.set("live_resources_after_resizes", now);
         // ... and every kind of GL object, as GL itself counts them.
@@ -213,7 +213,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("live_gl_objects_after_resizes", gl_now);
     }
     if trace_pending {
-        common::base::timing::read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+        common::clocks::timing::read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
     }
     gl_timer.finish(gl, &mut times);
     times.record(report);

@@ -12,9 +12,9 @@ use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::output;
-use common::base::timestamps::Timestamps;
-use common::base::timing::{GlPassTimer, PassTimes};
+use common::instruments::output;
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
@@ -127,7 +127,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
     let frames = args.common.headless_frames();
     let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
-    // Each pass's GPU time (common::base::timing): GL's read when they arrive, Vulkan's after the wait
+    // Each pass's GPU time (common::clocks::timing): GL's read when they arrive, Vulkan's after the wait
     // at the top of the next frame, which the frame makes anyway.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_refresh = None;

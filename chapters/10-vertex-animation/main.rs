@@ -12,9 +12,9 @@ use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::output;
-use common::base::timestamps::Timestamps;
-use common::base::timing::{self, GlPassTimer, PassTimes};
+use common::instruments::output;
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{self, GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::accel::{
@@ -182,7 +182,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 5. Every frame: move the vertices, refit, update, draw, trace, composite
     let frames = args.common.headless_frames();
-    // Each pass's GPU time (common::base::timing), read once its fence has signalled for the next
+    // Each pass's GPU time (common::clocks::timing), read once its fence has signalled for the next
     // frame's submission on it, which waits anyway: timing adds no wait.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let (mut animated, mut traced) = (None, false);

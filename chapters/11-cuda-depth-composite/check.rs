@@ -42,7 +42,7 @@ pub fn report_times(report: &mut Report, path: Path, traced_by: TracedBy, times:
         if samples.is_empty() {
             continue;
         }
-        let (median, _) = common::base::timestamps::median_p95(samples);
+        let (median, _) = common::clocks::timestamps::median_p95(samples);
         report.time_ms(&format!("{}.{what}_median", path.name()), median);
         line += &format!("  {what} {median:.3} ms");
     }

@@ -35,12 +35,12 @@ impl PixelBuffer {
         let pbo = create(gl, "glCreateBuffers for the PBO", |gl| unsafe { gl.create_named_buffer() })?;
         // Written by the tracer every frame, read by GL's copies: STREAM_DRAW.
         unsafe { gl.named_buffer_data_size(*pbo, traced_bytes(width, height) as i32, glow::STREAM_DRAW) };
-        common::base::resources::created("gl_buffer: PBO", traced_bytes(width, height));
+        common::instruments::resources::created("gl_buffer: PBO", traced_bytes(width, height));
         let texture = |format| -> Result<Owned<glow::Texture>> {
             let what = format!("glCreateTextures for the PBO's {format:#x} copy");
             let texture = create(gl, &what, |gl| unsafe { gl.create_named_texture(glow::TEXTURE_2D) })?;
             unsafe { gl.texture_storage_2d(*texture, 1, format, width as i32, height as i32) };
-            common::base::resources::created(
+            common::instruments::resources::created(
                 &format!("gl_texture: {format:#x}"),
                 4 * (width * height) as u64,
             );

@@ -4,7 +4,7 @@
 
 use crate::scene::TraceParams;
 use anyhow::{Context as _, Result, ensure};
-use common::base::fail;
+use common::instruments::fail;
 use common::base::owned::{Owned, create};
 use common::interop::cuda::{CudaDevice, MappedPointer, cu, sys};
 use std::ffi::{CString, c_void};
@@ -159,7 +159,7 @@ impl ImportedMemory {
         })?;
         // SAFETY: the import succeeded: the fd is CUDA's now, and closing it too would be a double close.
         let _ = fd.into_raw_fd();
-        common::base::resources::created("cuda_external_memory", 0); // its bytes are Vulkan's allocation
+        common::instruments::resources::created("cuda_external_memory", 0); // its bytes are Vulkan's allocation
         let pointer = create(&(), "cuExternalMemoryGetMappedBuffer", || unsafe {
             cu::external_memory::get_mapped_buffer(*external, 0, bytes).map(MappedPointer)
         })?;

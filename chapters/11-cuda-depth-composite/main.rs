@@ -13,7 +13,7 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
-use common::base::fail;
+use common::instruments::fail;
 use common::base::gl::GlContext;
 use common::base::owned::create;
 use common::interop;
@@ -151,7 +151,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     // After CUDA started: its driver keeps files of its own open (/dev/nvidia*) until the
     // process exits. The fds this chapter shares must all be closed again by step 8.
-    let fds_before = common::base::resources::open_fds();
+    let fds_before = common::instruments::resources::open_fds();
 
     // Steps 4 to 8: each object has its owner the moment it exists, so that an early return
     // frees what was made, newest first, as step 8 does.
@@ -167,7 +167,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         view_projection,
     };
     let drawn = draw_paths(&setup, tracer.as_ref(), report);
-    let fds_after = common::base::resources::open_fds();
+    let fds_after = common::instruments::resources::open_fds();
     // ANCHOR: release
     // CUDA's own objects last (draw_paths waited for its stream): the events, the stream, the
     // module, then the primary context.
@@ -175,7 +175,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: release
     drawn?;
     gl_context.check_error("cleaning up")?;
-    let live = common::base::resources::live();
+    let live = common::instruments::resources::live();
     report.check("cuda_and_shared_resources_released", live.values().all(|&n| n == 0));
     let leaked: Vec<_> = fds_after.iter().filter(|fd| !fds_before.contains(fd)).collect();
     if !leaked.is_empty() {
@@ -331,8 +331,8 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             Path::Pbo => CHAPTER.to_owned(),
             Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
         };
-        let upright = common::base::output::flip_rows(picture, width, height);
-        common::base::output::save_rgba8(report, &out_dir, &name, (width, height), &upright)?;
+        let upright = common::instruments::output::flip_rows(picture, width, height);
+        common::instruments::output::save_rgba8(report, &out_dir, &name, (width, height), &upright)?;
     }
     gl_context.check_error("the frames")?;
 

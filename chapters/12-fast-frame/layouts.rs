@@ -13,7 +13,7 @@ use common::frame::fast::visibility::VisibilityPass;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::gl::{Owned, create};
-use common::base::timing::{GlPassTimer, PassTimes};
+use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::scene::gbuffer::SceneBuffers;
 use common::{GlContext, Report};
 use glow::HasContext;
@@ -100,7 +100,7 @@ pub fn measure(
     }
     timer.finish(g, &mut times);
     gl.check_error("the layouts' passes").context("--layout-rounds")?;
-    let median = |pass| common::base::timestamps::median_p95(times.samples(pass)).0;
+    let median = |pass| common::clocks::timestamps::median_p95(times.samples(pass)).0;
     // Drawn or not: 0 where the clear left it, an id from 1, a view depth above 0 (its bits too).
     let (ids, depths) = (targets[0].last_channel(1, extent), targets[1].last_channel(2, extent));
     let differing = ids.iter().zip(&depths).filter(|(id, z)| (**id == 0) != (**z == 0)).count();

@@ -14,9 +14,9 @@ use ash::vk;
 use common::base::cli::Size;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::timeline::{self, Timeline};
-use common::base::timestamps::Timestamps;
-use common::base::timing::{GlPassTimer, PassTimes};
+use common::clocks::timeline::{self, Timeline};
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::base::window::Key;
 use common::frame::Overlays;
 use common::frame::input::{Settings as Keys, resize_every, window_input};
@@ -143,7 +143,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             tracer.resized(&vk, &targets);
             resizes += 1;
             // What exists after one resize must be what exists after every later one.
-            let live = (open_fd_count()?, common::base::resources::live(), gl_context.live_objects());
+            let live = (open_fd_count()?, common::instruments::resources::live(), gl_context.live_objects());
             after_first_resize.get_or_insert(live);
         }
         // ANCHOR_END: resize
@@ -161,7 +161,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             let rays = settings.rays(samples, scene.size() / 2.0);
             if let Some(traced) = trace_pending.take() {
                 let stamps = timestamps.as_ref();
-                common::base::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
+                common::clocks::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
                 if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
                     t.trace_done(&vk, slot, stamps)?;
                 }
@@ -182,7 +182,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
         if let Some(window) = &mut window {
-            window.show_times(&times);
+            window.show_times(|| times.line());
             targets.show(gl, window.size());
             window.swap_buffers(&gl_context)?;
         }
@@ -191,7 +191,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     }
     if let Some(traced) = trace_pending {
         let stamps = timestamps.as_ref();
-        common::base::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
+        common::clocks::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
         if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
             t.trace_done(&vk, slot, stamps)?;
         }
@@ -205,7 +205,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     times.record(report);
     gl_context.check_error("the frame loop")?;
     if let Some(first) = after_first_resize {
-        let now = (open_fd_count()?, common::base::resources::live(), gl_context.live_objects());
+        let now = (open_fd_count()?, common::instruments::resources::live(), gl_context.live_objects());
         report.check("nothing_grows_across_resizes", now == first);
     }
 

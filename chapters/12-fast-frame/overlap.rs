@@ -12,7 +12,7 @@
 use common::frame::fast::trace::{Rays, SurfaceTracer};
 use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::Result;
-use common::base::timestamps::median_p95;
+use common::clocks::timestamps::median_p95;
 use common::interop::handoff::Apis;
 use common::scene::{Camera, Scene};
 use glow::HasContext;

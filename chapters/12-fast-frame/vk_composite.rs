@@ -12,7 +12,7 @@ use ash::vk;
 use common::Report;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, first_use, transfers_to_host};
 use common::base::compute::ComputePipeline;
-use common::base::timestamps::Timestamps;
+use common::clocks::timestamps::Timestamps;
 use common::interop::handoff::Apis;
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel::GpuAllocator;
@@ -125,7 +125,7 @@ pub fn measure(
     commands.wait(vk, "vkWaitForFences after the Vulkan composite")?;
     let times: Vec<f64> =
         (0..rounds).map(|round| stamps.between_ms(vk, 2 * round, 2 * round + 1)).collect::<Result<_>>()?;
-    let median_ms = common::base::timestamps::median_p95(&times).0;
+    let median_ms = common::clocks::timestamps::median_p95(&times).0;
     let measured = Measured { median_ms, picture: read_back.bytes().to_vec() };
     drop(stamps);
     drop(read_back);

@@ -13,7 +13,7 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::{Size, Smallest};
 use common::base::commands::Commands;
-use common::base::timestamps::Timestamps;
+use common::clocks::timestamps::Timestamps;
 use common::frame::Overlays;
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;

@@ -7,7 +7,7 @@ use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
 use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
 use common::frame::fast::visibility::Targets;
 use anyhow::Result;
-use common::base::output;
+use common::instruments::output;
 use common::interop::handoff::Apis;
 use common::scene::Camera;
 use plotters::prelude::*;
@@ -43,7 +43,7 @@ pub struct Walk {
 
 /// The median of `samples`, as the reports compute it (none of nothing).
 pub fn median(samples: &[f64]) -> Option<f64> {
-    (!samples.is_empty()).then(|| common::base::timestamps::median_p95(samples).0)
+    (!samples.is_empty()).then(|| common::clocks::timestamps::median_p95(samples).0)
 }
 
 impl Walk {

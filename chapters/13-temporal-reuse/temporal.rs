@@ -9,7 +9,7 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
 use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
-use common::base::timestamps::Timestamps;
+use common::clocks::timestamps::Timestamps;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};

@@ -13,7 +13,7 @@ use common::frame::fast::trace::{Pattern, Rays};
 use anyhow::Result;
 use common::Report;
 use common::base::cli::Size;
-use common::base::timeline::Timeline;
+use common::clocks::timeline::Timeline;
 use common::base::window::{Key, NamedKey, Window};
 use common::scene::Camera;
 
@@ -248,7 +248,7 @@ fn last_frame<'a>(p: &'a Passes, sized: &'a Sized, camera: &'a Camera) -> Option
 /// every query made).
 fn alive(p: &Passes) -> Result<impl PartialEq + use<>> {
     let counted: std::collections::BTreeMap<String, i64> =
-        common::base::resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
+        common::instruments::resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
     let mut gl = p.apis.gl.live_objects();
     gl.remove("gl_queries");
     Ok((common::open_fd_count()?, counted, gl))
@@ -281,7 +281,7 @@ pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Dra
             }
         }
         camera = Some(p.draw(sized, drawn, frame, &mut clock)?);
-        window.show_times(&clock.times);
+        window.show_times(|| clock.times.line());
         sized.targets.show(&p.apis.gl.gl, window.size());
         window.swap_buffers(p.apis.gl)?;
         frame += 1;

@@ -2,7 +2,7 @@
 //! resources after each session, for the soak's "flat" (fds, live Vulkan memory, GL objects,
 //! resident memory), and the checks' fd bookkeeping.
 
-use common::base::resources;
+use common::instruments::resources;
 use common::{GlContext, Report};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -63,7 +63,7 @@ pub fn merge_summary(report: &mut Report, json: &str) -> anyhow::Result<()> {
         serde_json::from_str(json).context("the viewer's summary is not JSON")?;
     let text = |v: &serde_json::Value| v.as_str().unwrap_or_default().to_owned();
     let gl = &summary["gl"];
-    report.gl = Some(common::base::report::GlReport {
+    report.gl = Some(common::instruments::report::GlReport {
         renderer: text(&gl["renderer"]),
         version: text(&gl["version"]),
         device_uuid: text(&gl["device_uuid"]),

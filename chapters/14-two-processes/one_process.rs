@@ -9,7 +9,7 @@ use crate::session::{Measured, Ring};
 use crate::wire;
 use anyhow::Result;
 use common::base::gl::GlContext;
-use common::base::output;
+use common::instruments::output;
 use common::base::vulkan::DeviceInfo;
 use common::interop::handoff::import_semaphore;
 use common::interop::{self, exportable::MemoryTerms};

@@ -4,8 +4,8 @@
 use super::{Args, CHAPTER};
 use crate::wire::{self, Message, Received, Socket};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::base::fail;
-use common::base::timing::PassTimes;
+use common::instruments::fail;
+use common::clocks::timing::PassTimes;
 use common::{Report, ms_since};
 use std::collections::VecDeque;
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
@@ -78,7 +78,7 @@ impl Session<'_> {
         };
         let same = device_uuid == hello.device_uuid && driver_uuid == hello.driver_uuid;
         report.uuids_match = Some(same);
-        let hex = common::base::report::uuid_hex;
+        let hex = common::instruments::report::uuid_hex;
         ensure!(
             same,
             "the viewer's GL ({renderer}, device {} driver {}) is not our Vulkan ({}, device {} driver {})",

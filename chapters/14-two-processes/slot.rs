@@ -4,7 +4,7 @@
 use super::picture;
 use anyhow::{Result, bail};
 use common::base::gl::{GlContext, Owned, Semaphore, layout};
-use common::base::{fail, output};
+use common::instruments::{fail, output};
 use common::interop::SharedTexture;
 use glow::HasContext;
 use std::time::{Duration, Instant};

@@ -4,7 +4,7 @@
 
 use super::{MAX_MESSAGE, Message, decode, encode};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::base::fail;
+use common::instruments::fail;
 use rustix::net::{
     AddressFamily, RecvAncillaryBuffer, RecvAncillaryMessage, RecvFlags, ReturnFlags, SendAncillaryBuffer,
     SendAncillaryMessage, SendFlags, SocketFlags, SocketType,

@@ -13,7 +13,7 @@ use common::base::cli::Size;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, create};
 use common::base::vulkan::DeviceInfo;
 use common::base::window::{self, Key, NamedKey, Window};
-use common::base::{output, resources};
+use common::instruments::{output, resources};
 use common::interop::handoff::import_semaphore;
 use common::interop::{self, exportable::MemoryTerms};
 use glow::HasContext;

@@ -6,9 +6,9 @@ use crate::{Mode, Row};
 use anyhow::Result;
 use ash::vk;
 use common::base::cli::Size;
-use common::base::timeline::{self, Timeline};
-use common::base::timestamps::{Timestamps, median_p95};
-use common::base::timing::{GlPassTimer, PassTimes};
+use common::clocks::timeline::{self, Timeline};
+use common::clocks::timestamps::{Timestamps, median_p95};
+use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Overlays, Uniforms};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
@@ -205,7 +205,7 @@ impl<'s> Frame<'s> {
     pub fn covered_pixels(&self, gl: &glow::Context) -> u64 {
         let (w, h) = (self.gbuffers.extent.width, self.gbuffers.extent.height);
         self.gbuffers.draw(gl, self.scene, &self.camera);
-        let positions = common::base::output::read_texture_f32(gl, self.gbuffers.textures()[0], w, h, 4);
+        let positions = common::instruments::output::read_texture_f32(gl, self.gbuffers.textures()[0], w, h, 4);
         positions.chunks_exact(4).filter(|p| p[3] != 0.0).count() as u64
     }
 
@@ -219,7 +219,7 @@ impl<'s> Frame<'s> {
             let textures = self.gbuffers.textures();
             textures
                 .iter()
-                .map(|&t| common::base::output::read_texture_f32(gl, t, w, h, 4))
+                .map(|&t| common::instruments::output::read_texture_f32(gl, t, w, h, 4))
                 .collect::<Vec<_>>()
         };
         self.gbuffers.draw(gl, self.scene, &self.camera);

@@ -3,7 +3,7 @@
 
 use crate::CaseReport;
 use anyhow::Result;
-use common::base::output;
+use common::instruments::output;
 use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;

@@ -16,8 +16,16 @@
 //!   ^
 //! interop  exportable memory, GL's import, the hand-off, CUDA      (chapters 01-04, 11)
 //!   ^
-//! base     Vulkan and GL contexts, commands, report, CLI, window   (chapters 01-02)
+//! clocks   GPU timestamps, pass timers, both APIs on one timeline  (chapters 03, 08, 12)
+//!   ^
+//! base     Vulkan and GL contexts, owners, commands, CLI, window   (chapters 01-02)
+//!   ^
+//! instruments  the report and its checks, counts of what is alive, failure injection,
+//!          validation's messages, images and plots written        (every chapter)
 //! ```
+//!
+//! `base` and the layers above it are what the chapters teach; `instruments` and `clocks` are
+//! how the tutorial watches them, kept apart so that the teaching layers stay small.
 //!
 //! The crate root only declares the layers and re-exports what nearly every chapter names.
 //!
@@ -34,11 +42,13 @@
 //!   then `VulkanContext::wait_idle`) before its list of `drop(x)` in reverse order;
 //! - gpu-allocator memory is freed by its owner (`rt::accel::Memory`), through a shared
 //!   `GpuAllocator` handle; the allocator goes with its last handle;
-//! - every fallible step goes through `base::fail` (`VKGL_FAIL_AT`), and every count of what is
-//!   alive (resources, GL objects, fds) lives in `base::resources`.
+//! - every fallible step goes through `instruments::fail` (`VKGL_FAIL_AT`), and every count of
+//!   what is alive (resources, GL objects, fds) lives in `instruments::resources`.
 
 pub mod base;
+pub mod clocks;
 pub mod frame;
+pub mod instruments;
 pub mod interop;
 pub mod rt;
 pub mod scene;
@@ -46,6 +56,6 @@ pub mod scene;
 pub use base::chapter::{connect, contexts, contexts_in_window, finish, largest_size, ms_since, run_chapter};
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
-pub use base::report::{Print, Report};
-pub use base::resources::{open_fd_count, settled_fd_count};
+pub use instruments::report::{Print, Report};
+pub use instruments::resources::{open_fd_count, settled_fd_count};
 pub use base::vulkan::{RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};

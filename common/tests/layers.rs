@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// The layers, lowest first.
-const LAYERS: [&str; 5] = ["base", "interop", "scene", "rt", "frame"];
+const LAYERS: [&str; 7] = ["instruments", "base", "clocks", "interop", "scene", "rt", "frame"];
 
 /// Modules with nothing of GL in them (a GL type here would tie the builds to a GL context).
 const VULKAN_ONLY: [&str; 2] = ["rt/accel/", "rt/raytrace.rs"];
@@ -183,13 +183,14 @@ fn the_check_sees_what_it_must_refuse() {
     assert!(check("rt/ao.rs", "use crate::base::vulkan::VulkanContext;").is_empty());
     assert!(check("rt/ao.rs", "use crate::{base::gl::GlContext, scene::gbuffer::GBuffers};").is_empty());
     assert!(check("frame/probe.rs", "use super::composite::Uniforms;").is_empty());
-    assert!(check("base/gl/debug.rs", "use super::super::report::Report;").is_empty());
+    assert!(check("base/gl/debug.rs", "use super::super::super::instruments::report::Report;").is_empty());
     // Up, through a group, through `super`, inline, and through the root.
     assert_eq!(check("scene/gbuffer.rs", "use crate::rt::ao::AoTracer;").len(), 1);
-    assert_eq!(check("base/report.rs", "use crate::{base::cli, interop::handoff};").len(), 1);
+    assert_eq!(check("base/cli.rs", "use crate::{instruments::report, interop::handoff};").len(), 1);
+    assert_eq!(check("instruments/report.rs", "use crate::base::vulkan::VulkanContext;").len(), 1);
     assert_eq!(check("base/gl/mod.rs", "use super::super::super::frame::Target;").len(), 1);
     assert_eq!(check("interop/import.rs", "let g = crate::scene::gbuffer::as_bytes(x);").len(), 1);
-    assert_eq!(check("base/output.rs", "use crate::Report;").len(), 1);
+    assert_eq!(check("instruments/output.rs", "use crate::Report;").len(), 1);
     // GL in a Vulkan-only module; logic in the root.
     assert_eq!(check("rt/accel/build.rs", "gl: &glow::Context,").len(), 1);
     assert_eq!(check("lib.rs", "pub fn run() {}").len(), 1);
@@ -407,8 +408,10 @@ fn the_circle_check_sees_what_it_must_refuse() {
 }
 
 /// What each layer holds, for the picture (lowest first, as [`LAYERS`]).
-const ROLES: [&str; 5] = [
-    "contexts, commands, the report, flags, windows, GPU timing (chapters 01-04)",
+const ROLES: [&str; 7] = [
+    "the report and its checks, counts of what is alive, failure injection, files written",
+    "contexts and their owners, commands, flags, windows (chapters 01-04)",
+    "GPU time: Vulkan's timestamps, GL's pass timers, the two APIs on one timeline",
     "memory Vulkan exports and GL imports, the hand-off between them, CUDA's import",
     "meshes, instances, OBJ files, the camera; the G-buffers GL draws (chapter 05)",
     "acceleration structures and ray pipelines (Vulkan only), the AO tracer (06-07)",
@@ -460,7 +463,7 @@ fn layers_picture(root: &Path) -> String {
             width - left - 10,
             left + 12,
             y + 20,
-            left + 90,
+            left + 110,
             y + 20,
         );
         for (i, text) in lines.iter().enumerate() {

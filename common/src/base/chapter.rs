@@ -3,10 +3,11 @@
 
 use super::cli::{CommonArgs, Largest, Size, Smallest};
 use super::gl::{self, GlContext, MEMORY_EXTENSIONS};
-use super::report::{Print, Report};
+use crate::instruments::report::{Print, Report};
 use super::vulkan::{self, Requirements, VulkanContext};
 use super::window::Window;
-use super::{fail, resources, window};
+use super::window;
+use crate::instruments::{fail, resources};
 use std::process::ExitCode;
 
 /// Runs a chapter with the contract every chapter shares: parse the flags, run, then print the
@@ -32,7 +33,7 @@ pub fn run_chapter<A: clap::Parser>(
     finish(report, common.print())
 }
 
-/// Runs `run`, having checked `VKGL_FAIL_AT` (`base::fail`); when it is set, prints what `run`
+/// Runs `run`, having checked `VKGL_FAIL_AT` (`instruments::fail`); when it is set, prints what `run`
 /// left behind on stderr: the fds it opened and did not close, and the counted resources still
 /// alive. (`run_chapter` does this for every chapter; `bench` and `convergence` call it.)
 pub fn accounted<T>(run: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {

@@ -1,6 +1,6 @@
 //! The flags every chapter accepts, so that scripts and tests can run them all alike.
 
-use super::report::Print;
+use crate::instruments::report::Print;
 use std::path::PathBuf;
 
 /// Flags shared by every chapter. A chapter embeds these with `#[command(flatten)]` and adds its

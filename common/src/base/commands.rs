@@ -1,7 +1,7 @@
 //! Recording and submitting Vulkan work: one command buffer reused every frame, guarded by a
 //! fence, plus one-shot submissions for set-up.
 
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::Result;
@@ -105,7 +105,7 @@ impl Commands {
     }
 }
 
-/// Waits for `fence`, as one step of `base::fail` named `what`. Failed or not, the work is over
+/// Waits for `fence`, as one step of `instruments::fail` named `what`. Failed or not, the work is over
 /// when it returns: a failed wait (device lost, or injected) waits once more, its result
 /// ignored, so that whatever the caller drops on its way out is no longer in use.
 pub fn wait_for(vk: &VulkanContext, fence: vk::Fence, what: &str) -> Result<()> {

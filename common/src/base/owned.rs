@@ -3,8 +3,8 @@
 //! from the moment it exists, so an early return (`?`) destroys what was made, and a struct of
 //! them drops them in the order its fields are written. (CUDA's kinds: `interop::cuda`.)
 
-use crate::base::fail;
-use crate::base::resources::Counted;
+use crate::instruments::fail;
+use crate::instruments::resources::Counted;
 use anyhow::Result;
 use ash::vk;
 
@@ -16,7 +16,7 @@ use ash::vk;
 pub struct Owned<T: Destroy> {
     handle: T,
     by: T::By,
-    /// Its count in `base::resources`, for the kinds counted there (see [`Owned::counted`]).
+    /// Its count in `instruments::resources`, for the kinds counted there (see [`Owned::counted`]).
     counted: Option<Counted>,
 }
 
@@ -45,9 +45,9 @@ where
 }
 
 impl<T: Destroy> Owned<T> {
-    /// Counted in `base::resources` as one `kind` holding `bytes`, until it is destroyed.
+    /// Counted in `instruments::resources` as one `kind` holding `bytes`, until it is destroyed.
     pub fn counted(mut self, kind: &str, bytes: u64) -> Self {
-        self.counted = Some(crate::base::resources::count(kind, bytes));
+        self.counted = Some(crate::instruments::resources::count(kind, bytes));
         self
     }
 }

@@ -3,7 +3,7 @@
 //! constants). The compute pipeline (`base::compute`) and the ray tracing pipeline
 //! (`rt::raytrace`) are both built on it.
 
-use super::fail;
+use crate::instruments::fail;
 use super::owned::{Owned, create};
 use super::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};

@@ -2,16 +2,16 @@
 //! installed), the physical device that has every extension the chapter asks for, a logical device
 //! with exactly those extensions, and one queue that can do graphics and compute.
 
-use crate::base::fail;
-use crate::base::report::{VulkanReport, uuid_hex};
-use crate::base::validation::{VALIDATION_LAYER, VALIDATION_ON, messenger_create_info, validation_wanted};
+use crate::instruments::fail;
+use crate::instruments::report::{VulkanReport, uuid_hex};
+use crate::instruments::validation::{VALIDATION_LAYER, VALIDATION_ON, messenger_create_info, validation_wanted};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use std::ffi::{CStr, c_char};
 use std::fmt;
 use std::sync::atomic::Ordering;
 
-pub use crate::base::validation::validation_counts;
+pub use crate::instruments::validation::validation_counts;
 
 /// The Vulkan version every chapter is written against.
 pub const API_VERSION: u32 = vk::API_VERSION_1_3;

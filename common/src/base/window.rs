@@ -143,12 +143,13 @@ impl Window {
 
     /// Shows the GPU time of each pass in the title bar, at most twice a second (a title changed
     /// every frame keeps the window manager busy).
-    pub fn show_times(&mut self, times: &crate::base::timing::PassTimes) {
+    /// `line` makes the text (`PassTimes::line`) only when it is shown.
+    pub fn show_times(&mut self, line: impl FnOnce() -> String) {
         if self.titled.is_some_and(|t| t.elapsed() < Duration::from_millis(500)) {
             return;
         }
         if let Some(opened) = &self.app.opened {
-            opened.window.set_title(&format!("{} · {}", self.app.title, times.line()));
+            opened.window.set_title(&format!("{} · {}", self.app.title, line()));
             self.titled = Some(std::time::Instant::now());
         }
     }
@@ -288,21 +289,22 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
     let images = pictures
         .iter()
         .map(|(name, path)| {
-            let image = image::open(path).with_context(|| format!("reading {}", path.display()))?.to_rgba8();
-            Ok((name.clone(), image))
+            Ok((name.clone(), crate::instruments::output::read_png_rgba8(path)?))
         })
         .collect::<Result<Vec<_>>>()?;
     let Some((_, first)) = images.first() else { return Ok(false) };
-    let centre = *first.get_pixel(first.width() / 2, first.height() / 2);
-    let size = Size { width: first.width().max(64), height: first.height().max(64) };
+    let ((width, height), pixels) = first;
+    let at = 4 * ((height / 2) as usize * *width as usize + (width / 2) as usize);
+    let centre: [u8; 4] = pixels[at..at + 4].try_into().expect("4 bytes");
+    let size = Size { width: (*width).max(64), height: (*height).max(64) };
     let (mut window, gl_context) = Window::open(title, size, &[])?;
     let gl = &gl_context.gl;
     // One texture and read framebuffer per picture; blitting does the scaling.
     let mut shown = Vec::new();
-    for (name, image) in &images {
-        let (w, h) = image.dimensions();
+    for (name, ((w, h), pixels)) in &images {
+        let (w, h) = (*w, *h);
         // PNG rows start at the top, GL's at the bottom.
-        let rows = crate::base::output::flip_rows(image.as_raw(), w, h);
+        let rows = crate::instruments::output::flip_rows(pixels, w, h);
         let texture = create(gl, "glCreateTextures for a picture", |gl| unsafe {
             gl.create_named_texture(glow::TEXTURE_2D)
         })?;
@@ -310,7 +312,7 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
             create(gl, "glCreateFramebuffers for a picture", |gl| unsafe { gl.create_named_framebuffer() })?;
         unsafe {
             gl.texture_storage_2d(*texture, 1, glow::RGBA8, w as i32, h as i32);
-            crate::base::resources::created("gl_texture: RGBA8", 4 * w as u64 * h as u64);
+            crate::instruments::resources::created("gl_texture: RGBA8", 4 * w as u64 * h as u64);
             let pixels = glow::PixelUnpackData::Slice(Some(&rows));
             gl.pixel_store_i32(glow::UNPACK_ALIGNMENT, 1);
             gl.texture_sub_image_2d(
@@ -376,7 +378,7 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
                 gl.read_pixels(ww as i32 / 2, wh as i32 / 2, 1, 1, glow::RGBA, glow::UNSIGNED_BYTE, data);
             }
             // Scaling may blend neighbours: close, not equal.
-            seen = pixel[..3].iter().zip(&centre.0[..3]).all(|(a, b)| a.abs_diff(*b) <= 24);
+            seen = pixel[..3].iter().zip(&centre[..3]).all(|(a, b)| a.abs_diff(*b) <= 24);
         }
         window.swap_buffers(&gl_context)?;
         frame += 1;

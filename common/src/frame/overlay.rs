@@ -94,7 +94,7 @@ impl LineBuffer {
         let (vertex_array, buffer) = (*lines.vertex_array, *lines.buffer);
         unsafe {
             gl.named_buffer_data_u8_slice(buffer, bytes, glow::STATIC_DRAW);
-            crate::base::resources::created("gl_buffer", bytes.len() as u64);
+            crate::instruments::resources::created("gl_buffer", bytes.len() as u64);
             let stride = size_of::<LineVertex>() as i32;
             gl.vertex_array_vertex_buffer(vertex_array, 0, Some(buffer), 0, stride);
             for (location, offset) in [(0, 0), (1, 12)] {

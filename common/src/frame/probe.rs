@@ -2,7 +2,7 @@
 //! composite's formula on the CPU, and whether a line's colour shows at a pixel.
 
 use super::composite::Uniforms;
-use crate::base::output;
+use crate::instruments::output;
 use crate::rt::ao::AoTracer;
 use crate::scene::gbuffer::GBuffers;
 use glam::Vec3;

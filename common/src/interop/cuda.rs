@@ -5,7 +5,7 @@
 //! Everything is loaded at run time: a machine without CUDA builds and runs the chapters, and
 //! learns from [`Unavailable`] what is missing.
 
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::owned::{Owned, create};
 pub use crate::base::owned::Destroy;
 use anyhow::Result;
@@ -75,7 +75,7 @@ impl GlInterop {
         let resource = create(&(), "cuGraphicsGLRegisterBuffer", || unsafe {
             (self.register_buffer)(&mut resource, buffer.0.get(), flags as u32).result().map(|()| resource)
         })?;
-        crate::base::resources::created("cuda_graphics_resource", 0);
+        crate::instruments::resources::created("cuda_graphics_resource", 0);
         Ok(resource)
     }
 }
@@ -109,7 +109,7 @@ impl CudaDevice {
             let name = fail::call("cuDeviceGetName", || cu::device::get_name(device))?;
             let uuid = fail::call("cuDeviceGetUuid", || cu::device::get_uuid(device))?.bytes.map(|b| b as u8);
             if &uuid != device_uuid {
-                seen.push(format!("{name} ({})", crate::base::report::uuid_hex(&uuid)));
+                seen.push(format!("{name} ({})", crate::instruments::report::uuid_hex(&uuid)));
                 continue;
             }
             use sys::CUdevice_attribute::*;
@@ -128,7 +128,7 @@ impl CudaDevice {
         }
         Err(Unavailable(format!(
             "none of the {count} CUDA device(s) is the Vulkan/GL device {}: {seen:?}",
-            crate::base::report::uuid_hex(device_uuid)
+            crate::instruments::report::uuid_hex(device_uuid)
         ))
         .into())
     }
@@ -147,7 +147,7 @@ pub struct PrimaryContext {
 pub struct MappedPointer(pub sys::CUdeviceptr);
 
 /// A failed CUDA release is printed and otherwise ignored: on the way out there is no one to
-/// hand it to. (Those counted in `base::resources` then stay counted alive, which a check reports.)
+/// hand it to. (Those counted in `instruments::resources` then stay counted alive, which a check reports.)
 fn released(what: &str, result: Result<(), cu::DriverError>) -> bool {
     result.map_err(|error| eprintln!("cuda: {what}: {error}")).is_ok()
 }
@@ -188,7 +188,7 @@ impl Destroy for sys::CUgraphicsResource {
     unsafe fn destroy(self, _: &()) {
         let result = unsafe { sys::cuGraphicsUnregisterResource(self) }.result();
         if released("cuGraphicsUnregisterResource", result) {
-            crate::base::resources::destroyed("cuda_graphics_resource");
+            crate::instruments::resources::destroyed("cuda_graphics_resource");
         }
     }
 }
@@ -198,7 +198,7 @@ impl Destroy for sys::CUexternalMemory {
     unsafe fn destroy(self, _: &()) {
         let result = unsafe { cu::external_memory::destroy_external_memory(self) };
         if released("cuDestroyExternalMemory", result) {
-            crate::base::resources::destroyed("cuda_external_memory");
+            crate::instruments::resources::destroyed("cuda_external_memory");
         }
     }
 }

@@ -3,7 +3,7 @@
 //! gpu-allocator cannot do this (it has no way to chain `VkExportMemoryAllocateInfo`), so every
 //! shared resource gets its own plain `vkAllocateMemory`, bound at offset 0.
 
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::image::image_info;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
@@ -35,7 +35,7 @@ pub enum Dedicated {
 }
 // ANCHOR_END: dedicated
 
-/// One exportable allocation, freed when dropped (with its count in `base::resources`).
+/// One exportable allocation, freed when dropped (with its count in `instruments::resources`).
 #[derive(Debug)]
 pub struct ExportableMemory {
     pub memory: Owned<vk::DeviceMemory>,

@@ -1,7 +1,7 @@
 //! How GL and Vulkan take turns on shared memory (taught in chapter 03): two exported
 //! semaphores where both drivers can share them, or the CPU waiting for each side where not.
 
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::gl::{self, GlContext};
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
@@ -245,7 +245,7 @@ impl Handoff {
         layouts: &[u32],
     ) -> Result<()> {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture"); // as in gl_release
-        crate::base::fail::step("GL's acquire of the shared images")?;
+        crate::instruments::fail::step("GL's acquire of the shared images")?;
         match self {
             Handoff::Semaphores { vulkan_done, .. } => {
                 let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
@@ -332,7 +332,7 @@ pub fn exportable_semaphore(vk: &VulkanContext) -> Result<Owned<vk::Semaphore>> 
     let semaphore = create(&vk.device, "vkCreateSemaphore (exportable)", || unsafe {
         vk.device.create_semaphore(&info, None)
     })?;
-    crate::base::resources::created("vk_semaphore_exportable", 0);
+    crate::instruments::resources::created("vk_semaphore_exportable", 0);
     Ok(semaphore)
 }
 

@@ -2,7 +2,7 @@
 //! in chapter 02) or a 2D texture (chapter 03) stored in it.
 
 use crate::base::commands::image_barrier;
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::gl::{
     self, DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, OPTIMAL_TILING_EXT,
     TEXTURE_TILING_EXT,

@@ -11,7 +11,7 @@ pub use import::*;
 /// What a chapter reports of its hand-off (chapter 03's `Handoff`): the path it took (the
 /// report's `sync`: semaphores or the host), and whether, on the host path, every hand-over named
 /// the layout its image was really in.
-pub fn report_handoff(report: &mut crate::base::report::Report, handoff: &handoff::Handoff) {
+pub fn report_handoff(report: &mut crate::instruments::report::Report, handoff: &handoff::Handoff) {
     report.sync = Some(handoff.name());
     report.check("hand_over_layouts_agree", handoff.layouts_agreed());
 }

@@ -3,8 +3,8 @@
 
 use crate::base::commands::first_use;
 use crate::base::gl::GlContext;
-use crate::base::report::Report;
-use crate::base::timestamps::{Timestamps, timed};
+use crate::instruments::report::Report;
+use crate::clocks::timestamps::{Timestamps, timed};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::handoff::{Apis, HandOver, Handoff};
 use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
@@ -56,14 +56,14 @@ impl AoArgs {
 /// The checks every chapter that traces makes of the AO image as GL holds it: every value a
 /// fraction of rays, in [0, 1], and background pixels (position w = 0) exactly 1.
 pub fn check_occlusion(
-    report: &mut crate::base::report::Report,
+    report: &mut crate::instruments::report::Report,
     gl: &glow::Context,
     gbuffers: &GBuffers,
     tracer: &AoTracer,
 ) {
     let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
-    let positions = crate::base::output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
-    let visibility = crate::base::output::read_texture_f32(gl, *tracer.image.texture.texture, w, h, 1);
+    let positions = crate::instruments::output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
+    let visibility = crate::instruments::output::read_texture_f32(gl, *tracer.image.texture.texture, w, h, 1);
     report.check("ao_within_0_and_1", visibility.iter().all(|v| (0.0..=1.0).contains(v)));
     let mut background = (0..visibility.len()).filter(|&i| positions[i * 4 + 3] <= 0.0);
     report.check("background_unoccluded", background.all(|i| visibility[i] == 1.0));
@@ -189,7 +189,7 @@ impl AoTracer {
         let ms = timestamps.map(|t| t.read_ms(vk)).transpose()?;
         let extent = gbuffers.extent;
         let texture = *self.image.texture.texture;
-        Ok((crate::base::output::read_texture_f32(&apis.gl.gl, texture, extent.width, extent.height, 1), ms))
+        Ok((crate::instruments::output::read_texture_f32(&apis.gl.gl, texture, extent.width, extent.height, 1), ms))
     }
 
     /// The GPU times of [`trace_once`](Self::trace_once)'s two traces in chapters 09 and 10, when

@@ -2,7 +2,7 @@
 //! shader binding table, and a storage image for results (taught in chapter 06; chapter 07
 //! traces its ambient occlusion rays through the same kind of pipeline).
 
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::image::image_info;
 use crate::base::pipeline::{ShaderInterface, shader_module};
 use crate::base::owned::{Owned, create};
@@ -102,7 +102,7 @@ impl RayPipeline {
                 .map_err(|(_, e)| e)
         })?;
         drop((raygen, miss)); // the pipeline keeps what it needs of them
-        crate::base::resources::created("vk_pipeline: ray tracing", 0);
+        crate::instruments::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
         let (sbt, regions) = shader_binding_table(vk, &loader, allocator, *pipeline, groups.len() as u32)?;
         Ok(RayPipeline { loader, pipeline, interface, _sbt: sbt, regions })
@@ -225,7 +225,7 @@ impl StorageImage {
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
         let allocation = allocator.allocate(&description)?;
-        crate::base::resources::created("vk_image: storage", allocation.size());
+        crate::instruments::resources::created("vk_image: storage", allocation.size());
         fail::call("vkBindImageMemory (storage)", || unsafe {
             vk.device.bind_image_memory(*image, allocation.memory(), allocation.offset())
         })?;

@@ -167,7 +167,7 @@ impl GlContext {
     /// first EGL device when none matches (the chapter's UUID check then says why that is fatal).
     /// Fails, naming each one, when an extension in `required` is missing.
     pub fn headless(vulkan: &DeviceInfo, required: &[&str]) -> Result<Self> {
-        crate::base::fail::step("eglCreateContext (headless GL)")?;
+        crate::instruments::fail::step("eglCreateContext (headless GL)")?;
         let devices: Vec<egl::device::Device> = egl::device::Device::query_devices()
             .context("EGL cannot list devices (EGL_EXT_device_enumeration): install libegl1 with Mesa's or the GPU vendor's EGL")?
             .collect();
@@ -364,12 +364,12 @@ impl GlContext {
     }
 
     /// The `gl` section of the chapter report.
-    pub fn report(&self) -> crate::base::report::GlReport {
-        crate::base::report::GlReport {
+    pub fn report(&self) -> crate::instruments::report::GlReport {
+        crate::instruments::report::GlReport {
             renderer: self.renderer.clone(),
             version: self.version.clone(),
-            device_uuid: crate::base::report::uuid_hex(&self.device_uuid),
-            driver_uuid: crate::base::report::uuid_hex(&self.driver_uuid),
+            device_uuid: crate::instruments::report::uuid_hex(&self.device_uuid),
+            driver_uuid: crate::instruments::report::uuid_hex(&self.driver_uuid),
             extensions: self.required.clone(),
         }
     }
@@ -393,7 +393,7 @@ pub fn uuids_match(vulkan: &DeviceInfo, gl: &GlContext) -> bool {
 /// GL and Vulkan must run on the same device and driver: an OPAQUE_FD handle means something
 /// only to the driver that made it. On a laptop with two GPUs, GL may well run on the other one.
 pub fn ensure_same_device(vulkan: &DeviceInfo, gl: &GlContext) -> Result<()> {
-    let hex = crate::base::report::uuid_hex;
+    let hex = crate::instruments::report::uuid_hex;
     if !uuids_match(vulkan, gl) {
         bail!(
             "GL and Vulkan run on different devices or drivers, so they cannot share memory:\n  \

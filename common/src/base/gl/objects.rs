@@ -2,7 +2,7 @@
 //! compiled from GLSL, and an offscreen colour target.
 
 use super::{MemoryObjectFns, SemaphoreFns};
-use crate::base::fail;
+use crate::instruments::fail;
 use anyhow::{Result, bail};
 use glow::HasContext;
 use std::rc::Rc;
@@ -14,13 +14,13 @@ use std::rc::Rc;
 pub struct Owned<T: Object> {
     pub name: T,
     by: T::By,
-    /// Its count in `base::resources`, for the kinds counted there (see [`Owned::counted`]).
-    counted: Option<crate::base::resources::Counted>,
+    /// Its count in `instruments::resources`, for the kinds counted there (see [`Owned::counted`]).
+    counted: Option<crate::instruments::resources::Counted>,
 }
 
 /// A kind of GL object, and how it is deleted.
 pub trait Object: Copy {
-    /// Its kind in `base::resources`' live counts ("gl_object: buffer").
+    /// Its kind in `instruments::resources`' live counts ("gl_object: buffer").
     const KIND: &'static str;
     /// What makes the `glDelete*` call: the context for glow's kinds, the entry points loaded by
     /// hand for the `GL_EXT_memory_object` / `GL_EXT_semaphore` kinds glow does not know.
@@ -39,14 +39,14 @@ pub fn create<B: Clone, T: Object<By = B>>(
     create: impl FnOnce(&B) -> std::result::Result<T, String>,
 ) -> Result<Owned<T>> {
     let name = fail::call(what, || create(by))?;
-    crate::base::resources::alive(T::KIND);
+    crate::instruments::resources::alive(T::KIND);
     Ok(Owned { name, by: by.clone(), counted: None })
 }
 
 impl<T: Object> Owned<T> {
-    /// Counted in `base::resources` as one `kind` holding `bytes`, until it is deleted.
+    /// Counted in `instruments::resources` as one `kind` holding `bytes`, until it is deleted.
     pub fn counted(mut self, kind: &str, bytes: u64) -> Self {
-        self.counted = Some(crate::base::resources::count(kind, bytes));
+        self.counted = Some(crate::instruments::resources::count(kind, bytes));
         self
     }
 }
@@ -62,7 +62,7 @@ pub fn create_n<T: Object<By = Rc<glow::Context>>>(
     let mut made = Vec::with_capacity(n);
     for _ in 0..n {
         let name = create(gl).map_err(|error| anyhow::Error::msg(error).context(what.to_owned()))?;
-        crate::base::resources::alive(T::KIND);
+        crate::instruments::resources::alive(T::KIND);
         made.push(Owned { name, by: gl.clone(), counted: None });
     }
     Ok(made)
@@ -72,7 +72,7 @@ impl<T: Object> Drop for Owned<T> {
     fn drop(&mut self) {
         // SAFETY: made by `create` on this context, and owned by nothing else.
         unsafe { self.name.delete(&self.by) };
-        crate::base::resources::gone(T::KIND);
+        crate::instruments::resources::gone(T::KIND);
         // `counted`, a field, is dropped next: the count goes with the object.
     }
 }
@@ -193,7 +193,7 @@ pub fn compute_program(gl: &Rc<glow::Context>, compute: &str) -> Result<Owned<gl
 /// compile, or a program that does not link, deletes what was made.
 fn program_from(gl: &Rc<glow::Context>, stages: &[(u32, &str, &str)]) -> Result<Owned<glow::Program>> {
     let program = create(gl, "glCreateProgram", |gl| unsafe { gl.create_program() })?;
-    crate::base::resources::created("gl_program", 0);
+    crate::instruments::resources::created("gl_program", 0);
     let mut shaders = Vec::new();
     for &(kind, source, name) in stages {
         let shader = create(gl, &format!("glCreateShader for the {name} shader"), |gl| unsafe {
@@ -226,7 +226,7 @@ fn program_from(gl: &Rc<glow::Context>, stages: &[(u32, &str, &str)]) -> Result<
     Ok(program)
 }
 
-/// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::base::output`].
+/// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::instruments::output`].
 /// Deleted when dropped: the framebuffer, then its renderbuffer (fields drop in order).
 pub struct RenderTarget {
     pub framebuffer: Owned<glow::Framebuffer>,

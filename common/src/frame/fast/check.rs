@@ -5,9 +5,9 @@
 use super::composite::{ComputeComposite, Uniforms, View};
 use super::visibility::Targets;
 use anyhow::Result;
-use crate::base::report::Report;
+use crate::instruments::report::Report;
 use crate::base::cli::{Size, check_covered};
-use crate::base::output;
+use crate::instruments::output;
 use crate::frame::{Overlays, shows_colour};
 use crate::interop::handoff::Apis;
 use crate::scene::Camera;

@@ -5,7 +5,7 @@ use super::visibility::{MeshIds, Targets};
 use anyhow::Result;
 use ash::vk;
 use crate::base::vulkan::VulkanContext;
-use crate::base::timestamps::Timestamps;
+use crate::clocks::timestamps::Timestamps;
 use crate::interop::handoff::Apis;
 use crate::rt::RayTracedScene;
 use crate::rt::ao::Traced;

@@ -7,8 +7,8 @@ use super::structure::{
     tlas_built_barrier, triangles_geometry,
 };
 use crate::base::commands::Commands;
-use crate::base::fail;
-use crate::base::timestamps::Timestamps;
+use crate::instruments::fail;
+use crate::clocks::timestamps::Timestamps;
 use crate::base::vulkan::VulkanContext;
 use crate::scene::Scene;
 use crate::scene::gbuffer::SceneBuffers;

@@ -6,7 +6,7 @@ use super::structure::Scratch;
 use super::structure::build_sizes;
 use crate::base::vulkan::VulkanContext;
 use crate::base::commands::Commands;
-use crate::base::timestamps::{Timestamps, timed};
+use crate::clocks::timestamps::{Timestamps, timed};
 use anyhow::Result;
 use ash::vk;
 

@@ -1,7 +1,7 @@
 //! Memory Vulkan keeps to itself: gpu-allocator, buffers in it with their device addresses, and
 //! query pools. It knows nothing of acceleration structures (`structure` stands on it).
 
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::Result;
@@ -105,7 +105,7 @@ impl DeviceBuffer {
             allocation_scheme: AllocationScheme::GpuAllocatorManaged,
         };
         let allocation = allocator.allocate(&description)?;
-        crate::base::resources::created(&format!("vk_buffer: {name}"), allocation.size());
+        crate::instruments::resources::created(&format!("vk_buffer: {name}"), allocation.size());
         fail::call(&format!("vkBindBufferMemory for the {name}"), || unsafe {
             vk.device.bind_buffer_memory(*buffer, allocation.memory(), allocation.offset())
         })?;
@@ -123,6 +123,6 @@ pub(super) fn query_pool(vk: &VulkanContext, ty: vk::QueryType, count: u32) -> R
     let info = vk::QueryPoolCreateInfo::default().query_type(ty).query_count(count);
     let what = format!("vkCreateQueryPool ({ty:?})");
     let pool = create(&vk.device, &what, || unsafe { vk.device.create_query_pool(&info, None) })?;
-    crate::base::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
+    crate::instruments::resources::created(&format!("vk_query_pool: {ty:?}"), 0);
     Ok(pool)
 }

@@ -47,7 +47,7 @@ impl AccelerationStructure {
         let what = format!("vkCreateAccelerationStructureKHR ({ty:?})");
         let handle = create(&loader, &what, || unsafe { loader.create_acceleration_structure(&info, None) })?;
         // Its bytes are counted with its buffer; the kind says what was built, and how.
-        crate::base::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
+        crate::instruments::resources::created(&format!("vk_acceleration_structure: {ty:?}, {flags:?}"), 0);
         let address_info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(*handle);
         let address = unsafe { loader.get_acceleration_structure_device_address(&address_info) };

@@ -8,8 +8,8 @@
 
 use crate::base::commands;
 use crate::base::gl::{Owned, create, create_n};
-use crate::base::report::Report;
-use crate::base::timestamps::{Timestamps, median_p95};
+use crate::instruments::report::Report;
+use crate::clocks::timestamps::{Timestamps, median_p95};
 use crate::base::vulkan::VulkanContext;
 use anyhow::{Context as _, Result};
 use ash::vk;

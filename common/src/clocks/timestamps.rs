@@ -1,7 +1,7 @@
 //! GPU timestamps: the queries around a frame's Vulkan work, read back once its fence has
 //! signalled, and the median and 95th percentile the reports give of them.
 
-use crate::base::fail;
+use crate::instruments::fail;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
 use anyhow::Result;
@@ -58,7 +58,7 @@ impl Timestamps {
         let pool = create(&vk.device, "vkCreateQueryPool for timestamps", || unsafe {
             vk.device.create_query_pool(&info, None)
         })?;
-        crate::base::resources::created("vk_query_pool: timestamps", 0);
+        crate::instruments::resources::created("vk_query_pool: timestamps", 0);
         Ok(Some(Timestamps { pool, count, period_ns: limits.timestamp_period as f64, valid_mask }))
     }
 

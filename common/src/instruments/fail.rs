@@ -7,7 +7,7 @@
 //! - `VKGL_FAIL_AT=<n>` makes step `n` fail as if the driver had refused it;
 //! - `VKGL_FAIL_AT=none` fails nothing.
 //!
-//! In all three, `run_chapter` prints what was left at exit (`base::resources`): the open fds,
+//! In all three, `run_chapter` prints what was left at exit (`instruments::resources`): the open fds,
 //! the counted resources still alive, and the GL objects alive when the GL context went. A
 //! Vulkan object left alive shows as the validation layer's "has not been destroyed" when the
 //! device goes. `tests/errors.rs` fails every step of every chapter in turn.

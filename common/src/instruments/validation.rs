@@ -1,7 +1,7 @@
 //! The validation layer: on whenever it is installed, its messages printed and counted for the
 //! report (a Vulkan object still alive when the device is destroyed is one of its errors).
 
-use crate::base::report::ValidationReport;
+use crate::instruments::report::ValidationReport;
 use ash::vk;
 use std::ffi::{CStr, c_void};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};

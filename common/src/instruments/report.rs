@@ -10,8 +10,8 @@ pub struct Report {
     pub chapter: String,
     pub vulkan: Option<VulkanReport>,
     pub gl: Option<GlReport>,
-    /// What the chapter created on the GPU, by kind (`common::base::resources`), beside the extensions.
-    pub resources: Vec<crate::base::resources::Created>,
+    /// What the chapter created on the GPU, by kind (`common::instruments::resources`), beside the extensions.
+    pub resources: Vec<crate::instruments::resources::Created>,
     /// Do GL and Vulkan run on the same device and driver? `None` when the chapter uses no GL.
     pub uuids_match: Option<bool>,
     /// How the two APIs take turns: "semaphores", "host", or `None` when they never share work.
@@ -112,7 +112,7 @@ impl Report {
         });
     }
 
-    /// Prints the report and decides the exit code (see [`crate::base::chapter::run_chapter`]), from the checks
+    /// Prints the report and decides the exit code (a chapter's `run_chapter` returns it), from the checks
     /// and from `validation`, the layer's and GL's error counts that the caller filled in.
     pub fn finish(self, print: Print) -> ExitCode {
         let failed: Vec<&str> = self.checks.iter().filter(|(_, ok)| !**ok).map(|(n, _)| n.as_str()).collect();

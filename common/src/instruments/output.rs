@@ -1,7 +1,7 @@
 //! Writing what a chapter rendered: GL read-back and PNG files.
 
-use crate::base::fail;
-use crate::base::report::Report;
+use crate::instruments::fail;
+use crate::instruments::report::Report;
 use anyhow::{Context as _, Result};
 use glow::HasContext;
 use std::path::Path;
@@ -64,13 +64,44 @@ pub fn save_rgba8(
 ) -> Result<()> {
     create_dir(dir)?;
     let path = dir.join(format!("{name}.png"));
-    fail::call("writing a PNG", || {
-        image::save_buffer(&path, pixels, width, height, image::ExtendedColorType::Rgba8)
-    })
-    .with_context(|| format!("writing {}", path.display()))?;
+    fail::call("writing a PNG", || write_png(&path, (width, height), pixels))
+        .with_context(|| format!("writing {}", path.display()))?;
     eprintln!("wrote {}", path.display());
     report.image(name, &path, width, height, "RGBA8");
     Ok(())
+}
+
+/// Encodes RGBA8 pixels (top row first) as an 8-bit RGBA PNG file at `path`.
+fn write_png(path: &Path, (width, height): (u32, u32), pixels: &[u8]) -> Result<()> {
+    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+    let mut encoder = png::Encoder::new(file, width, height);
+    encoder.set_color(png::ColorType::Rgba);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(pixels)?;
+    writer.finish()?;
+    Ok(())
+}
+
+/// Reads a PNG this tutorial wrote: 8-bit RGBA, top row first. Returns its size and pixels; any
+/// other kind of PNG is refused, naming what it is.
+pub fn read_png_rgba8(path: &Path) -> Result<((u32, u32), Vec<u8>)> {
+    let read = || -> Result<((u32, u32), Vec<u8>)> {
+        let file = std::io::BufReader::new(std::fs::File::open(path)?);
+        let mut reader = png::Decoder::new(file).read_info()?;
+        let size = reader.output_buffer_size().context("the image is too large to decode")?;
+        let mut pixels = vec![0; size];
+        let frame = reader.next_frame(&mut pixels)?;
+        anyhow::ensure!(
+            (frame.color_type, frame.bit_depth) == (png::ColorType::Rgba, png::BitDepth::Eight),
+            "a {:?} {:?}-bit PNG, not the 8-bit RGBA this tutorial writes",
+            frame.color_type,
+            frame.bit_depth as u8
+        );
+        pixels.truncate(frame.buffer_size());
+        Ok(((frame.width, frame.height), pixels))
+    };
+    read().with_context(|| format!("reading {}", path.display()))
 }
 
 /// An animation's frames (frame number, RGBA8 pixels top row first), written as

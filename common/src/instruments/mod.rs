@@ -1,0 +1,10 @@
+//! The instruments: what every layer checks, counts and reports with, below everything the
+//! chapters teach. The report and its checks, counts of what is alive (objects, GL names, fds),
+//! failure injection (`VKGL_FAIL_AT`), the validation layer's messages, and the images and plots
+//! a chapter writes. Nothing here names Vulkan's or GL's objects of the tutorial.
+
+pub mod fail;
+pub mod output;
+pub mod report;
+pub mod resources;
+pub mod validation;
