@@ -75,10 +75,7 @@ fn show_pictures(chapter: &str, common: &CommonArgs, report: &mut Report) {
     let shown = if common.headless {
         false
     } else if !window::display_available() {
-        eprintln!(
-            "window: no display (DISPLAY / WAYLAND_DISPLAY unset); the pictures are in {}",
-            out.display()
-        );
+        eprintln!("window: {}; the pictures are in {}", window::no_display_reason(), out.display());
         false
     } else {
         let pictures: Vec<_> =
@@ -145,7 +142,7 @@ pub fn contexts_in_window(
     let vk = VulkanContext::new(requirements)?;
     let headless = common.headless || !window::display_available();
     if !common.headless && headless {
-        eprintln!("window: no display (DISPLAY / WAYLAND_DISPLAY unset): running headless");
+        eprintln!("window: {}: running headless", window::no_display_reason());
     }
     let (window, gl) = if headless {
         (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
