@@ -1386,3 +1386,56 @@ fn rounding_is_the_pages() {
     assert_eq!(rounded("11", 0), "11");
     assert_ne!(rounded("10.93", 1), "11.1");
 }
+
+/// The files of `common` a page includes code from that its prose does not name: by path
+/// (`common/src/rt/ao.rs`), by a folder above it (`common/src/rt/accel/`), or by module path
+/// (`rt::ao`, `common::rt::ao`). From chapter 04 on, a lesson's calls live where the chapters
+/// after it call them, in `common`; the page shows them there, and must say where that is.
+fn unnamed_common_listings(page: &str) -> Vec<String> {
+    let prose: String = page.lines().filter(|l| !l.trim_start().starts_with("{{#include")).collect::<Vec<_>>().join("\n");
+    let mut unnamed = Vec::new();
+    for line in page.lines() {
+        let Some(target) = line.trim().strip_prefix("{{#include ../../").and_then(|t| t.strip_suffix("}}")) else {
+            continue;
+        };
+        let file = target.split(':').next().unwrap_or(target);
+        let Some(inside) = file.strip_prefix("common/src/") else { continue };
+        let module = inside.trim_end_matches(".rs").trim_end_matches("/mod").replace('/', "::");
+        let mut folders = Vec::new();
+        let mut folder = std::path::Path::new(file).parent();
+        while let Some(f) = folder.filter(|f| f.starts_with("common/src") && *f != std::path::Path::new("common/src")) {
+            folders.push(format!("{}/", f.display()));
+            folder = f.parent();
+        }
+        let named = prose.contains(file)
+            || folders.iter().any(|f| prose.contains(f.as_str()))
+            || prose.contains(&format!("`{module}")) || prose.contains(&format!("common::{module}"));
+        if !named && !unnamed.contains(&file.to_owned()) {
+            unnamed.push(file.to_owned());
+        }
+    }
+    unnamed
+}
+
+#[test]
+fn each_chapter_page_names_the_common_files_it_shows() {
+    let mut found = Vec::new();
+    for page in pages().iter().filter(|p| p.chapter().is_some()) {
+        let text = std::fs::read_to_string(root().join("book/src").join(&page.name)).unwrap();
+        for file in unnamed_common_listings(&text) {
+            found.push(format!("{}: shows code from {file} and never says where it lives", page.name));
+        }
+    }
+    assert!(found.is_empty(), "{}", found.join("\n"));
+}
+
+#[test]
+fn the_common_file_check_catches_an_unnamed_file() {
+    let include = "{{#include ../../common/src/rt/ao.rs:record}}";
+    assert_eq!(unnamed_common_listings(&format!("Some prose.\n\n```rust\n{include}\n```\n")), ["common/src/rt/ao.rs"]);
+    for named in ["[`common/src/rt/ao.rs`](x)", "`common/src/rt/` holds it", "`rt::ao::record`", "`common::rt::ao`"] {
+        assert!(unnamed_common_listings(&format!("{named}\n\n```rust\n{include}\n```\n")).is_empty(), "{named}");
+    }
+    // The include line itself does not count as naming the file.
+    assert_eq!(unnamed_common_listings(include).len(), 1);
+}
