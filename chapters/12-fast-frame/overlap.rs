@@ -52,7 +52,7 @@ pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: &Probe, rounds: u32) -
                 draw_spare()
             }
         };
-        tracer.trace_around(apis, p.targets, p.camera, p.rays, None, between, |_| {})?;
+        tracer.trace_around(apis, p.targets, p.camera, p.rays, None, between)?;
         if !gl_during {
             draw_spare();
         }

@@ -7,6 +7,7 @@ use crate::temporal::{Budget, TemporalTracer};
 use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
 use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::{Context as _, Result};
+use common::base::commands::Commands;
 use common::clocks::timeline::{Timeline, stamp_into as stamp};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
@@ -40,6 +41,7 @@ pub struct Motion<'a> {
     pub instances: &'a ExportedBuffer,
     pub tlas: &'a InPlace,
     pub loader: &'a ash::khr::acceleration_structure::Device,
+    pub updates: &'a Commands,
 }
 
 /// Everything a frame draws with that stays the same from frame to frame.
@@ -133,16 +135,8 @@ impl Passes<'_> {
             let previous = sized.temporal.previous_instances.allocation.mapped_slice_mut();
             let previous = previous.context("the previous instances are not mapped")?;
             moving.write(motion.instances, previous, frame);
+            motion.tlas.submit(vk, motion.updates, motion.loader, Refresh::Update, None)?;
         }
-        // The TLAS update goes ahead of the rays in the trace's own submission, not in one of its
-        // own before GL's ids: this driver runs one API's work at a time, and a Vulkan submission
-        // between GL's passes would turn the GPU from GL to Vulkan and back once more a frame
-        // (0.1 ms at 1080p on the H100, chapter 13's deeper page).
-        let update = |cb| {
-            if let Some(motion) = self.motion.as_ref().filter(|_| self.path.moving.is_some()) {
-                motion.tlas.record_refresh(vk, cb, motion.loader, Refresh::Update, None);
-            }
-        };
         let camera = self.path.camera(frame);
         let targets = &sized.targets;
         stamp(timeline, slot, 0);
@@ -151,14 +145,14 @@ impl Passes<'_> {
         match drawn {
             Drawn::Temporal(budget) => {
                 let moved = self.path.moving.as_ref().filter(|_| self.motion.is_some()).map(|m| m.swept(frame));
-                sized.temporal.trace(self.apis, targets, (&camera, frame), (&budget, moved), self.timestamps, update)?
+                sized.temporal.trace(self.apis, targets, (&camera, frame), (&budget, moved), self.timestamps)?
             }
             Drawn::Fresh(samples) => {
                 let scene_scale = self.scene.size() / 2.0;
                 let pattern = Pattern::Tile4x4; // chapter 12's
                 let rays = Rays { samples, radius: self.radius, scene_scale, pattern, salt: 0 };
                 sized.fresh.accumulated = 0; // chapter 12 starts again whenever anything moves
-                sized.fresh.trace_around(self.apis, targets, &camera, rays, self.timestamps, || {}, update)?;
+                sized.fresh.trace(self.apis, targets, &camera, rays, self.timestamps)?;
             }
         }
         clock.traced = Some(slot);

@@ -123,6 +123,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let composite = ComputeComposite::new(gl)?;
     let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
     let timestamps = Timestamps::new(&vk)?;
+    let updates = Commands::new(&vk)?;
     // Made after everything the frames use: an early return drops it first, and its Drop waits
     // for the last frame's Vulkan work before any of that is destroyed.
     let commands = Commands::new(&vk)?;
@@ -141,6 +142,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             instances: &shared.buffers.instances.vk,
             tlas,
             loader,
+            updates: &updates,
         }),
         timestamps: timestamps.as_ref(),
         uniforms,
@@ -173,6 +175,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     vk.wait_idle()?; // once: no guard below waits
     drop(passes);
     drop(commands);
+    drop(updates);
     drop(timestamps);
     drop(overlays);
     drop(composite);

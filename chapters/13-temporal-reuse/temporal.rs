@@ -217,10 +217,9 @@ impl TemporalTracer {
     }
 
     // ANCHOR: frame
-    /// One frame: the cameras written, then, between chapter 12's hand-overs, `before` (the
-    /// TLAS update, where an instance moved), the history made visible to this frame's rays and
-    /// the rays traced; then the two history images swap. The caller waits for the previous
-    /// frame's Vulkan work first (`Passes::draw` does).
+    /// One frame: the cameras written, then, between chapter 12's hand-overs, the history made
+    /// visible to this frame's rays and the rays traced; then the two history images swap. The
+    /// caller waits for the previous frame's Vulkan work first (`Passes::draw` does).
     pub fn trace(
         &mut self,
         apis: Apis,
@@ -228,7 +227,6 @@ impl TemporalTracer {
         (camera, frame): (&Camera, u32),
         (budget, moved): (&Budget, Option<(glam::Vec3, f32)>),
         timestamps: Option<&Timestamps>,
-        before: impl FnOnce(vk::CommandBuffer),
     ) -> Result<()> {
         // The previous frame's work is done (the caller waited for it, at the top of the frame):
         // its descriptors and cameras may change.
@@ -273,7 +271,6 @@ impl TemporalTracer {
         };
         let history = self.history_barriers();
         let work = |cb| {
-            before(cb);
             let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
             // The previous frame wrote the image read now and read the image written now: its
             // writes must be visible, and its reads done, before these rays start.

@@ -178,14 +178,12 @@ impl SurfaceTracer {
         rays: Rays,
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
-        self.trace_around(apis, targets, camera, rays, timestamps, || {}, |_| {})
+        self.trace_around(apis, targets, camera, rays, timestamps, || {})
     }
     // ANCHOR_END: frame
 
     /// [`SurfaceTracer::trace`], with `between` run once Vulkan's work is submitted and before GL
-    /// is told to wait for it: GL work there does not depend on Vulkan's (`overlap.rs`); and
-    /// `before` recorded ahead of the rays in the same submission: Vulkan work they depend on,
-    /// such as chapter 13's update of the TLAS for an instance that moved.
+    /// is told to wait for it: GL work there does not depend on Vulkan's (`overlap.rs`).
     pub fn trace_around(
         &mut self,
         apis: Apis,
@@ -194,7 +192,6 @@ impl SurfaceTracer {
         rays: Rays,
         timestamps: Option<&Timestamps>,
         between: impl FnOnce(),
-        before: impl FnOnce(vk::CommandBuffer),
     ) -> Result<()> {
         let aspect = targets.extent.width as f32 / targets.extent.height as f32;
         let push = SurfaceRays {
@@ -211,10 +208,7 @@ impl SurfaceTracer {
             instances: self.instances,
         };
         let (vk, pipeline) = (apis.vk, &self.pipeline);
-        let trace = |cb| {
-            before(cb);
-            pipeline.trace(vk, cb, push_bytes(&push), targets.extent)
-        };
+        let trace = |cb| pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
         hand_over_around(apis, targets, timestamps, between, trace)?;
         self.accumulated += rays.samples;
         Ok(())

@@ -104,8 +104,8 @@ impl InPlace {
 
     // ANCHOR: refresh
     /// Records and submits the update (or rebuild), in its own command buffer, ahead of the
-    /// frame's trace on the same queue (chapter 09's). Queue order and the barriers of
-    /// [`InPlace::record_refresh`] order it against the traces before and after it.
+    /// frame's trace on the same queue (chapter 09's; chapter 13 moves an instance with it too).
+    /// Queue order and the barriers below order it against the traces before and after it.
     pub fn submit(
         &self,
         vk: &VulkanContext,
@@ -115,22 +115,6 @@ impl InPlace {
         timer: Option<&Timestamps>,
     ) -> Result<()> {
         let cb = updates.begin(vk)?;
-        self.record_refresh(vk, cb, loader, refresh, timer);
-        // No semaphore: the update reads nothing GL writes. It may run while GL draws.
-        updates.submit(vk, None, None)
-    }
-
-    /// The update (or rebuild) and the barriers around it, recorded into `cb`: into a command
-    /// buffer of its own ([`InPlace::submit`]), or into the trace's, ahead of the rays (chapter
-    /// 13: one Vulkan submission a frame, so the GPU turns from GL to Vulkan once, not twice).
-    pub fn record_refresh(
-        &self,
-        vk: &VulkanContext,
-        cb: vk::CommandBuffer,
-        loader: &ash::khr::acceleration_structure::Device,
-        refresh: Refresh,
-        timer: Option<&Timestamps>,
-    ) {
         let build = vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR;
         let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         // Before: everything the update reads or overwrites must be ready.
@@ -148,9 +132,8 @@ impl InPlace {
                     | vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR
                     | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
             );
-        // After: the trace, recorded or submitted next, reads the TLAS from the ray tracing
-        // shaders. (A barrier orders everything later in submission order on this queue, the
-        // next submission included.)
+        // After: the trace, submitted next, reads the TLAS from the ray tracing shaders. (A barrier
+        // orders everything later in submission order on this queue, the next submission included.)
         let after = vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
             .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
@@ -161,6 +144,8 @@ impl InPlace {
             timed(vk, cb, timer, build, || self.record(loader, cb, refresh));
             vk.device.cmd_pipeline_barrier(cb, build, rays, none, &[after], &[], &[]);
         }
+        // No semaphore: the update reads nothing GL writes. It may run while GL draws.
+        updates.submit(vk, None, None)
     }
     // ANCHOR_END: refresh
 }
