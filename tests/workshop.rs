@@ -125,6 +125,12 @@ const SOLUTIONS: &[Solution] = &[
         proof: Proof::Flag("--hidden-alpha"),
     },
     Solution {
+        patch: "12-which-triangle.diff",
+        chapter: "12-fast-frame",
+        args: &["--headless", "--size", "96x72", "--frames", "2", "--samples", "4"],
+        proof: Proof::Check("decoded_triangles_cover_their_pixels"),
+    },
+    Solution {
         // Two processes: the viewer's check comes back in the renderer's report, renamed.
         patch: "14-skipped-frame.diff",
         chapter: "14-two-processes",
