@@ -380,7 +380,7 @@ const TYPED_OUTPUT: &[(&str, &str, &str)] = &[
     ("book/src/02-gl-buffer-import.md", "gl debug error: GL_OUT_OF_MEMORY", "the program changed as the text says"),
     ("book/src/03-semaphores-deeper.md", "vulkan: using NVIDIA H200", "an NVIDIA H200's output"),
     ("book/src/03-semaphores-deeper.md", "sync: host (GL cannot import semaphores", "a GPU's output, semaphores hidden"),
-    ("book/src/03-semaphores-deeper.md", "$ cargo run --bin 03-semaphores -- --headless --frames 8", "the program changed as the text says"),
+    ("book/src/03-semaphores-deeper.md", "$ cargo run --release --bin 03-semaphores -- --headless --frames 8", "the program changed as the text says"),
     ("book/src/06-blas-tlas.md", "rays and raster disagree on 40562", "the program changed as the text says"),
     ("book/src/troubleshooting.md", "error: GL and Vulkan run on different devices", "needs two GPUs"),
     ("book/src/troubleshooting.md", "error: no GL configuration for a window", "needs an X server with no GLX for the GPU"),
