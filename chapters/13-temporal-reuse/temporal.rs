@@ -263,8 +263,9 @@ impl TemporalTracer {
 
     // ANCHOR: frame
     /// One frame: the cameras written, then, between chapter 12's hand-overs, the history made
-    /// visible to this frame's rays and the rays traced; then the two history images swap. The
-    /// caller waits for the previous frame's Vulkan work first (`Passes::draw` does).
+    /// visible to this frame's rays and the rays traced (in two launches with `--fresh-pass
+    /// packed`, the pixels with nothing remembered in the second); then the two history images
+    /// swap. The caller waits for the previous frame's Vulkan work first (`Passes::draw` does).
     pub fn trace(
         &mut self,
         apis: Apis,
@@ -328,7 +329,6 @@ impl TemporalTracer {
                 self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
                 return;
             }
-            // ANCHOR: packed
             // The list starts empty: its count (the first 4 bytes) set to 0 by a transfer.
             let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
             let (transfer, filled) = (vk::PipelineStageFlags::TRANSFER, vk::AccessFlags::TRANSFER_WRITE);
@@ -365,7 +365,6 @@ impl TemporalTracer {
             // not every device has.
             let second = TemporalRays { pass: LISTED, ..push };
             self.pipeline.trace(vk, cb, push_bytes(&second), targets.extent);
-            // ANCHOR_END: packed
         };
         hand_over_around(apis, targets, timestamps, || {}, work)?;
         self.images_used = true;
