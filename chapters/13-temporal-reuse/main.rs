@@ -83,6 +83,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
     }
     report.set("path", args.path);
+    report.set("fresh_pass", args.fresh_pass);
     report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise

@@ -44,6 +44,12 @@ pub struct Args {
     /// chapter 08's very rays).
     #[arg(long, value_enum, default_value = "tile4x4")]
     pub pattern: Pattern,
+    /// Where a pixel with nothing remembered traces its `--fresh` rays: `packed`, in a second
+    /// launch over such pixels only, listed by the first, so that they fill whole warps;
+    /// `inline`, in the one launch, where its warp waits for them while its neighbours trace a
+    /// few. The same rays either way, so the same picture.
+    #[arg(long, value_enum, default_value = "packed")]
+    pub fresh_pass: FreshPass,
     /// `temporal`: this chapter's frame; `fresh`: chapter 12's, new rays every frame and nothing
     /// kept, drawn along the same path for comparison.
     #[arg(long, value_enum, default_value = "temporal")]
@@ -119,6 +125,16 @@ pub enum Accept {
 pub enum Pattern {
     Tile4x4,
     PerPixel,
+}
+
+/// Where the rays of a pixel with nothing remembered are traced (`--fresh-pass`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FreshPass {
+    /// In a second launch, over the pixels the first listed.
+    Packed,
+    /// In the one launch, beside the pixels that trace a few.
+    Inline,
 }
 
 /// How a frame's occlusion is made (`--method`).

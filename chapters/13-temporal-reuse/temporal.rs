@@ -2,7 +2,7 @@
 //! occlusion, the two history images it reads and writes in turn, the cameras and previous
 //! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
 
-use crate::settings::{Accept, Args};
+use crate::settings::{Accept, Args, FreshPass};
 use common::frame::fast::trace::hand_over_around;
 use common::frame::fast::visibility::Targets;
 use anyhow::{Context as _, Result};
@@ -22,7 +22,7 @@ const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 const HISTORY_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
 
 // ANCHOR: push
-/// The push constants of `shaders/temporal_ao.rgen` (std430: 100 bytes, padded to 112).
+/// The push constants of `shaders/temporal_ao.rgen` (std430, 112 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct TemporalRays {
@@ -46,7 +46,10 @@ pub struct TemporalRays {
     /// occlusion radius; radius 0: nothing moved.
     pub moved: [f32; 4],
     pub near_motion_cap: u32,
-    _pad: [u32; 3],
+    /// Which launch this is: `INLINE`, `LISTING` or `LISTED`.
+    pub pass: u32,
+    /// The device address of the list of fresh pixels.
+    pub fresh_pixels: u64,
 }
 
 /// The shader's `Cameras` (std430, 256 bytes): this frame's and the previous frame's.
@@ -62,6 +65,12 @@ struct Cameras {
     previous_forward: [f32; 4],
 }
 // ANCHOR_END: push
+
+/// The shader's `pass`: the one launch of `--fresh-pass inline`, or the first or second of
+/// `packed`.
+const INLINE: u32 = 0;
+const LISTING: u32 = 1;
+const LISTED: u32 = 2;
 
 /// The shader's `accept` bits (`HAS_HISTORY`, then one per test).
 const HAS_HISTORY: u32 = 1;
@@ -90,6 +99,8 @@ pub struct Budget {
     pub per_pixel: bool,
     /// The most rays a pixel remembers near what moved (`--near-motion-cap`).
     pub near_motion_cap: u32,
+    /// Where a pixel with nothing remembered traces (`--fresh-pass`).
+    pub fresh_pass: FreshPass,
 }
 
 impl Budget {
@@ -97,16 +108,31 @@ impl Budget {
         let (samples, fresh) = if radius > 0.0 { (args.samples, args.fresh) } else { (0, 0) };
         let (cap, settled_every, accept) = (args.cap, args.settled_every, accept_bits(&args.accept));
         let per_pixel = args.pattern == crate::settings::Pattern::PerPixel;
-        let near_motion_cap = args.near_motion_cap;
-        Budget { samples, fresh, cap, settled_every, accept, radius, scene_scale, per_pixel, near_motion_cap }
+        let (near_motion_cap, fresh_pass) = (args.near_motion_cap, args.fresh_pass);
+        Budget {
+            samples,
+            fresh,
+            cap,
+            settled_every,
+            accept,
+            radius,
+            scene_scale,
+            per_pixel,
+            near_motion_cap,
+            fresh_pass,
+        }
     }
 }
 
-/// The pipeline, its two history images and the buffers it reprojects with. Dropped, the
-/// pipeline goes first, then the images and buffers; the GPU must be done with all of them.
+/// The pipeline, its two history images, the list of pixels with nothing remembered and the
+/// buffers it reprojects with. Dropped, the pipeline goes first, then the images and buffers; the
+/// GPU must be done with all of them.
 pub struct TemporalTracer {
     pipeline: RayPipeline,
     history: [StorageImage; 2],
+    /// The pixels with nothing remembered, listed by the first launch for the second to trace
+    /// (`--fresh-pass packed`): a count, then room for every pixel of the picture.
+    fresh_pixels: DeviceBuffer,
     cameras: DeviceBuffer,
     /// The instance transforms the previous frame was drawn with (a copy of the shared buffer,
     /// updated where an instance moved).
@@ -153,6 +179,7 @@ impl TemporalTracer {
         let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<TemporalRays>() as u32)?;
         pipeline.write_tlas(vk, 0, *shared.structures.tlas.handle);
         let history = Self::history_images(vk, allocator, targets.extent)?;
+        let fresh_pixels = Self::fresh_list(vk, allocator, targets.extent)?;
         let host = |name, size| BufferDesc {
             name,
             size,
@@ -172,6 +199,7 @@ impl TemporalTracer {
         let tracer = TemporalTracer {
             pipeline,
             history,
+            fresh_pixels,
             cameras,
             previous_instances,
             written: 0,
@@ -195,6 +223,21 @@ impl TemporalTracer {
         Ok([first, StorageImage::new(vk, allocator, HISTORY_FORMAT, usage, extent)?])
     }
 
+    /// The list of fresh pixels for a picture of `extent`: a count, then room for every pixel
+    /// (after a cut, every pixel that shows a surface is one). Only the ray generation shader
+    /// reads and writes it, by its address, but for its count, which `vkCmdFillBuffer` (a
+    /// transfer) sets to 0.
+    fn fresh_list(
+        vk: &VulkanContext,
+        allocator: &GpuAllocator,
+        extent: vk::Extent2D,
+    ) -> Result<DeviceBuffer> {
+        let size = 4 + 4 * extent.width as u64 * extent.height as u64;
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST;
+        let location = MemoryLocation::GpuOnly;
+        DeviceBuffer::new(vk, allocator, BufferDesc { name: "fresh pixels", size, usage, location })
+    }
+
     /// The descriptors at this size's images, the history read and written as `written` says.
     fn point_at(&self, vk: &VulkanContext, targets: &Targets) {
         self.pipeline.write_storage_image(vk, 1, *targets.visibility.view);
@@ -203,9 +246,11 @@ impl TemporalTracer {
         self.pipeline.write_storage_image(vk, 4, *self.history[self.written].view);
     }
 
-    /// New images of the new size: nothing is remembered. The GPU must be done with the old.
+    /// New images and a new list of the new size: nothing is remembered. The GPU must be done
+    /// with the old.
     pub fn resized(&mut self, vk: &VulkanContext, allocator: &GpuAllocator, targets: &Targets) -> Result<()> {
         self.history = Self::history_images(vk, allocator, targets.extent)?;
+        self.fresh_pixels = Self::fresh_list(vk, allocator, targets.extent)?;
         (self.written, self.remembers, self.images_used) = (0, false, false);
         self.point_at(vk, targets);
         Ok(())
@@ -218,8 +263,9 @@ impl TemporalTracer {
 
     // ANCHOR: frame
     /// One frame: the cameras written, then, between chapter 12's hand-overs, the history made
-    /// visible to this frame's rays and the rays traced; then the two history images swap. The
-    /// caller waits for the previous frame's Vulkan work first (`Passes::draw` does).
+    /// visible to this frame's rays and the rays traced (in two launches with `--fresh-pass
+    /// packed`, the pixels with nothing remembered in the second); then the two history images
+    /// swap. The caller waits for the previous frame's Vulkan work first (`Passes::draw` does).
     pub fn trace(
         &mut self,
         apis: Apis,
@@ -247,6 +293,7 @@ impl TemporalTracer {
         };
         let mapped = self.cameras.allocation.mapped_slice_mut().context("cameras unmapped")?;
         mapped[..size_of::<Cameras>()].copy_from_slice(common::scene::gbuffer::as_bytes(&[cameras]));
+        let packed = budget.fresh_pass == FreshPass::Packed;
         let push = TemporalRays {
             cameras: self.cameras.address,
             meshes: self.meshes.0,
@@ -267,25 +314,57 @@ impl TemporalTracer {
             // Occlusion is the geometry within `radius` of a point: only there can it change.
             moved: moved.map_or([0.0; 4], |(centre, reach)| centre.extend(reach + budget.radius).to_array()),
             near_motion_cap: budget.near_motion_cap,
-            _pad: [0; 3],
+            pass: if packed { LISTING } else { INLINE },
+            fresh_pixels: self.fresh_pixels.address,
         };
         let history = self.history_barriers();
+        let list = *self.fresh_pixels.buffer;
         let work = |cb| {
             let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
+            let none = vk::DependencyFlags::empty();
             // The previous frame wrote the image read now and read the image written now: its
             // writes must be visible, and its reads done, before these rays start.
-            unsafe {
-                vk.device.cmd_pipeline_barrier(
-                    cb,
-                    stage,
-                    stage,
-                    vk::DependencyFlags::empty(),
-                    &history.0,
-                    &[],
-                    &history.1,
-                )
+            unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &history.0, &[], &history.1) };
+            if !packed {
+                self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+                return;
+            }
+            // The list starts empty: its count (the first 4 bytes) set to 0 by a transfer.
+            let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
+            let (transfer, filled) = (vk::PipelineStageFlags::TRANSFER, vk::AccessFlags::TRANSFER_WRITE);
+            let count = |from, to| {
+                vk::BufferMemoryBarrier::default()
+                    .src_access_mask(from)
+                    .dst_access_mask(to)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .buffer(list)
+                    .size(4)
             };
+            unsafe {
+                // The previous frame's launches read the count and added to it: done, and their
+                // writes out of the way, before the fill writes it.
+                vk.device.cmd_pipeline_barrier(cb, stage, transfer, none, &[], &[count(write, filled)], &[]);
+                vk.device.cmd_fill_buffer(cb, list, 0, 4, 0);
+                // The 0 visible to the first launch, whose atomicAdd reads the count and writes it.
+                let zeroed = count(filled, read | write);
+                vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[zeroed], &[]);
+            }
             self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+            // The first launch's writes visible to the second: the list and its count, which it
+            // reads. And the texels the first wrote finished before the second writes others of
+            // the same two images: no texel is written twice, but tools that check hazards track
+            // an image whole.
+            let listed = vk::MemoryBarrier::default().src_access_mask(write).dst_access_mask(read | write);
+            unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[listed], &[], &[]) };
+            // The first launch's size again: room for every pixel to be listed (after a cut, all
+            // that show a surface are), a size the device is known to launch, and the picture's
+            // size, which the shader reads from the launch. Past the count, whole rows of
+            // invocations return at once. vkCmdTraceRaysIndirectKHR could launch just the count
+            // from the buffer, but it needs a feature (rayTracingPipelineTraceRaysIndirect) that
+            // not every device has.
+            let second = TemporalRays { pass: LISTED, ..push };
+            self.pipeline.trace(vk, cb, push_bytes(&second), targets.extent);
         };
         hand_over_around(apis, targets, timestamps, || {}, work)?;
         self.images_used = true;
@@ -372,6 +451,8 @@ mod tests {
         assert_eq!(offset_of!(TemporalRays, normal_tolerance), 72);
         assert_eq!(offset_of!(TemporalRays, moved), 80);
         assert_eq!(offset_of!(TemporalRays, near_motion_cap), 96);
+        assert_eq!(offset_of!(TemporalRays, pass), 100);
+        assert_eq!(offset_of!(TemporalRays, fresh_pixels), 104);
         assert_eq!(size_of::<TemporalRays>(), 112);
         assert_eq!(offset_of!(Cameras, eye), 192);
         assert_eq!(size_of::<Cameras>(), 256);
