@@ -362,10 +362,7 @@ mod rays_tests {
 
     #[test]
     fn ao_rays_match_the_glsl_block() {
-        assert_eq!(std::mem::offset_of!(AoRays, samples), 0);
-        assert_eq!(std::mem::offset_of!(AoRays, accumulated), 4);
-        assert_eq!(std::mem::offset_of!(AoRays, radius), 8);
-        assert_eq!(std::mem::offset_of!(AoRays, scene_scale), 12);
-        assert_eq!(size_of::<AoRays>(), 16);
+        crate::base::pipeline::assert_layout!(AoRays is 16 bytes: samples at 0, accumulated at 4, radius at 8,
+            scene_scale at 12);
     }
 }
