@@ -57,11 +57,10 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
     let (width, height) = (args.common.size.width, args.common.size.height);
     let out_dir = args.common.out_dir(CHAPTER);
 

@@ -82,11 +82,10 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
     let size = args.common.size;
     let windowed = !args.common.headless && window::display_available();
     if !args.common.headless && !windowed {

@@ -12,9 +12,9 @@ use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::base::output;
 use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
-use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
+use common::interop::handoff::SEMAPHORE_EXTENSION;
 use common::interop::{acquire_from_gl, release_to_gl};
-use common::scene::gbuffer::{GBUFFERS, GBuffer, GBuffers, SceneBuffers};
+use common::scene::gbuffer::{self, GBUFFERS, GBuffer, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
 use common::{CommonArgs, Report, Requirements, ms_since, open_fd_count};
 use glow::HasContext;
@@ -47,29 +47,24 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let extent = args.common.size.extent();
-
     // 1. Load the scene
     // ANCHOR: load
     let scene = args.scene.load()?;
-    let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
+    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
     // ANCHOR_END: load
     let (meshes, instances, triangles) = (scene.meshes.len(), scene.instances.len(), scene.triangles());
     eprintln!("scene: {meshes} meshes, {instances} instances, {triangles} triangles");
 
-    // 2. Create both contexts
+    // 2. Create both contexts, and the hand-off between them
     let requirements =
         Requirements { extensions: REQUIRED, optional_extensions: OPTIONAL, ..Default::default() };
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
+    // A size the device cannot hold the G-buffers at is refused here, before anything is allocated.
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &requirements, args.common.size)?;
     let gl = &gl_context.gl;
-    // A size the device cannot hold is refused here, before anything is allocated.
-    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
 
     // 3. Share the scene's buffers
@@ -80,6 +75,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. Share the G-buffer images, and make them GL's render targets
     // ANCHOR: gbuffers
+    let extent = args.common.size.extent();
     // TRANSFER_SRC: this chapter copies them out. STORAGE: chapter 07's ray tracer reads them.
     let usage = vk::ImageUsageFlags::TRANSFER_SRC | vk::ImageUsageFlags::STORAGE;
     let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, usage)?;

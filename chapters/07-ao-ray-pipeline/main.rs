@@ -15,10 +15,10 @@ use common::base::commands::Commands;
 use common::base::output;
 use common::base::timestamps::Timestamps;
 use common::base::timing::{self, GlPassTimer, PassTimes};
-use common::interop::handoff::{Apis, Handoff};
+use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
-use common::scene::gbuffer::GBuffers;
+use common::scene::gbuffer::{self, GBuffers};
 use common::scene::{Camera, SceneArgs};
 use common::{CommonArgs, RAY_TRACED_INTEROP, Report, open_fd_count};
 use std::process::ExitCode;
@@ -44,30 +44,24 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let extent = args.common.size.extent();
-    let aspect = extent.width as f32 / extent.height as f32;
-
     // 1. Load the scene, and choose a radius that suits its size
     let scene = args.scene.load()?;
-    let camera = Camera::framing(scene.bounds, aspect);
+    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
     let radius = args.ao.radius(&scene)?;
 
     // 2. Create both contexts, share the scene, build its acceleration structures (05, 06)
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    // A size the device cannot hold is refused here, before anything is allocated.
-    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
     let shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
 
     // 3. Share the G-buffers, and make the AO tracer with its shared image
     // ANCHOR: tracer
+    let extent = args.common.size.extent();
     // The ray tracer reads the G-buffers as storage images.
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer =

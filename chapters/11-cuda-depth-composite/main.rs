@@ -91,7 +91,7 @@ impl Path {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }
 
 fn run(args: &Args, report: &mut Report) -> Result<()> {
@@ -116,7 +116,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extensions = [ash::khr::external_memory_fd::NAME];
     let requirements = Requirements { extensions: &extensions, ..Default::default() };
     let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
+        common::contexts(CHAPTER, report, &requirements, args.common.size)?;
     // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
     // cannot hold, before anything else exists.
     anyhow::ensure!(

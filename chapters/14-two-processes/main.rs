@@ -94,6 +94,7 @@ struct Args {
 fn main() -> ExitCode {
     common::run_chapter(
         CHAPTER,
+        SMALLEST,
         |args: &Args| &args.common,
         |args, report| match args.viewer_fd.is_some() || args.connect.is_some() {
             true => viewer::run(args, report),
@@ -116,7 +117,6 @@ pub fn picture(frame: u64, width: u32, height: u32) -> ([u8; 4], (u32, u32, u32)
 // ANCHOR_END: picture
 
 fn render(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
     let slots = args.slots;
     ensure!(
         (2..=wire::MAX_SLOTS).contains(&slots),

@@ -51,6 +51,16 @@ impl AoArgs {
         Ok(radius)
     }
     // ANCHOR_END: radius
+
+    /// [`AoArgs::radius`], for a chapter that traces occlusion every frame (09, 10): refused
+    /// where it would leave nothing to trace ([`nothing_to_trace`]).
+    pub fn radius_to_trace(&self, scene: &crate::scene::Scene) -> Result<f32> {
+        let radius = self.radius(scene)?;
+        if let Some(reason) = nothing_to_trace(self.samples, radius) {
+            anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
+        }
+        Ok(radius)
+    }
 }
 
 /// The checks every chapter that traces makes of the AO image as GL holds it: every value a
