@@ -164,15 +164,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let pictures =
         [("position", seen.position_picture(&scene)), ("normal", seen.normal_picture()), ("albedo", albedo)];
     for (name, pixels) in pictures {
-        // GL drew with its bottom row first in memory: flip, so the pictures are upright.
-        let upright = output::flip_rows(&pixels, extent.width, extent.height);
-        output::save_rgba8(
-            report,
-            &out,
-            &format!("{prefix}-{name}"),
-            (extent.width, extent.height),
-            &upright,
-        )?;
+        // GL drew with its bottom row first in memory: saved upright.
+        let size = (extent.width, extent.height);
+        output::save_gl_rgba8(report, &out, &format!("{prefix}-{name}"), size, &pixels)?;
     }
     report.set("draw_calls", meshes);
     report.set("instances", instances);

@@ -221,14 +221,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         })
         .collect();
     let prefix = args.scene.picture_name(CHAPTER);
-    let upright = output::flip_rows(&picture, extent.width, extent.height);
-    output::save_rgba8(
-        report,
-        &args.common.out_dir(CHAPTER),
-        &prefix,
-        (extent.width, extent.height),
-        &upright,
-    )?;
+    let out = args.common.out_dir(CHAPTER);
+    output::save_gl_rgba8(report, &out, &prefix, (extent.width, extent.height), &picture)?;
 
     common::interop::report_handoff(report, &handoff);
     // 8. Clean up, newest first

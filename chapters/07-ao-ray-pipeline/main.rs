@@ -166,14 +166,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("mrays_per_s", ((rays as f64 / (trace_ms / 1e3)) / 1e6 * 10.0).round() / 10.0);
     }
     let prefix = args.scene.picture_name(CHAPTER);
-    let upright = output::flip_rows(&output::grey(&shown), extent.width, extent.height);
-    output::save_rgba8(
-        report,
-        &args.common.out_dir(CHAPTER),
-        &prefix,
-        (extent.width, extent.height),
-        &upright,
-    )?;
+    let out = args.common.out_dir(CHAPTER);
+    output::save_gl_rgba8(report, &out, &prefix, (extent.width, extent.height), &output::grey(&shown))?;
 
     common::interop::report_handoff(report, &handoff);
     // 6. Clean up, newest first

@@ -331,8 +331,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             Path::Pbo => CHAPTER.to_owned(),
             Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
         };
-        let upright = common::base::output::flip_rows(picture, width, height);
-        common::base::output::save_rgba8(report, &out_dir, &name, (width, height), &upright)?;
+        common::base::output::save_gl_rgba8(report, &out_dir, &name, (width, height), picture)?;
     }
     gl_context.check_error("the frames")?;
 
