@@ -51,10 +51,6 @@ struct Args {
     common: CommonArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let started = Instant::now();
     // ANCHOR: usage
@@ -322,4 +318,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     eprintln!("open fds: {open_fds_before} before exporting, {open_fds_after} after cleaning up");
     report.check("no_fd_leaked", open_fds_after == open_fds_before);
     Ok(())
+}
+
+/// Every chapter ends the same way: `run_chapter` parses the flags, refuses a `--size` below
+/// `SMALLEST`, calls `run`, prints the report and turns its checks into the exit code.
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -56,10 +56,6 @@ struct Args {
     common: CommonArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let (width, height) = (args.common.size.width, args.common.size.height);
     let out_dir = args.common.out_dir(CHAPTER);
@@ -271,4 +267,8 @@ fn close(p: [u8; 4], rgb: [u8; 3]) -> bool {
 fn bytes_of(triangle: &Triangle) -> [u8; BUFFER_BYTES as usize] {
     // SAFETY: [[f32; 4]; 3] is plain data with no padding.
     unsafe { std::mem::transmute_copy(triangle) }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -54,10 +54,6 @@ struct Args {
     unsynchronised: bool,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     let frames = args.common.headless_frames();
@@ -306,3 +302,7 @@ fn share_semaphore(vk: &VulkanContext, gl: &GlContext) -> Result<SharedSemaphore
     Ok(SharedSemaphore { gl: semaphore_gl, vk: semaphore_vk })
 }
 // ANCHOR_END: share_semaphore
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+}

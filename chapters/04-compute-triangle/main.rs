@@ -81,10 +81,6 @@ struct Args {
     resize_every: Option<u32>,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let size = args.common.size;
     let windowed = !args.common.headless && window::display_available();
@@ -334,4 +330,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
 fn scale(extent: vk::Extent2D, side: impl Fn(u32) -> u32) -> vk::Extent2D {
     vk::Extent2D { width: side(extent.width), height: side(extent.height) }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -46,10 +46,6 @@ struct Args {
     resizes: u32,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Load the scene
     // ANCHOR: load
@@ -277,4 +273,8 @@ fn check_gbuffers(report: &mut Report, seen: &GBufferPixels, camera: &Camera, sc
         p.cmpge(scene.bounds.0 - tolerance).all() && p.cmple(scene.bounds.1 + tolerance).all()
     });
     report.check("positions_lie_in_the_scene_bounds", inside);
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -54,10 +54,6 @@ struct Args {
     scene: SceneArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Load the scene (chapter 05)
     let scene = args.scene.load()?;
@@ -333,3 +329,7 @@ impl Trace<'_> {
     }
 }
 // ANCHOR_END: record_trace
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+}

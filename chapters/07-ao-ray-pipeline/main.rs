@@ -43,10 +43,6 @@ struct Args {
     ao: AoArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Load the scene, and choose a radius that suits its size
     let scene = args.scene.load()?;
@@ -197,4 +193,8 @@ fn noise(visibility: &[f32], positions: &[f32], width: usize) -> (f64, usize) {
         .map(|i| (visibility[i] - visibility[i + 1]).abs() as f64)
         .collect();
     (pairs.iter().sum::<f64>() / pairs.len().max(1) as f64, pairs.len())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -43,10 +43,6 @@ const SMALLEST: Smallest = Smallest {
     shape: Some((f32::INFINITY, 2.0, "framed taller, the gizmo's axes leave the picture")),
 };
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut size = args.common.size;
 
@@ -266,4 +262,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -61,10 +61,6 @@ struct Args {
     animation: AnimationArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     // 1. Make the ring, as it stands at the first frame
     // A model given is found from the current directory; the default, from the checkout.
@@ -241,4 +237,8 @@ fn read_times(
         times.add("ao_trace", t.read_ms(vk)?);
     }
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -63,10 +63,6 @@ struct Args {
     animation: AnimationArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     ensure!(
         (0.0..=0.3).contains(&args.amplitude),
@@ -315,4 +311,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -53,10 +53,6 @@ const SMALLEST: Smallest = Smallest {
 /// The smallest side a window's resize (or `--resize-every`) draws at.
 const SMALLEST_SIDE: u32 = SMALLEST.width;
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     let mut size = args.common.size;
 
@@ -308,4 +304,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

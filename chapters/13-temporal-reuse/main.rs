@@ -54,10 +54,6 @@ const SMALLEST: Smallest = Smallest {
     )),
 };
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
-}
-
 fn run(args: &Args, report: &mut Report) -> Result<()> {
     ensure!(
         !(args.compare && args.resize_every.is_some()),
@@ -199,4 +195,8 @@ pub fn resize(passes: &Passes, sized: &mut Sized, size: Size) -> Result<()> {
     drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, passes.apis.handoff, size.extent())?));
     sized.fresh.resized(vk, &sized.targets);
     sized.temporal.resized(vk, &passes.shared.allocator, &sized.targets)
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
 }

@@ -91,18 +91,6 @@ struct Args {
     stall_probe: bool,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(
-        CHAPTER,
-        SMALLEST,
-        |args: &Args| &args.common,
-        |args, report| match args.viewer_fd.is_some() || args.connect.is_some() {
-            true => viewer::run(args, report),
-            false => render(args, report),
-        },
-    )
-}
-
 // ANCHOR: picture
 /// Frame `frame`'s picture, which both processes know: a background colour no nearby frame
 /// shares, and a white square (x, y, side) that moves one step a frame. A viewer that read a
@@ -312,4 +300,16 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     // Every fd exported went to a viewer, and ours was closed once sent; every socket is closed.
     report.check("no_fd_leaked", gauges::no_fd_leaked("renderer", &fds_before));
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(
+        CHAPTER,
+        SMALLEST,
+        |args: &Args| &args.common,
+        |args, report| match args.viewer_fd.is_some() || args.connect.is_some() {
+            true => viewer::run(args, report),
+            false => render(args, report),
+        },
+    )
 }
