@@ -3,7 +3,7 @@
 
 use crate::base::chapter;
 use crate::base::cli::{CommonArgs, Size};
-use crate::base::gl::{GlContext, Owned, create};
+use crate::base::gl::{GlContext, Owned, create, renderbuffer};
 use crate::base::report::Report;
 use crate::base::vulkan::{Requirements, VulkanContext};
 use crate::base::window::Window;
@@ -330,17 +330,12 @@ unsafe fn framebuffer(
     images: &[SharedImage],
     extent: vk::Extent2D,
 ) -> Result<(Owned<glow::Framebuffer>, Owned<glow::Renderbuffer>)> {
-    let (width, height) = (extent.width as i32, extent.height as i32);
-    let depth = create(gl, "glCreateRenderbuffers for the G-buffers' depth", |gl| unsafe {
-        gl.create_renderbuffer()
-    })?
-    .counted("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * width as u64 * height as u64);
+    let what = "glCreateRenderbuffers for the G-buffers' depth";
+    let depth_32f = (glow::DEPTH_COMPONENT32F, "DEPTH_COMPONENT32F", 4);
+    let depth = renderbuffer(gl, what, depth_32f, (extent.width, extent.height))?;
     let fb =
         create(gl, "glCreateFramebuffers for the G-buffers", |gl| unsafe { gl.create_named_framebuffer() })?;
     unsafe {
-        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*depth));
-        gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, width, height);
-        gl.bind_renderbuffer(glow::RENDERBUFFER, None);
         let mut draw_buffers = Vec::new();
         for (i, image) in images.iter().enumerate() {
             let attachment = glow::COLOR_ATTACHMENT0 + i as u32;
