@@ -12,13 +12,11 @@ use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::base::output;
 use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
-use common::interop::handoff::SEMAPHORE_EXTENSION;
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::scene::gbuffer::{self, GBUFFERS, GBuffer, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
-use common::{CommonArgs, Report, Requirements, ms_since, open_fd_count};
+use common::{CommonArgs, INTEROP, Report, ms_since, open_fd_count};
 use glow::HasContext;
-use std::ffi::CStr;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -30,8 +28,6 @@ const SMALLEST: Smallest = Smallest {
     why: "the scene must cover part of the picture and leave part of it empty",
     shape: Some((16.0, 16.0, "framed wider or taller, the scene covers too little or all of the picture")),
 };
-const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
-const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 
 /// Chapter 05: GL rasterises G-buffers into Vulkan-owned images.
 #[derive(clap::Parser)]
@@ -56,10 +52,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     eprintln!("scene: {meshes} meshes, {instances} instances, {triangles} triangles");
 
     // 2. Create both contexts, and the hand-off between them
-    let requirements =
-        Requirements { extensions: REQUIRED, optional_extensions: OPTIONAL, ..Default::default() };
     // A size the device cannot hold the G-buffers at is refused here, before anything is allocated.
-    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &requirements, args.common.size)?;
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
 

@@ -48,4 +48,4 @@ pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
 pub use base::report::{Print, Report};
 pub use base::resources::{open_fd_count, settled_fd_count};
-pub use base::vulkan::{RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};
+pub use base::vulkan::{INTEROP, RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};
