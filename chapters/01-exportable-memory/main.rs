@@ -15,7 +15,7 @@ use common::base::image::image_info;
 use common::base::owned::create;
 use common::base::report::uuid_hex;
 use common::interop::exportable::{BUFFER_IMPORT_SLACK, HANDLE_TYPE};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
+use common::{Flags, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use serde_json::json;
 use std::ffi::CStr;
 use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
@@ -46,12 +46,9 @@ const IMAGE_FORMAT: vk::Format = vk::Format::R8G8B8A8_UNORM;
 
 /// Chapter 01: export Vulkan memory as file descriptors, ready for OpenGL.
 #[derive(clap::Parser)]
-struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
-}
+struct Args {} // no flags of its own: `args.common` holds those every chapter takes
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let started = Instant::now();
     // ANCHOR: usage
     // What the buffer and the image will be used for. Export support is asked for, and
@@ -320,8 +317,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
-/// Every chapter ends the same way: `run_chapter` parses the flags, refuses a `--size` below
-/// `SMALLEST`, calls `run`, prints the report and turns its checks into the exit code.
+/// Every chapter ends the same way: `run_chapter` parses the flags (the chapter's `Args`, and
+/// `args.common`, those every chapter takes), refuses a `--size` below `SMALLEST`, calls `run`,
+/// prints the report and turns its checks into the exit code.
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -17,7 +17,7 @@ use common::base::gl::{
 use common::base::output;
 use common::base::owned::create;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
+use common::{Flags, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::os::fd::{AsRawFd, IntoRawFd};
@@ -51,12 +51,9 @@ const CLEAR: [f32; 4] = [0.1, 0.1, 0.12, 1.0];
 
 /// Chapter 02: OpenGL draws from a buffer whose memory Vulkan allocated.
 #[derive(clap::Parser)]
-struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
-}
+struct Args {} // no flags of its own (chapter 01's `args.common` only)
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (width, height) = (args.common.size.width, args.common.size.height);
     let out_dir = args.common.out_dir(CHAPTER);
 
@@ -270,5 +267,5 @@ fn bytes_of(triangle: &Triangle) -> [u8; BUFFER_BYTES as usize] {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

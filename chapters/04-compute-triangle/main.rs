@@ -22,7 +22,7 @@ use common::base::timestamps::Timestamps;
 use common::base::window::{self, Key, NamedKey, Window};
 use common::interop;
 use common::interop::handoff::Handoff;
-use common::{CommonArgs, INTEROP, Report, VulkanContext, ms_since, open_fd_count};
+use common::{Flags, INTEROP, Report, VulkanContext, ms_since, open_fd_count};
 use compute::{ComputePipeline, Previous, share_image};
 use glow::HasContext;
 use std::f32::consts::{FRAC_PI_2, TAU};
@@ -66,8 +66,6 @@ fn triangle_at(time: f32) -> Triangle {
 /// Chapter 04: a Vulkan compute shader animates the image an OpenGL triangle shows.
 #[derive(clap::Parser)]
 struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
     /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real
     /// time in a window; 0 headless, where frames may come far faster than 60 a second].
     #[arg(long, value_name = "T")]
@@ -77,7 +75,7 @@ struct Args {
     resize_every: Option<u32>,
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let size = args.common.size;
     let windowed = !args.common.headless && window::display_available();
     if !args.common.headless && !windowed {
@@ -326,5 +324,5 @@ fn scale(extent: vk::Extent2D, side: impl Fn(u32) -> u32) -> vk::Extent2D {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -15,7 +15,7 @@ use common::base::timing::{GlPassTimer, PassTimes, VkPassTimer};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::scene::gbuffer::{self, GBUFFERS, GBuffer, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
-use common::{CommonArgs, INTEROP, Report, ms_since, open_fd_count};
+use common::{Flags, INTEROP, Report, ms_since, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -33,8 +33,6 @@ const SMALLEST: Smallest = Smallest {
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     scene: SceneArgs,
     /// Then make the G-buffers anew this many times, at other sizes, as a window's resize
     /// would, and check that nothing is left behind.
@@ -42,7 +40,7 @@ struct Args {
     resizes: u32,
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Load the scene
     // ANCHOR: load
     let scene = args.scene.load()?;
@@ -270,5 +268,5 @@ fn check_gbuffers(report: &mut Report, seen: &GBufferPixels, camera: &Camera, sc
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

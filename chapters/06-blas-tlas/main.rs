@@ -23,7 +23,7 @@ use common::rt::accel;
 use common::rt::raytrace::{PrimaryRays, RayPipeline, RayShaders, StorageImage, push_bytes};
 use common::scene::gbuffer::{self, GBuffers, SceneBuffers};
 use common::scene::{Camera, SceneArgs};
-use common::{CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
+use common::{Flags, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
 use std::ffi::CStr;
 use std::process::ExitCode;
 
@@ -49,12 +49,10 @@ const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     scene: SceneArgs,
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Load the scene (chapter 05)
     let scene = args.scene.load()?;
     let camera = Camera::framing(scene.bounds, args.common.size.aspect());
@@ -331,5 +329,5 @@ impl Trace<'_> {
 // ANCHOR_END: record_trace
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

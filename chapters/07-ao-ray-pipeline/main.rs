@@ -20,7 +20,7 @@ use common::rt::RayTracedScene;
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::{self, GBuffers};
 use common::scene::{Camera, SceneArgs};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
@@ -36,14 +36,12 @@ const NOISE_PAIRS: usize = 512;
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     scene: SceneArgs,
     #[command(flatten)]
     ao: AoArgs,
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Load the scene, and choose a radius that suits its size
     let scene = args.scene.load()?;
     let camera = Camera::framing(scene.bounds, args.common.size.aspect());
@@ -196,5 +194,5 @@ fn noise(visibility: &[f32], positions: &[f32], width: usize) -> (f64, usize) {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

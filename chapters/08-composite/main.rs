@@ -24,7 +24,7 @@ use common::rt::accel::TlasFlags;
 use common::rt::ao::{AoRays, AoTracer};
 use common::scene::Camera;
 use common::scene::gbuffer::{self, GBuffers};
-use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -43,7 +43,7 @@ const SMALLEST: Smallest = Smallest {
     shape: Some((f32::INFINITY, 2.0, "framed taller, the gizmo's axes leave the picture")),
 };
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
@@ -265,5 +265,5 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -22,7 +22,7 @@ use common::rt::accel::{BuildInputs, InPlace, Refresh, TlasFlags, instances_geom
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::Camera;
 use common::scene::gbuffer::{self, GBuffers};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -45,8 +45,6 @@ const SMALLEST: Smallest = Smallest {
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     ao: AoArgs,
     /// The model that runs in the ring [default: the tutorial's assets/bunny.obj].
     #[arg(long)]
@@ -61,7 +59,7 @@ struct Args {
     animation: AnimationArgs,
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Make the ring, as it stands at the first frame
     // A model given is found from the current directory; the default, from the checkout.
     let model = match &args.model {
@@ -240,5 +238,5 @@ fn read_times(
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

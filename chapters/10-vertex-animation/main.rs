@@ -23,7 +23,7 @@ use common::rt::accel::{
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::{self, GBuffers, SceneBuffers};
 use common::scene::{Camera, Instance, Scene, ground_plane};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glam::{Mat4, Vec3};
 use glow::HasContext;
 use gpu_allocator::MemoryLocation;
@@ -50,8 +50,6 @@ const SMALLEST: Smallest = Smallest {
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     ao: AoArgs,
     /// Bands of latitude of the sphere (twice as many of longitude).
     #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(4..=2048))]
@@ -63,7 +61,7 @@ struct Args {
     animation: AnimationArgs,
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     ensure!(
         (0.0..=0.3).contains(&args.amplitude),
         "--amplitude {}: choose between 0 and 0.3",
@@ -314,5 +312,5 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -20,7 +20,7 @@ use common::interop;
 use common::interop::cuda::CudaDevice;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::scene::Camera;
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
+use common::{Flags, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -50,8 +50,6 @@ const SMALLEST: Smallest = Smallest {
 /// GL-rasterised lines.
 #[derive(clap::Parser)]
 struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
     /// Who traces: CUDA when it can run here (auto), CUDA or fail (cuda), the CPU (cpu).
     #[arg(long, value_enum, default_value = "auto")]
     tracer: TracerChoice,
@@ -90,7 +88,7 @@ impl Path {
     }
 }
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (width, height) = (args.common.size.width, args.common.size.height);
     let bytes = traced_bytes(width, height);
     let paths = match args.path {
@@ -185,7 +183,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 struct Setup<'a> {
     vk: &'a VulkanContext,
     gl: &'a GlContext,
-    args: &'a Args,
+    args: &'a Flags<Args>,
     paths: &'a [Path],
     spheres: &'a [scene::Sphere],
     camera: &'a Camera,
@@ -352,5 +350,5 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

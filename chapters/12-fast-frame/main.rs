@@ -23,7 +23,7 @@ use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
 use common::scene::Camera;
 use common::scene::gbuffer::contexts_in_window;
-use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -53,7 +53,7 @@ const SMALLEST: Smallest = Smallest {
 /// The smallest side a window's resize (or `--resize-every`) draws at.
 const SMALLEST_SIDE: u32 = SMALLEST.width;
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
@@ -307,5 +307,5 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

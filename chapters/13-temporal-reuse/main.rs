@@ -21,7 +21,7 @@ use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_g
 use common::rt::ao::AoArgs;
 use common::scene::gbuffer::contexts_in_window;
 use common::scene::{Camera, Instance};
-use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -54,7 +54,7 @@ const SMALLEST: Smallest = Smallest {
     )),
 };
 
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     ensure!(
         !(args.compare && args.resize_every.is_some()),
         "--compare walks every method at one size: leave out --resize-every"
@@ -198,5 +198,5 @@ pub fn resize(passes: &Passes, sized: &mut Sized, size: Size) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, |args: &Args| &args.common, run)
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -43,7 +43,7 @@ pub mod interop;
 pub mod rt;
 pub mod scene;
 
-pub use base::chapter::{connect, contexts, contexts_in_window, finish, largest_size, ms_since, run_chapter};
+pub use base::chapter::{Flags, connect, contexts, contexts_in_window, finish, largest_size, ms_since, run_chapter};
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
 pub use base::report::{Print, Report};

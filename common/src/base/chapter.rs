@@ -9,22 +9,41 @@ use super::window::Window;
 use super::{fail, resources, window};
 use std::process::ExitCode;
 
-/// Runs a chapter with the contract every chapter shares: parse the flags, refuse a `--size`
-/// smaller than the chapter's checks need (`smallest`) before anything is made, run, then print
-/// the report (as JSON with `--json`) and turn failed checks or validation errors into a non-zero
-/// exit.
+/// The flags a chapter runs with: its own (`A`, which `Flags` derefs to: `args.scene`), and
+/// those every chapter takes (`args.common`), which [`run_chapter`] adds to the chapter's.
+pub struct Flags<A> {
+    pub common: CommonArgs,
+    own: A,
+}
+
+impl<A> std::ops::Deref for Flags<A> {
+    type Target = A;
+    fn deref(&self) -> &A {
+        &self.own
+    }
+}
+
+/// Runs a chapter with the contract every chapter shares: parse the flags (the chapter's own,
+/// `A`, and [`CommonArgs`]), refuse a `--size` smaller than the chapter's checks need
+/// (`smallest`) before anything is made, run, then print the report (as JSON with `--json`) and
+/// turn failed checks or validation errors into a non-zero exit.
 ///
 /// Exit codes: 0 all checks passed; 1 a check failed or the validation layer reported an error;
 /// 2 the chapter could not run (missing extension, bad input ...), with the reason on stderr.
-/// `common` finds the shared flags inside the chapter's own (`|args: &Args| &args.common`).
-pub fn run_chapter<A: clap::Parser>(
-    chapter: &str,
+pub fn run_chapter<A: clap::Args + clap::FromArgMatches>(
+    chapter: &'static str,
     smallest: Smallest,
-    common: fn(&A) -> &CommonArgs,
-    run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>,
+    run: impl FnOnce(&Flags<A>, &mut Report) -> anyhow::Result<()>,
 ) -> ExitCode {
-    let args = A::parse();
-    let common = common(&args);
+    use clap::{Args as _, FromArgMatches as _};
+    // Every chapter's flags, then the chapter's own (whose doc comment is the command's about);
+    // a flag clap refuses exits here, with code 2 and clap's message, as `A::parse` would.
+    let mut command = A::augment_args(CommonArgs::augment_args(clap::Command::new(chapter)));
+    let matches = command.get_matches_mut();
+    let parsed = A::from_arg_matches(&matches)
+        .and_then(|own| Ok(Flags { common: CommonArgs::from_arg_matches(&matches)?, own }));
+    let args = parsed.unwrap_or_else(|error| error.format(&mut command).exit());
+    let common = &args.common;
     let mut report = Report::new(chapter);
     let result = accounted(|| {
         smallest.check(chapter, common.size)?;

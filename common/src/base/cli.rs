@@ -3,8 +3,8 @@
 use super::report::Print;
 use std::path::PathBuf;
 
-/// Flags shared by every chapter. A chapter embeds these with `#[command(flatten)]` and adds its
-/// own (`--time` where it animates, `--scene` where it loads a model).
+/// Flags shared by every chapter: `run_chapter` puts them before the chapter's own (`--time`
+/// where it animates, `--scene` where it loads a model), and `Flags` holds both.
 #[derive(clap::Args, Debug, Clone)]
 pub struct CommonArgs {
     /// No window: render offscreen and write images to --out.
