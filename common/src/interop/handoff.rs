@@ -296,15 +296,11 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
 /// Can this device export binary semaphores as opaque fds?
 pub fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
     let info = vk::PhysicalDeviceExternalSemaphoreInfo::default().handle_type(SEMAPHORE_HANDLE_TYPE);
-    let mut properties = vk::ExternalSemaphoreProperties::default();
+    let mut support = vk::ExternalSemaphoreProperties::default();
     unsafe {
-        vk.instance.get_physical_device_external_semaphore_properties(
-            vk.physical_device,
-            &info,
-            &mut properties,
-        )
+        vk.instance.get_physical_device_external_semaphore_properties(vk.physical_device, &info, &mut support)
     };
-    properties.external_semaphore_features.contains(vk::ExternalSemaphoreFeatureFlags::EXPORTABLE)
+    support.external_semaphore_features.contains(vk::ExternalSemaphoreFeatureFlags::EXPORTABLE)
 }
 // ANCHOR_END: can_export_semaphores
 
