@@ -3,6 +3,8 @@
 //! an empty string for a missing anchor.) And the rendered book builds with no warning, and every
 //! relative link and image in its HTML points at something that is there.
 
+mod harness;
+
 use std::path::{Path, PathBuf};
 
 /// One `{{#include path[:anchor | :start[:end]]}}` found in a page.
@@ -76,30 +78,14 @@ fn resolve(include: &Include) -> Result<String, String> {
     Ok(content.join("\n"))
 }
 
-/// The book's own pages: `book/src/chapters`, `common` and `shaders` are links to the sources
-/// (so that the rendered book carries them), not pages.
-fn pages(dir: &Path) -> Vec<PathBuf> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())).flatten() {
-        let path = entry.path();
-        if entry.file_type().is_ok_and(|t| t.is_symlink()) {
-            continue;
-        }
-        if path.is_dir() {
-            found.extend(pages(&path));
-        } else if path.extension().is_some_and(|e| e == "md") {
-            found.push(path);
-        }
-    }
-    found
-}
-
 #[test]
 fn every_include_in_the_book_resolves() {
     let book = Path::new(env!("CARGO_MANIFEST_DIR")).join("book/src");
     let mut count = 0;
     let mut broken = Vec::new();
-    for page in pages(&book) {
+    // The book's own pages: `book/src/chapters`, `common` and `shaders` are links to the sources
+    // (so that the rendered book carries them), not pages.
+    for page in harness::files_ending(&book, "md") {
         let text = std::fs::read_to_string(&page).unwrap();
         for include in includes_in(&page, &text) {
             count += 1;
@@ -219,19 +205,6 @@ fn broken_link(root: &Path, page: &Path, link: &str) -> Option<String> {
     None
 }
 
-fn html_pages(dir: &Path) -> Vec<PathBuf> {
-    let mut found = Vec::new();
-    for entry in std::fs::read_dir(dir).unwrap().flatten() {
-        let path = entry.path();
-        if path.is_dir() {
-            found.extend(html_pages(&path));
-        } else if path.extension().is_some_and(|e| e == "html") {
-            found.push(path);
-        }
-    }
-    found
-}
-
 /// Runs `mdbook build` (as CI does) into a temporary folder, and fails on any warning it prints,
 /// then on any link or image in the rendered pages that points at nothing.
 #[test]
@@ -257,7 +230,7 @@ fn the_rendered_book_builds_without_warnings_and_its_links_resolve() {
 
     let mut broken = Vec::new();
     let mut checked = 0;
-    let pages = html_pages(out.path());
+    let pages = harness::files_ending(out.path(), "html");
     for page in &pages {
         let html = std::fs::read_to_string(page).unwrap();
         for (line, link) in links_in(&html) {

@@ -73,7 +73,7 @@ impl Page {
 /// Every page under `book/src`, by name; `chapters`, `common` and `shaders` there are links to
 /// the sources, not pages.
 fn pages() -> Vec<Page> {
-    let mut files = harness::markdown_files(&root().join("book/src"));
+    let mut files = harness::files_ending(&root().join("book/src"), "md");
     files.sort();
     assert!(files.len() > 10, "book/src has only {} pages: was it moved?", files.len());
     files
@@ -881,7 +881,7 @@ fn included(page: &Path, target: &str) -> Option<(PathBuf, String)> {
 fn includes() -> Vec<(String, usize, PathBuf, String)> {
     let mut found = Vec::new();
     let src = root().join("book/src");
-    for file in harness::markdown_files(&src) {
+    for file in harness::files_ending(&src, "md") {
         let name = file.strip_prefix(&src).unwrap().to_string_lossy().into_owned();
         for (number, line) in std::fs::read_to_string(&file).unwrap().lines().enumerate() {
             let Some(target) = line.trim().strip_prefix("{{#include ").and_then(|t| t.strip_suffix("}}")) else {

@@ -590,29 +590,20 @@ fn ch09_default_model_is_found_from_any_directory() {
 /// from elsewhere would not find it: a default asset comes from `scene::default_asset`.
 #[test]
 fn no_binary_looks_for_assets_in_the_current_directory() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut files = harness::rust_files(&root.join("chapters"));
-    files.extend(harness::rust_files(&root.join("common/src")));
-    let mut found = Vec::new();
-    for file in &files {
-        let text = std::fs::read_to_string(file).unwrap();
+    harness::assert_no_source_has("assets named from the current directory (use scene::default_asset)", |name, text| {
         // A unit test's paths are the test's own business.
         let code_only = text.split("#[cfg(test)]").next().unwrap_or_default();
+        let mut found = Vec::new();
         for (number, line) in code_only.lines().enumerate() {
             let code = line.trim_start();
             // Built-in files are no look-up: `include_str!` builds one in, `embedded` names it.
             let built_in = code.contains("include_str!") || code.starts_with("embedded(");
             if !code.starts_with("//") && !built_in && code.contains("\"assets/") {
-                found.push(format!("{}:{}: {code}", file.strip_prefix(root).unwrap().display(), number + 1));
+                found.push(format!("{name}:{}: {code}", number + 1));
             }
         }
-    }
-    assert!(files.len() > 40, "found only {} sources", files.len());
-    assert!(
-        found.is_empty(),
-        "assets named from the current directory (use scene::default_asset):\n{}",
-        found.join("\n")
-    );
+        found
+    });
 }
 
 #[test]

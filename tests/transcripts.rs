@@ -334,7 +334,7 @@ fn diff(expected: &[String], actual: &[String]) -> String {
 
 /// The book's pages (`book/src/**/*.md`, not the links to the sources) and the README.
 fn pages() -> Vec<(String, String)> {
-    let mut files = harness::markdown_files(&root().join("book/src"));
+    let mut files = harness::files_ending(&root().join("book/src"), "md");
     files.push(root().join("README.md"));
     files.sort();
     files

@@ -15,7 +15,7 @@ use common::base::image::image_info;
 use common::base::owned::create;
 use common::instruments::report::uuid_hex;
 use common::interop::exportable::{BUFFER_IMPORT_SLACK, HANDLE_TYPE};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
+use common::{Flags, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use serde_json::json;
 use std::ffi::CStr;
 use std::os::fd::{AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
@@ -46,17 +46,9 @@ const IMAGE_FORMAT: vk::Format = vk::Format::R8G8B8A8_UNORM;
 
 /// Chapter 01: export Vulkan memory as file descriptors, ready for OpenGL.
 #[derive(clap::Parser)]
-struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
-}
+struct Args {} // no flags of its own: `args.common` holds those every chapter takes
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let started = Instant::now();
     // ANCHOR: usage
     // What the buffer and the image will be used for. Export support is asked for, and
@@ -323,4 +315,11 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     eprintln!("open fds: {open_fds_before} before exporting, {open_fds_after} after cleaning up");
     report.check("no_fd_leaked", open_fds_after == open_fds_before);
     Ok(())
+}
+
+/// Every chapter ends the same way: `run_chapter` parses the flags (the chapter's `Args`, and
+/// `args.common`, those every chapter takes), refuses a `--size` below `SMALLEST`, calls `run`,
+/// prints the report and turns its checks into the exit code.
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -17,7 +17,7 @@ use common::base::gl::{
 use common::instruments::output;
 use common::base::owned::create;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
+use common::{Flags, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;
 use std::ffi::CStr;
 use std::os::fd::{AsRawFd, IntoRawFd};
@@ -51,17 +51,9 @@ const CLEAR: [f32; 4] = [0.1, 0.1, 0.12, 1.0];
 
 /// Chapter 02: OpenGL draws from a buffer whose memory Vulkan allocated.
 #[derive(clap::Parser)]
-struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
-}
+struct Args {} // no flags of its own (chapter 01's `args.common` only)
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (width, height) = (args.common.size.width, args.common.size.height);
     let out_dir = args.common.out_dir(CHAPTER);
 
@@ -272,4 +264,8 @@ fn close(p: [u8; 4], rgb: [u8; 3]) -> bool {
 fn bytes_of(triangle: &Triangle) -> [u8; BUFFER_BYTES as usize] {
     // SAFETY: [[f32; 4]; 3] is plain data with no padding.
     unsafe { std::mem::transmute_copy(triangle) }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

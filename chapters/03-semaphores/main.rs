@@ -27,7 +27,7 @@ use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::interop::exportable::{self, Dedicated};
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION, SharedSemaphore};
 use common::interop::{self, SharedTexture};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
+use common::{Flags, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
 use pattern::{checkerboard, first_pixel_is, frame_colours};
 use std::ffi::CStr;
@@ -47,19 +47,12 @@ const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 /// Chapter 03: GL and Vulkan take turns with a shared image, ordered by shared semaphores.
 #[derive(clap::Parser)]
 struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
     /// Skip every wait (semaphore or host) to see the checks fail: the order is real.
     #[arg(long)]
     unsynchronised: bool,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let extent = vk::Extent2D { width: args.common.size.width, height: args.common.size.height };
     let frames = args.common.headless_frames();
 
@@ -307,3 +300,7 @@ fn share_semaphore(vk: &VulkanContext, gl: &GlContext) -> Result<SharedSemaphore
     Ok(SharedSemaphore { gl: semaphore_gl, vk: semaphore_vk })
 }
 // ANCHOR_END: share_semaphore
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
+}

@@ -3,7 +3,7 @@
 
 use ash::vk;
 use common::VulkanContext;
-use common::base::commands::{COLOR_RANGE, HostBuffer};
+use common::base::commands::{COLOR_LAYERS, COLOR_RANGE, HostBuffer};
 use common::clocks::timestamps::Timestamps;
 use common::interop::handoff::HandOver;
 
@@ -31,12 +31,7 @@ pub fn record_vulkan_turn(
     };
     let (external, ours) = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
     let region = vk::BufferImageCopy::default()
-        .image_subresource(vk::ImageSubresourceLayers {
-            aspect_mask: vk::ImageAspectFlags::COLOR,
-            mip_level: 0,
-            base_array_layer: 0,
-            layer_count: 1,
-        })
+        .image_subresource(COLOR_LAYERS)
         .image_extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 });
     let device = &vk.device;
     unsafe {

@@ -21,12 +21,11 @@ use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::base::window::{self, Key, NamedKey, Window};
 use common::interop;
-use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since, open_fd_count};
+use common::interop::handoff::Handoff;
+use common::{Flags, INTEROP, Report, VulkanContext, ms_since, open_fd_count};
 use compute::{ComputePipeline, Previous, share_image};
 use glow::HasContext;
 use std::f32::consts::{FRAC_PI_2, TAU};
-use std::ffi::CStr;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -39,9 +38,6 @@ const SMALLEST: Smallest = Smallest {
           image, and needs 1% of the pixels to change between frames",
     shape: None,
 };
-const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
-/// Without it the chapter still runs, synchronising on the host.
-const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 const VERTEX_SHADER: &str = include_str!("../../shaders/gl/textured_triangle.vert");
 const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/textured_triangle.frag");
 const CLEAR: [f32; 4] = [0.1, 0.1, 0.12, 1.0];
@@ -70,8 +66,6 @@ fn triangle_at(time: f32) -> Triangle {
 /// Chapter 04: a Vulkan compute shader animates the image an OpenGL triangle shows.
 #[derive(clap::Parser)]
 struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
     /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real
     /// time in a window; 0 headless, where frames may come far faster than 60 a second].
     #[arg(long, value_name = "T")]
@@ -81,12 +75,7 @@ struct Args {
     resize_every: Option<u32>,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let size = args.common.size;
     let windowed = !args.common.headless && window::display_available();
     if !args.common.headless && !windowed {
@@ -103,11 +92,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 1. Create both contexts, in a window or headless
     // ANCHOR: contexts
-    let vk = VulkanContext::new(&Requirements {
-        extensions: REQUIRED,
-        optional_extensions: OPTIONAL,
-        ..Default::default()
-    })?;
+    // Chapter 03's: memory fds, and semaphore fds where there are (without them, the host waits).
+    let vk = VulkanContext::new(&INTEROP)?;
     let (mut window, gl_context) = match windowed {
         true => Window::open(CHAPTER, size, &MEMORY_EXTENSIONS).map(|(w, gl)| (Some(w), gl))?,
         false => (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?),
@@ -335,4 +321,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
 fn scale(extent: vk::Extent2D, side: impl Fn(u32) -> u32) -> vk::Extent2D {
     vk::Extent2D { width: side(extent.width), height: side(extent.height) }
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

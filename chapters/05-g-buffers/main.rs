@@ -12,13 +12,11 @@ use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::instruments::output;
 use common::clocks::timing::{GlPassTimer, PassTimes, VkPassTimer};
-use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
-use common::scene::gbuffer::{GBUFFERS, GBuffer, GBuffers, SceneBuffers};
+use common::scene::gbuffer::{self, GBUFFERS, GBuffer, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
-use common::{CommonArgs, Report, Requirements, ms_since, open_fd_count};
+use common::{Flags, INTEROP, Report, ms_since, open_fd_count};
 use glow::HasContext;
-use std::ffi::CStr;
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -30,14 +28,10 @@ const SMALLEST: Smallest = Smallest {
     why: "the scene must cover part of the picture and leave part of it empty",
     shape: Some((16.0, 16.0, "framed wider or taller, the scene covers too little or all of the picture")),
 };
-const REQUIRED: &[&CStr] = &[ash::khr::external_memory_fd::NAME];
-const OPTIONAL: &[&CStr] = &[SEMAPHORE_EXTENSION];
 
 /// Chapter 05: GL rasterises G-buffers into Vulkan-owned images.
 #[derive(clap::Parser)]
 struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
     #[command(flatten)]
     scene: SceneArgs,
     /// Then make the G-buffers anew this many times, at other sizes, as a window's resize
@@ -46,30 +40,19 @@ struct Args {
     resizes: u32,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let extent = args.common.size.extent();
-
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Load the scene
     // ANCHOR: load
     let scene = args.scene.load()?;
-    let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
+    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
     // ANCHOR_END: load
     let (meshes, instances, triangles) = (scene.meshes.len(), scene.instances.len(), scene.triangles());
     eprintln!("scene: {meshes} meshes, {instances} instances, {triangles} triangles");
 
-    // 2. Create both contexts
-    let requirements =
-        Requirements { extensions: REQUIRED, optional_extensions: OPTIONAL, ..Default::default() };
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
+    // 2. Create both contexts, and the hand-off between them
+    // A size the device cannot hold the G-buffers at is refused here, before anything is allocated.
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    // A size the device cannot hold is refused here, before anything is allocated.
-    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
 
     // 3. Share the scene's buffers
@@ -80,6 +63,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 4. Share the G-buffer images, and make them GL's render targets
     // ANCHOR: gbuffers
+    let extent = args.common.size.extent();
     // TRANSFER_SRC: this chapter copies them out. STORAGE: chapter 07's ray tracer reads them.
     let usage = vk::ImageUsageFlags::TRANSFER_SRC | vk::ImageUsageFlags::STORAGE;
     let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, usage)?;
@@ -168,15 +152,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let pictures =
         [("position", seen.position_picture(&scene)), ("normal", seen.normal_picture()), ("albedo", albedo)];
     for (name, pixels) in pictures {
-        // GL drew with its bottom row first in memory: flip, so the pictures are upright.
-        let upright = output::flip_rows(&pixels, extent.width, extent.height);
-        output::save_rgba8(
-            report,
-            &out,
-            &format!("{prefix}-{name}"),
-            (extent.width, extent.height),
-            &upright,
-        )?;
+        // GL drew with its bottom row first in memory: saved upright.
+        let size = (extent.width, extent.height);
+        output::save_gl_rgba8(report, &out, &format!("{prefix}-{name}"), size, &pixels)?;
     }
     report.set("draw_calls", meshes);
     report.set("instances", instances);
@@ -287,4 +265,8 @@ fn check_gbuffers(report: &mut Report, seen: &GBufferPixels, camera: &Camera, sc
         p.cmpge(scene.bounds.0 - tolerance).all() && p.cmple(scene.bounds.1 + tolerance).all()
     });
     report.check("positions_lie_in_the_scene_bounds", inside);
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -17,13 +17,13 @@ use common::base::commands::{
 use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
-use common::interop::handoff::{HandOver, Handoff, SEMAPHORE_EXTENSION};
+use common::interop::handoff::{HandOver, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel;
 use common::rt::raytrace::{PrimaryRays, RayPipeline, RayShaders, StorageImage, push_bytes};
-use common::scene::gbuffer::{GBuffers, SceneBuffers};
+use common::scene::gbuffer::{self, GBuffers, SceneBuffers};
 use common::scene::{Camera, SceneArgs};
-use common::{CommonArgs, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
+use common::{Flags, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
 use std::ffi::CStr;
 use std::process::ExitCode;
 
@@ -49,34 +49,22 @@ const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     scene: SceneArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let extent = args.common.size.extent();
-    let aspect = extent.width as f32 / extent.height as f32;
-
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Load the scene (chapter 05)
     let scene = args.scene.load()?;
-    let camera = Camera::framing(scene.bounds, aspect);
+    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
 
     // 2. Create both contexts, with ray tracing
     // ANCHOR: context
     let requirements =
         Requirements { extensions: &REQUIRED, optional_extensions: OPTIONAL, ray_tracing: true };
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
+    // As in chapter 05: the G-buffers' size checked, and the hand-off between the two APIs.
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &requirements, args.common.size)?;
     // ANCHOR_END: context
     let gl = &gl_context.gl;
-    // A size the device cannot hold is refused here, before anything is allocated.
-    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
     let allocator = accel::allocator(&vk)?;
 
@@ -113,6 +101,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("compaction_did_not_grow", stats.compacted_bytes <= stats.blas_bytes);
 
     // 5. GL draws the G-buffers (chapter 05)
+    let extent = args.common.size.extent();
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
     let mut gl_timer = GlPassTimer::new(gl)?; // common::clocks::timing, as in chapter 05
     gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
@@ -133,7 +122,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             .descriptor_count(1)
             .stage_flags(stage),
     ];
-    let push = PrimaryRays::new(&camera, aspect);
+    let push = PrimaryRays::new(&camera, args.common.size.aspect());
     let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
     let pipeline = RayPipeline::new(&vk, &allocator, shaders, &bindings, size_of::<PrimaryRays>() as u32)?;
     let mask = StorageImage::new(
@@ -226,14 +215,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         })
         .collect();
     let prefix = args.scene.picture_name(CHAPTER);
-    let upright = output::flip_rows(&picture, extent.width, extent.height);
-    output::save_rgba8(
-        report,
-        &args.common.out_dir(CHAPTER),
-        &prefix,
-        (extent.width, extent.height),
-        &upright,
-    )?;
+    let out = args.common.out_dir(CHAPTER);
+    output::save_gl_rgba8(report, &out, &prefix, (extent.width, extent.height), &picture)?;
 
     common::interop::report_handoff(report, &handoff);
     // 8. Clean up, newest first
@@ -344,3 +327,7 @@ impl Trace<'_> {
     }
 }
 // ANCHOR_END: record_trace
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
+}

@@ -15,12 +15,12 @@ use common::base::commands::Commands;
 use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{self, GlPassTimer, PassTimes};
-use common::interop::handoff::{Apis, Handoff};
+use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
-use common::scene::gbuffer::GBuffers;
+use common::scene::gbuffer::{self, GBuffers};
 use common::scene::{Camera, SceneArgs};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
@@ -36,38 +36,26 @@ const NOISE_PAIRS: usize = 512;
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     scene: SceneArgs,
     #[command(flatten)]
     ao: AoArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let extent = args.common.size.extent();
-    let aspect = extent.width as f32 / extent.height as f32;
-
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Load the scene, and choose a radius that suits its size
     let scene = args.scene.load()?;
-    let camera = Camera::framing(scene.bounds, aspect);
+    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
     let radius = args.ao.radius(&scene)?;
 
     // 2. Create both contexts, share the scene, build its acceleration structures (05, 06)
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    // A size the device cannot hold is refused here, before anything is allocated.
-    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
     let shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
 
     // 3. Share the G-buffers, and make the AO tracer with its shared image
     // ANCHOR: tracer
+    let extent = args.common.size.extent();
     // The ray tracer reads the G-buffers as storage images.
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer =
@@ -172,14 +160,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         report.set("mrays_per_s", ((rays as f64 / (trace_ms / 1e3)) / 1e6 * 10.0).round() / 10.0);
     }
     let prefix = args.scene.picture_name(CHAPTER);
-    let upright = output::flip_rows(&output::grey(&shown), extent.width, extent.height);
-    output::save_rgba8(
-        report,
-        &args.common.out_dir(CHAPTER),
-        &prefix,
-        (extent.width, extent.height),
-        &upright,
-    )?;
+    let out = args.common.out_dir(CHAPTER);
+    output::save_gl_rgba8(report, &out, &prefix, (extent.width, extent.height), &output::grey(&shown))?;
 
     common::interop::report_handoff(report, &handoff);
     // 6. Clean up, newest first
@@ -209,4 +191,8 @@ fn noise(visibility: &[f32], positions: &[f32], width: usize) -> (f64, usize) {
         .map(|i| (visibility[i] - visibility[i + 1]).abs() as f64)
         .collect();
     (pairs.iter().sum::<f64>() / pairs.len().max(1) as f64, pairs.len())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -86,8 +86,7 @@ impl LastFrame<'_> {
                 View::Final => prefix.to_owned(),
                 other => format!("{prefix}-{}", other.name()),
             };
-            let upright = output::flip_rows(&composite.read(gl), w, h);
-            output::save_rgba8(report, out_dir, &name, (w, h), &upright)?;
+            output::save_gl_rgba8(report, out_dir, &name, (w, h), &composite.read(gl))?;
         }
         Ok(())
     }

@@ -18,13 +18,13 @@ use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::base::window::Key;
 use common::frame::input::{resize_every, window_input};
 use common::frame::{Composite, Overlays, View};
-use common::interop::handoff::{Apis, Handoff};
+use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
 use common::rt::ao::{AoRays, AoTracer};
 use common::scene::Camera;
-use common::scene::gbuffer::GBuffers;
-use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::scene::gbuffer::{self, GBuffers};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -43,16 +43,12 @@ const SMALLEST: Smallest = Smallest {
     shape: Some((f32::INFINITY, 2.0, "framed taller, the gizmo's axes leave the picture")),
 };
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
     let scene = args.scene.load()?;
-    let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    let mut camera = Camera::framing(scene.bounds, size.aspect());
     camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
     let radius = args.ao.radius(&scene)?;
     let select = args.select.unwrap_or(if scene.instances.len() > 1 { 1 } else { 0 });
@@ -71,19 +67,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
-    let (vk, mut window, gl_context) =
-        common::contexts_in_window(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, &args.common)?;
+    // A size the device cannot hold the G-buffers at is refused here, before anything is allocated.
+    let (vk, mut window, gl_context, handoff) =
+        gbuffer::contexts_in_window(CHAPTER, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
-    // A size the device cannot hold is refused here, before anything is allocated.
-    common::scene::gbuffer::check_size(&vk, &gl_context, size.extent())?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
 
     // 3. Everything chapters 05-07 built: shared scene, acceleration structures, G-buffers, AO
     let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
-    let extent = |size: common::base::cli::Size| vk::Extent2D { width: size.width, height: size.height };
     let storage = vk::ImageUsageFlags::STORAGE;
-    let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent(size), storage)?;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, size.extent(), storage)?;
     let mut tracer =
         AoTracer::new(&vk, &gl_context, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
 
@@ -144,7 +137,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             unsafe { gl.finish() };
             commands.wait(&vk, "vkWaitForFences before a resize")?;
             size = new;
-            let fresh = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent(size), storage)?;
+            let fresh = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, size.extent(), storage)?;
             let old = std::mem::replace(&mut gbuffers, fresh);
             tracer.resize(&vk, &gl_context, &gbuffers)?;
             composite.resize(gl, &gbuffers)?;
@@ -158,7 +151,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         }
         // ANCHOR_END: resize
         // ANCHOR: frame
-        let aspect = size.width as f32 / size.height as f32;
+        let aspect = size.aspect();
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         if let Some(reason) = common::rt::ao::nothing_to_trace(settings.samples, settings.radius) {
             if skipped.replace(reason).is_none() {
@@ -269,4 +262,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

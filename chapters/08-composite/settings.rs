@@ -1,6 +1,5 @@
 //! Chapter 08's flags, and the settings the keys change.
 
-use common::CommonArgs;
 use common::frame::View;
 use common::rt::accel::BlasLayout;
 use common::rt::ao::AoArgs;
@@ -9,8 +8,6 @@ use common::scene::SceneArgs;
 /// Chapter 08: albedo x ray-traced AO, composited by GL, with depth-correct overlays.
 #[derive(clap::Parser)]
 pub struct Args {
-    #[command(flatten)]
-    pub common: CommonArgs,
     #[command(flatten)]
     pub scene: SceneArgs,
     #[command(flatten)]

@@ -16,13 +16,13 @@ use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
-use common::interop::handoff::{Apis, Handoff};
+use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BuildInputs, InPlace, Refresh, TlasFlags, instances_geometry};
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::Camera;
-use common::scene::gbuffer::GBuffers;
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
+use common::scene::gbuffer::{self, GBuffers};
+use common::{Flags, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -45,8 +45,6 @@ const SMALLEST: Smallest = Smallest {
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     ao: AoArgs,
     /// The model that runs in the ring [default: the tutorial's assets/bunny.obj].
     #[arg(long)]
@@ -61,14 +59,7 @@ struct Args {
     animation: AnimationArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let extent = args.common.size.extent();
-    args.animation.check()?;
-
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 1. Make the ring, as it stands at the first frame
     // A model given is found from the current directory; the default, from the checkout.
     let model = match &args.model {
@@ -76,20 +67,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         None => common::scene::default_asset("bunny.obj", "--model")?,
     };
     let (scene, ring) = ring::scene(&model, args.count, args.lap, args.animation.time)?;
-    let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
-    let radius = args.ao.radius(&scene)?;
-    if let Some(reason) = common::rt::ao::nothing_to_trace(args.ao.samples, radius) {
-        anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
-    }
+    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
+    let radius = args.ao.radius_to_trace(&scene)?;
     report.set("runners", ring.count);
     report.set("ring_radius", (ring.radius as f64 * 1e3).round() / 1e3);
 
     // 2. Both contexts, the shared scene, and a TLAS that may be updated
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
     let update_timer = Timestamps::new(&vk)?; // before `updates`, whose submissions write it
     // ANCHOR: updatable
@@ -112,6 +97,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("build_scratch_bytes", tlas.build_scratch_bytes);
 
     // 3. G-buffers, the AO tracer and chapter 08's composite
+    let extent = args.common.size.extent();
     let storage = vk::ImageUsageFlags::STORAGE;
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, storage)?;
     let tlas_handle = *shared.structures.tlas.handle;
@@ -249,4 +235,8 @@ fn read_times(
         times.add("ao_trace", t.read_ms(vk)?);
     }
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -16,14 +16,14 @@ use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{self, GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
-use common::interop::handoff::{Apis, Handoff};
+use common::interop::handoff::Apis;
 use common::rt::accel::{
     self, AccelerationStructure, BufferDesc, BuildInputs, DeviceBuffer, InPlace, Refresh,
 };
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
-use common::scene::gbuffer::{GBuffers, SceneBuffers};
+use common::scene::gbuffer::{self, GBuffers, SceneBuffers};
 use common::scene::{Camera, Instance, Scene, ground_plane};
-use common::{CommonArgs, RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glam::{Mat4, Vec3};
 use glow::HasContext;
 use gpu_allocator::MemoryLocation;
@@ -50,8 +50,6 @@ const SMALLEST: Smallest = Smallest {
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    common: CommonArgs,
-    #[command(flatten)]
     ao: AoArgs,
     /// Bands of latitude of the sphere (twice as many of longitude).
     #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(4..=2048))]
@@ -63,13 +61,7 @@ struct Args {
     animation: AnimationArgs,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
-    let extent = args.common.size.extent();
-    args.animation.check()?;
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     ensure!(
         (0.0..=0.3).contains(&args.amplitude),
         "--amplitude {}: choose between 0 and 0.3",
@@ -84,20 +76,14 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let lift = Mat4::from_translation(Vec3::new(0.0, 1.0 + args.amplitude + 0.1, 0.0));
     let instances = vec![ground, Instance::new(lift, [90, 150, 230])];
     let scene = Scene::new(vec![ground_plane(), mesh], instances, vec![0..1, 1..2])?;
-    let camera = Camera::framing(scene.bounds, extent.width as f32 / extent.height as f32);
-    let radius = args.ao.radius(&scene)?;
-    if let Some(reason) = common::rt::ao::nothing_to_trace(args.ao.samples, radius) {
-        anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
-    }
+    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
+    let radius = args.ao.radius_to_trace(&scene)?;
     report.set("vertices", count);
     report.set("triangles", scene.triangles());
 
     // 2. Both contexts; the scene shared with GL, and writable by compute
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
-    common::scene::gbuffer::check_size(&vk, &gl_context, extent)?;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
     // ANCHOR: share
     // STORAGE_BUFFER: the compute shader writes the vertices in place.
@@ -169,6 +155,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         frequency: 14.0,
         speed: 4.0,
     };
+    let extent = args.common.size.extent();
     let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, *tlas.handle, &gbuffers)?;
     let composite = Composite::new(gl, &gbuffers, scene.bounds)?;
@@ -322,4 +309,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -334,10 +334,7 @@ mod tests {
 
     #[test]
     fn wave_is_laid_out_as_the_shader_reads_it() {
-        assert_eq!(size_of::<Wave>(), 48);
-        assert_eq!(std::mem::offset_of!(Wave, axis), 16);
-        assert_eq!(std::mem::offset_of!(Wave, count), 28);
-        assert_eq!(std::mem::offset_of!(Wave, speed), 44);
+        common::base::pipeline::assert_layout!(Wave is 48 bytes: axis at 16, count at 28, speed at 44);
     }
 
     #[test]

@@ -20,7 +20,7 @@ use common::interop;
 use common::interop::cuda::CudaDevice;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::scene::Camera;
-use common::{CommonArgs, Report, Requirements, VulkanContext, ms_since};
+use common::{Flags, Report, Requirements, VulkanContext, ms_since};
 use glow::HasContext;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -50,8 +50,6 @@ const SMALLEST: Smallest = Smallest {
 /// GL-rasterised lines.
 #[derive(clap::Parser)]
 struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
     /// Who traces: CUDA when it can run here (auto), CUDA or fail (cuda), the CPU (cpu).
     #[arg(long, value_enum, default_value = "auto")]
     tracer: TracerChoice,
@@ -90,11 +88,7 @@ impl Path {
     }
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (width, height) = (args.common.size.width, args.common.size.height);
     let bytes = traced_bytes(width, height);
     let paths = match args.path {
@@ -116,7 +110,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     let extensions = [ash::khr::external_memory_fd::NAME];
     let requirements = Requirements { extensions: &extensions, ..Default::default() };
     let (vk, gl_context) =
-        common::contexts(CHAPTER, SMALLEST, report, &requirements, args.common.size)?;
+        common::contexts(CHAPTER, report, &requirements, args.common.size)?;
     // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
     // cannot hold, before anything else exists.
     anyhow::ensure!(
@@ -189,7 +183,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 struct Setup<'a> {
     vk: &'a VulkanContext,
     gl: &'a GlContext,
-    args: &'a Args,
+    args: &'a Flags<Args>,
     paths: &'a [Path],
     spheres: &'a [scene::Sphere],
     camera: &'a Camera,
@@ -331,8 +325,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             Path::Pbo => CHAPTER.to_owned(),
             Path::ZeroCopy => format!("{CHAPTER}-zero-copy"),
         };
-        let upright = common::instruments::output::flip_rows(picture, width, height);
-        common::instruments::output::save_rgba8(report, &out_dir, &name, (width, height), &upright)?;
+        common::instruments::output::save_gl_rgba8(report, &out_dir, &name, (width, height), picture)?;
     }
     gl_context.check_error("the frames")?;
 
@@ -354,4 +347,8 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
     drop(pbo); // the textures, then the buffer
     // ANCHOR_END: cleanup
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -230,10 +230,9 @@ mod tests {
 
     #[test]
     fn params_match_the_kernels_layout() {
+        // trace.cu's Params is 368 bytes (see the PTX).
+        common::base::pipeline::assert_layout!(TraceParams is 368 bytes: eye at 16, spheres at 112);
         assert_eq!(size_of::<Sphere>(), 32);
-        assert_eq!(size_of::<TraceParams>(), 368, "trace.cu's Params is 368 bytes (see the PTX)");
-        assert_eq!(std::mem::offset_of!(TraceParams, eye), 16);
-        assert_eq!(std::mem::offset_of!(TraceParams, spheres), 112);
     }
 
     #[test]

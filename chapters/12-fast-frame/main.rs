@@ -10,8 +10,6 @@
 //! B blur, P power, O overlays, T sample pattern, Esc quits; drag to orbit, wheel to zoom).
 
 use anyhow::Result;
-use ash::vk;
-use common::base::cli::Size;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
 use common::clocks::timeline::{self, Timeline};
@@ -20,11 +18,12 @@ use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::base::window::Key;
 use common::frame::Overlays;
 use common::frame::input::{Settings as Keys, resize_every, window_input};
-use common::interop::handoff::{Apis, Handoff};
+use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
 use common::scene::Camera;
-use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::scene::gbuffer::contexts_in_window;
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -54,36 +53,30 @@ const SMALLEST: Smallest = Smallest {
 /// The smallest side a window's resize (or `--resize-every`) draws at.
 const SMALLEST_SIDE: u32 = SMALLEST.width;
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let mut size = args.common.size;
 
     // 1. Load the scene, and aim the camera at it
     let scene = args.scene.load()?;
-    let mut camera = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    let mut camera = Camera::framing(scene.bounds, size.aspect());
     camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
     let radius = args.ao.radius(&scene)?;
     let keys = Keys { samples: args.ao.samples, radius, power: args.ao.power, blur: args.blur, view: args.view, overlays: true };
     let mut settings = Settings { keys, pattern: args.pattern };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
-    let (vk, mut window, gl_context) =
-        common::contexts_in_window(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, &args.common)?;
+    let (vk, mut window, gl_context, handoff) =
+        contexts_in_window(CHAPTER, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
 
     // 3. The shared scene and its structures (chapters 05-06), every triangle numbered
     let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, TlasFlags::STATIC, args.blas)?;
     let ids = visibility::number_triangles(&vk, &scene, &shared.buffers)?;
-    let extent = |size: Size| vk::Extent2D { width: size.width, height: size.height };
 
     // 4. The images of one size, and the three passes: ids (GL), rays (Vulkan), composite (GL)
     // ANCHOR: setup
-    let mut targets = Targets::new(&vk, &gl_context, &handoff, extent(size))?;
+    let mut targets = Targets::new(&vk, &gl_context, &handoff, size.extent())?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
     let mut tracer = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
     let composite = ComputeComposite::new(gl)?;
@@ -139,7 +132,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
             unsafe { gl.finish() };
             commands.wait(&vk, "vkWaitForFences before a resize")?;
             size = new;
-            drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, &handoff, extent(size))?));
+            drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, &handoff, size.extent())?));
             tracer.resized(&vk, &targets);
             resizes += 1;
             // What exists after one resize must be what exists after every later one.
@@ -174,7 +167,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         timeline::stamp(&timeline, slot, 2);
         gl_timer.time(gl, "composite", || composite.draw(gl, &targets, &uniforms))?;
         if settings.overlays {
-            let view_projection = camera.view_projection(size.width as f32 / size.height as f32);
+            let view_projection = camera.view_projection(size.aspect());
             gl_timer
                 .time(gl, "overlays", || overlays.draw(gl, &targets.overlay_target(), view_projection))?;
         }
@@ -311,4 +304,8 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -3,7 +3,6 @@
 
 use common::frame::fast::composite::View;
 use common::frame::fast::trace::{Pattern, Rays};
-use common::CommonArgs;
 use common::base::window::Key;
 use common::frame::input;
 use common::rt::accel::BlasLayout;
@@ -13,8 +12,6 @@ use common::scene::SceneArgs;
 /// Chapter 12: chapter 08's frame from a visibility buffer, with a compute composite.
 #[derive(clap::Parser)]
 pub struct Args {
-    #[command(flatten)]
-    pub common: CommonArgs,
     #[command(flatten)]
     pub scene: SceneArgs,
     #[command(flatten)]

@@ -15,12 +15,13 @@ use common::base::cli::{Size, Smallest};
 use common::base::commands::Commands;
 use common::clocks::timestamps::Timestamps;
 use common::frame::Overlays;
-use common::interop::handoff::{Apis, Handoff};
+use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
 use common::rt::ao::AoArgs;
+use common::scene::gbuffer::contexts_in_window;
 use common::scene::{Camera, Instance};
-use common::{RAY_TRACED_INTEROP, Report, open_fd_count};
+use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
@@ -53,11 +54,7 @@ const SMALLEST: Smallest = Smallest {
     )),
 };
 
-fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, |args: &Args| &args.common, run)
-}
-
-fn run(args: &Args, report: &mut Report) -> Result<()> {
+fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     ensure!(
         !(args.compare && args.resize_every.is_some()),
         "--compare walks every method at one size: leave out --resize-every"
@@ -66,7 +63,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 1. The scene, the path the camera and one instance follow, and the rays' budget
     let mut scene = args.scene.load()?;
-    let start = Camera::framing(scene.bounds, size.width as f32 / size.height as f32);
+    let start = Camera::framing(scene.bounds, size.aspect());
     let path = path::Path::new(&scene, start, args);
     if let Some(moving) = &path.moving {
         ensure!(
@@ -87,10 +84,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
-    let (vk, mut window, gl_context) =
-        common::contexts_in_window(CHAPTER, SMALLEST, report, &RAY_TRACED_INTEROP, &args.common)?;
+    let (vk, mut window, gl_context, handoff) =
+        contexts_in_window(CHAPTER, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
-    let handoff = Handoff::new(&vk, &gl_context)?;
     let open_fds_before = open_fd_count()?;
 
     // 3. The shared scene and its structures; a TLAS that can be updated where an instance moves
@@ -115,8 +111,7 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // ANCHOR_END: structures
 
     // 4. Chapter 12's images and passes, the history, and the command buffers
-    let extent = |size: Size| vk::Extent2D { width: size.width, height: size.height };
-    let targets = Targets::new(&vk, &gl_context, &handoff, extent(size))?;
+    let targets = Targets::new(&vk, &gl_context, &handoff, size.extent())?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
     let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
     let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets)?;
@@ -198,8 +193,11 @@ pub fn resize(passes: &Passes, sized: &mut Sized, size: Size) -> Result<()> {
     let Apis { vk, gl, commands, .. } = passes.apis;
     unsafe { gl.gl.finish() };
     commands.wait(vk, "vkWaitForFences before a resize")?;
-    let extent = vk::Extent2D { width: size.width, height: size.height };
-    drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, passes.apis.handoff, extent)?));
+    drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, passes.apis.handoff, size.extent())?));
     sized.fresh.resized(vk, &sized.targets);
     sized.temporal.resized(vk, &passes.shared.allocator, &sized.targets)
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(CHAPTER, SMALLEST, run)
 }

@@ -3,7 +3,6 @@
 
 use common::frame::fast::composite::View;
 use crate::path::{Mover, PathKind};
-use common::CommonArgs;
 use common::rt::accel::BlasLayout;
 use common::scene::SceneArgs;
 
@@ -13,8 +12,6 @@ pub const PATH_FRAMES: u32 = 120;
 /// Chapter 13: chapter 12's frame, its ambient occlusion reused from frame to frame.
 #[derive(clap::Parser)]
 pub struct Args {
-    #[command(flatten)]
-    pub common: CommonArgs,
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Rays per pixel per frame where the history is still filling (1-64).

@@ -441,20 +441,12 @@ pub struct Texel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::mem::offset_of;
+    use common::base::pipeline::assert_layout;
 
     #[test]
     fn temporal_rays_match_the_glsl_block() {
-        assert_eq!(offset_of!(TemporalRays, radius), 32);
-        assert_eq!(offset_of!(TemporalRays, samples), 44);
-        assert_eq!(offset_of!(TemporalRays, accept), 64);
-        assert_eq!(offset_of!(TemporalRays, normal_tolerance), 72);
-        assert_eq!(offset_of!(TemporalRays, moved), 80);
-        assert_eq!(offset_of!(TemporalRays, near_motion_cap), 96);
-        assert_eq!(offset_of!(TemporalRays, pass), 100);
-        assert_eq!(offset_of!(TemporalRays, fresh_pixels), 104);
-        assert_eq!(size_of::<TemporalRays>(), 112);
-        assert_eq!(offset_of!(Cameras, eye), 192);
-        assert_eq!(size_of::<Cameras>(), 256);
+        assert_layout!(TemporalRays is 112 bytes: radius at 32, samples at 44, accept at 64,
+            normal_tolerance at 72, moved at 80, near_motion_cap at 96, pass at 100, fresh_pixels at 104);
+        assert_layout!(Cameras is 256 bytes: eye at 192);
     }
 }

@@ -11,7 +11,7 @@ use crate::settings::{Args, PATH_FRAMES};
 use crate::temporal::Budget;
 use common::frame::fast::trace::{Pattern, Rays};
 use anyhow::Result;
-use common::Report;
+use common::{Flags, Report};
 use common::base::cli::Size;
 use common::clocks::timeline::Timeline;
 use common::base::window::{Key, NamedKey, Window};
@@ -29,7 +29,7 @@ fn compared(chosen: Drawn, budget: Budget) -> Vec<Drawn> {
 }
 
 /// Every walk along the path headless, and the checks of the chosen method's.
-pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Args, report: &mut Report) -> Result<Vec<Walk>> {
+pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>, report: &mut Report) -> Result<Vec<Walk>> {
     let frames = args.common.frames.unwrap_or(PATH_FRAMES).max(1);
     let budget = match chosen {
         Drawn::Temporal(budget) => budget,
@@ -165,7 +165,7 @@ fn watch_the_cut(
 
 /// The last frame of the chosen walk: chapter 12's checks of the surface, the composite and the
 /// overlays, the pictures, and what the path makes checkable.
-fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Args), report: &mut Report) -> Result<()> {
+fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Flags<Args>), report: &mut Report) -> Result<()> {
     let gl = &p.apis.gl.gl;
     let surface = chapter_12_checks(p, sized, camera, report)?;
     if let Some(last) = last_frame(p, sized, camera) {

@@ -3,7 +3,7 @@
 use anyhow::Result;
 use ash::vk;
 use common::VulkanContext;
-use common::base::commands::{COLOR_RANGE, Commands, HostBuffer, image_barrier};
+use common::base::commands::{COLOR_LAYERS, COLOR_RANGE, Commands, HostBuffer, image_barrier};
 
 // ANCHOR: draw
 /// Frame `frame` into `image`: clear to the background, copy the white square in, and hand the
@@ -45,12 +45,7 @@ pub fn draw(
         );
         vk.device.cmd_pipeline_barrier(cb, transfer, transfer, none, &[], &[], &[after_clear]);
         let region = vk::BufferImageCopy::default()
-            .image_subresource(vk::ImageSubresourceLayers {
-                aspect_mask: vk::ImageAspectFlags::COLOR,
-                mip_level: 0,
-                base_array_layer: 0,
-                layer_count: 1,
-            })
+            .image_subresource(COLOR_LAYERS)
             .image_offset(vk::Offset3D { x: x as i32, y: y as i32, z: 0 })
             .image_extent(vk::Extent3D { width: side, height: side, depth: 1 });
         vk.device.cmd_copy_buffer_to_image(cb, *square.buffer, image, dst, &[region]);

@@ -28,7 +28,7 @@ use common::clocks::timing::PassTimes;
 use common::instruments::{fail, resources};
 use common::interop::exportable::{self, Dedicated};
 use common::interop::handoff;
-use common::{CommonArgs, Report, Requirements, VulkanContext};
+use common::{Flags, Report, Requirements, VulkanContext};
 use session::{Measured, Outcome, Ring, Session};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -47,8 +47,6 @@ const SMALLEST: Smallest = Smallest {
 /// Chapter 14: a Vulkan renderer and a GL viewer in two processes, sharing a ring of images.
 #[derive(clap::Parser)]
 struct Args {
-    #[command(flatten)]
-    common: CommonArgs,
     /// Images in the ring, each a frame in flight: 2 to 16.
     #[arg(long, default_value_t = 2)]
     slots: u32,
@@ -91,17 +89,6 @@ struct Args {
     stall_probe: bool,
 }
 
-fn main() -> ExitCode {
-    common::run_chapter(
-        CHAPTER,
-        |args: &Args| &args.common,
-        |args, report| match args.viewer_fd.is_some() || args.connect.is_some() {
-            true => viewer::run(args, report),
-            false => render(args, report),
-        },
-    )
-}
-
 // ANCHOR: picture
 /// Frame `frame`'s picture, which both processes know: a background colour no nearby frame
 /// shares, and a white square (x, y, side) that moves one step a frame. A viewer that read a
@@ -115,8 +102,7 @@ pub fn picture(frame: u64, width: u32, height: u32) -> ([u8; 4], (u32, u32, u32)
 }
 // ANCHOR_END: picture
 
-fn render(args: &Args, report: &mut Report) -> Result<()> {
-    SMALLEST.check(CHAPTER, args.common.size)?;
+fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let slots = args.slots;
     ensure!(
         (2..=wire::MAX_SLOTS).contains(&slots),
@@ -312,4 +298,15 @@ fn render(args: &Args, report: &mut Report) -> Result<()> {
     // Every fd exported went to a viewer, and ours was closed once sent; every socket is closed.
     report.check("no_fd_leaked", gauges::no_fd_leaked("renderer", &fds_before));
     Ok(())
+}
+
+fn main() -> ExitCode {
+    common::run_chapter(
+        CHAPTER,
+        SMALLEST,
+        |args: &Flags<Args>, report: &mut Report| match args.viewer_fd.is_some() || args.connect.is_some() {
+            true => viewer::run(args, report),
+            false => render(args, report),
+        },
+    )
 }

@@ -8,7 +8,7 @@
 use super::slot::{is_picture_of, read_slot, wait_until_written, window_shows};
 use super::{Args, CHAPTER, gauges, wire};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::Report;
+use common::{Flags, Report};
 use common::base::cli::Size;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, create};
 use common::base::vulkan::DeviceInfo;
@@ -38,7 +38,7 @@ struct Viewed {
     sessions: Vec<gauges::Sample>,
 }
 
-pub fn run(args: &Args, report: &mut Report) -> Result<()> {
+pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let mut viewed = Viewed {
         gl: None,
         window: None,
@@ -115,7 +115,7 @@ fn connect_within(path: &std::path::Path, timeout: Duration) -> Result<Socket> {
 }
 
 /// One renderer, from its Hello to its Bye (`Ok(false)`) or its hang-up (`Ok(true)`).
-fn view(args: &Args, report: &mut Report, socket: &Socket, viewed: &mut Viewed) -> Result<bool> {
+fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut Viewed) -> Result<bool> {
     socket.set_timeout(Duration::from_secs_f64(args.timeout))?;
     // 1. Hear the renderer's Hello
     let hello = match socket.recv()? {

@@ -16,6 +16,23 @@ pub struct Case {
     pub exact: Option<Box<dyn Fn(DVec3) -> Option<f64>>>,
 }
 
+impl Case {
+    /// A case with an exact answer: `exact` takes a point in the case's own units, where it is
+    /// `size` across (before `place` scaled and moved it), and `radius` is in those units too.
+    fn exact(
+        name: &'static str,
+        scene: Scene,
+        camera: Camera,
+        place: Placement,
+        (size, radius): (f64, f64),
+        exact: impl Fn(DVec3) -> Option<f64> + 'static,
+    ) -> Case {
+        let origin = DVec3::from(scene.origin);
+        let exact = move |p: DVec3| exact(place.to_case(p, origin, size));
+        Case { name, scene, camera, radius: (radius * place.scale) as f32, exact: Some(Box::new(exact)) }
+    }
+}
+
 /// Where an exact case sits: scaled by `scale` about its own origin, then moved `offset` times
 /// its own size along a diagonal that is no axis (the scale/offset invariance tests use it).
 #[derive(Clone, Copy)]
@@ -104,7 +121,6 @@ pub fn parallel_planes(place: Placement) -> anyhow::Result<Case> {
     let ceiling = floor.map(|c| c + DVec3::Y * H);
     let ceiling = [ceiling[0], ceiling[3], ceiling[2], ceiling[1]]; // facing down
     let scene = one_mesh_scene(quads(&[floor, ceiling], place), place, L, DVec3::new(0.5, H / 2.0, 0.0))?;
-    let origin = DVec3::from(scene.origin);
     let camera = camera(
         &scene,
         place,
@@ -113,17 +129,10 @@ pub fn parallel_planes(place: Placement) -> anyhow::Result<Case> {
         (0.05, 20.0),
     );
     let exact = move |p: DVec3| {
-        let p = place.to_case(p, origin, L);
         let inside = p.x.abs() <= b - R && p.z.abs() <= b - R;
         inside.then(|| 1.0 - exact::between_planes(H, R))
     };
-    Ok(Case {
-        name: "parallel-planes",
-        scene,
-        camera,
-        radius: (R * place.scale) as f32,
-        exact: Some(Box::new(exact)),
-    })
+    Ok(Case::exact("parallel-planes", scene, camera, place, (L, R), exact))
 }
 
 /// A floor (y = 0, x >= 0) meeting a wall (x = 0) along the z axis, `L` wide: a floor point at
@@ -137,24 +146,16 @@ pub fn floor_and_wall(place: Placement) -> anyhow::Result<Case> {
     let wall =
         [DVec3::new(0.0, 0.0, a), DVec3::new(0.0, L, a), DVec3::new(0.0, L, b), DVec3::new(0.0, 0.0, b)];
     let scene = one_mesh_scene(quads(&[floor, wall], place), place, L, DVec3::new(0.5, 0.5, 0.0))?;
-    let origin = DVec3::from(scene.origin);
     let camera =
         camera(&scene, place, L, (DVec3::new(3.2, 2.4, 1.6), DVec3::new(0.3, 0.3, -0.6)), (0.05, 20.0));
     let exact = move |p: DVec3| {
-        let p = place.to_case(p, origin, L);
         // On the floor the height is (nearly) 0 and the distance to the wall is x; on the wall
         // the other way round. At the corner both formulas give 1/2.
         let (distance, across) = if p.y.abs() < p.x.abs() { (p.x, L - p.x) } else { (p.y, L - p.y) };
         let inside = across >= R && p.z.abs() <= b - R;
         inside.then(|| 1.0 - exact::beside_wall(distance.max(0.0), R))
     };
-    Ok(Case {
-        name: "floor-and-wall",
-        scene,
-        camera,
-        radius: (R * place.scale) as f32,
-        exact: Some(Box::new(exact)),
-    })
+    Ok(Case::exact("floor-and-wall", scene, camera, place, (L, R), exact))
 }
 // ANCHOR_END: cases
 

@@ -286,36 +286,39 @@ impl Drop for Xvfb {
     }
 }
 
-/// Every Markdown file under `dir` (links skipped: `book/src` links to the sources), unsorted.
-pub fn markdown_files(dir: &Path) -> Vec<PathBuf> {
-    fn walk(dir: &Path, found: &mut Vec<PathBuf>) {
-        for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())).flatten() {
-            let path = entry.path();
-            if entry.file_type().is_ok_and(|t| t.is_symlink()) {
-                continue;
-            }
-            if path.is_dir() {
-                walk(&path, found);
-            } else if path.extension().is_some_and(|e| e == "md") {
-                found.push(path);
-            }
+/// Every file under `dir`, at any depth, whose name ends in `.{extension}`, unsorted. Links are
+/// skipped: `book/src` links to the sources, which are not pages.
+pub fn files_ending(dir: &Path, extension: &str) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())).flatten() {
+        let path = entry.path();
+        if entry.file_type().is_ok_and(|t| t.is_symlink()) {
+            continue;
+        }
+        if path.is_dir() {
+            found.extend(files_ending(&path, extension));
+        } else if path.extension().is_some_and(|e| e == extension) {
+            found.push(path);
         }
     }
-    let mut found = Vec::new();
-    walk(dir, &mut found);
     found
 }
 
-/// Every `.rs` file under `dir`, at any depth.
-pub fn rust_files(dir: &Path) -> Vec<PathBuf> {
-    let mut files = Vec::new();
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let path = entry.unwrap().path();
-        if path.is_dir() {
-            files.extend(rust_files(&path));
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            files.push(path);
-        }
-    }
-    files
+/// Fails unless `scan` finds nothing in any Rust file of `chapters/` and `common/src/` (given the
+/// file's path from the repository's root, and its text, it returns one line per finding); the
+/// message is `what`, then every finding.
+pub fn assert_no_source_has(what: &str, scan: impl Fn(&str, &str) -> Vec<String>) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = files_ending(&root.join("chapters"), "rs");
+    files.extend(files_ending(&root.join("common/src"), "rs"));
+    files.sort();
+    assert!(files.len() > 50, "found only {} Rust files under chapters and common/src", files.len());
+    let found: Vec<String> = files
+        .iter()
+        .flat_map(|path| {
+            let name = path.strip_prefix(root).unwrap().display().to_string();
+            scan(&name, &std::fs::read_to_string(path).unwrap())
+        })
+        .collect();
+    assert!(found.is_empty(), "{what}:\n{}", found.join("\n"));
 }

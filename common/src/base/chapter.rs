@@ -1,5 +1,5 @@
-//! The contract every chapter shares: run, report, exit code; and the few steps every chapter
-//! from 03 on repeats (both contexts connected, open fds counted, CPU time measured).
+//! The contract every chapter shares: its size checked, run, report, exit code; and the few steps
+//! every chapter from 03 on repeats (both contexts connected, open fds counted, CPU time measured).
 
 use super::cli::{CommonArgs, Largest, Size, Smallest};
 use super::gl::{self, GlContext, MEMORY_EXTENSIONS};
@@ -10,21 +10,46 @@ use super::window;
 use crate::instruments::{fail, resources};
 use std::process::ExitCode;
 
-/// Runs a chapter with the contract every chapter shares: parse the flags, run, then print the
-/// report (as JSON with `--json`) and turn failed checks or validation errors into a non-zero exit.
+/// The flags a chapter runs with: its own (`A`, which `Flags` derefs to: `args.scene`), and
+/// those every chapter takes (`args.common`), which [`run_chapter`] adds to the chapter's.
+pub struct Flags<A> {
+    pub common: CommonArgs,
+    own: A,
+}
+
+impl<A> std::ops::Deref for Flags<A> {
+    type Target = A;
+    fn deref(&self) -> &A {
+        &self.own
+    }
+}
+
+/// Runs a chapter with the contract every chapter shares: parse the flags (the chapter's own,
+/// `A`, and [`CommonArgs`]), refuse a `--size` smaller than the chapter's checks need
+/// (`smallest`) before anything is made, run, then print the report (as JSON with `--json`) and
+/// turn failed checks or validation errors into a non-zero exit.
 ///
 /// Exit codes: 0 all checks passed; 1 a check failed or the validation layer reported an error;
 /// 2 the chapter could not run (missing extension, bad input ...), with the reason on stderr.
-/// `common` finds the shared flags inside the chapter's own (`|args: &Args| &args.common`).
-pub fn run_chapter<A: clap::Parser>(
-    chapter: &str,
-    common: fn(&A) -> &CommonArgs,
-    run: impl FnOnce(&A, &mut Report) -> anyhow::Result<()>,
+pub fn run_chapter<A: clap::Args + clap::FromArgMatches>(
+    chapter: &'static str,
+    smallest: Smallest,
+    run: impl FnOnce(&Flags<A>, &mut Report) -> anyhow::Result<()>,
 ) -> ExitCode {
-    let args = A::parse();
-    let common = common(&args);
+    use clap::{Args as _, FromArgMatches as _};
+    // Every chapter's flags, then the chapter's own (whose doc comment is the command's about);
+    // a flag clap refuses exits here, with code 2 and clap's message, as `A::parse` would.
+    let mut command = A::augment_args(CommonArgs::augment_args(clap::Command::new(chapter)));
+    let matches = command.get_matches_mut();
+    let parsed = A::from_arg_matches(&matches)
+        .and_then(|own| Ok(Flags { common: CommonArgs::from_arg_matches(&matches)?, own }));
+    let args = parsed.unwrap_or_else(|error| error.format(&mut command).exit());
+    let common = &args.common;
     let mut report = Report::new(chapter);
-    let result = accounted(|| run(&args, &mut report));
+    let result = accounted(|| {
+        smallest.check(chapter, common.size)?;
+        run(&args, &mut report)
+    });
     if let Err(error) = result {
         eprintln!("error: {error:#}");
         return ExitCode::from(2);
@@ -106,19 +131,16 @@ pub fn connect(report: &mut Report, vk: &VulkanContext, gl: &GlContext) -> anyho
 // ANCHOR_END: connect
 
 // ANCHOR: contexts
-/// Both contexts on one device, as chapter 03 made them, for a picture of `size`: refused first
-/// if it is smaller than the chapter's checks need (`smallest`); then Vulkan with
-/// `requirements`, and a headless GL context on the EGL device with Vulkan's UUID and the
-/// memory-object extensions; [`connect`]ed, and `size` refused if either API cannot hold it
-/// ([`largest_size`]).
+/// Both contexts on one device, as chapter 03 made them, for a picture of `size` (which
+/// [`run_chapter`] has checked against the chapter's smallest): Vulkan with `requirements`, and a
+/// headless GL context on the EGL device with Vulkan's UUID and the memory-object extensions;
+/// [`connect`]ed, and `size` refused if either API cannot hold it ([`largest_size`]).
 pub fn contexts(
     chapter: &str,
-    smallest: Smallest,
     report: &mut Report,
     requirements: &Requirements,
     size: Size,
 ) -> anyhow::Result<(VulkanContext, GlContext)> {
-    smallest.check(chapter, size)?;
     let vk = VulkanContext::new(requirements)?;
     let gl = GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?;
     connect(report, &vk, &gl)?;
@@ -133,12 +155,10 @@ pub fn contexts(
 /// says which. Dropped in the order bound: GL's context, the window, then Vulkan's.
 pub fn contexts_in_window(
     chapter: &str,
-    smallest: Smallest,
     report: &mut Report,
     requirements: &Requirements,
     common: &CommonArgs,
 ) -> anyhow::Result<(VulkanContext, Option<Window>, GlContext)> {
-    smallest.check(chapter, common.size)?;
     let vk = VulkanContext::new(requirements)?;
     let headless = common.headless || !window::display_available();
     if !common.headless && headless {

@@ -3,8 +3,8 @@
 use crate::instruments::report::Print;
 use std::path::PathBuf;
 
-/// Flags shared by every chapter. A chapter embeds these with `#[command(flatten)]` and adds its
-/// own (`--time` where it animates, `--scene` where it loads a model).
+/// Flags shared by every chapter: `run_chapter` puts them before the chapter's own (`--time`
+/// where it animates, `--scene` where it loads a model), and `Flags` holds both.
 #[derive(clap::Args, Debug, Clone)]
 pub struct CommonArgs {
     /// No window: render offscreen and write images to --out.
@@ -55,10 +55,10 @@ impl CommonArgs {
 #[derive(clap::Args, Debug, Clone)]
 pub struct AnimationArgs {
     /// The time of the first frame, in seconds.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, value_parser = parse_time, allow_negative_numbers = true)]
     pub time: f32,
     /// Seconds between frames (0: nothing moves, and the occlusion accumulates).
-    #[arg(long, default_value_t = 1.0 / 30.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 1.0 / 30.0, value_parser = parse_step, allow_negative_numbers = true)]
     pub step: f32,
     /// Rebuild the structure that moves every K frames instead of updating it in place (0: never).
     #[arg(long, default_value_t = 0)]
@@ -68,18 +68,19 @@ pub struct AnimationArgs {
     pub every_frame: bool,
 }
 
-impl AnimationArgs {
-    /// Refuses a time that is not a number and a step that is not 0 or more seconds.
-    pub fn check(&self) -> anyhow::Result<()> {
-        anyhow::ensure!(
-            self.step.is_finite() && self.step >= 0.0,
-            "--step {}: must be 0 or more seconds",
-            self.step
-        );
-        anyhow::ensure!(self.time.is_finite(), "--time {}: must be a number of seconds", self.time);
-        Ok(())
-    }
+/// `--time`: any number of seconds (not NaN nor infinite), refused by clap before anything runs.
+fn parse_time(text: &str) -> Result<f32, String> {
+    let time: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    time.is_finite().then_some(time).ok_or_else(|| "must be a number of seconds".into())
+}
 
+/// `--step`: 0 or more seconds, refused by clap before anything runs.
+fn parse_step(text: &str) -> Result<f32, String> {
+    let step: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    (step.is_finite() && step >= 0.0).then_some(step).ok_or_else(|| "must be 0 or more seconds".into())
+}
+
+impl AnimationArgs {
     /// The animation time of frame `frame`.
     pub fn at(&self, frame: u32) -> f32 {
         self.time + frame as f32 * self.step
@@ -96,6 +97,11 @@ impl Size {
     /// The same size as Vulkan's `VkExtent2D`.
     pub fn extent(self) -> ash::vk::Extent2D {
         ash::vk::Extent2D { width: self.width, height: self.height }
+    }
+
+    /// Width over height, as a camera's projection takes it.
+    pub fn aspect(self) -> f32 {
+        self.width as f32 / self.height as f32
     }
 }
 

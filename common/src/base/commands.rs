@@ -189,6 +189,14 @@ pub const COLOR_RANGE: vk::ImageSubresourceRange = vk::ImageSubresourceRange {
     layer_count: 1,
 };
 
+/// The colour image's one mip level and one layer, as a copy to or from it names them.
+pub const COLOR_LAYERS: vk::ImageSubresourceLayers = vk::ImageSubresourceLayers {
+    aspect_mask: vk::ImageAspectFlags::COLOR,
+    mip_level: 0,
+    base_array_layer: 0,
+    layer_count: 1,
+};
+
 /// A plain (not shared) buffer in host-visible, host-coherent memory, mapped for its lifetime:
 /// staging data in, reading results out. Destroyed when dropped (the buffer, then its memory,
 /// which unmaps it); the GPU must be done with it.
@@ -256,9 +264,7 @@ pub fn copy_image_to_buffer(
     buffer: vk::Buffer,
 ) {
     let region = vk::BufferImageCopy::default()
-        .image_subresource(
-            vk::ImageSubresourceLayers::default().aspect_mask(vk::ImageAspectFlags::COLOR).layer_count(1),
-        )
+        .image_subresource(COLOR_LAYERS)
         .image_extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 });
     unsafe { vk.device.cmd_copy_image_to_buffer(cb, image, layout, buffer, &[region]) };
 }

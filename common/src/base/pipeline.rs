@@ -22,6 +22,25 @@ pub fn shader_module(vk: &VulkanContext, spirv: &[u8], stage: &str) -> Result<Sh
     create(&vk.device, &what, || unsafe { vk.device.create_shader_module(&info, None) })
 }
 
+/// Asserts that a `#[repr(C)]` struct another side reads (a shader's block, a CUDA kernel's
+/// parameters, Vulkan's instance record) has the size and byte offsets that side declares:
+/// `assert_layout!(AoRays is 16 bytes: samples at 0, radius at 8)`. For a unit test; the
+/// message names the member whose offset is wrong.
+#[macro_export]
+#[doc(hidden)]
+macro_rules! __assert_layout {
+    ($ty:ident is $size:literal bytes: $($field:ident at $offset:literal),* $(,)?) => {
+        assert_eq!(::core::mem::size_of::<$ty>(), $size, concat!("the size of ", stringify!($ty)));
+        $(assert_eq!(
+            ::core::mem::offset_of!($ty, $field),
+            $offset,
+            concat!("the offset of ", stringify!($ty), "::", stringify!($field))
+        );)*
+    };
+}
+#[doc(inline)]
+pub use __assert_layout as assert_layout;
+
 /// A pipeline's interface: the layout of descriptor set 0, the pipeline layout that adds the
 /// push constants, and the one set, from a pool sized for exactly it. Dropped, it destroys the
 /// pool (and with it the set) and both layouts: after the pipeline, and once the GPU is done.

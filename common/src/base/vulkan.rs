@@ -28,6 +28,14 @@ pub struct Requirements<'a> {
     pub ray_tracing: bool,
 }
 
+/// What chapters 04 and 05 need (taught in 03): memory shared as fds, and semaphores where the
+/// driver has them.
+pub const INTEROP: Requirements<'static> = Requirements {
+    extensions: &[ash::khr::external_memory_fd::NAME],
+    optional_extensions: &[ash::khr::external_semaphore_fd::NAME],
+    ray_tracing: false,
+};
+
 /// What chapters 07 and 08 need (taught in 03 and 06): memory shared as fds, semaphores where
 /// the driver has them, and ray tracing.
 pub const RAY_TRACED_INTEROP: Requirements<'static> = Requirements {

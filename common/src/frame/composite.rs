@@ -2,7 +2,7 @@
 //! an offscreen colour buffer whose depth buffer is the G-buffer pass's.
 
 use super::overlay::Target;
-use crate::base::gl::{Owned, create};
+use crate::base::gl::{Owned, create, renderbuffer};
 use crate::rt::ao::AoTracer;
 use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
@@ -204,16 +204,12 @@ fn new_target(
     gl: &Rc<glow::Context>,
     gbuffers: &GBuffers,
 ) -> Result<(Owned<glow::Framebuffer>, Owned<glow::Renderbuffer>)> {
-    let (w, h) = (gbuffers.extent.width as i32, gbuffers.extent.height as i32);
-    let colour =
-        create(gl, "glCreateRenderbuffers for the composite", |gl| unsafe { gl.create_renderbuffer() })?
-            .counted("gl_renderbuffer: RGBA8", 4 * w as u64 * h as u64);
+    let size = (gbuffers.extent.width, gbuffers.extent.height);
+    let what = "glCreateRenderbuffers for the composite";
+    let colour = renderbuffer(gl, what, (glow::RGBA8, "RGBA8", 4), size)?;
     let fb =
         create(gl, "glCreateFramebuffers for the composite", |gl| unsafe { gl.create_named_framebuffer() })?;
     unsafe {
-        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*colour));
-        gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, w, h);
-        gl.bind_renderbuffer(glow::RENDERBUFFER, None);
         gl.named_framebuffer_renderbuffer(
             Some(*fb),
             glow::COLOR_ATTACHMENT0,

@@ -104,6 +104,17 @@ pub fn read_png_rgba8(path: &Path) -> Result<((u32, u32), Vec<u8>)> {
     read().with_context(|| format!("reading {}", path.display()))
 }
 
+/// [`save_rgba8`] for pixels as GL drew them, bottom row first in memory: turned upright.
+pub fn save_gl_rgba8(
+    report: &mut Report,
+    dir: &Path,
+    name: &str,
+    size: (u32, u32),
+    pixels: &[u8],
+) -> Result<()> {
+    save_rgba8(report, dir, name, size, &flip_rows(pixels, size.0, size.1))
+}
+
 /// An animation's frames (frame number, RGBA8 pixels top row first), written as
 /// `<chapter>-frame-NNN.png`; where something `moved`, checked first ([`check_frames_differ`]).
 pub fn save_frames(

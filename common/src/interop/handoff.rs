@@ -182,6 +182,20 @@ impl Handoff {
     }
 
     // ANCHOR: gl_release
+    /// `glSignalSemaphoreEXT` or `glWaitSemaphoreEXT` (`call`) on GL's side of `semaphore`, for
+    /// no buffer and for `textures`, each in the layout (GL's name) that `layouts` gives it.
+    unsafe fn on_textures(
+        call: unsafe extern "system" fn(u32, u32, *const u32, u32, *const u32, *const u32),
+        semaphore: &SharedSemaphore,
+        textures: &[glow::Texture],
+        layouts: &[u32],
+    ) {
+        let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
+        unsafe {
+            call(semaphore.gl.0, 0, std::ptr::null(), names.len() as u32, names.as_ptr(), layouts.as_ptr())
+        }
+    }
+
     /// GL has finished with `textures`; Vulkan may start. `layouts` are GL's names
     /// (`common::base::gl::layout`) for the layouts Vulkan's first barrier will find them in.
     pub fn gl_release(&self, gl: &GlContext, textures: &[glow::Texture], layouts: &[u32]) {
@@ -189,17 +203,9 @@ impl Handoff {
         assert_eq!(textures.len(), layouts.len(), "one layout per texture");
         match self {
             Handoff::Semaphores { gl_done, .. } => {
-                let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
                 unsafe {
-                    (ext.SignalSemaphoreEXT)(
-                        gl_done.gl.0,
-                        0,
-                        std::ptr::null(),
-                        names.len() as u32,
-                        names.as_ptr(),
-                        layouts.as_ptr(),
-                    );
+                    Handoff::on_textures(ext.SignalSemaphoreEXT, gl_done, textures, layouts);
                     // The signal sits in GL's command queue until flushed: without this, Vulkan
                     // could wait for it forever.
                     gl.gl.flush();
@@ -248,18 +254,8 @@ impl Handoff {
         crate::instruments::fail::step("GL's acquire of the shared images")?;
         match self {
             Handoff::Semaphores { vulkan_done, .. } => {
-                let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
                 let ext = gl.semaphores.as_ref().expect("Handoff::Semaphores implies GL semaphores");
-                unsafe {
-                    (ext.WaitSemaphoreEXT)(
-                        vulkan_done.gl.0,
-                        0,
-                        std::ptr::null(),
-                        names.len() as u32,
-                        names.as_ptr(),
-                        layouts.as_ptr(),
-                    )
-                };
+                unsafe { Handoff::on_textures(ext.WaitSemaphoreEXT, vulkan_done, textures, layouts) };
                 Ok(())
             }
             Handoff::Host { .. } => {
@@ -300,15 +296,11 @@ fn misnamed_layouts(textures: &[glow::Texture], layouts: &[u32]) -> u32 {
 /// Can this device export binary semaphores as opaque fds?
 pub fn vulkan_can_export_semaphores(vk: &VulkanContext) -> bool {
     let info = vk::PhysicalDeviceExternalSemaphoreInfo::default().handle_type(SEMAPHORE_HANDLE_TYPE);
-    let mut properties = vk::ExternalSemaphoreProperties::default();
+    let mut support = vk::ExternalSemaphoreProperties::default();
     unsafe {
-        vk.instance.get_physical_device_external_semaphore_properties(
-            vk.physical_device,
-            &info,
-            &mut properties,
-        )
+        vk.instance.get_physical_device_external_semaphore_properties(vk.physical_device, &info, &mut support)
     };
-    properties.external_semaphore_features.contains(vk::ExternalSemaphoreFeatureFlags::EXPORTABLE)
+    support.external_semaphore_features.contains(vk::ExternalSemaphoreFeatureFlags::EXPORTABLE)
 }
 // ANCHOR_END: can_export_semaphores
 

@@ -51,6 +51,16 @@ impl AoArgs {
         Ok(radius)
     }
     // ANCHOR_END: radius
+
+    /// [`AoArgs::radius`], for a chapter that traces occlusion every frame (09, 10): refused
+    /// where it would leave nothing to trace ([`nothing_to_trace`]).
+    pub fn radius_to_trace(&self, scene: &crate::scene::Scene) -> Result<f32> {
+        let radius = self.radius(scene)?;
+        if let Some(reason) = nothing_to_trace(self.samples, radius) {
+            anyhow::bail!("{reason}: this chapter traces occlusion every frame; give it rays and a radius");
+        }
+        Ok(radius)
+    }
 }
 
 /// The checks every chapter that traces makes of the AO image as GL holds it: every value a
@@ -362,10 +372,7 @@ mod rays_tests {
 
     #[test]
     fn ao_rays_match_the_glsl_block() {
-        assert_eq!(std::mem::offset_of!(AoRays, samples), 0);
-        assert_eq!(std::mem::offset_of!(AoRays, accumulated), 4);
-        assert_eq!(std::mem::offset_of!(AoRays, radius), 8);
-        assert_eq!(std::mem::offset_of!(AoRays, scene_scale), 12);
-        assert_eq!(size_of::<AoRays>(), 16);
+        crate::base::pipeline::assert_layout!(AoRays is 16 bytes: samples at 0, accumulated at 4, radius at 8,
+            scene_scale at 12);
     }
 }

@@ -277,14 +277,10 @@ pub fn push_bytes<T: Copy>(value: &T) -> &[u8] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::mem::offset_of;
+    use crate::base::pipeline::assert_layout;
 
     #[test]
     fn primary_rays_match_the_glsl_block() {
-        assert_eq!(offset_of!(PrimaryRays, inverse_view_projection), 0);
-        assert_eq!(offset_of!(PrimaryRays, eye), 64);
-        assert_eq!(offset_of!(PrimaryRays, t_min), 80);
-        assert_eq!(offset_of!(PrimaryRays, t_max), 84);
-        assert_eq!(size_of::<PrimaryRays>(), 88);
+        assert_layout!(PrimaryRays is 88 bytes: inverse_view_projection at 0, eye at 64, t_min at 80, t_max at 84);
     }
 }

@@ -1,8 +1,12 @@
 //! The scene's shared buffers and the G-buffers GL rasterises them into (taught in chapter 05;
 //! chapters 06-08 draw the same way).
 
-use crate::base::gl::{GlContext, Owned, create};
-use crate::base::vulkan::VulkanContext;
+use crate::base::chapter;
+use crate::base::cli::{CommonArgs, Size};
+use crate::base::gl::{GlContext, Owned, create, renderbuffer};
+use crate::instruments::report::Report;
+use crate::base::vulkan::{Requirements, VulkanContext};
+use crate::base::window::Window;
 use crate::interop::handoff::Handoff;
 use crate::interop::{BufferPair, SharedBuffer, SharedFormat, SharedImage, share_buffer};
 use crate::scene::{Camera, Instance, Scene, Vertex};
@@ -204,6 +208,35 @@ impl GBuffers {
     // ANCHOR_END: depth_first
 }
 
+/// What every chapter that draws G-buffers (05 on) stands on: both contexts for a picture of
+/// `size` ([`chapter::contexts`]), the size refused if the device cannot hold its G-buffers
+/// ([`check_size`]) before anything is allocated, and the hand-off between the two APIs (chapter
+/// 03's [`Handoff`]). Bound in this order, they are dropped newest first.
+pub fn contexts(
+    chapter: &str,
+    report: &mut Report,
+    requirements: &Requirements,
+    size: Size,
+) -> Result<(VulkanContext, GlContext, Handoff)> {
+    let (vk, gl) = chapter::contexts(chapter, report, requirements, size)?;
+    check_size(&vk, &gl, size.extent())?;
+    let handoff = Handoff::new(&vk, &gl)?;
+    Ok((vk, gl, handoff))
+}
+
+/// [`contexts`], with GL in a window when there is a display ([`chapter::contexts_in_window`]).
+pub fn contexts_in_window(
+    chapter: &str,
+    report: &mut Report,
+    requirements: &Requirements,
+    common: &CommonArgs,
+) -> Result<(VulkanContext, Option<Window>, GlContext, Handoff)> {
+    let (vk, window, gl) = chapter::contexts_in_window(chapter, report, requirements, common)?;
+    check_size(&vk, &gl, common.size.extent())?;
+    let handoff = Handoff::new(&vk, &gl)?;
+    Ok((vk, window, gl, handoff))
+}
+
 /// Refuses a size the device cannot hold, naming the bytes, before anything is allocated: each
 /// side's largest image, the largest device-local memory heap (the G-buffers, GL's depth and the
 /// AO image together), and GL's read-back of one image (`glGetTexImage` writes at most
@@ -297,17 +330,12 @@ unsafe fn framebuffer(
     images: &[SharedImage],
     extent: vk::Extent2D,
 ) -> Result<(Owned<glow::Framebuffer>, Owned<glow::Renderbuffer>)> {
-    let (width, height) = (extent.width as i32, extent.height as i32);
-    let depth = create(gl, "glCreateRenderbuffers for the G-buffers' depth", |gl| unsafe {
-        gl.create_renderbuffer()
-    })?
-    .counted("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * width as u64 * height as u64);
+    let what = "glCreateRenderbuffers for the G-buffers' depth";
+    let depth_32f = (glow::DEPTH_COMPONENT32F, "DEPTH_COMPONENT32F", 4);
+    let depth = renderbuffer(gl, what, depth_32f, (extent.width, extent.height))?;
     let fb =
         create(gl, "glCreateFramebuffers for the G-buffers", |gl| unsafe { gl.create_named_framebuffer() })?;
     unsafe {
-        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*depth));
-        gl.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, width, height);
-        gl.bind_renderbuffer(glow::RENDERBUFFER, None);
         let mut draw_buffers = Vec::new();
         for (i, image) in images.iter().enumerate() {
             let attachment = glow::COLOR_ATTACHMENT0 + i as u32;

@@ -174,9 +174,7 @@ mod tests {
 
     #[test]
     fn instance_is_laid_out_as_vulkan_wants() {
-        assert_eq!(std::mem::size_of::<Instance>(), 64);
-        assert_eq!(std::mem::offset_of!(Instance, custom_index_and_mask), 48);
-        assert_eq!(std::mem::offset_of!(Instance, blas_address), 56);
+        crate::base::pipeline::assert_layout!(Instance is 64 bytes: custom_index_and_mask at 48, blas_address at 56);
         assert_eq!(std::mem::size_of::<Vertex>(), 24);
         let m = Mat4::from_translation(Vec3::new(1.0, 2.0, 3.0)) * Mat4::from_scale(Vec3::splat(2.0));
         let instance = Instance::new(m, [1, 2, 3]);

@@ -301,37 +301,24 @@ impl GlContext {
             (1..next.max(PROBED_NAMES)).filter(|&name| is(name) == glow::TRUE).count()
         };
         let mut live = std::collections::BTreeMap::new();
+        // Each kind: make one (the name it gets is one past the highest in use, or a freed one),
+        // delete it, and ask GL which names below that are objects of the kind.
+        macro_rules! census {
+            ($kind:literal, $create:expr, $delete:ident, $is:ident) => {{
+                let made = $create;
+                let next = made.as_ref().map_or(0, |object| object.0.get());
+                made.into_iter().for_each(|object| gl.$delete(object));
+                live.insert($kind, count(next, &|name| (self.is.$is)(name)));
+            }};
+        }
         unsafe {
-            // The name a new object gets: one past the highest in use, or a freed one.
-            let next = |made: Result<std::num::NonZeroU32, String>| made.map_or(0, |n| n.get());
-            let t = gl.create_named_texture(glow::TEXTURE_2D);
-            let n = next(t.as_ref().map(|t| t.0).map_err(Clone::clone));
-            t.into_iter().for_each(|t| gl.delete_texture(t));
-            live.insert("gl_textures", count(n, &|name| (self.is.IsTexture)(name)));
-            let b = gl.create_named_buffer();
-            let n = next(b.as_ref().map(|b| b.0).map_err(Clone::clone));
-            b.into_iter().for_each(|b| gl.delete_buffer(b));
-            live.insert("gl_buffers", count(n, &|name| (self.is.IsBuffer)(name)));
-            let f = gl.create_named_framebuffer();
-            let n = next(f.as_ref().map(|f| f.0).map_err(Clone::clone));
-            f.into_iter().for_each(|f| gl.delete_framebuffer(f));
-            live.insert("gl_framebuffers", count(n, &|name| (self.is.IsFramebuffer)(name)));
-            let r = gl.create_renderbuffer();
-            let n = next(r.as_ref().map(|r| r.0).map_err(Clone::clone));
-            r.into_iter().for_each(|r| gl.delete_renderbuffer(r));
-            live.insert("gl_renderbuffers", count(n, &|name| (self.is.IsRenderbuffer)(name)));
-            let v = gl.create_named_vertex_array();
-            let n = next(v.as_ref().map(|v| v.0).map_err(Clone::clone));
-            v.into_iter().for_each(|v| gl.delete_vertex_array(v));
-            live.insert("gl_vertex_arrays", count(n, &|name| (self.is.IsVertexArray)(name)));
-            let p = gl.create_program();
-            let n = next(p.as_ref().map(|p| p.0).map_err(Clone::clone));
-            p.into_iter().for_each(|p| gl.delete_program(p));
-            live.insert("gl_programs", count(n, &|name| (self.is.IsProgram)(name)));
-            let q = gl.create_query();
-            let n = next(q.as_ref().map(|q| q.0).map_err(Clone::clone));
-            q.into_iter().for_each(|q| gl.delete_query(q));
-            live.insert("gl_queries", count(n, &|name| (self.is.IsQuery)(name)));
+            census!("gl_textures", gl.create_named_texture(glow::TEXTURE_2D), delete_texture, IsTexture);
+            census!("gl_buffers", gl.create_named_buffer(), delete_buffer, IsBuffer);
+            census!("gl_framebuffers", gl.create_named_framebuffer(), delete_framebuffer, IsFramebuffer);
+            census!("gl_renderbuffers", gl.create_renderbuffer(), delete_renderbuffer, IsRenderbuffer);
+            census!("gl_vertex_arrays", gl.create_named_vertex_array(), delete_vertex_array, IsVertexArray);
+            census!("gl_programs", gl.create_program(), delete_program, IsProgram);
+            census!("gl_queries", gl.create_query(), delete_query, IsQuery);
             if let Some(ext) = &self.memory {
                 let mut n = 0;
                 (ext.CreateMemoryObjectsEXT)(1, &mut n);

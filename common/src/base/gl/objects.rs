@@ -226,6 +226,26 @@ fn program_from(gl: &Rc<glow::Context>, stages: &[(u32, &str, &str)]) -> Result<
     Ok(program)
 }
 
+/// A renderbuffer of `width` x `height` pixels, made as the step `what`: `format` is GL's enum
+/// with its name and bytes a pixel, by which the report counts it (`gl_renderbuffer: RGBA8`).
+/// Deleted when dropped.
+pub fn renderbuffer(
+    gl: &Rc<glow::Context>,
+    what: &str,
+    (format, name, bytes_per_pixel): (u32, &str, u64),
+    (width, height): (u32, u32),
+) -> Result<Owned<glow::Renderbuffer>> {
+    let bytes = bytes_per_pixel * width as u64 * height as u64;
+    let renderbuffer = create(gl, what, |gl| unsafe { gl.create_renderbuffer() })?
+        .counted(&format!("gl_renderbuffer: {name}"), bytes);
+    unsafe {
+        gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*renderbuffer));
+        gl.renderbuffer_storage(glow::RENDERBUFFER, format, width as i32, height as i32);
+        gl.bind_renderbuffer(glow::RENDERBUFFER, None);
+    }
+    Ok(renderbuffer)
+}
+
 /// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::instruments::output`].
 /// Deleted when dropped: the framebuffer, then its renderbuffer (fields drop in order).
 pub struct RenderTarget {
@@ -237,15 +257,8 @@ pub struct RenderTarget {
 
 impl RenderTarget {
     pub fn new(gl: &Rc<glow::Context>, width: u32, height: u32) -> Result<Self> {
-        let colour = create(gl, "glCreateRenderbuffers for the colour target", |gl| unsafe {
-            gl.create_renderbuffer()
-        })?
-        .counted("gl_renderbuffer: RGBA8", 4 * width as u64 * height as u64);
-        unsafe {
-            gl.bind_renderbuffer(glow::RENDERBUFFER, Some(*colour));
-            gl.renderbuffer_storage(glow::RENDERBUFFER, glow::RGBA8, width as i32, height as i32);
-            gl.bind_renderbuffer(glow::RENDERBUFFER, None);
-        }
+        let what = "glCreateRenderbuffers for the colour target";
+        let colour = renderbuffer(gl, what, (glow::RGBA8, "RGBA8", 4), (width, height))?;
         let framebuffer = create(gl, "glCreateFramebuffers for the colour target", |gl| unsafe {
             gl.create_named_framebuffer()
         })?;

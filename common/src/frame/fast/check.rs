@@ -135,11 +135,10 @@ impl LastFrame<'_> {
         let mean =
             covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len().max(1) as f64;
         report.set("ao_mean", (mean * 1e3).round() / 1e3);
-        output::save_rgba8(report, out, &format!("{prefix}-ao"), (w, h), &output::flip_rows(&ao, w, h))?;
+        output::save_gl_rgba8(report, out, &format!("{prefix}-ao"), (w, h), &ao)?;
         composite.draw(gl, targets, &Uniforms { view: View::Final, ..self.uniforms });
         overlays.draw(gl, &targets.overlay_target(), camera.view_projection(w as f32 / h as f32));
-        let picture = output::flip_rows(&read_picture(gl, targets), w, h);
-        output::save_rgba8(report, out, prefix, (w, h), &picture)?;
+        output::save_gl_rgba8(report, out, prefix, (w, h), &read_picture(gl, targets))?;
         Ok(())
     }
 }

@@ -262,26 +262,16 @@ pub fn hand_over_around(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::mem::offset_of;
+    use crate::base::pipeline::assert_layout;
 
     #[test]
     fn surface_rays_match_the_glsl_block() {
-        assert_eq!(offset_of!(SurfaceRays, eye), 64);
-        assert_eq!(offset_of!(SurfaceRays, radius), 76);
-        assert_eq!(offset_of!(SurfaceRays, forward), 80);
-        assert_eq!(offset_of!(SurfaceRays, scene_scale), 92);
-        assert_eq!(offset_of!(SurfaceRays, samples), 96);
-        assert_eq!(offset_of!(SurfaceRays, pattern), 108);
-        assert_eq!(offset_of!(SurfaceRays, meshes), 112);
-        assert_eq!(offset_of!(SurfaceRays, instances), 120);
-        assert_eq!(size_of::<SurfaceRays>(), 128);
+        assert_layout!(SurfaceRays is 128 bytes: eye at 64, radius at 76, forward at 80, scene_scale at 92,
+            samples at 96, pattern at 108, meshes at 112, instances at 120);
     }
 
     #[test]
     fn mesh_ids_match_the_glsl_struct() {
-        assert_eq!(offset_of!(MeshIds, indices), 8);
-        assert_eq!(offset_of!(MeshIds, first_id), 16);
-        assert_eq!(offset_of!(MeshIds, instances), 28);
-        assert_eq!(size_of::<MeshIds>(), 32);
+        assert_layout!(MeshIds is 32 bytes: indices at 8, first_id at 16, instances at 28);
     }
 }

@@ -3,7 +3,7 @@
 //! GL's depth and picture), and the pass that draws the ids.
 
 use crate::base::gl::GlContext;
-use crate::base::gl::{Owned, create};
+use crate::base::gl::{Owned, create, renderbuffer};
 use crate::base::vulkan::VulkanContext;
 use crate::interop::handoff::Handoff;
 use crate::interop::{SharedFormat, SharedImage};
@@ -102,9 +102,9 @@ impl Targets {
         let g = &gl.gl;
         let (w, h) = (extent.width as i32, extent.height as i32);
         // Each GL object is owned from the moment it exists: a later failure deletes them.
-        let depth =
-            create(g, "glCreateRenderbuffers for the ids' depth", |g| unsafe { g.create_renderbuffer() })?
-                .counted("gl_renderbuffer: DEPTH_COMPONENT32F", 4 * w as u64 * h as u64);
+        let what = "glCreateRenderbuffers for the ids' depth";
+        let depth_32f = (glow::DEPTH_COMPONENT32F, "DEPTH_COMPONENT32F", 4);
+        let depth = renderbuffer(g, what, depth_32f, (extent.width, extent.height))?;
         let picture = create(g, "glCreateTextures for the picture", |g| unsafe {
             g.create_named_texture(glow::TEXTURE_2D)
         })?;
@@ -123,9 +123,6 @@ impl Targets {
         let (visibility_framebuffer, picture_framebuffer) =
             (*targets.visibility_framebuffer, *targets.picture_framebuffer);
         unsafe {
-            g.bind_renderbuffer(glow::RENDERBUFFER, Some(depth));
-            g.renderbuffer_storage(glow::RENDERBUFFER, glow::DEPTH_COMPONENT32F, w, h);
-            g.bind_renderbuffer(glow::RENDERBUFFER, None);
             g.texture_storage_2d(picture, 1, glow::RGBA8, w, h);
             let depth_attachment = |fb| {
                 g.named_framebuffer_renderbuffer(

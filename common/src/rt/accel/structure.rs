@@ -32,16 +32,9 @@ impl AccelerationStructure {
     ) -> Result<Self> {
         let loader = ash::khr::acceleration_structure::Device::new(&vk.instance, &vk.device);
         let usage = vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR;
-        let buffer = DeviceBuffer::new(
-            vk,
-            allocator,
-            BufferDesc {
-                name: "acceleration structure",
-                size: bytes,
-                usage,
-                location: MemoryLocation::GpuOnly,
-            },
-        )?;
+        let location = MemoryLocation::GpuOnly;
+        let desc = BufferDesc { name: "acceleration structure", size: bytes, usage, location };
+        let buffer = DeviceBuffer::new(vk, allocator, desc)?;
         let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(*buffer.buffer).size(bytes).ty(ty);
         // On failure `buffer` is dropped, which destroys it.
         let what = format!("vkCreateAccelerationStructureKHR ({ty:?})");
@@ -217,16 +210,9 @@ impl Scratch {
         }
         // Room to slide the start up to the next aligned address.
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
-        let buffer = DeviceBuffer::new(
-            vk,
-            allocator,
-            BufferDesc {
-                name: "build scratch",
-                size: total + alignment,
-                usage,
-                location: MemoryLocation::GpuOnly,
-            },
-        )?;
+        let (size, location) = (total + alignment, MemoryLocation::GpuOnly);
+        let desc = BufferDesc { name: "build scratch", size, usage, location };
+        let buffer = DeviceBuffer::new(vk, allocator, desc)?;
         let start = buffer.address.next_multiple_of(alignment) - buffer.address;
         Ok(Scratch { buffer, offsets: offsets.into_iter().map(|o| o + start).collect() })
     }
