@@ -939,6 +939,21 @@ fn ch13_refuses_a_comparison_that_resizes() {
     assert!(!run.stderr.contains("vulkan: using"), "refused before the device: {}", run.stderr);
 }
 
+/// `--times-from` names a file that is not a compare.csv: refused, naming it, before any GPU work.
+#[test]
+fn ch13_refuses_times_from_what_is_not_a_compare_csv() {
+    let dir = tempfile::tempdir().unwrap();
+    let not_csv = dir.path().join("compare.md");
+    std::fs::write(&not_csv, "| method | frame ms (wall) |\n").unwrap();
+    for (file, why) in [(not_csv.clone(), "not a compare.csv of this chapter"), (dir.path().join("none.csv"), "No such file")] {
+        let args = ["--size", "64x48", "--compare", "--times-from", file.to_str().unwrap()];
+        let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+        assert!(run.stderr.contains(why) && run.stderr.contains(file.to_str().unwrap()), "{}", run.stderr);
+        assert!(!run.stderr.contains("vulkan: using"), "refused before the device: {}", run.stderr);
+    }
+}
+
 const CH14: &str = env!("CARGO_BIN_EXE_14-two-processes");
 
 /// One command, two processes: the renderer starts its viewer, shares a ring of two images, and

@@ -456,6 +456,8 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("DISPLAY=:7 __GLX_VENDOR_LIBRARY_NAME=nvidia", Skip::Always("needs an NVIDIA GPU and the X server above")),
     ("cargo run --release --bin 13-temporal-reuse$", Skip::Slow("a window's size, 120 frames headless: minutes")),
     ("cargo run --release --bin 13-temporal-reuse -- --headless --size 1920x1080", Skip::Always("sized for a GPU")),
+    ("cargo run --release --bin 13-temporal-reuse -- --headless --size 3840x2160", Skip::Always("sized for a GPU")),
+    ("cargo run --release --features flip --bin 13-temporal-reuse", Skip::Always("sized for a GPU, and FLIP needs a C++ build")),
 ];
 // ANCHOR_END: skipped
 

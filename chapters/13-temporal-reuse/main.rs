@@ -60,6 +60,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         "--compare walks every method at one size: leave out --resize-every"
     );
     let size = args.common.size;
+    // Read first: a file that is not there or not a compare.csv is refused before any GPU work.
+    let times = args.times_from.as_deref().map(measure::read_times).transpose()?;
 
     // 1. The scene, the path the camera and one instance follow, and the rays' budget
     let mut scene = args.scene.load()?;
@@ -153,7 +155,10 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     if let Some(window) = window.as_mut() {
         walk::in_window(&passes, &mut sized, window, chosen, args.common.window_frames(), report)?;
     } else {
-        let walks = walk::headless(&passes, &mut sized, chosen, args, report)?;
+        let mut walks = walk::headless(&passes, &mut sized, chosen, args, report)?;
+        if let Some(times) = &times {
+            measure::take_times(&mut walks, times)?;
+        }
         if args.compare {
             let table = measure::write(&args.common.out_dir(CHAPTER), &walks, path.cut(), &vk.info.name)?;
             eprint!("{table}");

@@ -6,8 +6,8 @@ use common::frame::fast::check::read_picture;
 use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
 use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
 use common::frame::fast::visibility::Targets;
-use anyhow::Result;
-use common::instruments::output;
+use anyhow::{Context as _, Result, ensure};
+use common::instruments::{fail, output};
 use common::interop::handoff::Apis;
 use common::scene::Camera;
 use plotters::prelude::*;
@@ -221,7 +221,7 @@ fn flip_mean(reference: &[u8], test: &[u8], (width, height): (u32, u32)) -> Opti
 /// against median GPU time per frame), for every walk.
 pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Result<String> {
     output::create_dir(dir)?;
-    let mut csv = String::from("method,frame,gpu_ms,ao_ms,rmse,flip\n");
+    let mut csv = format!("{CSV_HEADER}\n");
     for w in walks {
         for f in &w.frames {
             let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
@@ -265,6 +265,56 @@ pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Resu
     }
     eprintln!("wrote {}/compare.{{md,csv,svg}}", dir.display());
     Ok(table)
+}
+
+/// The header of compare.csv, as [`write`] writes it.
+const CSV_HEADER: &str = "method,frame,gpu_ms,ao_ms,rmse,flip";
+
+/// Each method's median GPU and AO time of a frame (where its frames have them: llvmpipe times no
+/// overlays, so no frame there has a GPU time), from the compare.csv at `path` of a run without
+/// `--error-against` (`--times-from`): a run that measures the error reads frames back between
+/// frames, and FLIP keeps the CPU busy, both of which slow the GPU.
+pub fn read_times(path: &Path) -> Result<BTreeMap<String, Times>> {
+    let text = fail::call("reading --times-from", || std::fs::read_to_string(path))
+        .with_context(|| format!("reading {}", path.display()))?;
+    parse_times(&text).with_context(|| format!("{} (--times-from)", path.display()))
+}
+
+/// A method's median GPU and AO times of a frame, as far as its frames have them.
+pub type Times = (Option<f64>, Option<f64>);
+
+/// [`read_times`] on the text of a compare.csv.
+fn parse_times(text: &str) -> Result<BTreeMap<String, Times>> {
+    let mut lines = text.lines();
+    ensure!(lines.next() == Some(CSV_HEADER), "not a compare.csv of this chapter: its first line is not {CSV_HEADER}");
+    let mut samples: BTreeMap<String, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+    for (n, line) in lines.enumerate() {
+        // `"chapter 13, 2 rays",frame,gpu,ao,rmse,flip`: the method is quoted, and holds a comma.
+        let (method, rest) = line
+            .strip_prefix('"')
+            .and_then(|l| l.split_once("\","))
+            .with_context(|| format!("line {}: no quoted method", n + 2))?;
+        let fields: Vec<&str> = rest.split(',').collect();
+        ensure!(fields.len() == 5, "line {}: {} fields after the method, not 5", n + 2, fields.len());
+        let (times, ao) = samples.entry(method.to_owned()).or_default();
+        times.extend(fields[1].parse::<f64>().ok());
+        ao.extend(fields[2].parse::<f64>().ok());
+    }
+    let medians: BTreeMap<String, Times> =
+        samples.into_iter().map(|(method, (gpu, ao))| (method, (median(&gpu), median(&ao)))).collect();
+    ensure!(medians.values().any(|&(gpu, ao)| gpu.or(ao).is_some()), "no frame has a time");
+    Ok(medians)
+}
+
+/// Each walk's GPU and AO medians replaced by those `times` has for its method.
+pub fn take_times(walks: &mut [Walk], times: &BTreeMap<String, Times>) -> Result<()> {
+    for walk in walks {
+        let &(gpu, ao) = times.get(&walk.method).with_context(|| {
+            format!("--times-from has no times for '{}': write it with --compare and the same flags", walk.method)
+        })?;
+        (walk.gpu_median_ms, walk.ao_median_ms) = (gpu, ao);
+    }
+    Ok(())
 }
 
 const COLOURS: [RGBColor; 6] = [RED, MAGENTA, RGBColor(230, 140, 0), BLUE, CYAN, GREEN];
@@ -325,6 +375,29 @@ fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
+    use super::parse_times;
+
+    /// The medians of each method's frames, the frames without a time left out; anything but a
+    /// compare.csv refused.
+    #[test]
+    fn times_are_read_back_from_a_compare_csv() {
+        let csv = "method,frame,gpu_ms,ao_ms,rmse,flip\n\
+                   \"chapter 13, 2 rays\",0,12.5,9.5,0.02,\n\
+                   \"chapter 13, 2 rays\",1,5.0,2.5,,\n\
+                   \"chapter 13, 2 rays\",2,6.0,3.0,,\n\
+                   \"chapter 12, 16 rays\",0,,,0.01,\n\
+                   \"chapter 12, 16 rays\",1,14.0,11.0,,\n";
+        let times = parse_times(csv).unwrap();
+        assert_eq!(times["chapter 13, 2 rays"], (Some(6.0), Some(3.0)));
+        assert_eq!(times["chapter 12, 16 rays"], (Some(14.0), Some(11.0)));
+        // llvmpipe's: AO times only.
+        let ao_only = parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",0,,2.5,,\n").unwrap();
+        assert_eq!(ao_only["chapter 13, 1 ray"], (None, Some(2.5)));
+        assert!(parse_times("frame,gpu_ms\n1,2\n").is_err());
+        assert!(parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\nchapter 13,0,1,1,,\n").is_err());
+        assert!(parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\n").is_err());
+    }
+
     /// FLIP sees nothing between a picture and itself, and sees a changed region.
     #[test]
     fn flip_sees_a_difference_and_no_other() {

@@ -100,6 +100,11 @@ pub struct Args {
     /// compare.md, compare.csv and compare.svg to --out.
     #[arg(long)]
     pub compare: bool,
+    /// Headless, with --compare: each method's GPU times in the table and in the plot of error
+    /// against time come from this compare.csv, written by a run without --error-against (whose
+    /// read-backs between frames, and FLIP on the CPU, slow the GPU).
+    #[arg(long, requires = "compare")]
+    pub times_from: Option<std::path::PathBuf>,
 }
 
 /// A test a remembered texel must pass (`--accept`).

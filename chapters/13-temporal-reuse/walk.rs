@@ -116,8 +116,9 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
         let gl: Vec<_> = ["visibility", "composite", "overlays"].iter().map(|&pass| per_frame(pass)).collect();
         for (i, record) in records.iter_mut().enumerate() {
             record.ao_ms = ao.map(|a| a[i]);
-            let gl_ms: Option<f64> = gl.iter().map(|pass| pass.map(|s| s[i])).sum();
-            record.gpu_ms = record.ao_ms.zip(gl_ms).map(|(a, g)| a + g);
+            // As the walk's median counts them: a pass with no time in any frame counts nothing.
+            let gl_ms: f64 = gl.iter().flatten().map(|s| s[i]).sum();
+            record.gpu_ms = record.ao_ms.map(|a| a + gl_ms);
         }
         let wall = median(times.samples("frame_wall")).filter(|_| args.error_against == 0);
         let passes = ["visibility", "ao_trace", "composite", "overlays"];
