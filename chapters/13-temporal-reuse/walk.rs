@@ -35,16 +35,13 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
         Drawn::Temporal(budget) => budget,
         Drawn::Fresh(_) => crate::temporal::Budget::new(args, p.radius, p.scene.size() / 2.0),
     };
-    let methods = if args.compare { compared(chosen, budget) } else { vec![chosen] };
-    // The chosen method walks last: its checks read the history and the surface back at the cut
-    // and at the end, and with `--fresh-pass packed` the walk after them ran 2 to 3 times slower
-    // for its first tens of frames on the H100 (the deeper page). The table keeps the order above.
-    let table = methods.clone();
-    let mut methods = methods;
-    if let Some(at) = methods.iter().position(|&m| m == chosen) {
-        let last = methods.remove(at);
-        methods.push(last);
-    }
+    let table = if args.compare { compared(chosen, budget) } else { vec![chosen] };
+    // The chosen method walks last (a stable sort: the others keep their order). Its checks read
+    // the history and the surface back at the cut and at the end, and with `--fresh-pass packed`
+    // the walk after them ran 2 to 3 times slower for its first tens of frames on the H100 (the
+    // deeper page). The table keeps the order of `table`.
+    let mut methods = table.clone();
+    methods.sort_by_key(|&m| m == chosen);
     let probe = ErrorProbe {
         composite: p.composite,
         uniforms: p.uniforms,
