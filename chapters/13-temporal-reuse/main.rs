@@ -116,7 +116,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let targets = Targets::new(&vk, &gl_context, &handoff, size.extent())?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
     let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
-    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets)?;
+    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets, args.fresh_pass)?;
     let mut sized = Sized { targets, fresh, temporal };
     let composite = ComputeComposite::new(gl)?;
     let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;

@@ -130,9 +130,9 @@ impl Budget {
 pub struct TemporalTracer {
     pipeline: RayPipeline,
     history: [StorageImage; 2],
-    /// The pixels with nothing remembered, listed by the first launch for the second to trace
-    /// (`--fresh-pass packed`): a count, then room for every pixel of the picture.
-    fresh_pixels: DeviceBuffer,
+    /// The pixels with nothing remembered, listed by the first launch for the second to trace:
+    /// a count, then room for every pixel of the picture. Made for `--fresh-pass packed` only.
+    fresh_pixels: Option<DeviceBuffer>,
     cameras: DeviceBuffer,
     /// The instance transforms the previous frame was drawn with (a copy of the shared buffer,
     /// updated where an instance moved).
@@ -156,6 +156,7 @@ impl TemporalTracer {
         shared: &RayTracedScene,
         meshes: (u64, u32),
         targets: &Targets,
+        fresh_pass: FreshPass,
     ) -> Result<Self> {
         // ANCHOR: bindings
         let binding = |binding, ty| {
@@ -179,7 +180,10 @@ impl TemporalTracer {
         let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<TemporalRays>() as u32)?;
         pipeline.write_tlas(vk, 0, *shared.structures.tlas.handle);
         let history = Self::history_images(vk, allocator, targets.extent)?;
-        let fresh_pixels = Self::fresh_list(vk, allocator, targets.extent)?;
+        let fresh_pixels = match fresh_pass {
+            FreshPass::Packed => Some(Self::fresh_list(vk, allocator, targets.extent)?),
+            FreshPass::Inline => None,
+        };
         let host = |name, size| BufferDesc {
             name,
             size,
@@ -250,7 +254,9 @@ impl TemporalTracer {
     /// with the old.
     pub fn resized(&mut self, vk: &VulkanContext, allocator: &GpuAllocator, targets: &Targets) -> Result<()> {
         self.history = Self::history_images(vk, allocator, targets.extent)?;
-        self.fresh_pixels = Self::fresh_list(vk, allocator, targets.extent)?;
+        if self.fresh_pixels.is_some() {
+            self.fresh_pixels = Some(Self::fresh_list(vk, allocator, targets.extent)?);
+        }
         (self.written, self.remembers, self.images_used) = (0, false, false);
         self.point_at(vk, targets);
         Ok(())
@@ -293,7 +299,11 @@ impl TemporalTracer {
         };
         let mapped = self.cameras.allocation.mapped_slice_mut().context("cameras unmapped")?;
         mapped[..size_of::<Cameras>()].copy_from_slice(common::scene::gbuffer::as_bytes(&[cameras]));
-        let packed = budget.fresh_pass == FreshPass::Packed;
+        let list = match (budget.fresh_pass, &self.fresh_pixels) {
+            (FreshPass::Packed, Some(list)) => Some(list),
+            (FreshPass::Packed, None) => anyhow::bail!("--fresh-pass packed: the tracer was made without its list"),
+            (FreshPass::Inline, _) => None,
+        };
         let push = TemporalRays {
             cameras: self.cameras.address,
             meshes: self.meshes.0,
@@ -314,21 +324,20 @@ impl TemporalTracer {
             // Occlusion is the geometry within `radius` of a point: only there can it change.
             moved: moved.map_or([0.0; 4], |(centre, reach)| centre.extend(reach + budget.radius).to_array()),
             near_motion_cap: budget.near_motion_cap,
-            pass: if packed { LISTING } else { INLINE },
-            fresh_pixels: self.fresh_pixels.address,
+            pass: if list.is_some() { LISTING } else { INLINE },
+            fresh_pixels: list.map_or(0, |list| list.address),
         };
         let history = self.history_barriers();
-        let list = *self.fresh_pixels.buffer;
         let work = |cb| {
             let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
             let none = vk::DependencyFlags::empty();
             // The previous frame wrote the image read now and read the image written now: its
             // writes must be visible, and its reads done, before these rays start.
             unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &history.0, &[], &history.1) };
-            if !packed {
+            let Some(list) = list.map(|list| *list.buffer) else {
                 self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
                 return;
-            }
+            };
             // The list starts empty: its count (the first 4 bytes) set to 0 by a transfer.
             let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
             let (transfer, filled) = (vk::PipelineStageFlags::TRANSFER, vk::AccessFlags::TRANSFER_WRITE);
