@@ -64,23 +64,25 @@ pub fn save_rgba8(
 ) -> Result<()> {
     create_dir(dir)?;
     let path = dir.join(format!("{name}.png"));
-    fail::call("writing a PNG", || write_png(&path, (width, height), pixels))
-        .with_context(|| format!("writing {}", path.display()))?;
+    let encoded = encode_png((width, height), pixels).with_context(|| format!("encoding {}", path.display()))?;
+    fail::call("writing a PNG", || std::fs::write(&path, &encoded)).with_context(|| format!("writing {}", path.display()))?;
     eprintln!("wrote {}", path.display());
     report.image(name, &path, width, height, "RGBA8");
     Ok(())
 }
 
-/// Encodes RGBA8 pixels (top row first) as an 8-bit RGBA PNG file at `path`.
-fn write_png(path: &Path, (width, height): (u32, u32), pixels: &[u8]) -> Result<()> {
-    let file = std::io::BufWriter::new(std::fs::File::create(path)?);
-    let mut encoder = png::Encoder::new(file, width, height);
+/// RGBA8 pixels (top row first) encoded as an 8-bit RGBA PNG, in memory: the file is then
+/// written in one call, so that a failed write (a full disk) is an error, not lost in a buffered
+/// writer's drop.
+fn encode_png((width, height): (u32, u32), pixels: &[u8]) -> Result<Vec<u8>> {
+    let mut encoded = Vec::new();
+    let mut encoder = png::Encoder::new(&mut encoded, width, height);
     encoder.set_color(png::ColorType::Rgba);
     encoder.set_depth(png::BitDepth::Eight);
     let mut writer = encoder.write_header()?;
     writer.write_image_data(pixels)?;
     writer.finish()?;
-    Ok(())
+    Ok(encoded)
 }
 
 /// Reads a PNG this tutorial wrote: 8-bit RGBA, top row first. Returns its size and pixels; any
