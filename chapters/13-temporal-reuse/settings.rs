@@ -18,7 +18,7 @@ pub struct Args {
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub samples: u32,
     /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
-    #[arg(long, default_value_t = 14, value_parser = clap::value_parser!(u32).range(1..=256))]
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=256))]
     pub fresh: u32,
     /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
     /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
@@ -42,9 +42,9 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "tile4x4")]
     pub pattern: Pattern,
     /// Where a pixel with nothing remembered traces its `--fresh` rays: `packed`, in a second
-    /// launch over such pixels only, listed by the first, so that they fill whole warps;
-    /// `inline`, in the one launch, where its warp waits for them while its neighbours trace a
-    /// few. The same rays either way, so the same picture.
+    /// launch, one ray per invocation, over the pixels the first listed; `inline`, in the one
+    /// launch, where its warp waits for them while its neighbours trace a few. The same rays
+    /// either way, so the same picture.
     #[arg(long, value_enum, default_value = "packed")]
     pub fresh_pass: FreshPass,
     /// `temporal`: this chapter's frame; `fresh`: chapter 12's, new rays every frame and nothing
@@ -133,7 +133,7 @@ pub enum Pattern {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum FreshPass {
-    /// In a second launch, over the pixels the first listed.
+    /// In a second launch, one ray per invocation, over the pixels the first listed.
     Packed,
     /// In the one launch, beside the pixels that trace a few.
     Inline,

@@ -227,16 +227,16 @@ impl TemporalTracer {
         Ok([first, StorageImage::new(vk, allocator, HISTORY_FORMAT, usage, extent)?])
     }
 
-    /// The list of fresh pixels for a picture of `extent`: a count, then room for every pixel
-    /// (after a cut, every pixel that shows a surface is one). Only the ray generation shader
-    /// reads and writes it, by its address, but for its count, which `vkCmdFillBuffer` (a
-    /// transfer) sets to 0.
+    /// The list of fresh pixels for a picture of `extent`: a count (padded to 8 bytes), then
+    /// room for every pixel (after a cut, every pixel that shows a surface is one), 8 bytes each:
+    /// where it is and its tally. Only the ray generation shader reads and writes it, by its
+    /// address, but for its count, which `vkCmdFillBuffer` (a transfer) sets to 0.
     fn fresh_list(
         vk: &VulkanContext,
         allocator: &GpuAllocator,
         extent: vk::Extent2D,
     ) -> Result<DeviceBuffer> {
-        let size = 4 + 4 * extent.width as u64 * extent.height as u64;
+        let size = 8 + 8 * extent.width as u64 * extent.height as u64;
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST;
         let location = MemoryLocation::GpuOnly;
         DeviceBuffer::new(vk, allocator, BufferDesc { name: "fresh pixels", size, usage, location })
@@ -360,18 +360,19 @@ impl TemporalTracer {
                 vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[zeroed], &[]);
             }
             self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
-            // The first launch's writes visible to the second: the list and its count, which it
-            // reads. And the texels the first wrote finished before the second writes others of
-            // the same two images: no texel is written twice, but tools that check hazards track
-            // an image whole.
+            // The first launch's writes visible to the second: the list, its count and the
+            // tallies at 0, which it reads and adds to. And the texels the first wrote finished
+            // before the second writes others of the same two images: no texel is written twice,
+            // but tools that check hazards track an image whole.
             let listed = vk::MemoryBarrier::default().src_access_mask(write).dst_access_mask(read | write);
             unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[listed], &[], &[]) };
-            // The first launch's size again: room for every pixel to be listed (after a cut, all
-            // that show a surface are), a size the device is known to launch, and the picture's
-            // size, which the shader reads from the launch. Past the count, whole rows of
-            // invocations return at once. vkCmdTraceRaysIndirectKHR could launch just the count
-            // from the buffer, but it needs a feature (rayTracingPipelineTraceRaysIndirect) that
-            // not every device has.
+            // The first launch's size again, one ray per invocation: a size the device is known
+            // to launch, and the picture's size, which the shader reads from the launch. Where
+            // the listed pixels have more rays than that (after a cut, every pixel that shows a
+            // surface is listed), each invocation steps on by the launch's size; where fewer,
+            // the invocations past them return at once. vkCmdTraceRaysIndirectKHR could size the
+            // launch from the count, but it needs a feature (rayTracingPipelineTraceRaysIndirect)
+            // that not every device has.
             let second = TemporalRays { pass: LISTED, ..push };
             self.pipeline.trace(vk, cb, push_bytes(&second), targets.extent);
         };
