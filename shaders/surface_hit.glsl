@@ -117,10 +117,6 @@ vec3 placed(vec4 p, Rows rows) {
     return vec3(dot(rows.r0, p), dot(rows.r1, p), dot(rows.r2, p));
 }
 
-// Both, for instance `instance` of the instance buffer at `instances`.
-vec3 corner(MeshIds mesh, uvec2 instances, uint instance, uint triangle, uint k) {
-    return placed(object_corner(mesh, triangle, k), instance_rows(instances, instance));
-}
 // ANCHOR_END: corner
 
 // ANCHOR: barycentrics
@@ -145,6 +141,53 @@ vec3 plane_normal(vec3 e1, vec3 e2) {
     float largest = max(max(abs(n.x), abs(n.y)), abs(n.z));
     return largest > 0.0 ? normalize(n / largest) : vec3(0.0);
 }
+
+// ANCHOR: rebuild
+// A pixel's hit, rebuilt from the id GL drew there: the exact point and the triangle's own normal,
+// turned to the side the camera sees. Also kept, for chapter 13's reprojection: the corners in
+// the mesh's own coordinates and the barycentrics, which place the same point under another
+// transform.
+struct PixelHit {
+    uint instance;
+    vec4 o0, o1, o2;
+    vec2 uv;
+    vec3 position;
+    vec3 n; // zero for a triangle with no plane (GL covers no pixel with one)
+    float facing; // 1 or -1
+};
+
+PixelHit rebuild_hit(Meshes meshes, uint mesh_count, uvec2 instances, uint id, ivec2 pixel, ivec2 size,
+                     vec3 eye, mat4 inverse_view_projection) {
+    PixelHit h;
+    MeshIds mesh;
+    uint triangle;
+    decode(meshes, mesh_count, id - 1u, mesh, h.instance, triangle);
+    h.o0 = object_corner(mesh, triangle, 0u);
+    h.o1 = object_corner(mesh, triangle, 1u);
+    h.o2 = object_corner(mesh, triangle, 2u);
+    Rows now = instance_rows(instances, h.instance);
+    vec3 a = placed(h.o0, now);
+    vec3 e1 = placed(h.o1, now) - a;
+    vec3 e2 = placed(h.o2, now) - a;
+
+    // The ray GL's pixel centre stands for (launch row 0 is GL's bottom row, as in primary.rgen).
+    vec2 ndc = (vec2(pixel) + 0.5) / vec2(size) * 2.0 - 1.0;
+    vec4 on_far_plane = inverse_view_projection * vec4(ndc, 1.0, 1.0);
+    vec3 direction = normalize(on_far_plane.xyz / on_far_plane.w - eye);
+
+    // The point is built from the triangle's corners, not from the eye: its rounding is that of
+    // the scene's coordinates, as GL's interpolated position's was, however far away the camera
+    // stands.
+    h.uv = barycentrics(eye, direction, a, e1, e2);
+    h.position = a + h.uv.x * e1 + h.uv.y * e2;
+
+    // The triangle's own normal, facing the camera.
+    h.n = plane_normal(e1, e2);
+    h.facing = dot(h.n, direction) > 0.0 ? -1.0 : 1.0;
+    h.n *= h.facing;
+    return h;
+}
+// ANCHOR_END: rebuild
 
 // `samples` occlusion rays from `origin` over the hemisphere about `n`, cosine-weighted, taking
 // the R2 points [first, first + samples) of the sequence turned by `rotation`, each moved by
