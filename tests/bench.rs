@@ -14,9 +14,9 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     assert!(report["device"].as_str().is_some_and(|d| !d.is_empty()));
     assert!(report["driver"].as_str().is_some_and(|d| !d.is_empty()));
     let rows = report["rows"].as_array().expect("rows");
-    // 3 modes of chapter 08's frame, chapter 12's and chapter 13's, x 3 scenes x 2 sizes x 2 ray
-    // counts.
-    assert_eq!(rows.len(), 60);
+    // 3 modes of chapter 08's frame, chapter 12's and chapter 13's two (one per view of its
+    // path), x 3 scenes x 2 sizes x 2 ray counts.
+    assert_eq!(rows.len(), 72);
     let fields = [
         "mode",
         "scene",
@@ -50,7 +50,14 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     };
     assert_eq!(
         set("mode"),
-        [r#""cpu-round-trip""#, r#""fast-frame""#, r#""host-sync""#, r#""temporal-reuse""#, r#""zero-copy""#]
+        [
+            r#""cpu-round-trip""#,
+            r#""fast-frame""#,
+            r#""host-sync""#,
+            r#""temporal-reuse""#,
+            r#""temporal-reuse-closer""#,
+            r#""zero-copy""#
+        ]
     );
     assert_eq!(set("scene"), [r#""ceiling""#, r#""default""#, r#""large""#]);
     assert_eq!(set("spp"), ["1", "4"]);

@@ -939,6 +939,45 @@ fn ch13_refuses_a_comparison_that_resizes() {
     assert!(!run.stderr.contains("vulkan: using"), "refused before the device: {}", run.stderr);
 }
 
+/// `--compare` sums each walk up per view of the path, before the cut and from it on, and writes
+/// every frame's times to compare.csv; an error run reads them back with `--times-from`, frame by
+/// frame, so that its table shows the time run's times beside its own errors.
+#[test]
+fn ch13_compare_sums_up_each_view_and_takes_times_frame_by_frame() {
+    let mut args = CH13.to_vec();
+    args.extend(["--frames", "6", "--compare"]);
+    let timed = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = timed.succeeded();
+    let walks = report["walks"].as_array().unwrap();
+    assert_eq!(walks.len(), 6);
+    for walk in walks {
+        let frames = walk["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 6);
+        assert!(frames.iter().all(|f| f["wall_ms"].as_f64().is_some_and(|t| t > 0.0)), "{walk}");
+        for view in ["before_cut", "after_cut"] {
+            assert!(walk[view]["frame_wall_ms"].as_f64().is_some_and(|t| t > 0.0), "{view}: {walk}");
+        }
+    }
+    let table = std::fs::read_to_string(timed.out_dir.path().join("compare.md")).unwrap();
+    assert!(table.contains("| frame ms (wall), before the cut | from the cut on |"), "{table}");
+    let csv = timed.out_dir.path().join("compare.csv");
+    let mut args = CH13.to_vec();
+    args.extend(["--frames", "6", "--compare", "--error-against", "16", "--times-from", csv.to_str().unwrap()]);
+    let measured = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = measured.succeeded();
+    for (theirs, ours) in walks.iter().zip(report["walks"].as_array().unwrap()) {
+        assert_eq!(theirs["method"], ours["method"]);
+        assert!(ours["error_mean"].as_f64().is_some(), "{ours}");
+        for (a, b) in theirs["frames"].as_array().unwrap().iter().zip(ours["frames"].as_array().unwrap()) {
+            // compare.csv keeps six decimals.
+            let close = |k: &str| (a[k].as_f64().unwrap() - b[k].as_f64().unwrap()).abs() < 1e-5;
+            assert!(close("wall_ms") && close("ao_ms"), "frame {}: {a} against {b}", a["frame"]);
+        }
+        let (a, b) = (theirs["after_cut"]["frame_wall_ms"].as_f64().unwrap(), ours["after_cut"]["frame_wall_ms"].as_f64().unwrap());
+        assert!((a - b).abs() < 1e-5, "{a} against {b}");
+    }
+}
+
 /// `--times-from` names a file that is not a compare.csv: refused, naming it, before any GPU work.
 #[test]
 fn ch13_refuses_times_from_what_is_not_a_compare_csv() {

@@ -157,7 +157,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     } else {
         let mut walks = walk::headless(&passes, &mut sized, chosen, args, report)?;
         if let Some(times) = &times {
-            measure::take_times(&mut walks, times)?;
+            measure::take_times(&mut walks, times, path.cut())?;
         }
         if args.compare {
             let table = measure::write(&args.common.out_dir(CHAPTER), &walks, path.cut(), &vk.info.name)?;

@@ -19,6 +19,9 @@ use std::path::Path;
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct FrameRecord {
     pub frame: u32,
+    /// The frame's wall-clock time as the CPU saw it, ms: from a run that measures no error
+    /// (one that does reads pictures back between frames).
+    pub wall_ms: Option<f64>,
     /// GPU time of the frame's passes (ids, rays, composite, overlays), ms.
     pub gpu_ms: Option<f64>,
     pub ao_ms: Option<f64>,
@@ -28,49 +31,82 @@ pub struct FrameRecord {
     pub flip: Option<f64>,
 }
 
-/// A whole walk: one method along the path, and what it sums up to.
+// ANCHOR: views
+/// The medians of some of a walk's frames, each over the frames that have that time.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Medians {
+    pub frame_wall_ms: Option<f64>,
+    pub gpu_ms: Option<f64>,
+    pub ao_ms: Option<f64>,
+}
+
+impl Medians {
+    fn of(frames: &[&FrameRecord]) -> Medians {
+        let of = |time: fn(&FrameRecord) -> Option<f64>| median(&frames.iter().filter_map(|f| time(f)).collect::<Vec<_>>());
+        Medians { frame_wall_ms: of(|f| f.wall_ms), gpu_ms: of(|f| f.gpu_ms), ao_ms: of(|f| f.ao_ms) }
+    }
+}
+
+/// A whole walk: one method along the path, and what it sums up to. The orbit shows two views:
+/// the one before the cut, and a closer one from the cut on, where every method's frame costs
+/// about twice as much. One median over both would fall in whichever view has more frames, or
+/// between them; so the times are summed up per view, and over the whole path as a mean, which
+/// weighs every frame as the mean error does.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Walk {
     pub method: String,
     pub frames: Vec<FrameRecord>,
-    pub frame_wall_median_ms: Option<f64>,
-    pub gpu_median_ms: Option<f64>,
-    pub ao_median_ms: Option<f64>,
+    /// The frames before the cut (all of them, on a path without one).
+    pub before_cut: Medians,
+    /// The frames from the cut on.
+    pub after_cut: Option<Medians>,
+    /// The mean GPU time of a frame over the path, the cut's own frame included.
+    pub gpu_mean_ms: Option<f64>,
     pub error_mean: Option<f64>,
     pub error_worst: Option<f64>,
     pub flip_mean: Option<f64>,
 }
+// ANCHOR_END: views
 
 /// The median of `samples`, as the reports compute it (none of nothing).
 pub fn median(samples: &[f64]) -> Option<f64> {
     (!samples.is_empty()).then(|| common::clocks::timestamps::median_p95(samples).0)
 }
 
+fn mean(samples: &[f64]) -> Option<f64> {
+    (!samples.is_empty()).then(|| samples.iter().sum::<f64>() / samples.len() as f64)
+}
+
 impl Walk {
-    /// `gpu_median_ms`: the sum of the passes' medians (a pass whose times were all left out,
-    /// as llvmpipe's overlays are, counts nothing).
-    pub fn new(
-        method: String,
-        frames: Vec<FrameRecord>,
-        (frame_wall_median_ms, gpu_median_ms): (Option<f64>, Option<f64>),
-        every: u32,
-    ) -> Walk {
+    /// A walk's frames summed up, the path's cut at `cut`; errors over every `every`th frame.
+    pub fn new(method: String, frames: Vec<FrameRecord>, cut: Option<u32>, every: u32) -> Walk {
         // The mean over the path: over every `every`th frame alone, so that the frames measured
         // besides them around the cut (for `frames_to_recover`) do not weigh the cut twice.
         let along = || frames.iter().filter(|f| f.frame % every == 0);
         let errors: Vec<f64> = along().filter_map(|f| f.rmse).collect();
         let flips: Vec<f64> = along().filter_map(|f| f.flip).collect();
         let worst = frames.iter().filter_map(|f| f.rmse).reduce(f64::max);
-        Walk {
-            flip_mean: (!flips.is_empty()).then(|| flips.iter().sum::<f64>() / flips.len() as f64),
+        let mut walk = Walk {
             method,
-            gpu_median_ms,
-            ao_median_ms: median(&frames.iter().filter_map(|f| f.ao_ms).collect::<Vec<_>>()),
-            error_mean: (!errors.is_empty()).then(|| errors.iter().sum::<f64>() / errors.len() as f64),
-            error_worst: worst,
             frames,
-            frame_wall_median_ms,
-        }
+            before_cut: Medians::default(),
+            after_cut: None,
+            gpu_mean_ms: None,
+            error_mean: mean(&errors),
+            error_worst: worst,
+            flip_mean: mean(&flips),
+        };
+        walk.sum_up_times(cut);
+        walk
+    }
+
+    /// The medians before and after `cut`, and the mean GPU time, from the frames' times.
+    fn sum_up_times(&mut self, cut: Option<u32>) {
+        let (before, after): (Vec<&FrameRecord>, Vec<&FrameRecord>) =
+            self.frames.iter().partition(|f| cut.is_none_or(|c| f.frame < c));
+        self.before_cut = Medians::of(&before);
+        self.after_cut = (!after.is_empty()).then(|| Medians::of(&after));
+        self.gpu_mean_ms = mean(&self.frames.iter().filter_map(|f| f.gpu_ms).collect::<Vec<_>>());
     }
 
     /// How many frames after `cut` the error takes to come back within `within` (None: never,
@@ -218,34 +254,40 @@ fn flip_mean(reference: &[u8], test: &[u8], (width, height): (u32, u32)) -> Opti
 // ANCHOR_END: error
 
 /// compare.md, compare.csv and compare.svg (error per frame) and compare-time.svg (mean error
-/// against median GPU time per frame), for every walk.
+/// against mean GPU time per frame), for every walk.
 pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Result<String> {
     output::create_dir(dir)?;
     let mut csv = format!("{CSV_HEADER}\n");
     for w in walks {
         for f in &w.frames {
             let o = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v:.6}"));
-            let (gpu, ao, rmse, flip) = (o(f.gpu_ms), o(f.ao_ms), o(f.rmse), o(f.flip));
-            writeln!(csv, "\"{}\",{},{gpu},{ao},{rmse},{flip}", w.method, f.frame)?;
+            let (wall, gpu, ao, rmse, flip) = (o(f.wall_ms), o(f.gpu_ms), o(f.ao_ms), o(f.rmse), o(f.flip));
+            writeln!(csv, "\"{}\",{},{wall},{gpu},{ao},{rmse},{flip}", w.method, f.frame)?;
         }
     }
     let base = walks.first().and_then(|w| w.error_mean);
     let mut table = format!("Measured on {device}.\n\n");
-    table.push_str("| method | frame ms (wall) | GPU ms | AO ms | mean error | worst error | mean FLIP | frames back within 1.5x |\n");
-    table.push_str("|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    table.push_str(
+        "| method | frame ms (wall), before the cut | from the cut on | GPU ms, before the cut | from the cut on \
+         | GPU ms, mean over the path | mean error | worst error | mean FLIP | frames back within 1.5x |\n",
+    );
+    table.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for w in walks {
         let o = |v: Option<f64>, d: usize| v.map_or("-".into(), |v| format!("{v:.d$}"));
         let back = match (cut, base) {
             (Some(c), Some(e)) => w.frames_to_recover(c, 1.5 * e).map_or("never".into(), |k| k.to_string()),
             _ => "-".into(),
         };
+        let after = w.after_cut.unwrap_or_default();
         writeln!(
             table,
-            "| {} | {} | {} | {} | {} | {} | {} | {back} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {back} |",
             w.method,
-            o(w.frame_wall_median_ms, 2),
-            o(w.gpu_median_ms, 2),
-            o(w.ao_median_ms, 2),
+            o(w.before_cut.frame_wall_ms, 2),
+            o(after.frame_wall_ms, 2),
+            o(w.before_cut.gpu_ms, 2),
+            o(after.gpu_ms, 2),
+            o(w.gpu_mean_ms, 2),
             o(w.error_mean, 4),
             o(w.error_worst, 4),
             o(w.flip_mean, 4)
@@ -268,51 +310,55 @@ pub fn write(dir: &Path, walks: &[Walk], cut: Option<u32>, device: &str) -> Resu
 }
 
 /// The header of compare.csv, as [`write`] writes it.
-const CSV_HEADER: &str = "method,frame,gpu_ms,ao_ms,rmse,flip";
+const CSV_HEADER: &str = "method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip";
 
-/// Each method's median GPU and AO time of a frame (where its frames have them: llvmpipe times no
-/// overlays, so no frame there has a GPU time), from the compare.csv at `path` of a run without
+/// Each method's times, frame by frame, from the compare.csv at `path` of a run without
 /// `--error-against` (`--times-from`): a run that measures the error reads frames back between
 /// frames, and FLIP keeps the CPU busy, both of which slow the GPU.
-pub fn read_times(path: &Path) -> Result<BTreeMap<String, Times>> {
+pub fn read_times(path: &Path) -> Result<Times> {
     let text = fail::call("reading --times-from", || std::fs::read_to_string(path))
         .with_context(|| format!("reading {}", path.display()))?;
     parse_times(&text).with_context(|| format!("{} (--times-from)", path.display()))
 }
 
-/// A method's median GPU and AO times of a frame, as far as its frames have them.
-pub type Times = (Option<f64>, Option<f64>);
+/// Per method, per frame: the wall clock, GPU and AO times, as far as the frame has them.
+pub type Times = BTreeMap<String, BTreeMap<u32, [Option<f64>; 3]>>;
 
 /// [`read_times`] on the text of a compare.csv.
-fn parse_times(text: &str) -> Result<BTreeMap<String, Times>> {
+fn parse_times(text: &str) -> Result<Times> {
     let mut lines = text.lines();
     ensure!(lines.next() == Some(CSV_HEADER), "not a compare.csv of this chapter: its first line is not {CSV_HEADER}");
-    let mut samples: BTreeMap<String, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+    let mut times = Times::new();
     for (n, line) in lines.enumerate() {
-        // `"chapter 13, 2 rays",frame,gpu,ao,rmse,flip`: the method is quoted, and holds a comma.
+        // `"chapter 13, 2 rays",frame,wall,gpu,ao,rmse,flip`: the method is quoted, and holds a comma.
         let (method, rest) = line
             .strip_prefix('"')
             .and_then(|l| l.split_once("\","))
             .with_context(|| format!("line {}: no quoted method", n + 2))?;
         let fields: Vec<&str> = rest.split(',').collect();
-        ensure!(fields.len() == 5, "line {}: {} fields after the method, not 5", n + 2, fields.len());
-        let (times, ao) = samples.entry(method.to_owned()).or_default();
-        times.extend(fields[1].parse::<f64>().ok());
-        ao.extend(fields[2].parse::<f64>().ok());
+        ensure!(fields.len() == 6, "line {}: {} fields after the method, not 6", n + 2, fields.len());
+        let frame = fields[0].parse().with_context(|| format!("line {}: the frame is not a number", n + 2))?;
+        let time = |i: usize| fields[i].parse::<f64>().ok();
+        times.entry(method.to_owned()).or_default().insert(frame, [time(1), time(2), time(3)]);
     }
-    let medians: BTreeMap<String, Times> =
-        samples.into_iter().map(|(method, (gpu, ao))| (method, (median(&gpu), median(&ao)))).collect();
-    ensure!(medians.values().any(|&(gpu, ao)| gpu.or(ao).is_some()), "no frame has a time");
-    Ok(medians)
+    ensure!(times.values().flat_map(|t| t.values()).flatten().any(|t| t.is_some()), "no frame has a time");
+    Ok(times)
 }
 
-/// Each walk's GPU and AO medians replaced by those `times` has for its method.
-pub fn take_times(walks: &mut [Walk], times: &BTreeMap<String, Times>) -> Result<()> {
+/// Each walk's frames given the times `times` has for the same frame of the same method, and
+/// summed up again (`cut`: the path's).
+pub fn take_times(walks: &mut [Walk], times: &Times, cut: Option<u32>) -> Result<()> {
     for walk in walks {
-        let &(gpu, ao) = times.get(&walk.method).with_context(|| {
+        let theirs = times.get(&walk.method).with_context(|| {
             format!("--times-from has no times for '{}': write it with --compare and the same flags", walk.method)
         })?;
-        (walk.gpu_median_ms, walk.ao_median_ms) = (gpu, ao);
+        for f in &mut walk.frames {
+            let &[wall, gpu, ao] = theirs.get(&f.frame).with_context(|| {
+                format!("--times-from has no frame {} of '{}': write it with --compare and the same --frames", f.frame, walk.method)
+            })?;
+            (f.wall_ms, f.gpu_ms, f.ao_ms) = (wall, gpu, ao);
+        }
+        walk.sum_up_times(cut);
     }
     Ok(())
 }
@@ -348,16 +394,16 @@ fn plot_per_frame(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
     Ok(())
 }
 
-/// Mean error over the path against the median GPU time of a frame: one point per method.
+/// Mean error over the path against the mean GPU time of a frame over it: one point per method.
 fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
     let points: Vec<(f64, f64, usize)> = walks
         .iter()
         .enumerate()
-        .filter_map(|(i, w)| Some((w.gpu_median_ms?, w.error_mean?, i)))
+        .filter_map(|(i, w)| Some((w.gpu_mean_ms?, w.error_mean?, i)))
         .filter(|(t, e, _)| *t > 0.0 && *e > 0.0)
         .collect();
     let caption = format!("Mean AO error against GPU time per frame ({device})");
-    let axes = ("GPU time per frame, ms", "mean RMSE over the path");
+    let axes = ("mean GPU time per frame, ms", "mean RMSE over the path");
     let labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String) = (&|v| format!("{v:.2}"), &|v| format!("{v:.3}"));
     let span = points.iter().map(|&(t, e, _)| (t, e));
     output::log_log_plot(path, ((720, 420), &caption), axes, labels, span, |chart| {
@@ -375,27 +421,82 @@ fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_times;
+    use super::*;
 
-    /// The medians of each method's frames, the frames without a time left out; anything but a
-    /// compare.csv refused.
+    /// Each method's times frame by frame, an empty field none; anything but a compare.csv
+    /// refused.
     #[test]
     fn times_are_read_back_from_a_compare_csv() {
-        let csv = "method,frame,gpu_ms,ao_ms,rmse,flip\n\
-                   \"chapter 13, 2 rays\",0,12.5,9.5,0.02,\n\
-                   \"chapter 13, 2 rays\",1,5.0,2.5,,\n\
-                   \"chapter 13, 2 rays\",2,6.0,3.0,,\n\
-                   \"chapter 12, 16 rays\",0,,,0.01,\n\
-                   \"chapter 12, 16 rays\",1,14.0,11.0,,\n";
+        let csv = "method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n\
+                   \"chapter 13, 2 rays\",0,13.0,12.5,9.5,0.02,\n\
+                   \"chapter 13, 2 rays\",1,5.5,5.0,2.5,,\n\
+                   \"chapter 12, 16 rays\",0,,,,0.01,\n\
+                   \"chapter 12, 16 rays\",1,14.5,14.0,11.0,,\n";
         let times = parse_times(csv).unwrap();
-        assert_eq!(times["chapter 13, 2 rays"], (Some(6.0), Some(3.0)));
-        assert_eq!(times["chapter 12, 16 rays"], (Some(14.0), Some(11.0)));
-        // llvmpipe's: AO times only.
-        let ao_only = parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",0,,2.5,,\n").unwrap();
-        assert_eq!(ao_only["chapter 13, 1 ray"], (None, Some(2.5)));
+        assert_eq!(times["chapter 13, 2 rays"][&1], [Some(5.5), Some(5.0), Some(2.5)]);
+        assert_eq!(times["chapter 12, 16 rays"][&0], [None, None, None]);
+        assert_eq!(times["chapter 12, 16 rays"][&1], [Some(14.5), Some(14.0), Some(11.0)]);
+        // llvmpipe's: no GPU time of a whole frame.
+        let ao_only = parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",0,3.0,,2.5,,\n").unwrap();
+        assert_eq!(ao_only["chapter 13, 1 ray"][&0], [Some(3.0), None, Some(2.5)]);
         assert!(parse_times("frame,gpu_ms\n1,2\n").is_err());
-        assert!(parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\nchapter 13,0,1,1,,\n").is_err());
-        assert!(parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\n").is_err());
+        // The header of a build before the wall clock was kept per frame.
+        assert!(parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",0,1,1,,\n").is_err());
+        assert!(parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\nchapter 13,0,1,1,1,,\n").is_err());
+        assert!(parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",x,1,1,1,,\n").is_err());
+        assert!(parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n").is_err());
+    }
+
+    fn record(frame: u32, wall: f64, gpu: f64) -> FrameRecord {
+        FrameRecord { frame, wall_ms: Some(wall), gpu_ms: Some(gpu), ao_ms: Some(gpu / 2.0), rmse: None, flip: None }
+    }
+
+    /// A path of two views: each view's medians come from its own frames alone, however many
+    /// each has, and the mean GPU time weighs every frame, the cut's too.
+    #[test]
+    fn each_view_of_the_path_has_its_own_medians() {
+        // 3 frames of a quick view, the cut's frame (slow), then 5 of a view twice as costly.
+        let mut frames: Vec<FrameRecord> = (0..3).map(|f| record(f, 1.8 + f as f64 * 0.01, 1.4)).collect();
+        frames.push(record(3, 90.0, 12.0));
+        frames.extend((4..9).map(|f| record(f, 2.6, 2.1)));
+        let walk = Walk::new("chapter 13, 2 rays".into(), frames.clone(), Some(3), 1);
+        assert_eq!(walk.before_cut.frame_wall_ms, Some(1.81));
+        assert_eq!(walk.before_cut.gpu_ms, Some(1.4));
+        assert_eq!(walk.before_cut.ao_ms, Some(0.7));
+        let after = walk.after_cut.unwrap();
+        assert_eq!((after.frame_wall_ms, after.gpu_ms), (Some(2.6), Some(2.1)));
+        let mean = (3.0 * 1.4 + 12.0 + 5.0 * 2.1) / 9.0;
+        assert!((walk.gpu_mean_ms.unwrap() - mean).abs() < 1e-12);
+        // No cut: one view, every frame in it.
+        let whole = Walk::new("m".into(), frames, None, 1);
+        assert_eq!(whole.after_cut, None);
+        assert_eq!(whole.before_cut.frame_wall_ms, Some(2.6));
+    }
+
+    /// `--times-from`: every frame takes the time run's times for the same frame, and the views
+    /// are summed up from those; a frame the time run did not draw is refused, naming it.
+    #[test]
+    fn times_from_another_run_replace_each_frames() {
+        let frames: Vec<FrameRecord> = (0..4)
+            .map(|frame| FrameRecord { frame, wall_ms: None, gpu_ms: None, ao_ms: None, rmse: Some(0.01), flip: None })
+            .collect();
+        let mut walks = vec![Walk::new("m".into(), frames, Some(2), 1)];
+        let mut times = Times::new();
+        let run: BTreeMap<u32, [Option<f64>; 3]> =
+            (0..4).map(|f| (f, [Some(2.0 + f as f64), Some(1.0 + f as f64), Some(0.5)])).collect();
+        times.insert("m".into(), run.clone());
+        take_times(&mut walks, &times, Some(2)).unwrap();
+        assert_eq!(walks[0].frames[3].wall_ms, Some(5.0));
+        // Of two, the median the reports take is the upper one.
+        assert_eq!(walks[0].before_cut.frame_wall_ms, Some(3.0));
+        assert_eq!(walks[0].after_cut.unwrap().gpu_ms, Some(4.0));
+        assert_eq!(walks[0].error_mean, Some(0.01));
+        let short: BTreeMap<u32, [Option<f64>; 3]> = run.into_iter().take(3).collect();
+        times.insert("m".into(), short);
+        let error = take_times(&mut walks, &times, Some(2)).unwrap_err();
+        assert!(format!("{error}").contains("no frame 3 of 'm'"), "{error}");
+        let error = take_times(&mut walks, &Times::new(), Some(2)).unwrap_err();
+        assert!(format!("{error}").contains("no times for 'm'"), "{error}");
     }
 
     /// FLIP sees nothing between a picture and itself, and sees a changed region.
@@ -415,7 +516,7 @@ mod tests {
         let grey: Vec<u8> = [128u8, 128, 128, 255].repeat(16 * 16);
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let mut records: Vec<super::FrameRecord> = (0..cores as u32 * 2 + 3)
-            .map(|frame| super::FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse: None, flip: None })
+            .map(|frame| super::FrameRecord { frame, wall_ms: None, gpu_ms: None, ao_ms: None, rmse: None, flip: None })
             .collect();
         let mut flips = super::Flips::default();
         for i in 0..records.len() {

@@ -5,7 +5,7 @@ use common::frame::fast::check::{self, LastFrame, Surface};
 use common::frame::fast::composite::View;
 use crate::frame::{Clock, Drawn, Passes, Sized};
 use crate::history_check::{self, Seen};
-use crate::measure::{ErrorProbe, Flips, FrameRecord, References, Walk, measured, median};
+use crate::measure::{ErrorProbe, Flips, FrameRecord, References, Walk, measured};
 use crate::path::PathKind;
 use crate::settings::{Args, PATH_FRAMES};
 use crate::temporal::Budget;
@@ -93,7 +93,7 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
                     (Some(rmse), flip)
                 }
             };
-            records.push(FrameRecord { frame, gpu_ms: None, ao_ms: None, rmse, flip: None });
+            records.push(FrameRecord { frame, wall_ms: None, gpu_ms: None, ao_ms: None, rmse, flip: None });
             flips.add(flip, records.len() - 1, &mut records)?;
         }
         flips.finish(&mut records)?;
@@ -106,26 +106,26 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
         if let Some(timeline) = clock.finish_timeline(p, &args.common.out_dir(crate::CHAPTER).join("timeline"))? {
             report.set("timeline", timeline);
         }
-        // The passes' GPU times, frame by frame where every frame has one of each.
+        // The passes' GPU times, frame by frame where every frame has one of each, and the wall
+        // clock's, where no read-back for the error slowed the frames.
         let times = &clock.times;
         let per_frame = |pass: &str| Some(times.samples(pass)).filter(|s| s.len() == records.len());
         let ao = per_frame("ao_trace");
+        let wall = per_frame("frame_wall").filter(|_| args.error_against == 0);
         let gl: Vec<_> = ["visibility", "composite", "overlays"].iter().map(|&pass| per_frame(pass)).collect();
         for (i, record) in records.iter_mut().enumerate() {
             record.ao_ms = ao.map(|a| a[i]);
-            // As the walk's median counts them: a pass with no time in any frame counts nothing.
+            record.wall_ms = wall.map(|w| w[i]);
+            // A pass with no time in any frame (llvmpipe's overlays) counts nothing.
             let gl_ms: f64 = gl.iter().flatten().map(|s| s[i]).sum();
             record.gpu_ms = record.ao_ms.map(|a| a + gl_ms);
         }
-        let wall = median(times.samples("frame_wall")).filter(|_| args.error_against == 0);
-        let passes = ["visibility", "ao_trace", "composite", "overlays"];
-        let gpu = passes.iter().filter_map(|&pass| median(times.samples(pass))).reduce(|a, b| a + b);
         if checking {
             times.record(report);
             checked = true;
         }
         eprintln!("walk: {} done ({frames} frames)", drawn.name());
-        walks.push(Walk::new(drawn.name(), records, (wall, gpu), args.error_every));
+        walks.push(Walk::new(drawn.name(), records, p.path.cut(), args.error_every));
     }
     report.set("frames", frames);
     walks.sort_by_key(|w: &Walk| table.iter().position(|m| m.name() == w.method));

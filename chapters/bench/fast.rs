@@ -84,12 +84,20 @@ pub fn row(scene: SceneKind, size: Size, spp: u32, frames: u32, covered: u64, ou
     Ok(Row { grays_per_s, ..row })
 }
 
-/// One `temporal-reuse` row: chapter 13's defaults along its path (the camera orbiting and
-/// cutting, one instance moving) at one setting, `spp` rays per pixel whose history is filling.
-/// Its frames trace fewer rays than `spp` per covered pixel, so no ray rate is given.
-pub fn temporal_row(scene: SceneKind, size: Size, spp: u32, frames: u32, out: &Path) -> Result<Row> {
-    let report = run_chapter(TEMPORAL, &setting(scene, size, spp, frames), out)?;
-    Ok(row_of(&report, Mode::TemporalReuse, (scene, size, spp)))
+/// The two `temporal-reuse` rows: chapter 13's defaults at one setting, `spp` rays per pixel
+/// whose history is filling, in each of the two views its path shows. Its orbit cuts once to a
+/// closer view, where every method's frame costs about twice as much, so one median over its
+/// path would fall in whichever view has more frames: one row orbits without the cut
+/// (`--cut-at 0`), the other cuts at frame 1 and orbits on in the closer view. Their frames
+/// trace fewer rays than `spp` per covered pixel, so no ray rate is given.
+pub fn temporal_rows(scene: SceneKind, size: Size, spp: u32, frames: u32, out: &Path) -> Result<[Row; 2]> {
+    let view = |mode: Mode, cut_at: &str, out: &Path| -> Result<Row> {
+        let mut args = setting(scene, size, spp, frames);
+        args.extend(["--cut-at".into(), cut_at.into()]);
+        let report = run_chapter(TEMPORAL, &args, out)?;
+        Ok(row_of(&report, mode, (scene, size, spp)))
+    };
+    Ok([view(Mode::TemporalReuse, "0", &out.join("orbit"))?, view(Mode::TemporalReuseCloser, "1", &out.join("closer"))?])
 }
 
 /// A row from a chapter's report: its GPU medians of the ids, the trace and the composite with

@@ -91,8 +91,10 @@ pub enum Mode {
     CpuRoundTrip,
     /// Chapter 12's frame, run as its own program (`fast.rs`).
     FastFrame,
-    /// Chapter 13's frame along its moving path, run as its own program (`fast.rs`).
+    /// Chapter 13's frame orbiting, with an instance moving, run as its own program (`fast.rs`).
     TemporalReuse,
+    /// The same, orbiting in the closer view its path cuts to.
+    TemporalReuseCloser,
 }
 
 impl Mode {
@@ -260,9 +262,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 let out = args.out.join("fast-frame");
                 rows.push(fast::row(kind, size, spp, 2 * frames_per_run, covered, &out)?);
                 if spp <= 64 {
-                    // Chapter 13's frame along its path, as many frames again.
+                    // Chapter 13's frame in each view of its path, as many frames again.
                     let out = args.out.join("temporal-reuse");
-                    rows.push(fast::temporal_row(kind, size, spp, 2 * frames_per_run, &out)?);
+                    rows.extend(fast::temporal_rows(kind, size, spp, 2 * frames_per_run, &out)?);
                 }
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
@@ -316,9 +318,9 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         let fraction = depth_first_differences as f64 / pixels_compared.max(1) as f64;
         report.check("depth_prepass_draws_the_same_gbuffers_but_for_ties", fraction <= 1e-3);
     }
-    // Per setting: chapter 08's three modes and chapter 12's row, and chapter 13's where it
-    // takes the ray count (at most 64 a frame).
-    let temporal = spps.iter().filter(|&&spp| spp <= 64).count();
+    // Per setting: chapter 08's three modes and chapter 12's row, and chapter 13's two (one per
+    // view of its path) where it takes the ray count (at most 64 a frame).
+    let temporal = 2 * spps.iter().filter(|&&spp| spp <= 64).count();
     checks(report, &rows, scenes_count * sizes.len() * ((Mode::ALL.len() + 1) * spps.len() + temporal));
     // The ablation: chapter 12 with its choices undone one at a time, on the default scene at
     // the largest size, at 16 rays (or the most asked for, if fewer).

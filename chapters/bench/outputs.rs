@@ -75,6 +75,7 @@ fn mode_name(mode: Mode) -> &'static str {
         Mode::CpuRoundTrip => "cpu-round-trip",
         Mode::FastFrame => "fast-frame (12)",
         Mode::TemporalReuse => "temporal-reuse (13)",
+        Mode::TemporalReuseCloser => "temporal-reuse (13), closer",
     }
 }
 
@@ -93,7 +94,7 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
     let root = SVGBackend::new(path, (360 * scenes.len().max(1) as u32, 420)).into_drawing_area();
     root.fill(&WHITE)?;
     let root = root.titled(&format!("Frame time by mode and size ({device})"), ("sans-serif", 18))?;
-    let colours = [RED, BLUE, BLACK, GREEN, MAGENTA];
+    let colours = [RED, BLUE, BLACK, GREEN, MAGENTA, CYAN];
     for (panel, scene) in root.split_evenly((1, scenes.len().max(1))).iter().zip(&scenes) {
         let mut chart = ChartBuilder::on(panel)
             .caption(format!("{scene} scene"), ("sans-serif", 15))
@@ -111,7 +112,7 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
             .x_label_formatter(&|v| format!("{v:.0}"))
             .y_label_formatter(&|v| three_figures(*v))
             .draw()?;
-        for (m, mode) in Mode::ALL.iter().chain([&Mode::FastFrame, &Mode::TemporalReuse]).enumerate() {
+        for (m, mode) in Mode::ALL.iter().chain([&Mode::FastFrame, &Mode::TemporalReuse, &Mode::TemporalReuseCloser]).enumerate() {
             let colour = colours[m];
             for (s, size) in sizes.iter().enumerate() {
                 let points: Vec<(f64, f64)> = rows
