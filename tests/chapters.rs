@@ -835,6 +835,28 @@ fn ch13_still_camera_traces_chapter_08s_rays() {
     }
 }
 
+/// GL's next ids drawn before the CPU waits for the trace (`--next-ids early`, the default) or
+/// after (`late`): the same pictures and the same history at the cut, and the early walk did
+/// draw its frames' ids ahead, all but those after which something is read back.
+#[test]
+fn ch13_next_ids_drawn_early_draw_what_late_draws() {
+    let run = |when: &str| {
+        let mut args = CH13.to_vec();
+        args.extend(["--frames", "10", "--next-ids", when]);
+        run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[])
+    };
+    let (early, late) = (run("early"), run("late"));
+    let (a, b) = (early.succeeded(), late.succeeded());
+    // Frames 3 and 4 are read back for the cut check, frame 9 is the last: 7 of 10 draw ahead.
+    assert_eq!(a["frames_with_ids_drawn_ahead"], 7);
+    assert_eq!(b["frames_with_ids_drawn_ahead"], 0);
+    assert_eq!(a["cut_pixels_kept"], b["cut_pixels_kept"]);
+    for name in ["13-temporal-reuse.png", "13-temporal-reuse-ao.png"] {
+        let (x, y) = (early.out_dir.path().join(name), late.out_dir.path().join(name));
+        assert_eq!(std::fs::read(&x).unwrap(), std::fs::read(&y).unwrap(), "{name}");
+    }
+}
+
 /// On a pan, what the pixels keep agrees with a new trace of the same frame within its noise.
 #[test]
 fn ch13_pan_keeps_what_a_new_trace_finds() {

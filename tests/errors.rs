@@ -74,6 +74,13 @@ const CASES: &[Case] = &[
         env!("CARGO_BIN_EXE_13-temporal-reuse"),
         &["--size", "64x48", "--frames", "4", "--cut-at", "2", "--instances", "50", "--error-against", "8"],
     ),
+    // The same walk without the error measured or a cut: every frame but the last draws the
+    // next one's ids before it waits (`--next-ids early`), and those steps fail too.
+    chapter(
+        "13-temporal-reuse, next ids early",
+        env!("CARGO_BIN_EXE_13-temporal-reuse"),
+        &["--size", "64x48", "--frames", "4", "--cut-at", "0", "--instances", "50"],
+    ),
     // Two processes: VKGL_FAIL_AT fails the renderer's steps (its viewer is started without it);
     // VKGL_VIEWER_FAIL_AT, which the renderer passes on as the viewer's VKGL_FAIL_AT, the
     // viewer's, whose refusal the renderer reports as its own error (exit 2). The viewer's list

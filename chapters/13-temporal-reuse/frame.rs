@@ -4,14 +4,17 @@
 use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
 use crate::path::Path;
 use crate::temporal::{Budget, TemporalTracer};
-use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
+use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
 use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
-use anyhow::{Context as _, Result};
+use anyhow::Result;
 use common::base::commands::Commands;
 use common::clocks::timeline::{Timeline, stamp_into as stamp};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
+use common::base::gl::{Owned, create};
+use glow::HasContext;
 use common::frame::Overlays;
+use common::instruments::fail;
 use common::interop::exportable::ExportedBuffer;
 use common::interop::handoff::Apis;
 use common::rt::accel::{InPlace, Refresh};
@@ -56,6 +59,8 @@ pub struct Passes<'a> {
     pub path: &'a Path,
     pub motion: Option<Motion<'a>>,
     pub timestamps: Option<&'a Timestamps>,
+    /// Whether this chapter's frame draws the next frame's ids before it waits (`--next-ids`).
+    pub ids_ahead: bool,
     pub uniforms: Uniforms,
     pub radius: f32,
 }
@@ -74,11 +79,17 @@ pub struct Clock {
     pub times: PassTimes,
     traced: Option<Option<u32>>,
     pub timeline: Option<(Timeline, u32)>,
+    /// The frame whose ids GL has drawn and handed to Vulkan already (at the end of the one
+    /// before), and a fence after the last ids GL drew.
+    ids_ahead: Option<u32>,
+    ids_done: Option<Owned<glow::Fence>>,
+    /// How many frames of the walk had their ids drawn ahead.
+    pub frames_drawn_ahead: u32,
 }
 
 impl Clock {
     pub fn new(gl: &std::rc::Rc<glow::Context>, timeline: Option<(Timeline, u32)>) -> Result<Clock> {
-        Ok(Clock { gl: GlPassTimer::new(gl)?, times: PassTimes::new(), traced: None, timeline })
+        Ok(Clock { gl: GlPassTimer::new(gl)?, times: PassTimes::new(), traced: None, timeline, ids_ahead: None, ids_done: None, frames_drawn_ahead: 0 })
     }
 
     /// Waits for the last frame's Vulkan work and reads its trace time (into the timeline too,
@@ -91,6 +102,20 @@ impl Clock {
             }
         }
         Ok(())
+    }
+
+    /// Waits, on the CPU, until GL has drawn the last ids it was given (the fence after them).
+    fn wait_for_ids(&mut self, gl: &glow::Context) -> Result<()> {
+        let Some(fence) = self.ids_done.take() else { return Ok(()) };
+        fail::step("glClientWaitSync for GL's ids")?;
+        loop {
+            // FLUSH: the fence is sent to the GPU, or the wait could outlast every timeout.
+            match unsafe { gl.client_wait_sync(*fence, glow::SYNC_FLUSH_COMMANDS_BIT, 1_000_000_000) } {
+                glow::ALREADY_SIGNALED | glow::CONDITION_SATISFIED => return Ok(()),
+                glow::TIMEOUT_EXPIRED => eprintln!("frame: GL's ids take over a second; waiting on"),
+                _ => anyhow::bail!("glClientWaitSync for GL's ids failed (GL_WAIT_FAILED)"),
+            }
+        }
     }
 
     /// Reads every time still out, waiting for it: after the walk's last frame.
@@ -121,31 +146,29 @@ impl Passes<'_> {
     }
 
     // ANCHOR: frame
-    /// Frame `frame` of the path, drawn by `drawn`. Returns the camera it was drawn with.
-    pub fn draw(&self, sized: &mut Sized, drawn: Drawn, frame: u32, clock: &mut Clock) -> Result<Camera> {
+    /// Frame `frame` of the path, drawn by `drawn`. Returns the camera it was drawn with. `next`:
+    /// the caller draws frame `frame + 1` next and reads nothing of this one back before it, so
+    /// this frame may draw the next one's ids before it returns (this chapter's method alone).
+    pub fn draw(&self, sized: &mut Sized, drawn: Drawn, frame: u32, clock: &mut Clock, next: bool) -> Result<Camera> {
         let Apis { vk, gl, .. } = self.apis;
         let g = &gl.gl;
-        // The previous frame's Vulkan work is done, and with it GL's draw it waited for: nothing
-        // reads the instance buffers now, so the CPU may write them.
+        // The previous frame's Vulkan work is done, and with it the GL ids it waited for.
         self.apis.commands.wait(vk, "vkWaitForFences at the top of a frame")?;
         clock.read_trace(self)?;
-        let slot = clock.timeline.as_ref().and_then(|(t, frames)| t.slot(frame, *frames));
-        let timeline = clock.timeline.as_ref().map(|(t, _)| t);
-        if let (Some(motion), Some(moving)) = (&self.motion, &self.path.moving) {
-            let previous = sized.temporal.previous_instances.allocation.mapped_slice_mut();
-            let previous = previous.context("the previous instances are not mapped")?;
-            moving.write(motion.instances, previous, frame);
-            motion.tlas.submit(vk, motion.updates, motion.loader, Refresh::Update, None)?;
-        }
         let camera = self.path.camera(frame);
+        // This frame's ids: drawn and handed over at the end of the previous frame, or now.
+        let drawn_ahead = clock.ids_ahead.take() == Some(frame);
+        if !drawn_ahead {
+            self.place_instances(sized, frame, true)?;
+            self.draw_ids(sized, frame, &camera, clock)?;
+        }
+        let slot = clock.timeline.as_ref().and_then(|(t, frames)| t.slot(frame, *frames));
         let targets = &sized.targets;
-        stamp(timeline, slot, 0);
-        clock.gl.time(g, "visibility", || self.visibility.draw(g, targets, self.scene, self.ids, &camera))?;
-        stamp(timeline, slot, 1);
         match drawn {
             Drawn::Temporal(budget) => {
                 let moved = self.path.moving.as_ref().filter(|_| self.motion.is_some()).map(|m| m.swept(frame));
-                sized.temporal.trace(self.apis, targets, (&camera, frame), (&budget, moved), self.timestamps)?
+                let handed = (self.timestamps, drawn_ahead);
+                sized.temporal.trace(self.apis, targets, (&camera, frame), (&budget, moved), handed)?
             }
             Drawn::Fresh(samples) => {
                 let scene_scale = self.scene.size() / 2.0;
@@ -157,17 +180,64 @@ impl Passes<'_> {
         }
         clock.traced = Some(slot);
         let uniforms = self.uniforms(&camera, self.uniforms.view);
-        stamp(timeline, slot, 2);
+        stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 2);
         clock.gl.time(g, "composite", || self.composite.draw(g, targets, &uniforms))?;
         if let Some(overlays) = self.overlays {
             let (w, h) = (targets.extent.width as f32, targets.extent.height as f32);
             let target = targets.overlay_target();
             clock.gl.time(g, "overlays", || overlays.draw(g, &target, camera.view_projection(w / h)))?;
         }
-        stamp(timeline, slot, 3);
+        stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 3);
         clock.gl.end_frame(g, &mut clock.times);
+        // ANCHOR: ahead
+        if next && self.ids_ahead && matches!(drawn, Drawn::Temporal(_)) {
+            // The next frame's ids now, before the CPU waits for this frame's trace: GL draws
+            // them right after this composite, however long the CPU takes to wake up. The
+            // shared instance buffer is read by GL's ids and the TLAS update alone (the rays
+            // read copies), so the CPU may write the next transform once this frame's are done.
+            clock.wait_for_ids(g)?;
+            if let Some(motion) = &self.motion {
+                motion.updates.wait(vk, "vkWaitForFences for the TLAS update")?;
+            }
+            self.place_instances(sized, frame + 1, false)?;
+            self.draw_ids(sized, frame + 1, &self.path.camera(frame + 1), clock)?;
+            release_to_vulkan(self.apis, &sized.targets);
+            clock.ids_ahead = Some(frame + 1);
+            clock.frames_drawn_ahead += 1;
+        }
+        // ANCHOR_END: ahead
         clock.times.frame_done();
         Ok(camera)
     }
     // ANCHOR_END: frame
+
+    // ANCHOR: place
+    /// The moving instance at `frame`: its transform written into the shared buffer and into
+    /// this frame's copy of it for the rays, and the TLAS updated (in a submission of its own,
+    /// which waits for nothing GL does). `top`: at the top of a frame, after its wait, when no
+    /// trace is in flight and the previous frame's copy may be written too; at a walk's first
+    /// frame that says nothing has moved yet.
+    fn place_instances(&self, sized: &mut Sized, frame: u32, top: bool) -> Result<()> {
+        let (Some(motion), Some(moving)) = (&self.motion, &self.path.moving) else { return Ok(()) };
+        moving.write_shared(motion.instances, frame);
+        moving.write(sized.temporal.transforms(frame)?, frame);
+        if top {
+            moving.write(sized.temporal.transforms(frame + 2)?, frame.saturating_sub(1));
+        }
+        motion.tlas.submit(self.apis.vk, motion.updates, motion.loader, Refresh::Update, None)
+    }
+    // ANCHOR_END: place
+
+    /// GL's ids of frame `frame`, timed, and a fence after them (`Clock::wait_for_ids`).
+    fn draw_ids(&self, sized: &Sized, frame: u32, camera: &Camera, clock: &mut Clock) -> Result<()> {
+        let g = &self.apis.gl.gl;
+        let slot = clock.timeline.as_ref().and_then(|(t, frames)| t.slot(frame, *frames));
+        let targets = &sized.targets;
+        stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 0);
+        clock.gl.time(g, "visibility", || self.visibility.draw(g, targets, self.scene, self.ids, camera))?;
+        stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 1);
+        let fence = create(g, "glFenceSync after GL's ids", |g| unsafe { g.fence_sync(glow::SYNC_GPU_COMMANDS_COMPLETE, 0) })?;
+        clock.ids_done = Some(fence);
+        Ok(())
+    }
 }

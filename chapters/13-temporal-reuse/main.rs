@@ -83,6 +83,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     }
     report.set("path", args.path);
     report.set("fresh_pass", args.fresh_pass);
+    report.set("next_ids", args.next_ids);
     report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
@@ -143,6 +144,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             updates: &updates,
         }),
         timestamps: timestamps.as_ref(),
+        ids_ahead: args.next_ids == settings::NextIds::Early,
         uniforms,
         radius,
     };

@@ -144,20 +144,27 @@ impl Moving {
         ((a + b) / 2.0, (b - a).length() / 2.0 + self.sphere.1)
     }
 
-    /// Writes the transform at `frame` into `instances` (the shared buffer GL draws with and
-    /// the TLAS is built from) and the one it had at the frame before into `previous` (which
-    /// only the ray generation shader reads). Only the 48 transform bytes are written. No GPU
-    /// work may be reading either buffer (the caller waited for the previous frame).
-    pub fn write(&self, instances: &ExportedBuffer, previous: &mut [u8], frame: u32) {
-        let offset = self.index * size_of::<Instance>() + std::mem::offset_of!(Instance, transform);
-        let before = Instance::new(self.at(frame.saturating_sub(1)), [0; 3]).transform;
-        let now = Instance::new(self.at(frame), [0; 3]).transform;
-        let bytes = size_of_val(&now);
-        assert!(offset + bytes <= instances.bytes as usize && offset + bytes <= previous.len());
-        previous[offset..offset + bytes].copy_from_slice(common::scene::gbuffer::as_bytes(&before));
-        // SAFETY: in bounds of the coherent mapping (checked above), and no GPU work reads the
-        // buffer now.
+    /// Writes the transform at `frame` into `copy`, a copy of the instance buffer (where only
+    /// the 48 transform bytes of this instance's row change).
+    pub fn write(&self, copy: &mut [u8], frame: u32) {
+        let (offset, now) = self.row(frame);
+        copy[offset..offset + size_of_val(&now)].copy_from_slice(common::scene::gbuffer::as_bytes(&now));
+    }
+
+    /// Writes the transform at `frame` into `instances`, the shared buffer GL draws the ids with
+    /// and the TLAS is updated from. Nothing may be reading it: the caller waited for GL's last
+    /// ids and the last TLAS update.
+    pub fn write_shared(&self, instances: &ExportedBuffer, frame: u32) {
+        let (offset, now) = self.row(frame);
+        assert!(offset + size_of_val(&now) <= instances.bytes as usize);
+        // SAFETY: in bounds of the coherent mapping (checked above), and nothing reads it now.
         unsafe { instances.mapped.add(offset).cast::<[[f32; 4]; 3]>().write_unaligned(now) };
+    }
+
+    /// Where this instance's transform starts in an instance buffer, and its transform at `frame`.
+    fn row(&self, frame: u32) -> (usize, [[f32; 4]; 3]) {
+        let offset = self.index * size_of::<Instance>() + std::mem::offset_of!(Instance, transform);
+        (offset, Instance::new(self.at(frame), [0; 3]).transform)
     }
     // ANCHOR_END: mover
 }

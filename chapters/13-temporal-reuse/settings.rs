@@ -47,6 +47,11 @@ pub struct Args {
     /// either way, so the same picture.
     #[arg(long, value_enum, default_value = "packed")]
     pub fresh_pass: FreshPass,
+    /// When GL draws the next frame's ids: `early`, at the end of this frame, before the CPU
+    /// waits for this frame's trace, so that the GPU never waits for the CPU; `late`, after that
+    /// wait, as chapter 12 does. The same pictures either way.
+    #[arg(long, value_enum, default_value = "early")]
+    pub next_ids: NextIds,
     /// `temporal`: this chapter's frame; `fresh`: chapter 12's, new rays every frame and nothing
     /// kept, drawn along the same path for comparison.
     #[arg(long, value_enum, default_value = "temporal")]
@@ -137,6 +142,14 @@ pub enum FreshPass {
     Packed,
     /// In the one launch, beside the pixels that trace a few.
     Inline,
+}
+
+/// When GL draws the next frame's ids (`--next-ids`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NextIds {
+    Early,
+    Late,
 }
 
 /// How a frame's occlusion is made (`--method`).

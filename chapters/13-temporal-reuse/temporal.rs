@@ -3,7 +3,7 @@
 //! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
 
 use crate::settings::{Accept, Args, FreshPass};
-use common::frame::fast::trace::hand_over_around;
+use common::frame::fast::trace::{hand_over_around, hand_over_released};
 use common::frame::fast::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
@@ -134,9 +134,11 @@ pub struct TemporalTracer {
     /// a count, then room for every pixel of the picture. Made for `--fresh-pass packed` only.
     fresh_pixels: Option<DeviceBuffer>,
     cameras: DeviceBuffer,
-    /// The instance transforms the previous frame was drawn with (a copy of the shared buffer,
-    /// updated where an instance moved).
-    pub previous_instances: DeviceBuffer,
+    /// Three copies of the shared instance buffer, which only the rays read: frame k's rays take
+    /// copy k % 3 as this frame's transforms and copy (k + 2) % 3 as the previous frame's. Three,
+    /// so that the CPU can write frame k + 1's while frame k's rays still read the other two;
+    /// the shared buffer itself is read only by GL's ids and the TLAS update.
+    transforms: [DeviceBuffer; 3],
     /// Which history image this frame writes; the other holds the previous frame's.
     written: usize,
     /// Whether the image not written this frame holds a frame of this size and this camera's
@@ -145,9 +147,8 @@ pub struct TemporalTracer {
     /// Whether the history images have been used since they were made (undefined before).
     images_used: bool,
     previous_camera: Option<Camera>,
-    /// Chapter 12's mesh table (address, meshes) and the shared instance buffer's address.
+    /// Chapter 12's mesh table (address, meshes).
     meshes: (u64, u32),
-    instances: u64,
 }
 
 impl TemporalTracer {
@@ -191,27 +192,27 @@ impl TemporalTracer {
             location: MemoryLocation::CpuToGpu,
         };
         let cameras = DeviceBuffer::new(vk, allocator, host("cameras", size_of::<Cameras>() as u64))?;
-        let instance_bytes = shared.buffers.instances.vk.bytes;
-        let mut previous_instances =
-            DeviceBuffer::new(vk, allocator, host("previous instances", instance_bytes))?;
-        // At first the previous transforms are the transforms: nothing has moved yet.
-        let copy = previous_instances.allocation.mapped_slice_mut().context("previous instances unmapped")?;
         let shared_instances = &shared.buffers.instances.vk;
         // SAFETY: the shared buffer's mapping is `bytes` long and nothing writes it now.
-        let now = unsafe { std::slice::from_raw_parts(shared_instances.mapped, instance_bytes as usize) };
-        copy[..now.len()].copy_from_slice(now);
+        let now = unsafe { std::slice::from_raw_parts(shared_instances.mapped, shared_instances.bytes as usize) };
+        // At first every copy holds the transforms as they are: nothing has moved yet.
+        let copy = || -> Result<DeviceBuffer> {
+            let mut copy = DeviceBuffer::new(vk, allocator, host("instance transforms", now.len() as u64))?;
+            copy.allocation.mapped_slice_mut().context("instance transforms unmapped")?[..now.len()].copy_from_slice(now);
+            Ok(copy)
+        };
+        let transforms = [copy()?, copy()?, copy()?];
         let tracer = TemporalTracer {
             pipeline,
             history,
             fresh_pixels,
             cameras,
-            previous_instances,
+            transforms,
             written: 0,
             remembers: false,
             images_used: false,
             previous_camera: None,
             meshes,
-            instances: shared_instances.device_address(vk),
         };
         tracer.point_at(vk, targets);
         Ok(tracer)
@@ -262,6 +263,13 @@ impl TemporalTracer {
         Ok(())
     }
 
+    /// Frame `frame`'s copy of the instance buffer, which its rays read as this frame's
+    /// transforms and the next frame's as the previous ones (`frame + 2`: the previous frame's).
+    /// The traces that read it last, those of frames `frame - 3` and `frame - 2`, must be done.
+    pub fn transforms(&mut self, frame: u32) -> Result<&mut [u8]> {
+        self.transforms[frame as usize % 3].allocation.mapped_slice_mut().context("instance transforms unmapped")
+    }
+
     /// The next frame starts with no history (a method switch, a new setting).
     pub fn forget(&mut self) {
         self.remembers = false;
@@ -278,7 +286,7 @@ impl TemporalTracer {
         targets: &Targets,
         (camera, frame): (&Camera, u32),
         (budget, moved): (&Budget, Option<(glam::Vec3, f32)>),
-        timestamps: Option<&Timestamps>,
+        (timestamps, released): (Option<&Timestamps>, bool),
     ) -> Result<()> {
         // The previous frame's work is done (the caller waited for it, at the top of the frame):
         // its descriptors and cameras may change.
@@ -307,8 +315,8 @@ impl TemporalTracer {
         let push = TemporalRays {
             cameras: self.cameras.address,
             meshes: self.meshes.0,
-            instances: self.instances,
-            previous_instances: self.previous_instances.address,
+            instances: self.transforms[frame as usize % 3].address,
+            previous_instances: self.transforms[(frame as usize + 2) % 3].address,
             radius: budget.radius,
             scene_scale: budget.scene_scale,
             mesh_count: self.meshes.1,
@@ -376,7 +384,12 @@ impl TemporalTracer {
             let second = TemporalRays { pass: LISTED, ..push };
             self.pipeline.trace(vk, cb, push_bytes(&second), targets.extent);
         };
-        hand_over_around(apis, targets, timestamps, || {}, work)?;
+        // `released`: GL handed this frame's ids over when it drew them, at the end of the
+        // previous frame (`Passes::draw`).
+        match released {
+            true => hand_over_released(apis, targets, timestamps, work)?,
+            false => hand_over_around(apis, targets, timestamps, || {}, work)?,
+        }
         self.images_used = true;
         self.previous_camera = Some(*camera);
         self.remembers = true;

@@ -75,7 +75,15 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
                     after_first_resize = Some(alive(p)?);
                 }
             }
-            let camera = p.draw(sized, drawn, frame, &mut clock)?;
+            // The next frame's ids may be drawn at the end of this one unless something reads
+            // this frame's back first (the cut's checks, the last frame's, the error) or the
+            // next frame has images of another size.
+            let cut = p.path.cut();
+            let resized_next = args.resize_every.is_some_and(|k| checking && (frame + 1) % k == 0);
+            let read_back = (checking && cut.is_some_and(|c| frame + 1 == c || frame == c))
+                || (args.error_against > 0 && measured(frame, args.error_every, cut));
+            let next = frame + 1 < frames && !resized_next && !read_back;
+            let camera = p.draw(sized, drawn, frame, &mut clock, next)?;
             if checking {
                 if let Drawn::Temporal(budget) = drawn {
                     before_cut = watch_the_cut(p, sized, (&camera, frame), before_cut, (budget, report))?;
@@ -122,6 +130,7 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
         }
         if checking {
             times.record(report);
+            report.set("frames_with_ids_drawn_ahead", clock.frames_drawn_ahead);
             checked = true;
         }
         eprintln!("walk: {} done ({frames} frames)", drawn.name());
@@ -288,7 +297,8 @@ pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Dra
                 after_first_resize = Some(alive(p)?);
             }
         }
-        camera = Some(p.draw(sized, drawn, frame, &mut clock)?);
+        // A window may change size before any frame: each frame draws its own ids.
+        camera = Some(p.draw(sized, drawn, frame, &mut clock, false)?);
         window.show_times(|| clock.times.line());
         sized.targets.show(&p.apis.gl.gl, window.size());
         window.swap_buffers(p.apis.gl)?;

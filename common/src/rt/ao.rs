@@ -283,29 +283,57 @@ pub fn hand_over_around(
     between: impl FnOnce(),
     work: impl FnOnce(vk::CommandBuffer),
 ) -> Result<()> {
-    let Apis { vk, gl, handoff, commands } = apis;
-    // The inputs come to Vulkan in GENERAL, the layout storage images need, and go back as
-    // attachments for GL's next draw; the output is sampled by GL. On the host path `hand_over`
-    // makes all of them GENERAL both ways (GL moves no layout there).
+    release_to_vulkan(apis, images);
+    hand_over_released(apis, images, timestamps, between, work)
+}
+
+/// The layouts the images travel in: the inputs come to Vulkan in GENERAL, the layout storage
+/// images need, and go back as attachments for GL's next draw; the output is sampled by GL. On
+/// the host path `hand_over` makes all of them GENERAL both ways (GL moves no layout there).
+fn layouts(handoff: &Handoff) -> (HandOver, HandOver) {
     let attachment = vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL;
     let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
-    let layouts =
-        (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only));
-    let ((input_to_vulkan, input_to_gl), (output_to_vulkan, output_to_gl)) = (layouts.0.gl(), layouts.1.gl());
+    (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only))
+}
+
+/// GL's textures of `images`, the inputs first, and each one's layout as GL names it: the
+/// first for Vulkan, the second for GL.
+fn textures(images: &Traced, (inputs, output): (HandOver, HandOver)) -> (Vec<glow::Texture>, [Vec<u32>; 2]) {
+    let ((input_to_vulkan, input_to_gl), (output_to_vulkan, output_to_gl)) = (inputs.gl(), output.gl());
     let mut textures: Vec<glow::Texture> = images.inputs.iter().map(|i| *i.texture.texture).collect();
     textures.push(*images.output.texture.texture);
     let mut to_vulkan = vec![input_to_vulkan; images.inputs.len()];
     to_vulkan.push(output_to_vulkan);
+    let mut to_gl = vec![input_to_gl; images.inputs.len()];
+    to_gl.push(output_to_gl);
+    (textures, [to_vulkan, to_gl])
+}
+
+/// GL's half of the hand-over alone: the inputs it just drew (and the output, once it has had
+/// it) released to Vulkan, whose work may be recorded later, by [`hand_over_released`].
+pub fn release_to_vulkan(apis: Apis, images: &Traced) {
+    let (textures, [to_vulkan, _]) = textures(images, layouts(apis.handoff));
     // The output only once GL has had it.
     let handed = if images.gl_has_output { textures.len() } else { images.inputs.len() };
-    handoff.gl_release(gl, &textures[..handed], &to_vulkan[..handed]);
+    apis.handoff.gl_release(apis.gl, &textures[..handed], &to_vulkan[..handed]);
+}
+
+/// The rest of [`hand_over_around`], once GL has released the images ([`release_to_vulkan`]).
+pub fn hand_over_released(
+    apis: Apis,
+    images: &Traced,
+    timestamps: Option<&Timestamps>,
+    between: impl FnOnce(),
+    work: impl FnOnce(vk::CommandBuffer),
+) -> Result<()> {
+    let Apis { vk, gl, handoff, commands } = apis;
+    let layouts = layouts(handoff);
+    let (textures, [_, to_gl]) = textures(images, layouts);
     let cb = commands.begin(vk)?;
     unsafe { record(vk, cb, images, layouts, timestamps, work) };
     let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
     commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
     between();
-    let mut to_gl = vec![input_to_gl; images.inputs.len()];
-    to_gl.push(output_to_gl);
     handoff.gl_acquire(vk, gl, *commands.fence, &textures, &to_gl)
 }
 

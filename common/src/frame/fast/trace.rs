@@ -246,18 +246,37 @@ pub fn hand_over_around(
     between: impl FnOnce(),
     work: impl FnOnce(vk::CommandBuffer),
 ) -> Result<()> {
-    // Two images, where chapter 08 hands over three and reads 32 bytes a pixel: the ids in, the
-    // surface (the running mean, and all the composite reads) out.
-    let images = Traced {
-        inputs: &[&targets.visibility],
-        output: &targets.surface,
-        gl_has_output: targets.gl_has_surface.get(),
-    };
-    crate::rt::ao::hand_over_around(apis, &images, timestamps, between, work)?;
+    traced(targets, |images| crate::rt::ao::hand_over_around(apis, images, timestamps, between, work))?;
     targets.gl_has_surface.set(true);
     Ok(())
 }
+
+/// Two images, where chapter 08 hands over three and reads 32 bytes a pixel: the ids in, the
+/// surface (the running mean, and all the composite reads) out.
+fn traced<R>(targets: &Targets, hand_over: impl FnOnce(&Traced) -> R) -> R {
+    let inputs = [&targets.visibility];
+    hand_over(&Traced { inputs: &inputs, output: &targets.surface, gl_has_output: targets.gl_has_surface.get() })
+}
 // ANCHOR_END: hand_over
+
+/// GL's half of [`hand_over_around`] alone: the ids it just drew, and the surface once it has
+/// had it, released to Vulkan, whose work comes later, through [`hand_over_released`] (chapter
+/// 13 draws the next frame's ids before it waits for this frame's trace).
+pub fn release_to_vulkan(apis: Apis, targets: &Targets) {
+    traced(targets, |images| crate::rt::ao::release_to_vulkan(apis, images));
+}
+
+/// The rest of [`hand_over_around`], once GL has released the images ([`release_to_vulkan`]).
+pub fn hand_over_released(
+    apis: Apis,
+    targets: &Targets,
+    timestamps: Option<&Timestamps>,
+    work: impl FnOnce(vk::CommandBuffer),
+) -> Result<()> {
+    traced(targets, |images| crate::rt::ao::hand_over_released(apis, images, timestamps, || {}, work))?;
+    targets.gl_has_surface.set(true);
+    Ok(())
+}
 
 #[cfg(test)]
 mod tests {
