@@ -1,5 +1,6 @@
 //! One frame of chapter 13, drawn by either method: the moving instance and its TLAS update,
-//! GL's ids, the rays (reused or all new), chapter 12's composite and overlays, each timed.
+//! GL's ids, the rays (reused or all new), chapter 12's composite and overlays, each timed; and,
+//! where nothing is read back before the next frame, that frame's ids, drawn early.
 
 use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
 use crate::path::Path;
