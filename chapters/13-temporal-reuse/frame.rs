@@ -190,7 +190,6 @@ impl Passes<'_> {
         }
         stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 3);
         clock.gl.end_frame(g, &mut clock.times);
-        // ANCHOR: ahead
         if next && self.ids_ahead && matches!(drawn, Drawn::Temporal(_)) {
             // The next frame's ids now, before the CPU waits for this frame's trace: GL draws
             // them right after this composite, however long the CPU takes to wake up. The
@@ -206,7 +205,6 @@ impl Passes<'_> {
             clock.ids_ahead = Some(frame + 1);
             clock.frames_drawn_ahead += 1;
         }
-        // ANCHOR_END: ahead
         clock.times.frame_done();
         Ok(camera)
     }
@@ -229,7 +227,8 @@ impl Passes<'_> {
     }
     // ANCHOR_END: place
 
-    /// GL's ids of frame `frame`, timed, and a fence after them (`Clock::wait_for_ids`).
+    /// GL's ids of frame `frame`, timed, and with `--next-ids early` a fence after them, for the
+    /// next ids drawn early to wait on (`Clock::wait_for_ids`).
     fn draw_ids(&self, sized: &Sized, frame: u32, camera: &Camera, clock: &mut Clock) -> Result<()> {
         let g = &self.apis.gl.gl;
         let slot = clock.timeline.as_ref().and_then(|(t, frames)| t.slot(frame, *frames));
@@ -237,8 +236,10 @@ impl Passes<'_> {
         stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 0);
         clock.gl.time(g, "visibility", || self.visibility.draw(g, targets, self.scene, self.ids, camera))?;
         stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 1);
-        let fence = create(g, "glFenceSync after GL's ids", |g| unsafe { g.fence_sync(glow::SYNC_GPU_COMMANDS_COMPLETE, 0) })?;
-        clock.ids_done = Some(fence);
+        if self.ids_ahead {
+            let fence = create(g, "glFenceSync after GL's ids", |g| unsafe { g.fence_sync(glow::SYNC_GPU_COMMANDS_COMPLETE, 0) })?;
+            clock.ids_done = Some(fence);
+        }
         Ok(())
     }
 }
