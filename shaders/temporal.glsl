@@ -260,15 +260,10 @@ vec2 plan(Cameras c, PixelHit h, ivec2 pixel, ivec2 size, out uint samples) {
     return kept;
 }
 
-// Lists `pixel` for the launch that traces: at the front if it remembers nothing, else at the
-// back. Its texels are stored already, with what it remembers alone.
-void list_for_rays(ivec2 pixel, PixelHit h, vec2 kept, ivec2 size) {
-    List list = List(rays.list);
-    bool fresh = kept.y == 0.0;
-    uint at = atomicAdd(list.counts[fresh ? FRONT : BACK], 1u);
-    if (!fresh) {
-        at = uint(size.x) * uint(size.y) - 1u - at;
-    }
-    list.pixels[at] = Listed(uint(pixel.x) | uint(pixel.y) << 16u, 0u, kept.x, kept.y,
-                             float[3](h.position.x, h.position.y, h.position.z), float[3](h.n.x, h.n.y, h.n.z));
+// Entry `at` of the list: `pixel`, its point and normal, and what it remembers. Its texels are
+// stored already, with that alone.
+void list_pixel(uint at, ivec2 pixel, PixelHit h, vec2 kept) {
+    List(rays.list).pixels[at] = Listed(uint(pixel.x) | uint(pixel.y) << 16u, 0u, kept.x, kept.y,
+                                        float[3](h.position.x, h.position.y, h.position.z),
+                                        float[3](h.n.x, h.n.y, h.n.z));
 }
