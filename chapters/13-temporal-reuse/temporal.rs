@@ -80,11 +80,6 @@ const LISTED: u32 = 2;
 const STAGES: vk::PipelineStageFlags =
     vk::PipelineStageFlags::from_raw(vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR.as_raw() | vk::PipelineStageFlags::COMPUTE_SHADER.as_raw());
 
-/// The launch that traces the listed pixels: the picture's width, a quarter of its height.
-fn listed_launch(extent: vk::Extent2D) -> vk::Extent2D {
-    vk::Extent2D { width: extent.width, height: extent.height.div_ceil(4) }
-}
-
 /// The shader's `accept` bits (`HAS_HISTORY`, then one per test).
 const HAS_HISTORY: u32 = 1;
 fn accept_bits(accept: &[Accept]) -> u32 {
@@ -405,14 +400,14 @@ impl TemporalTracer {
             let listed = vk::MemoryBarrier::default().src_access_mask(write).dst_access_mask(read | write);
             let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
             unsafe { vk.device.cmd_pipeline_barrier(cb, STAGES, rays, none, &[listed], &[], &[]) };
-            // One ray per invocation, in a launch a quarter of the picture's height, each
-            // invocation stepping on through the list by the launch's size: one invocation per
-            // pixel would start millions that find nothing to do where few pixels trace. The size
-            // is fixed by the picture, as the CPU never reads the counts:
-            // vkCmdTraceRaysIndirectKHR could size the launch from them, but it needs a feature
-            // (rayTracingPipelineTraceRaysIndirect) that not every device has.
+            // The picture's size again: one invocation per pixel for the pixels that trace a
+            // few rays, and one per ray for those that trace `fresh`. Where these are more than
+            // that (after a cut, every pixel that shows a surface is listed), each invocation
+            // steps on by the launch's size; where fewer, the invocations past them return at
+            // once. vkCmdTraceRaysIndirectKHR could size the launch from the counts, but it needs
+            // a feature (rayTracingPipelineTraceRaysIndirect) that not every device has.
             let second = TemporalRays { pass: LISTED, ..push };
-            self.pipeline.trace(vk, cb, push_bytes(&second), listed_launch(extent));
+            self.pipeline.trace(vk, cb, push_bytes(&second), extent);
         };
         // ANCHOR_END: passes
         // `released`: GL handed this frame's ids over when it drew them, at the end of the
