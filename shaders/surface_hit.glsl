@@ -1,7 +1,7 @@
-// Chapters 12 and 13: what a shader needs to rebuild a pixel's hit from the id GL drew there.
-// Included by visibility_ao.rgen, temporal_ao.rgen and temporal_list.comp (all need
-// GL_EXT_buffer_reference and GL_EXT_buffer_reference_uvec2); the two ray generation shaders
-// trace the occlusion with occlusion.glsl.
+// Chapters 12 and 13: what a ray generation shader needs to rebuild a pixel's hit from the id GL
+// drew there, and to trace its occlusion. Included by visibility_ao.rgen and temporal_ao.rgen
+// (both need GL_EXT_buffer_reference and GL_EXT_buffer_reference_uvec2, and declare the
+// acceleration structure `scene` and the payload `hit` before including it).
 
 // The scene's buffers, read through their device addresses: GL's vertex, index and instance
 // buffers are Vulkan buffers, so the ray tracer reads the very bytes GL rasterised.
@@ -188,3 +188,24 @@ PixelHit rebuild_hit(Meshes meshes, uint mesh_count, uvec2 instances, uint id, i
     return h;
 }
 // ANCHOR_END: rebuild
+
+// `samples` occlusion rays from `origin` over the hemisphere about `n`, cosine-weighted, taking
+// the R2 points [first, first + samples) of the sequence turned by `rotation`, each moved by
+// `jitter`; returns how many found an occluder within `radius`.
+uint occluded_rays(vec3 origin, vec3 n, float radius, uint first, uint samples,
+                   uvec2 rotation, vec2 jitter) {
+    vec3 t, b;
+    basis(n, t, b);
+    uint flags = gl_RayFlagsOpaqueEXT | gl_RayFlagsTerminateOnFirstHitEXT | gl_RayFlagsSkipClosestHitShaderEXT;
+    uint hits = 0u;
+    for (uint s = 0u; s < samples; s++) {
+        vec2 r = fract(r2(first + s, rotation) + jitter);
+        float radial = sqrt(r.x);
+        float phi = 6.28318530718 * r.y;
+        vec3 dir = t * (radial * cos(phi)) + b * (radial * sin(phi)) + n * sqrt(max(0.0, 1.0 - r.x));
+        hit = 1u; // "occluded" until the miss shader says otherwise
+        traceRayEXT(scene, flags, 0xFF, 0, 0, 0, origin, 0.0, dir, radius, 0);
+        hits += hit;
+    }
+    return hits;
+}

@@ -797,30 +797,27 @@ fn ch13_temporal_reuse_orbit_with_a_cut() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
-/// `--passes listed` reprojects in a compute pass and traces the pixels it lists in one launch;
-/// `packed` traces the pixels with nothing remembered in a second launch, listed by the first;
-/// `inline` traces every pixel's rays in the one launch. The same rays from the same points of
-/// the sequence: the same pictures, byte for byte, along a path whose cut leaves every pixel
-/// with nothing remembered.
+/// `--fresh-pass packed` traces the pixels with nothing remembered in a second launch, listed by
+/// the first; `inline` traces them in the one launch, beside their neighbours. The same rays from
+/// the same points of the sequence: the same pictures, byte for byte, along a path whose cut
+/// leaves every pixel with nothing remembered.
 #[test]
-fn ch13_listed_and_packed_passes_draw_what_inline_draws() {
-    let run = |passes| {
+fn ch13_packed_fresh_pass_draws_what_inline_draws() {
+    let run = |pass| {
         let mut args = CH13.to_vec();
-        args.extend(["--frames", "8", "--passes", passes]);
+        args.extend(["--frames", "8", "--fresh-pass", pass]);
         run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[])
     };
-    let runs = [run("listed"), run("packed"), run("inline")];
-    let reports = runs.each_ref().map(|run| run.succeeded());
-    assert_eq!(reports.map(|r| r["passes"].clone()), ["listed", "packed", "inline"]);
-    let read = |run: &harness::Run, name| {
-        let path = run.out_dir.path().join(name);
-        std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-    };
-    for (k, passes) in ["listed", "packed"].into_iter().enumerate() {
-        assert_eq!(reports[k]["ao_mean"], reports[2]["ao_mean"], "--passes {passes}");
-        for name in ["13-temporal-reuse.png", "13-temporal-reuse-ao.png"] {
-            assert!(read(&runs[k], name) == read(&runs[2], name), "{name} differs between --passes {passes} and inline");
-        }
+    let (packed, inline) = (run("packed"), run("inline"));
+    let reports = [packed.succeeded(), inline.succeeded()];
+    assert_eq!(reports.map(|r| r["fresh_pass"].clone()), ["packed", "inline"]);
+    assert_eq!(reports[0]["ao_mean"], reports[1]["ao_mean"]);
+    for name in ["13-temporal-reuse.png", "13-temporal-reuse-ao.png"] {
+        let read = |run: &harness::Run| {
+            let path = run.out_dir.path().join(name);
+            std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        };
+        assert!(read(&packed) == read(&inline), "{name} differs between --fresh-pass packed and inline");
     }
 }
 

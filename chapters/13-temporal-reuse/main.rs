@@ -82,7 +82,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
     }
     report.set("path", args.path);
-    report.set("passes", args.passes);
+    report.set("fresh_pass", args.fresh_pass);
     report.set("next_ids", args.next_ids);
     report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
 
@@ -117,7 +117,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let targets = Targets::new(&vk, &gl_context, &handoff, size.extent())?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
     let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
-    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets, args.passes)?;
+    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets, args.fresh_pass)?;
     let mut sized = Sized { targets, fresh, temporal };
     let composite = ComputeComposite::new(gl)?;
     let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;

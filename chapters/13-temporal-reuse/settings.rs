@@ -41,13 +41,12 @@ pub struct Args {
     /// chapter 08's very rays).
     #[arg(long, value_enum, default_value = "tile4x4")]
     pub pattern: Pattern,
-    /// How the frame's rays are launched: `listed`, a compute pass reprojects every pixel and
-    /// lists those that trace, for one ray launch that only traces, one ray per invocation;
-    /// `packed`, one ray launch does it all but for the pixels with nothing remembered, which it
-    /// lists for a second; `inline`, one ray launch does it all. The same rays every way, so the
-    /// same picture.
-    #[arg(long, value_enum, default_value = "listed")]
-    pub passes: Passes,
+    /// Where a pixel with nothing remembered traces its `--fresh` rays: `packed`, in a second
+    /// launch, one ray per invocation, over the pixels the first listed; `inline`, in the one
+    /// launch, where its warp waits for them while its neighbours trace a few. The same rays
+    /// either way, so the same picture.
+    #[arg(long, value_enum, default_value = "packed")]
+    pub fresh_pass: FreshPass,
     /// When GL draws the next frame's ids: `early`, at the end of this frame, before the CPU
     /// waits for this frame's trace, so that the GPU never waits for the CPU; `late`, after that
     /// wait, as chapter 12 does. The same pictures either way.
@@ -135,16 +134,13 @@ pub enum Pattern {
     PerPixel,
 }
 
-/// How the frame's rays are launched (`--passes`).
+/// Where the rays of a pixel with nothing remembered are traced (`--fresh-pass`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum Passes {
-    /// A compute pass lists the pixels that trace; one ray launch traces them.
-    Listed,
-    /// One ray launch traces the pixels that remember something and lists the others for a
-    /// second.
+pub enum FreshPass {
+    /// In a second launch, one ray per invocation, over the pixels the first listed.
     Packed,
-    /// One ray launch, every pixel its own rays.
+    /// In the one launch, beside the pixels that trace a few.
     Inline,
 }
 

@@ -1,15 +1,13 @@
-//! Chapter 13's Vulkan side: the compute pass that reuses the previous frame's occlusion and
-//! lists the pixels that trace, the ray tracing pipeline that traces them, the two history
-//! images they read and write in turn, the cameras and previous transforms they reproject with,
-//! and one frame's work between chapter 12's hand-overs.
+//! Chapter 13's Vulkan side: the ray tracing pipeline that reuses the previous frame's
+//! occlusion, the two history images it reads and writes in turn, the cameras and previous
+//! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
 
-use crate::settings::{Accept, Args, Passes};
+use crate::settings::{Accept, Args, FreshPass};
 use common::frame::fast::trace::{hand_over_around, hand_over_released};
 use common::frame::fast::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
-use common::base::compute::ComputePipeline;
 use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
 use common::clocks::timestamps::Timestamps;
 use common::interop::handoff::Apis;
@@ -20,13 +18,11 @@ use common::scene::Camera;
 use gpu_allocator::MemoryLocation;
 
 const RAYGEN: &[u8] = include_bytes!("../../shaders/temporal_ao.rgen.spv");
-const LISTER: &[u8] = include_bytes!("../../shaders/temporal_list.comp.spv");
 const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 const HISTORY_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
 
 // ANCHOR: push
-/// The push constants of `shaders/temporal_ao.rgen` and `shaders/temporal_list.comp` (std430,
-/// 112 bytes).
+/// The push constants of `shaders/temporal_ao.rgen` (std430, 112 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct TemporalRays {
@@ -52,8 +48,8 @@ pub struct TemporalRays {
     pub near_motion_cap: u32,
     /// Which launch this is: `INLINE`, `LISTING` or `LISTED`.
     pub pass: u32,
-    /// The device address of the list of pixels that trace.
-    pub list: u64,
+    /// The device address of the list of fresh pixels.
+    pub fresh_pixels: u64,
 }
 
 /// The shader's `Cameras` (std430, 256 bytes): this frame's and the previous frame's.
@@ -70,15 +66,11 @@ struct Cameras {
 }
 // ANCHOR_END: push
 
-/// The ray generation shader's `pass`: the one launch of `--passes inline`, the first of
-/// `packed`, or the last of `packed` and `listed`.
+/// The shader's `pass`: the one launch of `--fresh-pass inline`, or the first or second of
+/// `packed`.
 const INLINE: u32 = 0;
 const LISTING: u32 = 1;
 const LISTED: u32 = 2;
-
-/// The stages of the frame's passes: the ray launches and the compute pass that lists.
-const STAGES: vk::PipelineStageFlags =
-    vk::PipelineStageFlags::from_raw(vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR.as_raw() | vk::PipelineStageFlags::COMPUTE_SHADER.as_raw());
 
 /// The shader's `accept` bits (`HAS_HISTORY`, then one per test).
 const HAS_HISTORY: u32 = 1;
@@ -107,8 +99,8 @@ pub struct Budget {
     pub per_pixel: bool,
     /// The most rays a pixel remembers near what moved (`--near-motion-cap`).
     pub near_motion_cap: u32,
-    /// How the rays are launched (`--passes`).
-    pub passes: Passes,
+    /// Where a pixel with nothing remembered traces (`--fresh-pass`).
+    pub fresh_pass: FreshPass,
 }
 
 impl Budget {
@@ -116,7 +108,7 @@ impl Budget {
         let (samples, fresh) = if radius > 0.0 { (args.samples, args.fresh) } else { (0, 0) };
         let (cap, settled_every, accept) = (args.cap, args.settled_every, accept_bits(&args.accept));
         let per_pixel = args.pattern == crate::settings::Pattern::PerPixel;
-        let (near_motion_cap, passes) = (args.near_motion_cap, args.passes);
+        let (near_motion_cap, fresh_pass) = (args.near_motion_cap, args.fresh_pass);
         Budget {
             samples,
             fresh,
@@ -127,22 +119,20 @@ impl Budget {
             scene_scale,
             per_pixel,
             near_motion_cap,
-            passes,
+            fresh_pass,
         }
     }
 }
 
-/// The pipelines, their two history images, the list of pixels that trace and the buffers they
-/// reproject with. Dropped, the pipelines go first, then the images and buffers; the GPU must be
-/// done with all of them.
+/// The pipeline, its two history images, the list of pixels with nothing remembered and the
+/// buffers it reprojects with. Dropped, the pipeline goes first, then the images and buffers; the
+/// GPU must be done with all of them.
 pub struct TemporalTracer {
     pipeline: RayPipeline,
-    /// The compute pass that reprojects and lists (`--passes listed` only).
-    lister: Option<ComputePipeline>,
     history: [StorageImage; 2],
-    /// The pixels that trace, listed by the first pass for the ray launch after it: two counts,
-    /// then room for every pixel of the picture. Made for `--passes listed` and `packed`.
-    list: Option<DeviceBuffer>,
+    /// The pixels with nothing remembered, listed by the first launch for the second to trace:
+    /// a count, then room for every pixel of the picture. Made for `--fresh-pass packed` only.
+    fresh_pixels: Option<DeviceBuffer>,
     cameras: DeviceBuffer,
     /// Three copies of the shared instance buffer, which only the rays read: frame k's rays take
     /// copy k % 3 as this frame's transforms and copy (k + 2) % 3 as the previous frame's. Three,
@@ -167,7 +157,7 @@ impl TemporalTracer {
         shared: &RayTracedScene,
         meshes: (u64, u32),
         targets: &Targets,
-        passes: Passes,
+        fresh_pass: FreshPass,
     ) -> Result<Self> {
         // ANCHOR: bindings
         let binding = |binding, ty| {
@@ -190,16 +180,10 @@ impl TemporalTracer {
         let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
         let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<TemporalRays>() as u32)?;
         pipeline.write_tlas(vk, 0, *shared.structures.tlas.handle);
-        // The same push constants, and images at bindings 0-3 where the ray tracing pipeline has
-        // them at 1-4 (its 0 is the scene).
-        let lister = match passes {
-            Passes::Listed => Some(ComputePipeline::new(vk, LISTER, 4, size_of::<TemporalRays>() as u32)?),
-            Passes::Packed | Passes::Inline => None,
-        };
         let history = Self::history_images(vk, allocator, targets.extent)?;
-        let list = match passes {
-            Passes::Listed | Passes::Packed => Some(Self::list(vk, allocator, targets.extent)?),
-            Passes::Inline => None,
+        let fresh_pixels = match fresh_pass {
+            FreshPass::Packed => Some(Self::fresh_list(vk, allocator, targets.extent)?),
+            FreshPass::Inline => None,
         };
         let host = |name, size| BufferDesc {
             name,
@@ -220,9 +204,8 @@ impl TemporalTracer {
         let transforms = [copy()?, copy()?, copy()?];
         let tracer = TemporalTracer {
             pipeline,
-            lister,
             history,
-            list,
+            fresh_pixels,
             cameras,
             transforms,
             written: 0,
@@ -245,15 +228,19 @@ impl TemporalTracer {
         Ok([first, StorageImage::new(vk, allocator, HISTORY_FORMAT, usage, extent)?])
     }
 
-    /// The list of pixels that trace for a picture of `extent`: two counts, then room for every
-    /// pixel (after a cut, every pixel that shows a surface is listed), 40 bytes each (the
-    /// shader's `Listed`). Only the shaders read and write it, by its address, but for its
-    /// counts, which `vkCmdFillBuffer` (a transfer) sets to 0.
-    fn list(vk: &VulkanContext, allocator: &GpuAllocator, extent: vk::Extent2D) -> Result<DeviceBuffer> {
-        let size = 8 + 40 * extent.width as u64 * extent.height as u64;
+    /// The list of fresh pixels for a picture of `extent`: a count (padded to 8 bytes), then
+    /// room for every pixel (after a cut, every pixel that shows a surface is one), 8 bytes each:
+    /// where it is and its tally. Only the ray generation shader reads and writes it, by its
+    /// address, but for its count, which `vkCmdFillBuffer` (a transfer) sets to 0.
+    fn fresh_list(
+        vk: &VulkanContext,
+        allocator: &GpuAllocator,
+        extent: vk::Extent2D,
+    ) -> Result<DeviceBuffer> {
+        let size = 8 + 8 * extent.width as u64 * extent.height as u64;
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_DST;
         let location = MemoryLocation::GpuOnly;
-        DeviceBuffer::new(vk, allocator, BufferDesc { name: "pixels that trace", size, usage, location })
+        DeviceBuffer::new(vk, allocator, BufferDesc { name: "fresh pixels", size, usage, location })
     }
 
     /// The descriptors at this size's images, the history read and written as `written` says.
@@ -262,18 +249,14 @@ impl TemporalTracer {
         self.pipeline.write_storage_image(vk, 2, *targets.surface.view);
         self.pipeline.write_storage_image(vk, 3, *self.history[1 - self.written].view);
         self.pipeline.write_storage_image(vk, 4, *self.history[self.written].view);
-        if let Some(lister) = &self.lister {
-            let (read, written) = (*self.history[1 - self.written].view, *self.history[self.written].view);
-            lister.write_images(vk, &[*targets.visibility.view, *targets.surface.view, read, written]);
-        }
     }
 
     /// New images and a new list of the new size: nothing is remembered. The GPU must be done
     /// with the old.
     pub fn resized(&mut self, vk: &VulkanContext, allocator: &GpuAllocator, targets: &Targets) -> Result<()> {
         self.history = Self::history_images(vk, allocator, targets.extent)?;
-        if self.list.is_some() {
-            self.list = Some(Self::list(vk, allocator, targets.extent)?);
+        if self.fresh_pixels.is_some() {
+            self.fresh_pixels = Some(Self::fresh_list(vk, allocator, targets.extent)?);
         }
         (self.written, self.remembers, self.images_used) = (0, false, false);
         self.point_at(vk, targets);
@@ -294,8 +277,8 @@ impl TemporalTracer {
 
     // ANCHOR: frame
     /// One frame: the cameras written, then, between chapter 12's hand-overs, the history made
-    /// visible to this frame's passes and the passes recorded (`--passes`: the compute pass that
-    /// lists and the launch that traces the listed, by default); then the two history images
+    /// visible to this frame's rays and the rays traced (in two launches with `--fresh-pass
+    /// packed`, the pixels with nothing remembered in the second); then the two history images
     /// swap. The caller waits for the previous frame's Vulkan work first (`Passes::draw` does).
     pub fn trace(
         &mut self,
@@ -324,11 +307,10 @@ impl TemporalTracer {
         };
         let mapped = self.cameras.allocation.mapped_slice_mut().context("cameras unmapped")?;
         mapped[..size_of::<Cameras>()].copy_from_slice(common::scene::gbuffer::as_bytes(&[cameras]));
-        let (list, lister) = match (budget.passes, &self.list, &self.lister) {
-            (Passes::Listed, Some(list), Some(lister)) => (Some(list), Some(lister)),
-            (Passes::Packed, Some(list), _) => (Some(list), None),
-            (Passes::Inline, _, _) => (None, None),
-            (passes, ..) => anyhow::bail!("--passes {passes:?}: the tracer was made for other passes"),
+        let list = match (budget.fresh_pass, &self.fresh_pixels) {
+            (FreshPass::Packed, Some(list)) => Some(list),
+            (FreshPass::Packed, None) => anyhow::bail!("--fresh-pass packed: the tracer was made without its list"),
+            (FreshPass::Inline, _) => None,
         };
         let push = TemporalRays {
             cameras: self.cameras.address,
@@ -351,65 +333,57 @@ impl TemporalTracer {
             moved: moved.map_or([0.0; 4], |(centre, reach)| centre.extend(reach + budget.radius).to_array()),
             near_motion_cap: budget.near_motion_cap,
             pass: if list.is_some() { LISTING } else { INLINE },
-            list: list.map_or(0, |list| list.address),
+            fresh_pixels: list.map_or(0, |list| list.address),
         };
         let history = self.history_barriers();
-        let extent = targets.extent;
-        // ANCHOR: passes
         let work = |cb| {
+            let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
             let none = vk::DependencyFlags::empty();
-            let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
-            // The previous frame wrote the history image read now and read the one written now:
-            // its writes must be visible, and its reads done, before this frame's passes start.
-            // With the ray tracing stage among its sources, the same barrier carries on the
-            // hand-over's, which took the ids and the surface from GL for that stage alone, to
-            // the compute pass.
-            unsafe { vk.device.cmd_pipeline_barrier(cb, STAGES, STAGES, none, &history.0, &[], &history.1) };
+            // The previous frame wrote the image read now and read the image written now: its
+            // writes must be visible, and its reads done, before these rays start.
+            unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &history.0, &[], &history.1) };
             let Some(list) = list.map(|list| *list.buffer) else {
-                self.pipeline.trace(vk, cb, push_bytes(&push), extent);
+                self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
                 return;
             };
-            // The list starts empty: its two counts (the first 8 bytes) set to 0 by a transfer.
+            // The list starts empty: its count (the first 4 bytes) set to 0 by a transfer.
+            let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
             let (transfer, filled) = (vk::PipelineStageFlags::TRANSFER, vk::AccessFlags::TRANSFER_WRITE);
-            let counts = |from, to| {
+            let count = |from, to| {
                 vk::BufferMemoryBarrier::default()
                     .src_access_mask(from)
                     .dst_access_mask(to)
                     .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
                     .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
                     .buffer(list)
-                    .size(8)
+                    .size(4)
             };
             unsafe {
-                // The previous frame's passes read the counts and added to them: done, and their
-                // writes out of the way, before the fill writes them.
-                vk.device.cmd_pipeline_barrier(cb, STAGES, transfer, none, &[], &[counts(write, filled)], &[]);
-                vk.device.cmd_fill_buffer(cb, list, 0, 8, 0);
-                // The zeros visible to the first pass, whose atomicAdd reads a count and writes it.
-                vk.device.cmd_pipeline_barrier(cb, transfer, STAGES, none, &[], &[counts(filled, read | write)], &[]);
+                // The previous frame's launches read the count and added to it: done, and their
+                // writes out of the way, before the fill writes it.
+                vk.device.cmd_pipeline_barrier(cb, stage, transfer, none, &[], &[count(write, filled)], &[]);
+                vk.device.cmd_fill_buffer(cb, list, 0, 4, 0);
+                // The 0 visible to the first launch, whose atomicAdd reads the count and writes it.
+                let zeroed = count(filled, read | write);
+                vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[zeroed], &[]);
             }
-            // The first pass stores every pixel's texels with what it remembers, and lists the
-            // pixels that trace: `listed`, the compute pass, lists them all; `packed`, a launch of
-            // the ray tracing pipeline, traces those that remember something and lists the rest.
-            match lister {
-                Some(lister) => lister.dispatch(vk, cb, push_bytes(&push), extent),
-                None => self.pipeline.trace(vk, cb, push_bytes(&push), extent),
-            }
-            // Its writes visible to the launch that traces: the list, its counts and the tallies
-            // at 0, which it reads and adds to, and the texels, which it reads and writes again.
+            self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+            // The first launch's writes visible to the second: the list, its count and the
+            // tallies at 0, which it reads and adds to. And the texels the first wrote finished
+            // before the second writes others of the same two images: no texel is written twice,
+            // but tools that check hazards track an image whole.
             let listed = vk::MemoryBarrier::default().src_access_mask(write).dst_access_mask(read | write);
-            let rays = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
-            unsafe { vk.device.cmd_pipeline_barrier(cb, STAGES, rays, none, &[listed], &[], &[]) };
-            // The picture's size again: one invocation per pixel for the pixels that trace a
-            // few rays, and one per ray for those that trace `fresh`. Where these are more than
-            // that (after a cut, every pixel that shows a surface is listed), each invocation
-            // steps on by the launch's size; where fewer, the invocations past them return at
-            // once. vkCmdTraceRaysIndirectKHR could size the launch from the counts, but it needs
-            // a feature (rayTracingPipelineTraceRaysIndirect) that not every device has.
+            unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &[listed], &[], &[]) };
+            // The first launch's size again, one ray per invocation: a size the device is known
+            // to launch, and the picture's size, which the shader reads from the launch. Where
+            // the listed pixels have more rays than that (after a cut, every pixel that shows a
+            // surface is listed), each invocation steps on by the launch's size; where fewer,
+            // the invocations past them return at once. vkCmdTraceRaysIndirectKHR could size the
+            // launch from the count, but it needs a feature (rayTracingPipelineTraceRaysIndirect)
+            // that not every device has.
             let second = TemporalRays { pass: LISTED, ..push };
-            self.pipeline.trace(vk, cb, push_bytes(&second), extent);
+            self.pipeline.trace(vk, cb, push_bytes(&second), targets.extent);
         };
-        // ANCHOR_END: passes
         // `released`: GL handed this frame's ids over when it drew them, at the end of the
         // previous frame (`Passes::draw`).
         match released {
@@ -424,13 +398,16 @@ impl TemporalTracer {
     }
     // ANCHOR_END: frame
 
-    /// Before a frame: one global barrier, and the first time both images from undefined too.
+    /// Before a frame: the first time, both images from undefined; after, one global barrier.
     fn history_barriers(&self) -> (Vec<vk::MemoryBarrier<'static>>, Vec<vk::ImageMemoryBarrier<'static>>) {
         let (read, write) = (vk::AccessFlags::SHADER_READ, vk::AccessFlags::SHADER_WRITE);
-        let barrier = vk::MemoryBarrier::default().src_access_mask(write).dst_access_mask(read | write);
-        let general = vk::ImageLayout::GENERAL;
-        let first = self.history.iter().map(|h| first_use(*h.image, general, read | write));
-        (vec![barrier], if self.images_used { vec![] } else { first.collect() })
+        if self.images_used {
+            let barrier = vk::MemoryBarrier::default().src_access_mask(write).dst_access_mask(read | write);
+            (vec![barrier], vec![])
+        } else {
+            let general = vk::ImageLayout::GENERAL;
+            (vec![], self.history.iter().map(|h| first_use(*h.image, general, read | write)).collect())
+        }
     }
 
     /// The history the last frame wrote, read back (for the checks): per pixel the mean
@@ -444,7 +421,7 @@ impl TemporalTracer {
         let extent = last.extent;
         let bytes = extent.width as u64 * extent.height as u64 * 16;
         let host = HostBuffer::new(vk, bytes, vk::BufferUsageFlags::TRANSFER_DST)?;
-        let stage = STAGES; // the last texels written by either pass
+        let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
         let transfer = vk::PipelineStageFlags::TRANSFER;
         let none = vk::DependencyFlags::empty();
         let (general, source) = (vk::ImageLayout::GENERAL, vk::ImageLayout::TRANSFER_SRC_OPTIMAL);
@@ -492,7 +469,7 @@ mod tests {
     #[test]
     fn temporal_rays_match_the_glsl_block() {
         assert_layout!(TemporalRays is 112 bytes: radius at 32, samples at 44, accept at 64,
-            normal_tolerance at 72, moved at 80, near_motion_cap at 96, pass at 100, list at 104);
+            normal_tolerance at 72, moved at 80, near_motion_cap at 96, pass at 100, fresh_pixels at 104);
         assert_layout!(Cameras is 256 bytes: eye at 192);
     }
 }

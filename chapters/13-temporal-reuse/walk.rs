@@ -37,7 +37,7 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
     };
     let table = if args.compare { compared(chosen, budget) } else { vec![chosen] };
     // The chosen method walks last (a stable sort: the others keep their order). Its checks read
-    // the history and the surface back at the cut and at the end, and with `--passes packed`
+    // the history and the surface back at the cut and at the end, and with `--fresh-pass packed`
     // the walk after them ran 2 to 3 times slower for its first tens of frames on the H100 (the
     // deeper page). The table keeps the order of `table`.
     let mut methods = table.clone();
