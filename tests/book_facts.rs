@@ -884,7 +884,8 @@ fn includes() -> Vec<(String, usize, PathBuf, String)> {
     for file in harness::files_ending(&src, "md") {
         let name = file.strip_prefix(&src).unwrap().to_string_lossy().into_owned();
         for (number, line) in std::fs::read_to_string(&file).unwrap().lines().enumerate() {
-            let Some(target) = line.trim().strip_prefix("{{#include ").and_then(|t| t.strip_suffix("}}")) else {
+            let Some(target) = line.trim().strip_prefix("{{#include ").and_then(|t| t.strip_suffix("}}"))
+            else {
                 continue;
             };
             if let Some((path, text)) = included(&file, target.trim()) {
@@ -911,9 +912,8 @@ fn common_paths(text: &str) -> Vec<String> {
         if before.is_some_and(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/') {
             continue;
         }
-        let end = after
-            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == ':'))
-            .unwrap_or(after.len());
+        let end =
+            after.find(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == ':')).unwrap_or(after.len());
         let path = after[..end].trim_end_matches(':');
         if path != "common" {
             found.push(path.to_owned());
@@ -972,7 +972,9 @@ impl Module {
     /// A child module, public or not (for `use` paths inside the crate).
     fn child_any(&self, name: &str) -> Option<Module> {
         let declared = self.text.lines().map(str::trim).any(|l| {
-            l == format!("mod {name};") || l == format!("pub mod {name};") || l == format!("pub(crate) mod {name};")
+            l == format!("mod {name};")
+                || l == format!("pub mod {name};")
+                || l == format!("pub(crate) mod {name};")
         });
         if !declared {
             return None;
@@ -1006,9 +1008,13 @@ impl Module {
             return Some(Module::at(self.file.clone()));
         }
         for line in self.text.lines().map(str::trim) {
-            let Some(used) = line.strip_prefix("pub use ").and_then(|l| l.strip_suffix(';')) else { continue };
+            let Some(used) = line.strip_prefix("pub use ").and_then(|l| l.strip_suffix(';')) else {
+                continue;
+            };
             let (path, names): (&str, Vec<&str>) = match used.split_once("::{") {
-                Some((path, names)) => (path, names.trim_end_matches('}').split(',').map(str::trim).collect()),
+                Some((path, names)) => {
+                    (path, names.trim_end_matches('}').split(',').map(str::trim).collect())
+                }
                 None => match used.rsplit_once("::") {
                     Some((path, name)) => (path, vec![name]),
                     None => continue,
@@ -1104,7 +1110,8 @@ fn common_paths_the_book_and_comments_name_exist() {
         let name = file.strip_prefix(root()).unwrap().display().to_string();
         for (number, line) in text.lines().enumerate() {
             if let Some(comment) = comment_of(line) {
-                named.extend(common_paths(comment).into_iter().map(|p| (format!("{name}:{}", number + 1), p)));
+                named
+                    .extend(common_paths(comment).into_iter().map(|p| (format!("{name}:{}", number + 1), p)));
             }
         }
     }
@@ -1178,7 +1185,8 @@ fn file_name(span: &str) -> Option<&str> {
     };
     let (_, extension) = span.rsplit_once('.')?;
     let plain = span.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.' | '/'));
-    (plain && FILE_KINDS.contains(&extension) && !span.starts_with('.') && !span.contains("NN")).then_some(span)
+    (plain && FILE_KINDS.contains(&extension) && !span.starts_with('.') && !span.contains("NN"))
+        .then_some(span)
 }
 
 /// Does `name` name a file of the project? A path with a `/` is one relative to the root, to
@@ -1192,7 +1200,8 @@ fn file_exists(files: &[String], name: &str, folders: &[String]) -> bool {
     }
     files.iter().any(|f| {
         let (folder, file) = f.rsplit_once('/').unwrap_or(("", f));
-        file == name && (folders.is_empty() || folders.iter().any(|d| format!("{folder}/").starts_with(d.as_str())))
+        file == name
+            && (folders.is_empty() || folders.iter().any(|d| format!("{folder}/").starts_with(d.as_str())))
     })
 }
 
@@ -1204,8 +1213,10 @@ fn file_exists(files: &[String], name: &str, folders: &[String]) -> bool {
 fn files_the_book_names_exist() {
     let files = project_files();
     assert!(files.len() > 100, "only {} files found", files.len());
-    let shared: Vec<String> =
-        ["common/", "shaders/", "tests/", "xtask/", "book/", "assets/"].iter().map(|s| s.to_string()).collect();
+    let shared: Vec<String> = ["common/", "shaders/", "tests/", "xtask/", "book/", "assets/"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
     let mut errors = Vec::new();
     let mut checked = 0;
     for page in pages() {
@@ -1214,7 +1225,8 @@ fn files_the_book_names_exist() {
                 let mut folders = shared.clone();
                 folders.push(format!("chapters/{chapter}"));
                 // The folders of other chapters it builds from (`#[path = "../NN-slug/..."]`).
-                let own = std::fs::read_dir(root().join("chapters").join(chapter)).into_iter().flatten().flatten();
+                let own =
+                    std::fs::read_dir(root().join("chapters").join(chapter)).into_iter().flatten().flatten();
                 for file in own {
                     let text = std::fs::read_to_string(file.path()).unwrap_or_default();
                     for piece in text.split("#[path = \"../").skip(1) {
@@ -1236,11 +1248,15 @@ fn files_the_book_names_exist() {
     }
     for (page, line, file, text) in includes() {
         for comment in text.lines().filter_map(comment_of) {
-            let words = comment.split(|c: char| c.is_whitespace() || matches!(c, '`' | '(' | ')' | ',' | ';'));
+            let words =
+                comment.split(|c: char| c.is_whitespace() || matches!(c, '`' | '(' | ')' | ',' | ';'));
             for name in words.filter_map(file_name) {
                 checked += 1;
                 if !file_exists(&files, name, &[]) {
-                    errors.push(format!("{page}:{line}: the comment in {} names `{name}`: no such file", file.display()));
+                    errors.push(format!(
+                        "{page}:{line}: the comment in {} names `{name}`: no such file",
+                        file.display()
+                    ));
                 }
             }
         }
@@ -1251,8 +1267,9 @@ fn files_the_book_names_exist() {
 
 #[test]
 fn the_file_checker_catches_a_missing_file() {
-    let files: Vec<String> =
-        ["common/src/base/gl/mod.rs", "chapters/11-x/scene.rs", "book/src/images/a.png"].map(String::from).into();
+    let files: Vec<String> = ["common/src/base/gl/mod.rs", "chapters/11-x/scene.rs", "book/src/images/a.png"]
+        .map(String::from)
+        .into();
     assert!(file_exists(&files, "base/gl/mod.rs", &[]));
     assert!(!file_exists(&files, "gl.rs", &[]));
     assert!(file_exists(&files, "scene.rs", &[]));
@@ -1298,7 +1315,11 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
         Quoted { page: "performance.md", before: "| 2.50 / 8.99 | 9.67 / ", after: " |" },
         &[
             Quoted { page: "12-fast-frame.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" },
-            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08 (zero-copy) | 26.88 | 8.99 | ", after: " |" },
+            Quoted {
+                page: "12-fast-frame-deeper.md",
+                before: "| chapter 08 (zero-copy) | 26.88 | 8.99 | ",
+                after: " |",
+            },
         ],
     ),
     (
@@ -1307,7 +1328,11 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
         &[
             Quoted { page: "12-fast-frame.md", before: "08's frame takes ", after: " ms: " },
             Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08, zero-copy | ", after: " ms |" },
-            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08 (zero-copy) | ", after: " | 8.99" },
+            Quoted {
+                page: "12-fast-frame-deeper.md",
+                before: "| chapter 08 (zero-copy) | ",
+                after: " | 8.99",
+            },
         ],
     ),
     (
@@ -1317,12 +1342,20 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
     ),
     (
         "chapter 12's trace of the ceiling scene, 4K, 16 rays (bench, 2026-11-25)",
-        Quoted { page: "performance.md", before: "| ceiling | 3840×2160 | 12.76 ms | 3.06 ms | 1.71 / 6.83 | ", after: " / " },
+        Quoted {
+            page: "performance.md",
+            before: "| ceiling | 3840×2160 | 12.76 ms | 3.06 ms | 1.71 / 6.83 | ",
+            after: " / ",
+        },
         &[Quoted { page: "12-fast-frame.md", before: "trace takes ", after: " ms at 4K" }],
     ),
     (
         "a flat BLAS, per-pixel pattern, 16 rays, in bench's ablation (2026-11-25)",
-        Quoted { page: "12-fast-frame-deeper.md", before: "| + one flat BLAS | 12.93 | 2.50 | ", after: " |" },
+        Quoted {
+            page: "12-fast-frame-deeper.md",
+            before: "| + one flat BLAS | 12.93 | 2.50 | ",
+            after: " |",
+        },
         &[Quoted { page: "12-fast-frame.md", before: "10.97 → ", after: " ms" }],
     ),
     (
@@ -1332,13 +1365,25 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
     ),
     (
         "chapter 08's hand-over, 4K, 16 rays (first sweep, 2026-11-23)",
-        Quoted { page: "performance.md", before: "| zero-copy | default | 3840x2160 | 16 | 26.87 | 26.98 | 8.99 | ", after: " |" },
+        Quoted {
+            page: "performance.md",
+            before: "| zero-copy | default | 3840x2160 | 16 | 26.87 | 26.98 | 8.99 | ",
+            after: " |",
+        },
         &[Quoted { page: "performance.md", before: "**missed**: ", after: " ms in the first sweep" }],
     ),
     (
         "the best combination's frame, 4K, 16 rays (second run, 2026-11-23)",
-        Quoted { page: "performance.md", before: "| zero-copy | default | 3840x2160 | 16 | ", after: " | 25.07 |" },
-        &[Quoted { page: "performance.md", before: "26.9 ms, ", after: " ms with the pre-pass and a flat BLAS" }],
+        Quoted {
+            page: "performance.md",
+            before: "| zero-copy | default | 3840x2160 | 16 | ",
+            after: " | 25.07 |",
+        },
+        &[Quoted {
+            page: "performance.md",
+            before: "26.9 ms, ",
+            after: " ms with the pre-pass and a flat BLAS",
+        }],
     ),
 ];
 
@@ -1354,7 +1399,10 @@ fn a_measurement_quoted_twice_has_one_value() {
     let mut errors = Vec::new();
     for (what, source, quotes) in SAME_MEASUREMENT {
         let Some(value) = quoted(source) else {
-            errors.push(format!("{what}: {} no longer has `{}<n>{}`", source.page, source.before, source.after));
+            errors.push(format!(
+                "{what}: {} no longer has `{}<n>{}`",
+                source.page, source.before, source.after
+            ));
             continue;
         };
         for quote in quotes.iter() {
@@ -1392,10 +1440,12 @@ fn rounding_is_the_pages() {
 /// (`rt::ao`, `common::rt::ao`). From chapter 04 on, a lesson's calls live where the chapters
 /// after it call them, in `common`; the page shows them there, and must say where that is.
 fn unnamed_common_listings(page: &str) -> Vec<String> {
-    let prose: String = page.lines().filter(|l| !l.trim_start().starts_with("{{#include")).collect::<Vec<_>>().join("\n");
+    let prose: String =
+        page.lines().filter(|l| !l.trim_start().starts_with("{{#include")).collect::<Vec<_>>().join("\n");
     let mut unnamed = Vec::new();
     for line in page.lines() {
-        let Some(target) = line.trim().strip_prefix("{{#include ../../").and_then(|t| t.strip_suffix("}}")) else {
+        let Some(target) = line.trim().strip_prefix("{{#include ../../").and_then(|t| t.strip_suffix("}}"))
+        else {
             continue;
         };
         let file = target.split(':').next().unwrap_or(target);
@@ -1403,13 +1453,16 @@ fn unnamed_common_listings(page: &str) -> Vec<String> {
         let module = inside.trim_end_matches(".rs").trim_end_matches("/mod").replace('/', "::");
         let mut folders = Vec::new();
         let mut folder = std::path::Path::new(file).parent();
-        while let Some(f) = folder.filter(|f| f.starts_with("common/src") && *f != std::path::Path::new("common/src")) {
+        while let Some(f) =
+            folder.filter(|f| f.starts_with("common/src") && *f != std::path::Path::new("common/src"))
+        {
             folders.push(format!("{}/", f.display()));
             folder = f.parent();
         }
         let named = prose.contains(file)
             || folders.iter().any(|f| prose.contains(f.as_str()))
-            || prose.contains(&format!("`{module}")) || prose.contains(&format!("common::{module}"));
+            || prose.contains(&format!("`{module}"))
+            || prose.contains(&format!("common::{module}"));
         if !named && !unnamed.contains(&file.to_owned()) {
             unnamed.push(file.to_owned());
         }
@@ -1432,9 +1485,17 @@ fn each_chapter_page_names_the_common_files_it_shows() {
 #[test]
 fn the_common_file_check_catches_an_unnamed_file() {
     let include = "{{#include ../../common/src/rt/ao.rs:record}}";
-    assert_eq!(unnamed_common_listings(&format!("Some prose.\n\n```rust\n{include}\n```\n")), ["common/src/rt/ao.rs"]);
-    for named in ["[`common/src/rt/ao.rs`](x)", "`common/src/rt/` holds it", "`rt::ao::record`", "`common::rt::ao`"] {
-        assert!(unnamed_common_listings(&format!("{named}\n\n```rust\n{include}\n```\n")).is_empty(), "{named}");
+    assert_eq!(
+        unnamed_common_listings(&format!("Some prose.\n\n```rust\n{include}\n```\n")),
+        ["common/src/rt/ao.rs"]
+    );
+    for named in
+        ["[`common/src/rt/ao.rs`](x)", "`common/src/rt/` holds it", "`rt::ao::record`", "`common::rt::ao`"]
+    {
+        assert!(
+            unnamed_common_listings(&format!("{named}\n\n```rust\n{include}\n```\n")).is_empty(),
+            "{named}"
+        );
     }
     // The include line itself does not count as naming the file.
     assert_eq!(unnamed_common_listings(include).len(), 1);

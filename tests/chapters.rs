@@ -3,7 +3,9 @@
 
 mod harness;
 
-use harness::{DEFAULT_TOLERANCE, assert_images_match, assert_report_snapshot, run_chapter, run_chapter_from};
+use harness::{
+    DEFAULT_TOLERANCE, assert_images_match, assert_report_snapshot, run_chapter, run_chapter_from,
+};
 
 const RAY_TRACING_EXTENSIONS: [&str; 3] =
     ["VK_KHR_acceleration_structure", "VK_KHR_ray_tracing_pipeline", "VK_KHR_deferred_host_operations"];
@@ -590,20 +592,23 @@ fn ch09_default_model_is_found_from_any_directory() {
 /// from elsewhere would not find it: a default asset comes from `scene::default_asset`.
 #[test]
 fn no_binary_looks_for_assets_in_the_current_directory() {
-    harness::assert_no_source_has("assets named from the current directory (use scene::default_asset)", |name, text| {
-        // A unit test's paths are the test's own business.
-        let code_only = text.split("#[cfg(test)]").next().unwrap_or_default();
-        let mut found = Vec::new();
-        for (number, line) in code_only.lines().enumerate() {
-            let code = line.trim_start();
-            // Built-in files are no look-up: `include_str!` builds one in, `embedded` names it.
-            let built_in = code.contains("include_str!") || code.starts_with("embedded(");
-            if !code.starts_with("//") && !built_in && code.contains("\"assets/") {
-                found.push(format!("{name}:{}: {code}", number + 1));
+    harness::assert_no_source_has(
+        "assets named from the current directory (use scene::default_asset)",
+        |name, text| {
+            // A unit test's paths are the test's own business.
+            let code_only = text.split("#[cfg(test)]").next().unwrap_or_default();
+            let mut found = Vec::new();
+            for (number, line) in code_only.lines().enumerate() {
+                let code = line.trim_start();
+                // Built-in files are no look-up: `include_str!` builds one in, `embedded` names it.
+                let built_in = code.contains("include_str!") || code.starts_with("embedded(");
+                if !code.starts_with("//") && !built_in && code.contains("\"assets/") {
+                    found.push(format!("{name}:{}: {code}", number + 1));
+                }
             }
-        }
-        found
-    });
+            found
+        },
+    );
 }
 
 #[test]
@@ -792,7 +797,10 @@ fn ch13_temporal_reuse_orbit_with_a_cut() {
     let report = run.succeeded();
     assert_eq!(enabled_extensions(report), RAY_TRACING_EXTENSIONS_WITH_MEMORY);
     assert_eq!(report["checks"]["no_history_kept_across_the_cut_from_unseen_surfaces"], true);
-    assert!(report["cut_pixels_kept"].as_u64().unwrap() > 0, "some of the view is seen before and after the cut");
+    assert!(
+        report["cut_pixels_kept"].as_u64().unwrap() > 0,
+        "some of the view is seen before and after the cut"
+    );
     assert_report_snapshot("13-temporal-reuse", report);
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
@@ -825,7 +833,8 @@ fn ch13_packed_fresh_pass_draws_what_inline_draws() {
 /// same rays chapter 08 traces: the two agree pixel by pixel.
 #[test]
 fn ch13_still_camera_traces_chapter_08s_rays() {
-    let still = ["--size", "64x48", "--frames", "8", "--path", "still", "--mover", "none", "--instances", "400"];
+    let still =
+        ["--size", "64x48", "--frames", "8", "--path", "still", "--mover", "none", "--instances", "400"];
     let mut args = still.to_vec();
     args.extend(["--pattern", "per-pixel"]);
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
@@ -864,7 +873,8 @@ fn ch13_pan_keeps_what_a_new_trace_finds() {
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(report["checks"]["pan_history_agrees_with_a_new_trace"], true);
-    let (kept, covered) = (report["pan_pixels_kept"].as_u64().unwrap(), report["pan_pixels_covered"].as_u64().unwrap());
+    let (kept, covered) =
+        (report["pan_pixels_kept"].as_u64().unwrap(), report["pan_pixels_covered"].as_u64().unwrap());
     assert!(kept * 4 > covered * 3, "most of the view is kept: {kept} of {covered} pixels");
 }
 
@@ -916,8 +926,11 @@ fn ch13_resizing_leaks_nothing() {
 fn ch13_in_a_window_under_xvfb() {
     let Some(xvfb) = harness::Xvfb::start("ch13_in_a_window_under_xvfb") else { return };
     let args = ["--size", "96x72", "--frames", "3", "--instances", "100"];
-    let run =
-        harness::run_chapter_with(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[("DISPLAY", &xvfb.display)]);
+    let run = harness::run_chapter_with(
+        env!("CARGO_BIN_EXE_13-temporal-reuse"),
+        &args,
+        &[("DISPLAY", &xvfb.display)],
+    );
     drop(xvfb);
     let report = run.succeeded();
     assert_eq!(report["window"], true, "{}", run.stderr);
@@ -957,7 +970,11 @@ fn ch13_refuses_a_comparison_that_resizes() {
     let args = ["--size", "64x48", "--compare", "--resize-every", "2"];
     let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
-    assert!(run.stderr.contains("--compare walks every method at one size: leave out --resize-every"), "{}", run.stderr);
+    assert!(
+        run.stderr.contains("--compare walks every method at one size: leave out --resize-every"),
+        "{}",
+        run.stderr
+    );
     assert!(!run.stderr.contains("vulkan: using"), "refused before the device: {}", run.stderr);
 }
 
@@ -984,7 +1001,15 @@ fn ch13_compare_sums_up_each_view_and_takes_times_frame_by_frame() {
     assert!(table.contains("| frame ms (wall), before the cut | from the cut on |"), "{table}");
     let csv = timed.out_dir.path().join("compare.csv");
     let mut args = CH13.to_vec();
-    args.extend(["--frames", "6", "--compare", "--error-against", "16", "--times-from", csv.to_str().unwrap()]);
+    args.extend([
+        "--frames",
+        "6",
+        "--compare",
+        "--error-against",
+        "16",
+        "--times-from",
+        csv.to_str().unwrap(),
+    ]);
     let measured = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
     let report = measured.succeeded();
     for (theirs, ours) in walks.iter().zip(report["walks"].as_array().unwrap()) {
@@ -995,7 +1020,10 @@ fn ch13_compare_sums_up_each_view_and_takes_times_frame_by_frame() {
             let close = |k: &str| (a[k].as_f64().unwrap() - b[k].as_f64().unwrap()).abs() < 1e-5;
             assert!(close("wall_ms") && close("ao_ms"), "frame {}: {a} against {b}", a["frame"]);
         }
-        let (a, b) = (theirs["after_cut"]["frame_wall_ms"].as_f64().unwrap(), ours["after_cut"]["frame_wall_ms"].as_f64().unwrap());
+        let (a, b) = (
+            theirs["after_cut"]["frame_wall_ms"].as_f64().unwrap(),
+            ours["after_cut"]["frame_wall_ms"].as_f64().unwrap(),
+        );
         assert!((a - b).abs() < 1e-5, "{a} against {b}");
     }
 }
@@ -1006,7 +1034,10 @@ fn ch13_refuses_times_from_what_is_not_a_compare_csv() {
     let dir = tempfile::tempdir().unwrap();
     let not_csv = dir.path().join("compare.md");
     std::fs::write(&not_csv, "| method | frame ms (wall) |\n").unwrap();
-    for (file, why) in [(not_csv.clone(), "not a compare.csv of this chapter"), (dir.path().join("none.csv"), "No such file")] {
+    for (file, why) in [
+        (not_csv.clone(), "not a compare.csv of this chapter"),
+        (dir.path().join("none.csv"), "No such file"),
+    ] {
         let args = ["--size", "64x48", "--compare", "--times-from", file.to_str().unwrap()];
         let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
         assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
@@ -1108,7 +1139,9 @@ fn ch14_refuses_a_viewer_on_another_device() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("vkgl.sock");
     let mut command = std::process::Command::new(CH14);
-    command.args(["--headless", "--size", "64x48", "--frames", "5", "--timeout", "10", "--listen"]).arg(&path);
+    command
+        .args(["--headless", "--size", "64x48", "--frames", "5", "--timeout", "10", "--listen"])
+        .arg(&path);
     command.arg("--out").arg(dir.path());
     harness::pin_software_stack(&mut command);
     command.stderr(std::process::Stdio::piped()).stdout(std::process::Stdio::null());
@@ -1227,8 +1260,15 @@ fn ch14_soak_with(viewer_kills: u32, renderer_kills: u32) {
     assert_eq!(report["restarts"], viewer_kills);
     assert_flat("renderer", &report["sessions"], &["shared_fds", "fds", "vk_memory"], 2);
     let (died, sessions) = (&report["death_to_next_frame_ms"], &report["sessions"]);
-    eprintln!("{viewer_kills} viewers killed in {:.1} s; death to next frame {died}", started.elapsed().as_secs_f64());
-    eprintln!("renderer after viewer 3: {}; after the last: {}", sessions[2], sessions.as_array().unwrap().last().unwrap());
+    eprintln!(
+        "{viewer_kills} viewers killed in {:.1} s; death to next frame {died}",
+        started.elapsed().as_secs_f64()
+    );
+    eprintln!(
+        "renderer after viewer 3: {}; after the last: {}",
+        sessions[2],
+        sessions.as_array().unwrap().last().unwrap()
+    );
     eprintln!("on {} ({})", report["vulkan"]["device"], report["vulkan"]["driver"]);
 
     // 2. Renderers: killed once their viewer shows frames, `renderer_kills` times; then one
@@ -1253,8 +1293,10 @@ fn ch14_soak_with(viewer_kills: u32, renderer_kills: u32) {
     let mut first = command(&listen).stderr(std::process::Stdio::piped()).spawn().unwrap();
     let first_drained = until_listening(&mut first);
     let mut first = Some(first);
-    let mut viewer =
-        command(&["--connect", socket_arg, "--reconnect", "--timeout", "30"]).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    let mut viewer = command(&["--connect", socket_arg, "--reconnect", "--timeout", "30"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
     let (lines, seen) = std::sync::mpsc::channel();
     let stderr = viewer.stderr.take().unwrap();
     let reader = std::thread::spawn(move || {
@@ -1281,7 +1323,11 @@ fn ch14_soak_with(viewer_kills: u32, renderer_kills: u32) {
         wait_for("viewer: waiting for the next renderer");
     }
     first_drained.join().unwrap().unwrap();
-    let last = run_chapter(CH14, &["--size", "32x24", "--listen", socket_arg, "--frames", "5", "--timeout", "30"], &[]);
+    let last = run_chapter(
+        CH14,
+        &["--size", "32x24", "--listen", socket_arg, "--frames", "5", "--timeout", "30"],
+        &[],
+    );
     let status = viewer.wait().unwrap();
     let stderr = reader.join().unwrap();
     assert_eq!(status.code(), Some(0), "{stderr}");
@@ -1291,7 +1337,11 @@ fn ch14_soak_with(viewer_kills: u32, renderer_kills: u32) {
     assert_eq!(sessions.as_array().map(Vec::len), Some(renderer_kills as usize + 1));
     assert_flat("viewer", sessions, &["shared_fds", "fds", "gl_objects"], 2);
     eprintln!("{renderer_kills} renderers killed in {:.1} s", started.elapsed().as_secs_f64());
-    eprintln!("viewer after renderer 3: {}; after the last: {}", sessions[2], sessions.as_array().unwrap().last().unwrap());
+    eprintln!(
+        "viewer after renderer 3: {}; after the last: {}",
+        sessions[2],
+        sessions.as_array().unwrap().last().unwrap()
+    );
 }
 
 /// The soak, CI-sized: 50 viewers and 10 renderers killed.

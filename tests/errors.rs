@@ -347,7 +347,9 @@ fn unstepped_calls(file: &str, text: &str) -> Vec<String> {
             continue;
         }
         // A call, not the definition of the function called (`fn name(`).
-        for call in FALLIBLE.iter().filter(|call| line.contains(*call) && !line.contains(&format!("fn {call}"))) {
+        for call in
+            FALLIBLE.iter().filter(|call| line.contains(*call) && !line.contains(&format!("fn {call}")))
+        {
             let stepped = lines[i.saturating_sub(3)..=i]
                 .iter()
                 .any(|l| l.contains("fail::call(") || l.contains("fail::step(") || calls_create(l));
@@ -361,9 +363,8 @@ fn unstepped_calls(file: &str, text: &str) -> Vec<String> {
 
 /// Does `line` call `owned::create` (a bare `create(`, not `foo_create(` or `.create(`)?
 fn calls_create(line: &str) -> bool {
-    line.match_indices("create(").any(|(at, _)| {
-        !line[..at].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == '.')
-    })
+    line.match_indices("create(")
+        .any(|(at, _)| !line[..at].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == '.'))
 }
 
 #[test]

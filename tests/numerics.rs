@@ -107,16 +107,22 @@ fn the_fast_frame_is_the_same_at_any_scale_and_distance() {
 fn the_reused_frame_is_the_same_at_any_scale_and_distance() {
     let dir = tempfile::tempdir().unwrap();
     let temporal = env!("CARGO_BIN_EXE_13-temporal-reuse");
-    let args = |scene: &str| ["--size", "64x64", "--frames", "6", "--cut-at", "3", "--scene", scene].map(String::from);
+    let args = |scene: &str| {
+        ["--size", "64x64", "--frames", "6", "--cut-at", "3", "--scene", scene].map(String::from)
+    };
     let run = |scene: &str| run_chapter(temporal, &args(scene).each_ref().map(|a| a.as_str()), &[]);
     let reference = run(BUNNY).succeeded().clone();
     let mean = reference["ao_mean"].as_f64().unwrap();
-    for (i, (scale, distance)) in [(1e-4, 0.0), (1e4, 0.0), (1.0, 2.5e3), (1e-3, 2.5)].into_iter().enumerate() {
+    for (i, (scale, distance)) in [(1e-4, 0.0), (1e4, 0.0), (1.0, 2.5e3), (1e-3, 2.5)].into_iter().enumerate()
+    {
         let offset = [distance, -0.7 * distance, 0.4 * distance];
         let scene = transformed(BUNNY, scale, offset, dir.path(), &format!("bunny{i}.obj"));
         let report = run(&scene).succeeded().clone();
         let m = report["ao_mean"].as_f64().unwrap();
-        assert!((m - mean).abs() <= 0.003, "scale {scale}, {distance} away: ao_mean {m}, {mean} at the origin");
+        assert!(
+            (m - mean).abs() <= 0.003,
+            "scale {scale}, {distance} away: ao_mean {m}, {mean} at the origin"
+        );
         assert_eq!(report["cut_pixels_kept"], reference["cut_pixels_kept"], "scale {scale}, {distance} away");
     }
 }

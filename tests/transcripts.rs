@@ -564,14 +564,16 @@ fn each_page_shows_the_run_of_a_command_it_prints_at_the_top() {
             .into_iter()
             .find(|(info, _, _)| info == "sh")
             .map(|(_, _, lines)| {
-                lines.iter().filter(|l| !l.trim().is_empty() && !l.trim().starts_with('#')).map(|l| bare(l)).collect()
+                lines
+                    .iter()
+                    .filter(|l| !l.trim().is_empty() && !l.trim().starts_with('#'))
+                    .map(|l| bare(l))
+                    .collect()
             })
             .unwrap_or_default();
         let Some(section) = text.split("\n## What you should see").nth(1) else { continue };
-        let Some(file) = section
-            .split("{{#include transcripts/")
-            .nth(1)
-            .and_then(|rest| rest.split("}}").next())
+        let Some(file) =
+            section.split("{{#include transcripts/").nth(1).and_then(|rest| rest.split("}}").next())
         else {
             continue;
         };

@@ -10,9 +10,9 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::{Largest, Smallest};
-use common::instruments::fail;
 use common::base::image::image_info;
 use common::base::owned::create;
+use common::instruments::fail;
 use common::instruments::report::uuid_hex;
 use common::interop::exportable::{BUFFER_IMPORT_SLACK, HANDLE_TYPE};
 use common::{Flags, Report, Requirements, VulkanContext, ms_since, open_fd_count};

@@ -9,13 +9,13 @@
 use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
-use common::instruments::fail;
 use common::base::gl::{
     DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MEMORY_EXTENSIONS, MemoryObject,
     RenderTarget, ensure_same_device, made, program, uuids_match,
 };
-use common::instruments::output;
 use common::base::owned::create;
+use common::instruments::fail;
+use common::instruments::output;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::{Flags, Report, Requirements, VulkanContext, ms_since, open_fd_count};
 use glow::HasContext;

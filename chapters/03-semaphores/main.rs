@@ -15,15 +15,15 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer};
-use common::instruments::fail;
 use common::base::gl::{
     GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, MEMORY_EXTENSIONS, OPTIMAL_TILING_EXT, Semaphore,
     TEXTURE_TILING_EXT, made,
 };
-use common::instruments::output;
 use common::base::owned::create;
 use common::clocks::timestamps::{Timestamps, median_p95};
 use common::clocks::timing::{GlPassTimer, PassTimes};
+use common::instruments::fail;
+use common::instruments::output;
 use common::interop::exportable::{self, Dedicated};
 use common::interop::handoff::{Handoff, SEMAPHORE_EXTENSION, SharedSemaphore};
 use common::interop::{self, SharedTexture};

@@ -30,9 +30,11 @@ pub fn record_vulkan_turn(
             .dst_queue_family_index(dst_family)
     };
     let (external, ours) = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
-    let region = vk::BufferImageCopy::default()
-        .image_subresource(COLOR_LAYERS)
-        .image_extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 });
+    let region = vk::BufferImageCopy::default().image_subresource(COLOR_LAYERS).image_extent(vk::Extent3D {
+        width: extent.width,
+        height: extent.height,
+        depth: 1,
+    });
     let device = &vk.device;
     unsafe {
         // Acquire from GL: ownership moves from "outside Vulkan" to our queue family, and the

@@ -4,9 +4,9 @@
 use anyhow::Result;
 use ash::vk;
 use common::base::commands::first_use;
-use common::instruments::fail;
 use common::base::owned::{Owned, create};
 use common::clocks::timestamps::Timestamps;
+use common::instruments::fail;
 use common::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use common::{GlContext, VulkanContext};
 use glow::HasContext;
@@ -63,8 +63,7 @@ impl ComputePipeline {
         })?;
         // SPIR-V to a shader module (common::base::compute), destroyed when dropped.
         let module = common::base::pipeline::shader_module(vk, COMPUTE_SPIRV, "compute")?;
-        let stage =
-            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(*module).name(c"main");
+        let stage = vk::PipelineShaderStageCreateInfo::default().stage(compute).module(*module).name(c"main");
         let pipeline_info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(*layout);
         let pipeline = create(device, "vkCreateComputePipelines", || unsafe {
             device
@@ -87,7 +86,13 @@ impl ComputePipeline {
             fail::call("vkAllocateDescriptorSets", || unsafe { device.allocate_descriptor_sets(&allocate) })?
                 [0];
         // ANCHOR_END: pipeline
-        Ok(ComputePipeline { set, _descriptor_pool: descriptor_pool, pipeline, layout, _set_layout: set_layout })
+        Ok(ComputePipeline {
+            set,
+            _descriptor_pool: descriptor_pool,
+            pipeline,
+            layout,
+            _set_layout: set_layout,
+        })
     }
 
     // ANCHOR: record_compute

@@ -9,14 +9,13 @@
 
 use anyhow::Result;
 use ash::vk;
-use glow::HasContext as _;
 use common::base::cli::Smallest;
 use common::base::commands::{
     Commands, HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host,
 };
-use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
+use common::instruments::output;
 use common::interop::handoff::{HandOver, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel;
@@ -24,6 +23,7 @@ use common::rt::raytrace::{PrimaryRays, RayPipeline, RayShaders, StorageImage, p
 use common::scene::gbuffer::{self, GBuffers, SceneBuffers};
 use common::scene::{Camera, SceneArgs};
 use common::{Flags, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
+use glow::HasContext as _;
 use std::ffi::CStr;
 use std::process::ExitCode;
 
@@ -102,7 +102,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 
     // 5. GL draws the G-buffers (chapter 05)
     let extent = args.common.size.extent();
-    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
+    let gbuffers =
+        GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::TRANSFER_SRC)?;
     let mut gl_timer = GlPassTimer::new(gl)?; // common::clocks::timing, as in chapter 05
     gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
     gl_context.check_error("drawing the G-buffers")?;

@@ -9,18 +9,18 @@
 
 use anyhow::Result;
 use ash::vk;
-use glow::HasContext as _;
 use common::base::cli::{Smallest, check_covered};
 use common::base::commands::Commands;
-use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{self, GlPassTimer, PassTimes};
+use common::instruments::output;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::ao::{AoArgs, AoRays, AoTracer};
 use common::scene::gbuffer::{self, GBuffers};
 use common::scene::{Camera, SceneArgs};
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
+use glow::HasContext as _;
 use std::process::ExitCode;
 
 const CHAPTER: &str = "07-ao-ray-pipeline";
@@ -48,7 +48,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let radius = args.ao.radius(&scene)?;
 
     // 2. Create both contexts, share the scene, build its acceleration structures (05, 06)
-    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    let (vk, gl_context, handoff) =
+        gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
     let shared = RayTracedScene::new(&vk, &gl_context, &scene)?;
@@ -57,7 +58,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // ANCHOR: tracer
     let extent = args.common.size.extent();
     // The ray tracer reads the G-buffers as storage images.
-    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let gbuffers =
+        GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, vk::ImageUsageFlags::STORAGE)?;
     let mut tracer =
         AoTracer::new(&vk, &gl_context, &shared.allocator, *shared.structures.tlas.handle, &gbuffers)?;
     // ANCHOR_END: tracer

@@ -4,8 +4,8 @@
 use anyhow::Result;
 use common::Report;
 use common::base::cli::{Size, check_covered};
-use common::instruments::output;
 use common::frame::{Composite, Overlays, Pixels, Uniforms, View, matches_reference, shows_colour};
+use common::instruments::output;
 use common::rt::ao::AoTracer;
 use common::scene::Camera;
 use common::scene::gbuffer::GBuffers;

@@ -13,9 +13,9 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
+use common::base::window::Key;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
-use common::base::window::Key;
 use common::frame::input::{resize_every, window_input};
 use common::frame::{Composite, Overlays, View};
 use common::interop::handoff::Apis;
@@ -110,7 +110,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             let apply_key = |key: &Key| {
                 settings.apply_key(key, &View::ALL);
             };
-            let Some(resized) = window_input(window, &gl_context, (&mut camera, scene.bounds), (size, 1), apply_key)
+            let Some(resized) =
+                window_input(window, &gl_context, (&mut camera, scene.bounds), (size, 1), apply_key)
             else {
                 break; // Esc, or the window closed
             };
@@ -206,7 +207,13 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         report.set("live_gl_objects_after_resizes", gl_now);
     }
     if trace_pending {
-        common::clocks::timing::read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+        common::clocks::timing::read_after(
+            &vk,
+            *commands.fence,
+            timestamps.as_ref(),
+            "ao_trace",
+            &mut times,
+        )?;
     }
     gl_timer.finish(gl, &mut times);
     times.record(report);

@@ -12,10 +12,10 @@ use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
+use common::instruments::output;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BuildInputs, InPlace, Refresh, TlasFlags, instances_geometry};
@@ -73,7 +73,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.set("ring_radius", (ring.radius as f64 * 1e3).round() / 1e3);
 
     // 2. Both contexts, the shared scene, and a TLAS that may be updated
-    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    let (vk, gl_context, handoff) =
+        gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
     let update_timer = Timestamps::new(&vk)?; // before `updates`, whose submissions write it

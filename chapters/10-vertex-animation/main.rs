@@ -12,10 +12,10 @@ use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::instruments::output;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{self, GlPassTimer, PassTimes};
 use common::frame::{Composite, Uniforms};
+use common::instruments::output;
 use common::interop::handoff::Apis;
 use common::rt::accel::{
     self, AccelerationStructure, BufferDesc, BuildInputs, DeviceBuffer, InPlace, Refresh,
@@ -82,7 +82,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.set("triangles", scene.triangles());
 
     // 2. Both contexts; the scene shared with GL, and writable by compute
-    let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    let (vk, gl_context, handoff) =
+        gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
     // ANCHOR: share

@@ -189,7 +189,14 @@ impl VertexHandoff {
             Some([moved, _]) => unsafe {
                 let ext = gl.semaphores.as_ref().expect("semaphores were shared");
                 let buffers = [self.gl_buffer.0.get()];
-                (ext.WaitSemaphoreEXT)(moved.gl.0, 1, buffers.as_ptr(), 0, std::ptr::null(), std::ptr::null());
+                (ext.WaitSemaphoreEXT)(
+                    moved.gl.0,
+                    1,
+                    buffers.as_ptr(),
+                    0,
+                    std::ptr::null(),
+                    std::ptr::null(),
+                );
             },
             None => commands::wait_for(vk, fence, "vkWaitForFences for the moved vertices")?,
         }

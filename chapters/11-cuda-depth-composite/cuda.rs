@@ -4,8 +4,8 @@
 
 use crate::scene::TraceParams;
 use anyhow::{Context as _, Result, ensure};
-use common::instruments::fail;
 use common::base::owned::{Owned, create};
+use common::instruments::fail;
 use common::interop::cuda::{CudaDevice, MappedPointer, cu, sys};
 use std::ffi::{CString, c_void};
 use std::os::fd::{AsRawFd, IntoRawFd, OwnedFd};
@@ -32,17 +32,20 @@ impl CudaTracer {
     pub fn new(device: CudaDevice) -> Result<Self> {
         let ptx = CString::new(PTX)?;
         // SAFETY: `ptx` is NUL-terminated PTX text; CUDA copies what it needs.
-        let module = create(&(), "cuModuleLoadData", || unsafe { cu::module::load_data(ptx.as_ptr().cast()) })
-            .context(
-                "cuModuleLoadData: the driver cannot compile the PTX (it came from NVRTC 12.9: drivers \
+        let module =
+            create(&(), "cuModuleLoadData", || unsafe { cu::module::load_data(ptx.as_ptr().cast()) })
+                .context(
+                    "cuModuleLoadData: the driver cannot compile the PTX (it came from NVRTC 12.9: drivers \
                  older than CUDA 12.9 refuse it; fix: update the NVIDIA driver)",
-            )?;
+                )?;
         let name = CString::new("trace")?;
         let function =
             fail::call("cuModuleGetFunction(trace)", || unsafe { cu::module::get_function(*module, name) })?;
         // Non-blocking: this stream never waits for work on the legacy default stream.
-        let stream = create(&(), "cuStreamCreate", || cu::stream::create(cu::stream::StreamKind::NonBlocking))?;
-        let event = || create(&(), "cuEventCreate", || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT));
+        let stream =
+            create(&(), "cuStreamCreate", || cu::stream::create(cu::stream::StreamKind::NonBlocking))?;
+        let event =
+            || create(&(), "cuEventCreate", || cu::event::create(sys::CUevent_flags::CU_EVENT_DEFAULT));
         let (started, finished) = (event()?, event()?);
         Ok(CudaTracer { started, finished, stream, function, _module: module, device })
     }

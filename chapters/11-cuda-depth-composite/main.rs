@@ -13,9 +13,9 @@
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::Smallest;
-use common::instruments::fail;
 use common::base::gl::GlContext;
 use common::base::owned::create;
+use common::instruments::fail;
 use common::interop;
 use common::interop::cuda::CudaDevice;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
@@ -109,8 +109,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 2. Vulkan and GL on one device
     let extensions = [ash::khr::external_memory_fd::NAME];
     let requirements = Requirements { extensions: &extensions, ..Default::default() };
-    let (vk, gl_context) =
-        common::contexts(CHAPTER, report, &requirements, args.common.size)?;
+    let (vk, gl_context) = common::contexts(CHAPTER, report, &requirements, args.common.size)?;
     // GL buffer sizes are 32-bit signed here (glow's glNamedBufferData): refuse what the chapter
     // cannot hold, before anything else exists.
     anyhow::ensure!(
@@ -215,8 +214,9 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
         .size(bytes)
         .usage(vk::BufferUsageFlags::STORAGE_BUFFER)
         .push_next(&mut external);
-    let buffer =
-        create(&vk.device, "vkCreateBuffer (exportable)", || unsafe { vk.device.create_buffer(&buffer_info, None) })?;
+    let buffer = create(&vk.device, "vkCreateBuffer (exportable)", || unsafe {
+        vk.device.create_buffer(&buffer_info, None)
+    })?;
     let requirements = unsafe { vk.device.get_buffer_memory_requirements(*buffer) };
     // CUDA writes it from the GPU: device-local. The CPU tracer writes it through a mapping.
     let properties = match tracer {

@@ -9,11 +9,11 @@
 //! Both come from the same vertex stage, so they must cover the same pixels: that is checked.
 
 use crate::overlap::Probe;
-use common::frame::fast::visibility::VisibilityPass;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
 use common::base::gl::{Owned, create};
 use common::clocks::timing::{GlPassTimer, PassTimes};
+use common::frame::fast::visibility::VisibilityPass;
 use common::scene::gbuffer::SceneBuffers;
 use common::{GlContext, Report};
 use glow::HasContext;

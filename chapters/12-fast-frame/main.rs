@@ -12,10 +12,10 @@
 use anyhow::Result;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
+use common::base::window::Key;
 use common::clocks::timeline::{self, Timeline};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
-use common::base::window::Key;
 use common::frame::Overlays;
 use common::frame::input::{Settings as Keys, resize_every, window_input};
 use common::interop::handoff::Apis;
@@ -33,9 +33,9 @@ mod settings;
 mod vk_composite;
 use common::frame::fast::check;
 use common::frame::fast::composite::ComputeComposite;
-use settings::{Args, Settings};
 use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
 use common::frame::fast::visibility::{self, Targets, VisibilityPass};
+use settings::{Args, Settings};
 
 const CHAPTER: &str = "12-fast-frame";
 /// The smallest picture this chapter can check, and why (the largest is the device's).
@@ -61,7 +61,14 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let mut camera = Camera::framing(scene.bounds, size.aspect());
     camera.orbit(0.0, 0.0, args.zoom, scene.bounds);
     let radius = args.ao.radius(&scene)?;
-    let keys = Keys { samples: args.ao.samples, radius, power: args.ao.power, blur: args.blur, view: args.view, overlays: true };
+    let keys = Keys {
+        samples: args.ao.samples,
+        radius,
+        power: args.ao.power,
+        blur: args.blur,
+        view: args.view,
+        overlays: true,
+    };
     let mut settings = Settings { keys, pattern: args.pattern };
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
@@ -107,9 +114,13 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         if let Some(window) = window.as_mut() {
             let before = (settings, camera.eye);
             let apply_key = |key: &Key| settings::apply_key(key, &mut settings);
-            let Some(resized) =
-                window_input(window, &gl_context, (&mut camera, scene.bounds), (size, SMALLEST_SIDE), apply_key)
-            else {
+            let Some(resized) = window_input(
+                window,
+                &gl_context,
+                (&mut camera, scene.bounds),
+                (size, SMALLEST_SIDE),
+                apply_key,
+            ) else {
                 break; // Esc, or the window closed
             };
             new_size = resized;

@@ -9,10 +9,10 @@
 //! If the driver runs GL's work beside Vulkan's, *during* is shorter by up to the second pass's
 //! time; if it runs one API's work at a time, the two take as long.
 
-use common::frame::fast::trace::{Rays, SurfaceTracer};
-use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::Result;
 use common::clocks::timestamps::median_p95;
+use common::frame::fast::trace::{Rays, SurfaceTracer};
+use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use common::interop::handoff::Apis;
 use common::scene::{Camera, Scene};
 use glow::HasContext;

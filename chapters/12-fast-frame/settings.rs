@@ -1,9 +1,9 @@
 //! Chapter 12's flags and settings: what the flags start with and the keys change, and what
 //! follows from them (the rays a frame traces).
 
+use common::base::window::Key;
 use common::frame::fast::composite::View;
 use common::frame::fast::trace::{Pattern, Rays};
-use common::base::window::Key;
 use common::frame::input;
 use common::rt::accel::BlasLayout;
 use common::rt::ao::AoArgs;

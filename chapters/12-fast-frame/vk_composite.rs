@@ -5,14 +5,14 @@
 //! depth, and shows it), so a Vulkan composite saves no hand-over: only the difference between
 //! the two dispatches could pay.
 
-use common::frame::fast::composite::{ComputeComposite, Uniforms};
-use common::frame::fast::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::Report;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, first_use, transfers_to_host};
 use common::base::compute::ComputePipeline;
 use common::clocks::timestamps::Timestamps;
+use common::frame::fast::composite::{ComputeComposite, Uniforms};
+use common::frame::fast::visibility::Targets;
 use common::interop::handoff::Apis;
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel::GpuAllocator;

@@ -2,24 +2,24 @@
 //! GL's ids, the rays (reused or all new), chapter 12's composite and overlays, each timed; and,
 //! where nothing is read back before the next frame, that frame's ids, drawn early.
 
-use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
 use crate::path::Path;
 use crate::temporal::{Budget, TemporalTracer};
-use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
-use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use anyhow::Result;
 use common::base::commands::Commands;
+use common::base::gl::{Owned, create};
 use common::clocks::timeline::{Timeline, stamp_into as stamp};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
-use common::base::gl::{Owned, create};
-use glow::HasContext;
 use common::frame::Overlays;
+use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
+use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
+use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
 use common::instruments::fail;
 use common::interop::exportable::ExportedBuffer;
 use common::interop::handoff::Apis;
 use common::rt::accel::{InPlace, Refresh};
 use common::scene::{Camera, Scene};
+use glow::HasContext;
 
 /// How a frame's occlusion is made.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -90,7 +90,15 @@ pub struct Clock {
 
 impl Clock {
     pub fn new(gl: &std::rc::Rc<glow::Context>, timeline: Option<(Timeline, u32)>) -> Result<Clock> {
-        Ok(Clock { gl: GlPassTimer::new(gl)?, times: PassTimes::new(), traced: None, timeline, ids_ahead: None, ids_done: None, frames_drawn_ahead: 0 })
+        Ok(Clock {
+            gl: GlPassTimer::new(gl)?,
+            times: PassTimes::new(),
+            traced: None,
+            timeline,
+            ids_ahead: None,
+            ids_done: None,
+            frames_drawn_ahead: 0,
+        })
     }
 
     /// Waits for the last frame's Vulkan work and reads its trace time (into the timeline too,
@@ -150,7 +158,14 @@ impl Passes<'_> {
     /// Frame `frame` of the path, drawn by `drawn`. Returns the camera it was drawn with. `next`:
     /// the caller draws frame `frame + 1` next and reads nothing of this one back before it, so
     /// this frame may draw the next one's ids before it returns (this chapter's method alone).
-    pub fn draw(&self, sized: &mut Sized, drawn: Drawn, frame: u32, clock: &mut Clock, next: bool) -> Result<Camera> {
+    pub fn draw(
+        &self,
+        sized: &mut Sized,
+        drawn: Drawn,
+        frame: u32,
+        clock: &mut Clock,
+        next: bool,
+    ) -> Result<Camera> {
         let Apis { vk, gl, .. } = self.apis;
         let g = &gl.gl;
         // The previous frame's Vulkan work is done, and with it the GL ids it waited for.
@@ -167,7 +182,8 @@ impl Passes<'_> {
         let targets = &sized.targets;
         match drawn {
             Drawn::Temporal(budget) => {
-                let moved = self.path.moving.as_ref().filter(|_| self.motion.is_some()).map(|m| m.swept(frame));
+                let moved =
+                    self.path.moving.as_ref().filter(|_| self.motion.is_some()).map(|m| m.swept(frame));
                 let handed = (self.timestamps, drawn_ahead);
                 sized.temporal.trace(self.apis, targets, (&camera, frame), (&budget, moved), handed)?
             }
@@ -237,7 +253,9 @@ impl Passes<'_> {
         clock.gl.time(g, "visibility", || self.visibility.draw(g, targets, self.scene, self.ids, camera))?;
         stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 1);
         if self.ids_ahead {
-            let fence = create(g, "glFenceSync after GL's ids", |g| unsafe { g.fence_sync(glow::SYNC_GPU_COMMANDS_COMPLETE, 0) })?;
+            let fence = create(g, "glFenceSync after GL's ids", |g| unsafe {
+                g.fence_sync(glow::SYNC_GPU_COMMANDS_COMPLETE, 0)
+            })?;
             clock.ids_done = Some(fence);
         }
         Ok(())

@@ -2,11 +2,11 @@
 //! across the cut from a surface the previous frame did not see, and on a pan what is kept
 //! agrees with a new trace within its noise.
 
-use common::frame::fast::check::{Surface, unpack_normal};
 use crate::path::Path;
 use crate::temporal::Texel;
-use common::frame::fast::visibility::MeshIds;
 use common::Report;
+use common::frame::fast::check::{Surface, unpack_normal};
+use common::frame::fast::visibility::MeshIds;
 use common::scene::Camera;
 use glam::{Vec2, Vec3, Vec4Swizzles as _};
 
@@ -45,7 +45,13 @@ fn instance_of(ids: &[MeshIds], id: u32) -> Option<u32> {
 /// moved back alike). Worked out here from the two frames' depths, normals and ids as GL reads
 /// them back, apart from the shader's own reading of its history; twice as tolerant of the plane
 /// (2% of the depth), so that only a real miss counts.
-pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (&Path, &[MeshIds], u32), report: &mut Report) {
+pub fn cut(
+    before: &Seen,
+    after: &Seen,
+    history: &[Texel],
+    (path, ids, fresh): (&Path, &[MeshIds], u32),
+    report: &mut Report,
+) {
     let (w, h) = (after.surface.width, after.surface.height);
     if (before.surface.width, before.surface.height) != (w, h) {
         return; // resized at the cut: nothing was kept, and the frames do not line up
@@ -71,7 +77,8 @@ pub fn cut(before: &Seen, after: &Seen, history: &[Texel], (path, ids, fresh): (
             }
             let clip = then * point.extend(1.0);
             let at = (clip.xy() / clip.w * 0.5 + 0.5) * Vec2::new(w as f32, h as f32) - 0.5;
-            let depth_then = (point - before.camera.eye).dot((before.camera.target - before.camera.eye).normalize());
+            let depth_then =
+                (point - before.camera.eye).dot((before.camera.target - before.camera.eye).normalize());
             let seen = clip.w > 0.0
                 && (0..4).any(|k| {
                     let (tx, ty) = (at.x.floor() as i64 + (k & 1), at.y.floor() as i64 + (k >> 1));

@@ -34,11 +34,11 @@ mod temporal;
 mod walk;
 
 use common::frame::fast::composite::{ComputeComposite, Uniforms};
+use common::frame::fast::trace::SurfaceTracer;
+use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 use frame::{Drawn, Motion, Passes, Sized};
 use settings::{Args, Method};
 use temporal::{Budget, TemporalTracer};
-use common::frame::fast::trace::SurfaceTracer;
-use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 
 const CHAPTER: &str = "13-temporal-reuse";
 /// The smallest picture this chapter can check, and why (the largest is the device's).

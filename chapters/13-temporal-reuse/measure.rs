@@ -2,11 +2,11 @@
 //! converged trace of that same frame, its GPU times, and the comparison of methods as a
 //! table, a CSV and two plots.
 
+use anyhow::{Context as _, Result, ensure};
 use common::frame::fast::check::read_picture;
 use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
 use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
 use common::frame::fast::visibility::Targets;
-use anyhow::{Context as _, Result, ensure};
 use common::instruments::{fail, output};
 use common::interop::handoff::Apis;
 use common::scene::Camera;
@@ -42,7 +42,9 @@ pub struct Medians {
 
 impl Medians {
     fn of(frames: &[&FrameRecord]) -> Medians {
-        let of = |time: fn(&FrameRecord) -> Option<f64>| median(&frames.iter().filter_map(|f| time(f)).collect::<Vec<_>>());
+        let of = |time: fn(&FrameRecord) -> Option<f64>| {
+            median(&frames.iter().filter_map(|f| time(f)).collect::<Vec<_>>())
+        };
         Medians { frame_wall_ms: of(|f| f.wall_ms), gpu_ms: of(|f| f.gpu_ms), ao_ms: of(|f| f.ao_ms) }
     }
 }
@@ -176,7 +178,8 @@ impl ErrorProbe<'_> {
                 salt: 1,
             };
             tracer.retrace(apis, targets, camera, rays, self.reference)?;
-            let covered = common::frame::fast::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
+            let covered =
+                common::frame::fast::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
             let (occlusion, picture) = (shown(View::Ao), shown(View::Final));
             references.0.insert(frame, Converged { occlusion, covered, picture });
         }
@@ -327,7 +330,10 @@ pub type Times = BTreeMap<String, BTreeMap<u32, [Option<f64>; 3]>>;
 /// [`read_times`] on the text of a compare.csv.
 fn parse_times(text: &str) -> Result<Times> {
     let mut lines = text.lines();
-    ensure!(lines.next() == Some(CSV_HEADER), "not a compare.csv of this chapter: its first line is not {CSV_HEADER}");
+    ensure!(
+        lines.next() == Some(CSV_HEADER),
+        "not a compare.csv of this chapter: its first line is not {CSV_HEADER}"
+    );
     let mut times = Times::new();
     for (n, line) in lines.enumerate() {
         // `"chapter 13, 2 rays",frame,wall,gpu,ao,rmse,flip`: the method is quoted, and holds a comma.
@@ -337,7 +343,8 @@ fn parse_times(text: &str) -> Result<Times> {
             .with_context(|| format!("line {}: no quoted method", n + 2))?;
         let fields: Vec<&str> = rest.split(',').collect();
         ensure!(fields.len() == 6, "line {}: {} fields after the method, not 6", n + 2, fields.len());
-        let frame = fields[0].parse().with_context(|| format!("line {}: the frame is not a number", n + 2))?;
+        let frame =
+            fields[0].parse().with_context(|| format!("line {}: the frame is not a number", n + 2))?;
         let time = |i: usize| fields[i].parse::<f64>().ok();
         times.entry(method.to_owned()).or_default().insert(frame, [time(1), time(2), time(3)]);
     }
@@ -350,11 +357,17 @@ fn parse_times(text: &str) -> Result<Times> {
 pub fn take_times(walks: &mut [Walk], times: &Times, cut: Option<u32>) -> Result<()> {
     for walk in walks {
         let theirs = times.get(&walk.method).with_context(|| {
-            format!("--times-from has no times for '{}': write it with --compare and the same flags", walk.method)
+            format!(
+                "--times-from has no times for '{}': write it with --compare and the same flags",
+                walk.method
+            )
         })?;
         for f in &mut walk.frames {
             let &[wall, gpu, ao] = theirs.get(&f.frame).with_context(|| {
-                format!("--times-from has no frame {} of '{}': write it with --compare and the same --frames", f.frame, walk.method)
+                format!(
+                    "--times-from has no frame {} of '{}': write it with --compare and the same --frames",
+                    f.frame, walk.method
+                )
             })?;
             (f.wall_ms, f.gpu_ms, f.ao_ms) = (wall, gpu, ao);
         }
@@ -404,7 +417,8 @@ fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
         .collect();
     let caption = format!("Mean AO error against GPU time per frame ({device})");
     let axes = ("mean GPU time per frame, ms", "mean RMSE over the path");
-    let labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String) = (&|v| format!("{v:.2}"), &|v| format!("{v:.3}"));
+    let labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String) =
+        (&|v| format!("{v:.2}"), &|v| format!("{v:.3}"));
     let span = points.iter().map(|&(t, e, _)| (t, e));
     output::log_log_plot(path, ((720, 420), &caption), axes, labels, span, |chart| {
         for &(t, e, i) in &points {
@@ -437,18 +451,30 @@ mod tests {
         assert_eq!(times["chapter 12, 16 rays"][&0], [None, None, None]);
         assert_eq!(times["chapter 12, 16 rays"][&1], [Some(14.5), Some(14.0), Some(11.0)]);
         // llvmpipe's: no GPU time of a whole frame.
-        let ao_only = parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",0,3.0,,2.5,,\n").unwrap();
+        let ao_only =
+            parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",0,3.0,,2.5,,\n")
+                .unwrap();
         assert_eq!(ao_only["chapter 13, 1 ray"][&0], [Some(3.0), None, Some(2.5)]);
         assert!(parse_times("frame,gpu_ms\n1,2\n").is_err());
         // The header of a build before the wall clock was kept per frame.
         assert!(parse_times("method,frame,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",0,1,1,,\n").is_err());
         assert!(parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\nchapter 13,0,1,1,1,,\n").is_err());
-        assert!(parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",x,1,1,1,,\n").is_err());
+        assert!(
+            parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n\"chapter 13, 1 ray\",x,1,1,1,,\n")
+                .is_err()
+        );
         assert!(parse_times("method,frame,wall_ms,gpu_ms,ao_ms,rmse,flip\n").is_err());
     }
 
     fn record(frame: u32, wall: f64, gpu: f64) -> FrameRecord {
-        FrameRecord { frame, wall_ms: Some(wall), gpu_ms: Some(gpu), ao_ms: Some(gpu / 2.0), rmse: None, flip: None }
+        FrameRecord {
+            frame,
+            wall_ms: Some(wall),
+            gpu_ms: Some(gpu),
+            ao_ms: Some(gpu / 2.0),
+            rmse: None,
+            flip: None,
+        }
     }
 
     /// A path of two views: each view's medians come from its own frames alone, however many
@@ -478,7 +504,14 @@ mod tests {
     #[test]
     fn times_from_another_run_replace_each_frames() {
         let frames: Vec<FrameRecord> = (0..4)
-            .map(|frame| FrameRecord { frame, wall_ms: None, gpu_ms: None, ao_ms: None, rmse: Some(0.01), flip: None })
+            .map(|frame| FrameRecord {
+                frame,
+                wall_ms: None,
+                gpu_ms: None,
+                ao_ms: None,
+                rmse: Some(0.01),
+                flip: None,
+            })
             .collect();
         let mut walks = vec![Walk::new("m".into(), frames, Some(2), 1)];
         let mut times = Times::new();
@@ -516,7 +549,14 @@ mod tests {
         let grey: Vec<u8> = [128u8, 128, 128, 255].repeat(16 * 16);
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         let mut records: Vec<super::FrameRecord> = (0..cores as u32 * 2 + 3)
-            .map(|frame| super::FrameRecord { frame, wall_ms: None, gpu_ms: None, ao_ms: None, rmse: None, flip: None })
+            .map(|frame| super::FrameRecord {
+                frame,
+                wall_ms: None,
+                gpu_ms: None,
+                ao_ms: None,
+                rmse: None,
+                flip: None,
+            })
             .collect();
         let mut flips = super::Flips::default();
         for i in 0..records.len() {

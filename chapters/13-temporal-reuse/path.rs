@@ -105,14 +105,19 @@ impl Moving {
             Mat4::from_cols(Vec4::from(r0), Vec4::from(r1), Vec4::from(r2), Vec4::W).transpose()
         };
         let centre = (scene.bounds.0 + scene.bounds.1) / 2.0;
-        let mesh_of = |i: usize| scene.mesh_instances.iter().position(|r| r.contains(&(i as u32))).unwrap_or(0);
+        let mesh_of =
+            |i: usize| scene.mesh_instances.iter().position(|r| r.contains(&(i as u32))).unwrap_or(0);
         let middle = |i: usize| {
             let mesh = &scene.meshes[mesh_of(i)];
             let (low, high) = mesh.vertices.iter().fold((Vec3::MAX, Vec3::MIN), |(l, h), v| {
                 (l.min(Vec3::from(v.position)), h.max(Vec3::from(v.position)))
             });
             let m = matrix(i);
-            (m.transform_point3((low + high) / 2.0), (m.transform_vector3(high - low)).length(), (low + high) / 2.0)
+            (
+                m.transform_point3((low + high) / 2.0),
+                (m.transform_vector3(high - low)).length(),
+                (low + high) / 2.0,
+            )
         };
         let candidates = if scene.instances.len() > 1 { 1..scene.instances.len() } else { 0..1 };
         let index = candidates
@@ -121,9 +126,16 @@ impl Moving {
         let (at, size, object_centre) = middle(index);
         let alone = scene.instances.len() == 1;
         let grow = if alone { 1.0 } else { 4.0 };
-        let start = Mat4::from_translation(at) * Mat4::from_scale(Vec3::splat(grow)) * Mat4::from_translation(-at);
+        let start =
+            Mat4::from_translation(at) * Mat4::from_scale(Vec3::splat(grow)) * Mat4::from_translation(-at);
         let sphere = (object_centre, grow * size / 2.0);
-        Moving { index, start: start * matrix(index), centre: at, radius: if alone { 0.0 } else { 2.0 * grow * size }, sphere }
+        Moving {
+            index,
+            start: start * matrix(index),
+            centre: at,
+            radius: if alone { 0.0 } else { 2.0 * grow * size },
+            sphere,
+        }
     }
 
     // ANCHOR: mover
@@ -133,7 +145,10 @@ impl Moving {
         let angle = TAU * frame as f32 / LAP_FRAMES;
         let offset = Vec3::new(angle.cos() - 1.0, 0.0, angle.sin()) * self.radius;
         let turn = Mat4::from_rotation_y(angle);
-        Mat4::from_translation(self.centre + offset) * turn * Mat4::from_translation(-self.centre) * self.start
+        Mat4::from_translation(self.centre + offset)
+            * turn
+            * Mat4::from_translation(-self.centre)
+            * self.start
     }
 
     /// A sphere (centre, radius) holding the instance at the frame before `frame` and at

@@ -1,8 +1,8 @@
 //! Chapter 13's flags: chapter 12's frame, the rays each pixel traces and what its history
 //! keeps, the path the camera and one instance follow, and what to measure along it.
 
-use common::frame::fast::composite::View;
 use crate::path::{Mover, PathKind};
+use common::frame::fast::composite::View;
 use common::rt::accel::BlasLayout;
 use common::scene::SceneArgs;
 

@@ -3,13 +3,13 @@
 //! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
 
 use crate::settings::{Accept, Args, FreshPass};
-use common::frame::fast::trace::{hand_over_around, hand_over_released};
-use common::frame::fast::visibility::Targets;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::VulkanContext;
 use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
 use common::clocks::timestamps::Timestamps;
+use common::frame::fast::trace::{hand_over_around, hand_over_released};
+use common::frame::fast::visibility::Targets;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
@@ -194,11 +194,13 @@ impl TemporalTracer {
         let cameras = DeviceBuffer::new(vk, allocator, host("cameras", size_of::<Cameras>() as u64))?;
         let shared_instances = &shared.buffers.instances.vk;
         // SAFETY: the shared buffer's mapping is `bytes` long and nothing writes it now.
-        let now = unsafe { std::slice::from_raw_parts(shared_instances.mapped, shared_instances.bytes as usize) };
+        let now =
+            unsafe { std::slice::from_raw_parts(shared_instances.mapped, shared_instances.bytes as usize) };
         // At first every copy holds the transforms as they are: nothing has moved yet.
         let copy = || -> Result<DeviceBuffer> {
             let mut copy = DeviceBuffer::new(vk, allocator, host("instance transforms", now.len() as u64))?;
-            copy.allocation.mapped_slice_mut().context("instance transforms unmapped")?[..now.len()].copy_from_slice(now);
+            copy.allocation.mapped_slice_mut().context("instance transforms unmapped")?[..now.len()]
+                .copy_from_slice(now);
             Ok(copy)
         };
         let transforms = [copy()?, copy()?, copy()?];
@@ -267,7 +269,10 @@ impl TemporalTracer {
     /// transforms and the next frame's as the previous ones (`frame + 2`: the previous frame's).
     /// The traces that read it last, those of frames `frame - 3` and `frame - 2`, must be done.
     pub fn transforms(&mut self, frame: u32) -> Result<&mut [u8]> {
-        self.transforms[frame as usize % 3].allocation.mapped_slice_mut().context("instance transforms unmapped")
+        self.transforms[frame as usize % 3]
+            .allocation
+            .mapped_slice_mut()
+            .context("instance transforms unmapped")
     }
 
     /// The next frame starts with no history (a method switch, a new setting).
@@ -309,7 +314,9 @@ impl TemporalTracer {
         mapped[..size_of::<Cameras>()].copy_from_slice(common::scene::gbuffer::as_bytes(&[cameras]));
         let list = match (budget.fresh_pass, &self.fresh_pixels) {
             (FreshPass::Packed, Some(list)) => Some(list),
-            (FreshPass::Packed, None) => anyhow::bail!("--fresh-pass packed: the tracer was made without its list"),
+            (FreshPass::Packed, None) => {
+                anyhow::bail!("--fresh-pass packed: the tracer was made without its list")
+            }
             (FreshPass::Inline, _) => None,
         };
         let push = TemporalRays {

@@ -1,21 +1,21 @@
 //! Chapter 13's frame loops: headless along the path (each method of a comparison in turn, its
 //! error measured where asked, the checks on the chosen method's walk), or in a window.
 
-use common::frame::fast::check::{self, LastFrame, Surface};
-use common::frame::fast::composite::View;
 use crate::frame::{Clock, Drawn, Passes, Sized};
 use crate::history_check::{self, Seen};
 use crate::measure::{ErrorProbe, Flips, FrameRecord, References, Walk, measured};
 use crate::path::PathKind;
 use crate::settings::{Args, PATH_FRAMES};
 use crate::temporal::Budget;
-use common::frame::fast::trace::{Pattern, Rays};
 use anyhow::Result;
-use common::{Flags, Report};
 use common::base::cli::Size;
-use common::clocks::timeline::Timeline;
 use common::base::window::{Key, NamedKey, Window};
+use common::clocks::timeline::Timeline;
+use common::frame::fast::check::{self, LastFrame, Surface};
+use common::frame::fast::composite::View;
+use common::frame::fast::trace::{Pattern, Rays};
 use common::scene::Camera;
+use common::{Flags, Report};
 
 /// The methods `--compare` walks: chapter 12's frame at 16, 8 and 4 rays, then this chapter's
 /// at 1, 2 and 4 (and the one the flags chose, if it is none of those).
@@ -29,7 +29,13 @@ fn compared(chosen: Drawn, budget: Budget) -> Vec<Drawn> {
 }
 
 /// Every walk along the path headless, and the checks of the chosen method's.
-pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>, report: &mut Report) -> Result<Vec<Walk>> {
+pub fn headless(
+    p: &Passes,
+    sized: &mut Sized,
+    chosen: Drawn,
+    args: &Flags<Args>,
+    report: &mut Report,
+) -> Result<Vec<Walk>> {
     let frames = args.common.frames.unwrap_or(PATH_FRAMES).max(1);
     let budget = match chosen {
         Drawn::Temporal(budget) => budget,
@@ -57,8 +63,12 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
         sized.temporal.forget();
         let timeline = match (args.timeline, checking, p.timestamps) {
             (0, _, _) | (_, false, _) => None,
-            (last, true, Some(_)) => Some((Timeline::new(&p.apis.gl.gl, last.min(frames), ["ids", "composite"])?, frames)),
-            (_, true, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", p.apis.vk.info.name),
+            (last, true, Some(_)) => {
+                Some((Timeline::new(&p.apis.gl.gl, last.min(frames), ["ids", "composite"])?, frames))
+            }
+            (_, true, None) => {
+                anyhow::bail!("--timeline: {} writes no timestamps on this queue", p.apis.vk.info.name)
+            }
         };
         let mut clock = Clock::new(&p.apis.gl.gl, timeline)?;
         let (mut records, mut before_cut, mut flips) = (Vec::new(), None, Flips::default());
@@ -111,7 +121,9 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
             report.set("resizes", resizes);
         }
         clock.finish(p)?;
-        if let Some(timeline) = clock.finish_timeline(p, &args.common.out_dir(crate::CHAPTER).join("timeline"))? {
+        if let Some(timeline) =
+            clock.finish_timeline(p, &args.common.out_dir(crate::CHAPTER).join("timeline"))?
+        {
             report.set("timeline", timeline);
         }
         // The passes' GPU times, frame by frame where every frame has one of each, and the wall
@@ -120,7 +132,8 @@ pub fn headless(p: &Passes, sized: &mut Sized, chosen: Drawn, args: &Flags<Args>
         let per_frame = |pass: &str| Some(times.samples(pass)).filter(|s| s.len() == records.len());
         let ao = per_frame("ao_trace");
         let wall = per_frame("frame_wall").filter(|_| args.error_against == 0);
-        let gl: Vec<_> = ["visibility", "composite", "overlays"].iter().map(|&pass| per_frame(pass)).collect();
+        let gl: Vec<_> =
+            ["visibility", "composite", "overlays"].iter().map(|&pass| per_frame(pass)).collect();
         for (i, record) in records.iter_mut().enumerate() {
             record.ao_ms = ao.map(|a| a[i]);
             record.wall_ms = wall.map(|w| w[i]);
@@ -172,7 +185,13 @@ fn watch_the_cut(
 
 /// The last frame of the chosen walk: chapter 12's checks of the surface, the composite and the
 /// overlays, the pictures, and what the path makes checkable.
-fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args): (Drawn, &Flags<Args>), report: &mut Report) -> Result<()> {
+fn check_last_frame(
+    p: &Passes,
+    sized: &mut Sized,
+    camera: &Camera,
+    (drawn, args): (Drawn, &Flags<Args>),
+    report: &mut Report,
+) -> Result<()> {
     let gl = &p.apis.gl.gl;
     let surface = chapter_12_checks(p, sized, camera, report)?;
     if let Some(last) = last_frame(p, sized, camera) {
@@ -205,7 +224,13 @@ fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args
                     true => None,
                     false => {
                         let scene_scale = p.scene.size() / 2.0;
-                        let rays = Rays { samples: budget.samples, radius: p.radius, scene_scale, pattern: Pattern::PerPixel, salt: 0 };
+                        let rays = Rays {
+                            samples: budget.samples,
+                            radius: p.radius,
+                            scene_scale,
+                            pattern: Pattern::PerPixel,
+                            salt: 0,
+                        };
                         sized.fresh.retrace(p.apis, &sized.targets, camera, rays, total)?;
                         Some(Surface::read(gl, &sized.targets))
                     }
@@ -213,7 +238,10 @@ fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args
                 let chapter_08 = check::trace_chapter_08(p.apis, &sized.targets, run)?;
                 chapter_08.compare(&surface, per_pixel.as_ref(), report);
             } else {
-                eprintln!("history: {total} rays a pixel pass the cap of {}; chapter 08 is not compared", budget.cap);
+                eprintln!(
+                    "history: {total} rays a pixel pass the cap of {}; chapter 08 is not compared",
+                    budget.cap
+                );
             }
         }
         // ANCHOR_END: still
@@ -221,7 +249,8 @@ fn check_last_frame(p: &Passes, sized: &mut Sized, camera: &Camera, (drawn, args
             let history = sized.temporal.read_history(p.apis.vk, p.apis.commands)?;
             let rays = 256;
             let scene_scale = p.scene.size() / 2.0;
-            let reference = Rays { samples: rays, radius: p.radius, scene_scale, pattern: Pattern::PerPixel, salt: 1 };
+            let reference =
+                Rays { samples: rays, radius: p.radius, scene_scale, pattern: Pattern::PerPixel, salt: 1 };
             sized.fresh.retrace(p.apis, &sized.targets, camera, reference, rays)?;
             let traced = Surface::read(gl, &sized.targets);
             history_check::pan(&history, &traced, (rays, budget.cap, budget.fresh), report);
@@ -273,7 +302,14 @@ fn alive(p: &Passes) -> Result<impl PartialEq + use<>> {
 
 /// Frames in a window until it closes (or `frames`, if not 0): the path plays on, H switches
 /// between this chapter's frame and chapter 12's, and a new window size remakes the images.
-pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Drawn, frames: u32, report: &mut Report) -> Result<()> {
+pub fn in_window(
+    p: &Passes,
+    sized: &mut Sized,
+    window: &mut Window,
+    chosen: Drawn,
+    frames: u32,
+    report: &mut Report,
+) -> Result<()> {
     let mut clock = Clock::new(&p.apis.gl.gl, None)?;
     let mut drawn = chosen;
     let fresh = Drawn::Fresh(16);
@@ -290,7 +326,10 @@ pub fn in_window(p: &Passes, sized: &mut Sized, window: &mut Window, chosen: Dra
         }
         let (width, height) = window.size();
         let smallest = crate::SMALLEST.width;
-        if (width, height) != (sized.targets.extent.width, sized.targets.extent.height) && width >= smallest && height >= smallest {
+        if (width, height) != (sized.targets.extent.width, sized.targets.extent.height)
+            && width >= smallest
+            && height >= smallest
+        {
             crate::resize(p, sized, Size { width, height })?;
             resizes += 1;
             if after_first_resize.is_none() {

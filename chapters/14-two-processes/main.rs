@@ -301,12 +301,10 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(
-        CHAPTER,
-        SMALLEST,
-        |args: &Flags<Args>, report: &mut Report| match args.viewer_fd.is_some() || args.connect.is_some() {
+    common::run_chapter(CHAPTER, SMALLEST, |args: &Flags<Args>, report: &mut Report| {
+        match args.viewer_fd.is_some() || args.connect.is_some() {
             true => viewer::run(args, report),
             false => render(args, report),
-        },
-    )
+        }
+    })
 }

@@ -4,8 +4,8 @@
 use super::{Args, CHAPTER};
 use crate::wire::{self, Message, Received, Socket};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::instruments::fail;
 use common::clocks::timing::PassTimes;
+use common::instruments::fail;
 use common::{Flags, Report, ms_since};
 use std::collections::VecDeque;
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
@@ -221,7 +221,12 @@ impl Session<'_> {
 /// Starts this same program as the viewer, on one end of a socket pair: `--viewer-fd N` names
 /// the end it inherits. Our copy of that end is closed once it has started, so that its death is
 /// our hang-up (a socket reads as hung up only when every copy of the other end is closed).
-pub fn spawn_viewer(args: &Flags<Args>, width: u32, height: u32, windowed: bool) -> Result<(Socket, Option<Child>)> {
+pub fn spawn_viewer(
+    args: &Flags<Args>,
+    width: u32,
+    height: u32,
+    windowed: bool,
+) -> Result<(Socket, Option<Child>)> {
     let (ours, theirs) = wire::socketpair()?;
     let exe = std::env::current_exe().context("finding this program, to start the viewer")?;
     let mut command = std::process::Command::new(exe);

@@ -79,7 +79,12 @@ pub fn is_picture_of(pixels: &[u8], frame: u64, width: u32, height: u32) -> bool
 
 /// Does the window's back buffer show frame `frame`? Its top-left pixel, the background, is
 /// read (a window may be any size: the square lands elsewhere, the corner stays background).
-pub fn window_shows(gl: &glow::Context, frame: u64, (width, height): (u32, u32), (ww, wh): (u32, u32)) -> bool {
+pub fn window_shows(
+    gl: &glow::Context,
+    frame: u64,
+    (width, height): (u32, u32),
+    (ww, wh): (u32, u32),
+) -> bool {
     if ww == 0 || wh == 0 {
         return true; // minimised: nothing to show
     }

@@ -12,10 +12,17 @@ use std::time::{Duration, Instant};
 
 /// The probe, in this process (`--one-process`): a Vulkan semaphore exported and imported into
 /// GL, never signalled; GL told to wait for it; then GL's fence waited for up to `timeout`.
-pub fn probe(vk: &VulkanContext, gl_context: GlContext, timeout: Duration, report: &mut Report) -> Result<()> {
+pub fn probe(
+    vk: &VulkanContext,
+    gl_context: GlContext,
+    timeout: Duration,
+    report: &mut Report,
+) -> Result<()> {
     let ext = gl_context.semaphores.as_ref();
     ensure!(
-        ext.is_some() && vk.has_extension(handoff::SEMAPHORE_EXTENSION) && handoff::vulkan_can_export_semaphores(vk),
+        ext.is_some()
+            && vk.has_extension(handoff::SEMAPHORE_EXTENSION)
+            && handoff::vulkan_can_export_semaphores(vk),
         "--stall-probe needs shared semaphores: VK_KHR_external_semaphore_fd on {} and GL_EXT_semaphore_fd",
         vk.info.name
     );
@@ -47,6 +54,9 @@ pub fn probe(vk: &VulkanContext, gl_context: GlContext, timeout: Duration, repor
     let started = Instant::now();
     drop(gl_context);
     report.set("stall_gl_context_destroyed_ms", ms(started));
-    eprintln!("stall probe: GL's fence {} within {timeout:?}", if finished.is_ok() { "signalled" } else { "did not signal" });
+    eprintln!(
+        "stall probe: GL's fence {} within {timeout:?}",
+        if finished.is_ok() { "signalled" } else { "did not signal" }
+    );
     Ok(())
 }

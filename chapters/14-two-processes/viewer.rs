@@ -8,7 +8,6 @@
 use super::slot::{is_picture_of, read_slot, wait_until_written, window_shows};
 use super::{Args, CHAPTER, gauges, wire};
 use anyhow::{Context as _, Result, bail, ensure};
-use common::{Flags, Report};
 use common::base::cli::Size;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, create};
 use common::base::vulkan::DeviceInfo;
@@ -16,6 +15,7 @@ use common::base::window::{self, Key, NamedKey, Window};
 use common::instruments::{output, resources};
 use common::interop::handoff::import_semaphore;
 use common::interop::{self, exportable::MemoryTerms};
+use common::{Flags, Report};
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::time::{Duration, Instant};
@@ -331,7 +331,6 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
     Ok(gone.is_some())
 }
 
-
 /// After `Closed`: the frames the renderer sent meanwhile are not shown, nor freed (it let go
 /// of them), until its Bye (`None`) or its hang-up.
 fn until_bye(socket: &Socket) -> Result<Option<&'static str>> {
@@ -345,6 +344,3 @@ fn until_bye(socket: &Socket) -> Result<Option<&'static str>> {
         }
     }
 }
-
-
-

@@ -97,7 +97,10 @@ pub fn temporal_rows(scene: SceneKind, size: Size, spp: u32, frames: u32, out: &
         let report = run_chapter(TEMPORAL, &args, out)?;
         Ok(row_of(&report, mode, (scene, size, spp)))
     };
-    Ok([view(Mode::TemporalReuse, "0", &out.join("orbit"))?, view(Mode::TemporalReuseCloser, "1", &out.join("closer"))?])
+    Ok([
+        view(Mode::TemporalReuse, "0", &out.join("orbit"))?,
+        view(Mode::TemporalReuseCloser, "1", &out.join("closer"))?,
+    ])
 }
 
 /// A row from a chapter's report: its GPU medians of the ids, the trace and the composite with

@@ -205,7 +205,8 @@ impl<'s> Frame<'s> {
     pub fn covered_pixels(&self, gl: &glow::Context) -> u64 {
         let (w, h) = (self.gbuffers.extent.width, self.gbuffers.extent.height);
         self.gbuffers.draw(gl, self.scene, &self.camera);
-        let positions = common::instruments::output::read_texture_f32(gl, self.gbuffers.textures()[0], w, h, 4);
+        let positions =
+            common::instruments::output::read_texture_f32(gl, self.gbuffers.textures()[0], w, h, 4);
         positions.chunks_exact(4).filter(|p| p[3] != 0.0).count() as u64
     }
 

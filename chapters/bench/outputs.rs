@@ -112,7 +112,11 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
             .x_label_formatter(&|v| format!("{v:.0}"))
             .y_label_formatter(&|v| three_figures(*v))
             .draw()?;
-        for (m, mode) in Mode::ALL.iter().chain([&Mode::FastFrame, &Mode::TemporalReuse, &Mode::TemporalReuseCloser]).enumerate() {
+        for (m, mode) in Mode::ALL
+            .iter()
+            .chain([&Mode::FastFrame, &Mode::TemporalReuse, &Mode::TemporalReuseCloser])
+            .enumerate()
+        {
             let colour = colours[m];
             for (s, size) in sizes.iter().enumerate() {
                 let points: Vec<(f64, f64)> = rows

@@ -53,9 +53,11 @@ pub mod interop;
 pub mod rt;
 pub mod scene;
 
-pub use base::chapter::{Flags, connect, contexts, contexts_in_window, finish, largest_size, ms_since, run_chapter};
+pub use base::chapter::{
+    Flags, connect, contexts, contexts_in_window, finish, largest_size, ms_since, run_chapter,
+};
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;
+pub use base::vulkan::{INTEROP, RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};
 pub use instruments::report::{Print, Report};
 pub use instruments::resources::{open_fd_count, settled_fd_count};
-pub use base::vulkan::{INTEROP, RAY_TRACED_INTEROP, RAY_TRACING_EXTENSIONS, Requirements, VulkanContext};

@@ -3,10 +3,10 @@
 
 use super::cli::{CommonArgs, Largest, Size, Smallest};
 use super::gl::{self, GlContext, MEMORY_EXTENSIONS};
-use crate::instruments::report::{Print, Report};
 use super::vulkan::{self, Requirements, VulkanContext};
-use super::window::Window;
 use super::window;
+use super::window::Window;
+use crate::instruments::report::{Print, Report};
 use crate::instruments::{fail, resources};
 use std::process::ExitCode;
 

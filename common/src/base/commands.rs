@@ -1,9 +1,9 @@
 //! Recording and submitting Vulkan work: one command buffer reused every frame, guarded by a
 //! fence, plus one-shot submissions for set-up.
 
-use crate::instruments::fail;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::fail;
 use anyhow::Result;
 use ash::vk;
 
@@ -31,10 +31,13 @@ impl Commands {
         let pool_info = vk::CommandPoolCreateInfo::default()
             .queue_family_index(vk.queue_family_index)
             .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER);
-        let pool = create(device, "vkCreateCommandPool", || unsafe { device.create_command_pool(&pool_info, None) })?;
+        let pool = create(device, "vkCreateCommandPool", || unsafe {
+            device.create_command_pool(&pool_info, None)
+        })?;
         let allocate = vk::CommandBufferAllocateInfo::default().command_pool(*pool).command_buffer_count(1);
         let buffer =
-            fail::call("vkAllocateCommandBuffers", || unsafe { device.allocate_command_buffers(&allocate) })?[0];
+            fail::call("vkAllocateCommandBuffers", || unsafe { device.allocate_command_buffers(&allocate) })?
+                [0];
         // Created signalled, so that waiting before the first submission returns at once.
         let fence_info = vk::FenceCreateInfo::default().flags(vk::FenceCreateFlags::SIGNALED);
         let fence = create(device, "vkCreateFence", || unsafe { device.create_fence(&fence_info, None) })?;
@@ -216,8 +219,9 @@ impl HostBuffer {
         let requirements = unsafe { device.get_buffer_memory_requirements(*buffer) };
         let flags = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
         let memory_type = vk.find_memory_type(requirements.memory_type_bits, flags)?;
-        let allocate =
-            vk::MemoryAllocateInfo::default().allocation_size(requirements.size).memory_type_index(memory_type);
+        let allocate = vk::MemoryAllocateInfo::default()
+            .allocation_size(requirements.size)
+            .memory_type_index(memory_type);
         let memory = create(device, "vkAllocateMemory (host-visible)", || unsafe {
             device.allocate_memory(&allocate, None)
         })?
@@ -263,9 +267,11 @@ pub fn copy_image_to_buffer(
     extent: vk::Extent2D,
     buffer: vk::Buffer,
 ) {
-    let region = vk::BufferImageCopy::default()
-        .image_subresource(COLOR_LAYERS)
-        .image_extent(vk::Extent3D { width: extent.width, height: extent.height, depth: 1 });
+    let region = vk::BufferImageCopy::default().image_subresource(COLOR_LAYERS).image_extent(vk::Extent3D {
+        width: extent.width,
+        height: extent.height,
+        depth: 1,
+    });
     unsafe { vk.device.cmd_copy_image_to_buffer(cb, image, layout, buffer, &[region]) };
 }
 

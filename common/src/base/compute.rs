@@ -33,8 +33,7 @@ impl ComputePipeline {
         let push = vk::PushConstantRange::default().stage_flags(compute).size(push_bytes);
         let interface = ShaderInterface::new(vk, &bindings, push, "compute")?;
         let module = shader_module(vk, spirv, "compute")?;
-        let stage =
-            vk::PipelineShaderStageCreateInfo::default().stage(compute).module(*module).name(c"main");
+        let stage = vk::PipelineShaderStageCreateInfo::default().stage(compute).module(*module).name(c"main");
         let info = vk::ComputePipelineCreateInfo::default().stage(stage).layout(*interface.layout);
         // On failure `interface` and `module` are dropped, which destroys them.
         let pipeline = create(&vk.device, "vkCreateComputePipelines", || unsafe {

@@ -3,9 +3,9 @@
 //! constants). The compute pipeline (`base::compute`) and the ray tracing pipeline
 //! (`rt::raytrace`) are both built on it.
 
-use crate::instruments::fail;
 use super::owned::{Owned, create};
 use super::vulkan::VulkanContext;
+use crate::instruments::fail;
 use anyhow::{Context as _, Result};
 use ash::vk;
 
@@ -88,7 +88,13 @@ impl ShaderInterface {
         let set = fail::call(&format!("vkAllocateDescriptorSets ({pipeline})"), || unsafe {
             device.allocate_descriptor_sets(&info)
         })?[0];
-        Ok(ShaderInterface { set, _pool: pool, layout, _set_layout: set_layout, push_stages: push.stage_flags })
+        Ok(ShaderInterface {
+            set,
+            _pool: pool,
+            layout,
+            _set_layout: set_layout,
+            push_stages: push.stage_flags,
+        })
     }
 
     /// Points `binding` at a storage image view, read and written in GENERAL (the layout storage

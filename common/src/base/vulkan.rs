@@ -4,7 +4,9 @@
 
 use crate::instruments::fail;
 use crate::instruments::report::{VulkanReport, uuid_hex};
-use crate::instruments::validation::{VALIDATION_LAYER, VALIDATION_ON, messenger_create_info, validation_wanted};
+use crate::instruments::validation::{
+    VALIDATION_LAYER, VALIDATION_ON, messenger_create_info, validation_wanted,
+};
 use anyhow::{Context as _, Result};
 use ash::vk;
 use std::ffi::{CStr, c_char};

@@ -221,7 +221,8 @@ impl App {
 /// where `__GLX_VENDOR_LIBRARY_NAME=nvidia` loads NVIDIA's GLX and the window opens (H100,
 /// 2026-11-26): the error suggests it there.
 fn no_window_config(cause: &str) -> anyhow::Error {
-    let wayland = std::env::var("WAYLAND_DISPLAY").ok().filter(|d| cfg!(feature = "wayland") && !d.is_empty());
+    let wayland =
+        std::env::var("WAYLAND_DISPLAY").ok().filter(|d| cfg!(feature = "wayland") && !d.is_empty());
     let display = match (&wayland, std::env::var("DISPLAY")) {
         (Some(d), _) => format!("Wayland display {d}"),
         (None, Ok(d)) => format!("X display {d}"),
@@ -310,9 +311,7 @@ pub fn show_pictures(title: &str, pictures: &[(String, std::path::PathBuf)], fra
     use glow::HasContext;
     let images = pictures
         .iter()
-        .map(|(name, path)| {
-            Ok((name.clone(), crate::instruments::output::read_png_rgba8(path)?))
-        })
+        .map(|(name, path)| Ok((name.clone(), crate::instruments::output::read_png_rgba8(path)?)))
         .collect::<Result<Vec<_>>>()?;
     let Some((_, first)) = images.first() else { return Ok(false) };
     let ((width, height), pixels) = first;

@@ -7,11 +7,11 @@
 //! between them is measured once at the end: GL's time is read, Vulkan writes a timestamp, GL's
 //! time is read again, and Vulkan's stamp lies between the two readings.
 
+use super::timestamps::{Timestamps, median_p95};
 use crate::base::commands::Commands;
 use crate::base::gl::{Owned, create_n};
-use crate::instruments::output;
-use super::timestamps::{Timestamps, median_p95};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::output;
 use anyhow::{Result, ensure};
 use ash::vk;
 use glow::HasContext;

@@ -1,9 +1,9 @@
 //! GPU timestamps: the queries around a frame's Vulkan work, read back once its fence has
 //! signalled, and the median and 95th percentile the reports give of them.
 
-use crate::instruments::fail;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::fail;
 use anyhow::Result;
 use ash::vk;
 

@@ -8,9 +8,9 @@
 
 use crate::base::commands;
 use crate::base::gl::{Owned, create, create_n};
-use crate::instruments::report::Report;
-use crate::clocks::timestamps::{Timestamps, median_p95};
 use crate::base::vulkan::VulkanContext;
+use crate::clocks::timestamps::{Timestamps, median_p95};
+use crate::instruments::report::Report;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext as _;

@@ -2,11 +2,11 @@
 //! change, a window's keys and mouse (Esc ends, a drag orbits, the wheel zooms, a new size is
 //! asked for), and headless, the sizes `--resize-every` steps through.
 
+use super::composite::Uniforms;
 use crate::base::cli::Size;
 use crate::base::gl::GlContext;
 use crate::base::window::{Key, NamedKey, Window};
 use crate::scene::Camera;
-use super::composite::Uniforms;
 use glam::Vec3;
 
 /// What the keys change, whichever views the composite has (`V`). Only the radius changes what

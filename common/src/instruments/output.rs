@@ -64,8 +64,10 @@ pub fn save_rgba8(
 ) -> Result<()> {
     create_dir(dir)?;
     let path = dir.join(format!("{name}.png"));
-    let encoded = encode_png((width, height), pixels).with_context(|| format!("encoding {}", path.display()))?;
-    fail::call("writing a PNG", || std::fs::write(&path, &encoded)).with_context(|| format!("writing {}", path.display()))?;
+    let encoded =
+        encode_png((width, height), pixels).with_context(|| format!("encoding {}", path.display()))?;
+    fail::call("writing a PNG", || std::fs::write(&path, &encoded))
+        .with_context(|| format!("writing {}", path.display()))?;
     eprintln!("wrote {}", path.display());
     report.image(name, &path, width, height, "RGBA8");
     Ok(())

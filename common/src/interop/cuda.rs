@@ -5,9 +5,9 @@
 //! Everything is loaded at run time: a machine without CUDA builds and runs the chapters, and
 //! learns from [`Unavailable`] what is missing.
 
-use crate::instruments::fail;
-use crate::base::owned::{Owned, create};
 pub use crate::base::owned::Destroy;
+use crate::base::owned::{Owned, create};
+use crate::instruments::fail;
 use anyhow::Result;
 pub use cudarc::driver::{result as cu, sys};
 use std::fmt;

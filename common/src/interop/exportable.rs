@@ -3,10 +3,10 @@
 //! gpu-allocator cannot do this (it has no way to chain `VkExportMemoryAllocateInfo`), so every
 //! shared resource gets its own plain `vkAllocateMemory`, bound at offset 0.
 
-use crate::instruments::fail;
 use crate::base::image::image_info;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::fail;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use std::os::fd::{FromRawFd, OwnedFd};
@@ -109,14 +109,7 @@ pub fn allocate(
     let property_flags = ctx.memory_properties.memory_types[memory_type_index as usize].property_flags;
     let allowed_types = requirements.memory_type_bits;
     let dedicated = !matches!(dedicated, Dedicated::No);
-    Ok(ExportableMemory {
-        memory,
-        size,
-        memory_type_index,
-        property_flags,
-        allowed_types,
-        dedicated,
-    })
+    Ok(ExportableMemory { memory, size, memory_type_index, property_flags, allowed_types, dedicated })
 }
 // ANCHOR_END: allocate_memory
 // ANCHOR_END: allocate_whole

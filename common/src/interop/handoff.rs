@@ -1,10 +1,10 @@
 //! How GL and Vulkan take turns on shared memory (taught in chapter 03): two exported
 //! semaphores where both drivers can share them, or the CPU waiting for each side where not.
 
-use crate::instruments::fail;
 use crate::base::gl::{self, GlContext};
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::fail;
 use anyhow::{Context as _, Result};
 use ash::vk;
 use glow::HasContext;

@@ -2,13 +2,13 @@
 //! in chapter 02) or a 2D texture (chapter 03) stored in it.
 
 use crate::base::commands::image_barrier;
-use crate::instruments::fail;
 use crate::base::gl::{
     self, DEDICATED_MEMORY_OBJECT_EXT, GlContext, HANDLE_TYPE_OPAQUE_FD_EXT, OPTIMAL_TILING_EXT,
     TEXTURE_TILING_EXT,
 };
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::fail;
 use crate::interop::exportable::{self, Dedicated, ExportableMemory, MemoryTerms};
 use crate::interop::handoff::Handoff;
 use anyhow::Result;

@@ -3,9 +3,9 @@
 
 use crate::base::commands::first_use;
 use crate::base::gl::GlContext;
-use crate::instruments::report::Report;
-use crate::clocks::timestamps::{Timestamps, timed};
 use crate::base::vulkan::VulkanContext;
+use crate::clocks::timestamps::{Timestamps, timed};
+use crate::instruments::report::Report;
 use crate::interop::handoff::{Apis, HandOver, Handoff};
 use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
@@ -199,7 +199,16 @@ impl AoTracer {
         let ms = timestamps.map(|t| t.read_ms(vk)).transpose()?;
         let extent = gbuffers.extent;
         let texture = *self.image.texture.texture;
-        Ok((crate::instruments::output::read_texture_f32(&apis.gl.gl, texture, extent.width, extent.height, 1), ms))
+        Ok((
+            crate::instruments::output::read_texture_f32(
+                &apis.gl.gl,
+                texture,
+                extent.width,
+                extent.height,
+                1,
+            ),
+            ms,
+        ))
     }
 
     /// The GPU times of [`trace_once`](Self::trace_once)'s two traces in chapters 09 and 10, when

@@ -2,11 +2,11 @@
 //! shader binding table, and a storage image for results (taught in chapter 06; chapter 07
 //! traces its ambient occlusion rays through the same kind of pipeline).
 
-use crate::instruments::fail;
 use crate::base::image::image_info;
-use crate::base::pipeline::{ShaderInterface, shader_module};
 use crate::base::owned::{Owned, create};
+use crate::base::pipeline::{ShaderInterface, shader_module};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::fail;
 use crate::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator, Memory};
 use anyhow::{Context as _, Result};
 use ash::vk;

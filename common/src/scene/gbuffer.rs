@@ -4,9 +4,9 @@
 use crate::base::chapter;
 use crate::base::cli::{CommonArgs, Size};
 use crate::base::gl::{GlContext, Owned, create, renderbuffer};
-use crate::instruments::report::Report;
 use crate::base::vulkan::{Requirements, VulkanContext};
 use crate::base::window::Window;
+use crate::instruments::report::Report;
 use crate::interop::handoff::Handoff;
 use crate::interop::{BufferPair, SharedBuffer, SharedFormat, SharedImage, share_buffer};
 use crate::scene::{Camera, Instance, Scene, Vertex};

@@ -4,13 +4,13 @@
 
 use super::composite::{ComputeComposite, Uniforms, View};
 use super::visibility::Targets;
-use anyhow::Result;
-use crate::instruments::report::Report;
 use crate::base::cli::{Size, check_covered};
-use crate::instruments::output;
 use crate::frame::{Overlays, shows_colour};
+use crate::instruments::output;
+use crate::instruments::report::Report;
 use crate::interop::handoff::Apis;
 use crate::scene::Camera;
+use anyhow::Result;
 use glam::Vec3;
 use glow::HasContext;
 use std::path::Path;

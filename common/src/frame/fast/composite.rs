@@ -38,8 +38,8 @@ pub struct ComputeComposite {
 
 impl ComputeComposite {
     pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
-        let program = crate::base::gl::compute_program(gl, COMPUTE_SHADER)
-            .context("the composite's compute shader")?;
+        let program =
+            crate::base::gl::compute_program(gl, COMPUTE_SHADER).context("the composite's compute shader")?;
         Ok(ComputeComposite { program })
     }
 

@@ -2,16 +2,16 @@
 //! and traces the occlusion, the table of mesh ids it reads, and one frame's hand-overs.
 
 use super::visibility::{MeshIds, Targets};
-use anyhow::Result;
-use ash::vk;
 use crate::base::vulkan::VulkanContext;
 use crate::clocks::timestamps::Timestamps;
 use crate::interop::handoff::Apis;
 use crate::rt::RayTracedScene;
-use crate::rt::ao::Traced;
 use crate::rt::accel::{BufferDesc, DeviceBuffer};
+use crate::rt::ao::Traced;
 use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes, raygen_bindings};
 use crate::scene::Camera;
+use anyhow::Result;
+use ash::vk;
 use gpu_allocator::MemoryLocation;
 
 const RAYGEN: &[u8] = include_bytes!("../../../../shaders/visibility_ao.rgen.spv");
@@ -137,13 +137,8 @@ impl SurfaceTracer {
             meshes.allocation.mapped_slice_mut().ok_or_else(|| anyhow::anyhow!("mesh ids unmapped"))?;
         mapped[..bytes.len()].copy_from_slice(bytes);
         let instances = shared.buffers.instances.vk.device_address(vk);
-        let tracer = SurfaceTracer {
-            pipeline,
-            meshes,
-            mesh_count: ids.len() as u32,
-            instances,
-            accumulated: 0,
-        };
+        let tracer =
+            SurfaceTracer { pipeline, meshes, mesh_count: ids.len() as u32, instances, accumulated: 0 };
         tracer.point_at(vk, targets);
         Ok(tracer)
     }
@@ -255,7 +250,11 @@ pub fn hand_over_around(
 /// surface (the running mean, and all the composite reads) out.
 fn traced<R>(targets: &Targets, hand_over: impl FnOnce(&Traced) -> R) -> R {
     let inputs = [&targets.visibility];
-    hand_over(&Traced { inputs: &inputs, output: &targets.surface, gl_has_output: targets.gl_has_surface.get() })
+    hand_over(&Traced {
+        inputs: &inputs,
+        output: &targets.surface,
+        gl_has_output: targets.gl_has_surface.get(),
+    })
 }
 // ANCHOR_END: hand_over
 

@@ -3,13 +3,13 @@
 
 use super::memory::{BufferDesc, DeviceBuffer, GpuAllocator, query_pool};
 use super::structure::{
-    AccelerationStructure, Scratch, build_barrier, build_sizes, instances_at, instances_geometry, set_blas_address,
-    tlas_built_barrier, triangles_geometry,
+    AccelerationStructure, Scratch, build_barrier, build_sizes, instances_at, instances_geometry,
+    set_blas_address, tlas_built_barrier, triangles_geometry,
 };
 use crate::base::commands::Commands;
-use crate::instruments::fail;
-use crate::clocks::timestamps::Timestamps;
 use crate::base::vulkan::VulkanContext;
+use crate::clocks::timestamps::Timestamps;
+use crate::instruments::fail;
 use crate::scene::Scene;
 use crate::scene::gbuffer::SceneBuffers;
 use anyhow::{Context as _, Result};
@@ -131,7 +131,9 @@ pub fn build_with(
                 .vertex_stride(size_of::<crate::scene::Vertex>() as u64) // skipping the normal
                 .max_vertex(mesh.vertices.len() as u32 - 1)
                 .index_type(vk::IndexType::UINT32)
-                .index_data(vk::DeviceOrHostAddressConstKHR { device_address: indices.vk.device_address(vk) });
+                .index_data(vk::DeviceOrHostAddressConstKHR {
+                    device_address: indices.vk.device_address(vk),
+                });
             vk::AccelerationStructureGeometryKHR::default()
                 .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
                 .geometry(vk::AccelerationStructureGeometryDataKHR { triangles })

@@ -4,8 +4,8 @@
 use super::memory::GpuAllocator;
 use super::structure::Scratch;
 use super::structure::build_sizes;
-use crate::base::vulkan::VulkanContext;
 use crate::base::commands::Commands;
+use crate::base::vulkan::VulkanContext;
 use crate::clocks::timestamps::{Timestamps, timed};
 use anyhow::Result;
 use ash::vk;

@@ -1,9 +1,9 @@
 //! Memory Vulkan keeps to itself: gpu-allocator, buffers in it with their device addresses, and
 //! query pools. It knows nothing of acceleration structures (`structure` stands on it).
 
-use crate::instruments::fail;
 use crate::base::owned::{Owned, create};
 use crate::base::vulkan::VulkanContext;
+use crate::instruments::fail;
 use anyhow::Result;
 use ash::vk;
 use gpu_allocator::MemoryLocation;

@@ -35,7 +35,8 @@ impl AccelerationStructure {
         let location = MemoryLocation::GpuOnly;
         let desc = BufferDesc { name: "acceleration structure", size: bytes, usage, location };
         let buffer = DeviceBuffer::new(vk, allocator, desc)?;
-        let info = vk::AccelerationStructureCreateInfoKHR::default().buffer(*buffer.buffer).size(bytes).ty(ty);
+        let info =
+            vk::AccelerationStructureCreateInfoKHR::default().buffer(*buffer.buffer).size(bytes).ty(ty);
         // On failure `buffer` is dropped, which destroys it.
         let what = format!("vkCreateAccelerationStructureKHR ({ty:?})");
         let handle = create(&loader, &what, || unsafe { loader.create_acceleration_structure(&info, None) })?;
