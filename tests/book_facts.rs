@@ -698,8 +698,8 @@ fn the_introduction_counts_the_chapters() {
 }
 
 /// The README's run command installs only what a chapter needs (`bash .ci/deps`, no mdBook); its
-/// test command installs what the tests need too (`--tests`), and CI (`.ci/run`) runs that test
-/// command verbatim.
+/// test command installs what the tests need too (`--tests`) and runs `.ci/test` (formatting,
+/// clippy, every test), and CI (`.ci/run`) runs that test command verbatim.
 #[test]
 fn the_readme_run_command_installs_only_what_chapters_need() {
     let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
@@ -707,7 +707,7 @@ fn the_readme_run_command_installs_only_what_chapters_need() {
     let ci = std::fs::read_to_string(root().join(".ci/run")).unwrap();
     let commands: Vec<&str> = readme.lines().filter(|l| l.starts_with("bash .ci/deps")).collect();
     let run = commands.iter().find(|l| l.contains("cargo run")).expect("the README's run command");
-    let test = commands.iter().find(|l| l.contains("cargo test")).expect("the README's test command");
+    let test = commands.iter().find(|l| l.contains(".ci/test")).expect("the README's test command");
     assert!(run.starts_with("bash .ci/deps && "), "the run command installs more than chapters need: {run}");
     assert!(
         test.starts_with("bash .ci/deps --tests && "),
@@ -718,6 +718,14 @@ fn the_readme_run_command_installs_only_what_chapters_need() {
         ".ci/run does not run the README's test command `{test}`"
     );
     assert!(deps.contains("--tests)"), ".ci/deps takes no --tests");
+    let checks = std::fs::read_to_string(root().join(".ci/test")).unwrap();
+    for check in [
+        "cargo fmt --all --check",
+        "cargo clippy --workspace --all-targets --locked -- -D warnings",
+        "cargo test --workspace --locked",
+    ] {
+        assert!(checks.lines().any(|l| l.starts_with(check)), ".ci/test does not run `{check}`");
+    }
     // mdBook only with --tests: every call to install it is guarded.
     let unguarded: Vec<&str> = deps
         .lines()
@@ -1021,12 +1029,11 @@ impl Module {
                 },
             };
             let parts: Vec<&str> = path.split("::").collect();
-            if names.contains(&name) || names.contains(&"*") {
-                if let Some(module) = self.module_at(&parts)
-                    && let Some(found) = module.item(name, depth + 1)
-                {
-                    return Some(found);
-                }
+            if (names.contains(&name) || names.contains(&"*"))
+                && let Some(module) = self.module_at(&parts)
+                && let Some(found) = module.item(name, depth + 1)
+            {
+                return Some(found);
             }
         }
         None
@@ -1051,7 +1058,7 @@ fn unresolved(path: &str) -> Option<String> {
             None => break,
         }
     }
-    let Some((item, inner)) = rest.split_first() else { return None };
+    let (item, inner) = rest.split_first()?;
     let Some(defined) = module.item(item, 0) else {
         return Some(format!("{trail} has no public module or item `{item}`"));
     };

@@ -5,6 +5,8 @@
 #[path = "../xtask/src/spirv_lock.rs"]
 mod spirv_lock;
 
+mod harness;
+
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -62,31 +64,12 @@ fn spirv_files_are_spirv() {
     }
 }
 
-/// What `sources_still_compile` does when glslc cannot be started: outside CI it skips with
-/// the returned message; in CI, which installs glslc (`.ci/deps`), a skip would pass a check that
-/// never ran, so it fails with the returned message.
-fn without_glslc(ci: bool, error: &std::io::Error) -> Result<String, String> {
-    let missing = format!("glslc could not be started ({error})");
-    if ci {
-        Err(format!(
-            "{missing}, and CI is set: CI installs glslc (bash .ci/deps), so a skip here would \
-             hide a shader that no longer compiles"
-        ))
-    } else {
-        Ok(format!("{missing}: not recompiling shaders (apt-get install glslc, or bash .ci/deps)"))
-    }
-}
-
 #[test]
 fn sources_still_compile() {
     if let Err(error) = Command::new("glslc").arg("--version").output() {
-        match without_glslc(std::env::var_os("CI").is_some(), &error) {
-            Ok(skip) => {
-                eprintln!("{skip}");
-                return;
-            }
-            Err(fail) => panic!("{fail}"),
-        }
+        // A skip outside CI (counted as one by `bash .ci/test`), a failure in CI.
+        let why = format!("glslc could not be started ({error}): apt-get install glslc, or bash .ci/deps");
+        return harness::skip("sources_still_compile", &why);
     }
     let out = tempfile::tempdir().unwrap();
     for name in sources() {
@@ -107,14 +90,14 @@ fn sources_still_compile() {
     }
 }
 
-/// A missing glslc skips `sources_still_compile` on a workstation and fails it in CI.
+/// A missing tool (glslc, Xvfb) skips its test on a workstation, counted as a skip, and fails it
+/// in CI.
 #[test]
-fn a_missing_glslc_fails_only_in_ci() {
-    let error = std::io::Error::from(std::io::ErrorKind::NotFound);
-    let skip = without_glslc(false, &error).expect("outside CI a missing glslc is a skip");
-    assert!(skip.contains("not recompiling shaders") && skip.contains("apt-get install glslc"), "{skip}");
-    let fail = without_glslc(true, &error).expect_err("in CI a missing glslc is a failure");
-    assert!(fail.contains("CI installs glslc") && fail.contains(".ci/deps"), "{fail}");
+fn a_missing_tool_fails_only_in_ci() {
+    let skip = harness::skip_line(false, "sources_still_compile", "no glslc").expect("outside CI: a skip");
+    assert_eq!(skip, "sources_still_compile: no glslc");
+    let fail = harness::skip_line(true, "sources_still_compile", "no glslc").expect_err("in CI: a failure");
+    assert!(fail.contains("must not be skipped") && fail.contains(".ci/deps"), "{fail}");
 }
 
 /// The lock check itself, on a throwaway shaders dir: fresh after locking, stale after an edit to

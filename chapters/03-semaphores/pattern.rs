@@ -40,5 +40,5 @@ pub fn save_last_frame(
     let size = (extent.width, extent.height);
     output::save_rgba8(report, out_dir, crate::CHAPTER, size, seen_by_gl)?;
     let name = format!("{}-gl", crate::CHAPTER);
-    output::save_rgba8(report, out_dir, &name, size, &seen_by_vulkan.bytes().to_vec())
+    output::save_rgba8(report, out_dir, &name, size, seen_by_vulkan.bytes())
 }

@@ -16,6 +16,7 @@ const COMPUTE_SPIRV: &[u8] = include_bytes!("../../shaders/compute_triangle.comp
 // ANCHOR: interface
 /// The compute shader's push constants (`Push` in compute_triangle.comp).
 #[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct Push {
     time: f32,
 }
@@ -138,13 +139,8 @@ impl ComputePipeline {
                 &[self.set],
                 &[],
             );
-            device.cmd_push_constants(
-                cb,
-                *self.layout,
-                vk::ShaderStageFlags::COMPUTE,
-                0,
-                &push.time.to_ne_bytes(),
-            );
+            let bytes = bytemuck::bytes_of(&push);
+            device.cmd_push_constants(cb, *self.layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
             // One invocation per pixel, in whole 16x16 workgroups; the shader skips the overhang.
             device.cmd_dispatch(cb, extent.width.div_ceil(WORKGROUP), extent.height.div_ceil(WORKGROUP), 1);
             // Release to GL: make the shader's writes available (source COMPUTE_SHADER, SHADER_WRITE),

@@ -19,7 +19,7 @@ use common::instruments::output;
 use common::interop::handoff::{HandOver, SEMAPHORE_EXTENSION};
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel;
-use common::rt::raytrace::{PrimaryRays, RayPipeline, RayShaders, StorageImage, push_bytes};
+use common::rt::raytrace::{PrimaryRays, RayPipeline, RayShaders, StorageImage};
 use common::scene::gbuffer::{self, GBuffers, SceneBuffers};
 use common::scene::{Camera, SceneArgs};
 use common::{Flags, RAY_TRACING_EXTENSIONS, Report, Requirements, VulkanContext, open_fd_count};
@@ -312,7 +312,7 @@ impl Trace<'_> {
             if let Some(t) = timestamps {
                 t.start(vk, cb, rays);
             }
-            pipeline.trace(vk, cb, push_bytes(push), mask.extent);
+            pipeline.trace(vk, cb, bytemuck::bytes_of(push), mask.extent);
             if let Some(t) = timestamps {
                 t.end(vk, cb);
             }

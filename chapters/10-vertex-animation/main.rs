@@ -145,7 +145,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         },
     )?;
     let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
-    mapped[..rest_bytes as usize].copy_from_slice(common::scene::gbuffer::as_bytes(&rest_directions));
+    mapped[..rest_bytes as usize].copy_from_slice(bytemuck::cast_slice(&rest_directions));
     let mut wave = Wave {
         vertices: buffers.meshes[1][0].vk.device_address(&vk),
         directions: rest.address,
@@ -254,8 +254,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     commands.wait(&vk, "vkWaitForFences before the checks")?;
     let moved = &buffers.meshes[1][0].vk;
     // SAFETY: `count` vertices of the coherent mapping; the GPU is done with them (fence above).
-    let gpu =
-        unsafe { std::slice::from_raw_parts(moved.mapped.cast::<common::scene::Vertex>(), count as usize) };
+    let bytes = count as usize * size_of::<common::scene::Vertex>();
+    let gpu: &[common::scene::Vertex] =
+        bytemuck::cast_slice(unsafe { std::slice::from_raw_parts(moved.mapped, bytes) });
     report.check("vertices_match_cpu_reference", sphere::vertices_match(&wave, &directions, gpu));
     let (w, h) = (extent.width, extent.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);

@@ -56,7 +56,7 @@ pub fn uv_sphere(rings: u32, segments: u32) -> Mesh {
 // ANCHOR: wave
 /// The compute shader's push constants (`Wave` in `shaders/sphere_wave.comp`, scalar layout).
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Wave {
     /// Device addresses of the shared vertex buffer and of the rest directions.
     pub vertices: u64,
@@ -117,7 +117,7 @@ impl WavePipeline {
     pub fn record(&self, vk: &VulkanContext, cb: vk::CommandBuffer, wave: &Wave) {
         unsafe {
             vk.device.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, *self.pipeline);
-            let bytes = common::scene::gbuffer::as_bytes(std::slice::from_ref(wave));
+            let bytes = bytemuck::bytes_of(wave);
             vk.device.cmd_push_constants(cb, *self.layout, vk::ShaderStageFlags::COMPUTE, 0, bytes);
             vk.device.cmd_dispatch(cb, wave.count.div_ceil(WORKGROUP), 1, 1);
         }

@@ -75,7 +75,7 @@ impl PixelBuffer {
             let access = glow::MAP_WRITE_BIT | glow::MAP_INVALIDATE_BUFFER_BIT;
             let mapped = gl.map_buffer_range(glow::PIXEL_UNPACK_BUFFER, 0, bytes as i32, access);
             // SAFETY: GL mapped `bytes` bytes for writing, 4-byte aligned (buffers map at least 64-aligned).
-            fill(std::slice::from_raw_parts_mut(mapped.cast::<u32>(), bytes as usize / 4));
+            fill(bytemuck::cast_slice_mut(std::slice::from_raw_parts_mut(mapped, bytes as usize)));
             gl.unmap_buffer(glow::PIXEL_UNPACK_BUFFER);
             gl.bind_buffer(glow::PIXEL_UNPACK_BUFFER, None);
         }

@@ -275,11 +275,11 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
                 }
                 (Path::ZeroCopy, None) => {
                     unsafe { gl.finish() };
-                    let words = bytes as usize / 4;
                     // SAFETY: `mapped` is `bytes` bytes of host-coherent memory GL is not using now.
-                    let traced = unsafe {
-                        std::slice::from_raw_parts_mut(mapped.expect("mapped for the CPU").cast(), words)
-                    };
+                    let mapped = mapped.expect("mapped for the CPU").cast::<u8>();
+                    let traced = bytemuck::cast_slice_mut(unsafe {
+                        std::slice::from_raw_parts_mut(mapped, bytes as usize)
+                    });
                     scene::trace(&params, traced);
                     times[0].push(ms_since(started));
                 }

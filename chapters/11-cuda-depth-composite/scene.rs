@@ -160,10 +160,7 @@ fn to_byte(value: f32) -> u32 {
 pub fn trace_pixel(p: &TraceParams, x: u32, y: u32) -> (u32, Hit) {
     let sx = (x as f32 + 0.5) / p.width as f32 * 2.0 - 1.0;
     let sy = (y as f32 + 0.5) / p.height as f32 * 2.0 - 1.0;
-    let mut dir = [0.0; 3];
-    for k in 0..3 {
-        dir[k] = p.forward[k] + sx * p.right[k] + sy * p.up[k];
-    }
+    let mut dir: [f32; 3] = std::array::from_fn(|k| p.forward[k] + sx * p.right[k] + sy * p.up[k]);
     let length = dot3(dir, dir).sqrt();
     dir = dir.map(|d| d / length);
 

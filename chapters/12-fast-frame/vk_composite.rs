@@ -22,7 +22,7 @@ const SPIRV: &[u8] = include_bytes!("../../shaders/fast_composite.comp.spv");
 
 /// `fast_composite.comp`'s push constants: the composite's uniforms, as GL's shader has them.
 #[repr(C)]
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct Push {
     blur_radius: i32,
     depth_tolerance: f32,
@@ -57,7 +57,7 @@ pub fn measure(
         view: u.view as i32,
         far_depth: u.far_depth,
     };
-    let push = common::rt::raytrace::push_bytes(&push);
+    let push = bytemuck::bytes_of(&push);
     let pipeline = ComputePipeline::new(vk, SPIRV, 2, push.len() as u32)?;
     let format = vk::Format::R8G8B8A8_UNORM;
     let picture = StorageImage::new(vk, allocator, format, vk::ImageUsageFlags::TRANSFER_SRC, extent)?;

@@ -176,7 +176,6 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // ANCHOR: cleanup
     unsafe { gl.finish() };
     vk.wait_idle()?; // once: no guard below waits
-    drop(passes);
     drop(commands);
     drop(updates);
     drop(timestamps);

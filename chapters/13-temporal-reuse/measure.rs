@@ -169,7 +169,7 @@ impl ErrorProbe<'_> {
             read_picture(gl, targets)
         };
         let (ours, picture) = (shown(View::Ao), shown(View::Final));
-        if !references.0.contains_key(&frame) {
+        if let std::collections::btree_map::Entry::Vacant(slot) = references.0.entry(frame) {
             let rays = Rays {
                 samples: self.reference.min(256),
                 radius: self.radius,
@@ -181,7 +181,7 @@ impl ErrorProbe<'_> {
             let covered =
                 common::frame::fast::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
             let (occlusion, picture) = (shown(View::Ao), shown(View::Final));
-            references.0.insert(frame, Converged { occlusion, covered, picture });
+            slot.insert(Converged { occlusion, covered, picture });
         }
         let Converged { occlusion: converged, covered, picture: converged_picture } = &references.0[&frame];
         let (mut sum, mut n) = (0.0, 0usize);
@@ -417,8 +417,7 @@ fn plot_against_time(path: &Path, walks: &[Walk], device: &str) -> Result<()> {
         .collect();
     let caption = format!("Mean AO error against GPU time per frame ({device})");
     let axes = ("mean GPU time per frame, ms", "mean RMSE over the path");
-    let labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String) =
-        (&|v| format!("{v:.2}"), &|v| format!("{v:.3}"));
+    let labels: (output::TickLabel, output::TickLabel) = (&|v| format!("{v:.2}"), &|v| format!("{v:.3}"));
     let span = points.iter().map(|&(t, e, _)| (t, e));
     output::log_log_plot(path, ((720, 420), &caption), axes, labels, span, |chart| {
         for &(t, e, i) in &points {

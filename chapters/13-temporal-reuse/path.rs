@@ -163,7 +163,7 @@ impl Moving {
     /// the 48 transform bytes of this instance's row change).
     pub fn write(&self, copy: &mut [u8], frame: u32) {
         let (offset, now) = self.row(frame);
-        copy[offset..offset + size_of_val(&now)].copy_from_slice(common::scene::gbuffer::as_bytes(&now));
+        copy[offset..offset + size_of_val(&now)].copy_from_slice(bytemuck::cast_slice(&now));
     }
 
     /// Writes the transform at `frame` into `instances`, the shared buffer GL draws the ids with

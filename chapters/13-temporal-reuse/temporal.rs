@@ -13,7 +13,7 @@ use common::frame::fast::visibility::Targets;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
-use common::rt::raytrace::{RayPipeline, RayShaders, StorageImage, push_bytes};
+use common::rt::raytrace::{RayPipeline, RayShaders, StorageImage};
 use common::scene::Camera;
 use gpu_allocator::MemoryLocation;
 
@@ -24,7 +24,7 @@ const HISTORY_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
 // ANCHOR: push
 /// The push constants of `shaders/temporal_ao.rgen` (std430, 112 bytes).
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct TemporalRays {
     pub cameras: u64,
     pub meshes: u64,
@@ -54,7 +54,7 @@ pub struct TemporalRays {
 
 /// The shader's `Cameras` (std430, 256 bytes): this frame's and the previous frame's.
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 struct Cameras {
     inverse_view_projection: [f32; 16],
     previous_view_projection: [f32; 16],
@@ -311,7 +311,7 @@ impl TemporalTracer {
             previous_forward: forward(&previous),
         };
         let mapped = self.cameras.allocation.mapped_slice_mut().context("cameras unmapped")?;
-        mapped[..size_of::<Cameras>()].copy_from_slice(common::scene::gbuffer::as_bytes(&[cameras]));
+        mapped[..size_of::<Cameras>()].copy_from_slice(bytemuck::bytes_of(&cameras));
         let list = match (budget.fresh_pass, &self.fresh_pixels) {
             (FreshPass::Packed, Some(list)) => Some(list),
             (FreshPass::Packed, None) => {
@@ -350,7 +350,7 @@ impl TemporalTracer {
             // writes must be visible, and its reads done, before these rays start.
             unsafe { vk.device.cmd_pipeline_barrier(cb, stage, stage, none, &history.0, &[], &history.1) };
             let Some(list) = list.map(|list| *list.buffer) else {
-                self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+                self.pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
                 return;
             };
             // The list starts empty: its count (the first 4 bytes) set to 0 by a transfer.
@@ -374,7 +374,7 @@ impl TemporalTracer {
                 let zeroed = count(filled, read | write);
                 vk.device.cmd_pipeline_barrier(cb, transfer, stage, none, &[], &[zeroed], &[]);
             }
-            self.pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+            self.pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
             // The first launch's writes visible to the second: the list, its count and the
             // tallies at 0, which it reads and adds to. And the texels the first wrote finished
             // before the second writes others of the same two images: no texel is written twice,
@@ -389,7 +389,7 @@ impl TemporalTracer {
             // launch from the count, but it needs a feature (rayTracingPipelineTraceRaysIndirect)
             // that not every device has.
             let second = TemporalRays { pass: LISTED, ..push };
-            self.pipeline.trace(vk, cb, push_bytes(&second), targets.extent);
+            self.pipeline.trace(vk, cb, bytemuck::bytes_of(&second), targets.extent);
         };
         // `released`: GL handed this frame's ids over when it drew them, at the end of the
         // previous frame (`Passes::draw`).

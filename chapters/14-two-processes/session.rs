@@ -257,7 +257,7 @@ pub fn spawn_viewer(
     }
     let child = fail::call("starting the viewer process", || command.spawn())?;
     // One write, whole: the viewer is printing on the same stderr already.
-    eprint!("{}", format!("renderer: started the viewer (pid {})\n", child.id()));
+    common::instruments::eprint_whole(&format!("renderer: started the viewer (pid {})", child.id()));
     drop(theirs);
     Ok((ours, Some(child)))
 }

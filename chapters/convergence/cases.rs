@@ -53,12 +53,12 @@ impl Placement {
     }
 
     /// From the case's own coordinates to the world the scene is described in.
-    fn to_world(&self, p: DVec3, size: f64) -> DVec3 {
+    fn to_world(self, p: DVec3, size: f64) -> DVec3 {
         p * self.scale + self.translation(size)
     }
 
     /// Back from a re-centred position (what the G-buffer holds) to the case's coordinates.
-    fn to_case(&self, p: DVec3, origin: DVec3, size: f64) -> DVec3 {
+    fn to_case(self, p: DVec3, origin: DVec3, size: f64) -> DVec3 {
         (p + origin - self.translation(size)) / self.scale
     }
 }
@@ -106,7 +106,8 @@ fn one_mesh_scene(mesh: Mesh, place: Placement, size: f64, inside: DVec3) -> any
     let vanished =
         Mat4::from_translation(place.to_world(inside, size).as_vec3()) * Mat4::from_scale(glam::Vec3::ZERO);
     let instances = vec![Instance::new(transform, [200, 200, 200]), Instance::new(vanished, [255, 0, 0])];
-    Scene::new(vec![mesh], instances, vec![0..2])
+    let the_mesh_instances = 0..instances.len() as u32;
+    Scene::new(vec![mesh], instances, vec![the_mesh_instances])
 }
 
 // ANCHOR: cases

@@ -31,7 +31,7 @@ mod tests {
     struct Random(common::scene::Random);
     impl Random {
         fn uniform(&mut self) -> f64 {
-            (self.0.next() >> 11) as f64 / (1u64 << 53) as f64
+            (self.0.next_u64() >> 11) as f64 / (1u64 << 53) as f64
         }
         /// A cosine-weighted direction around +z: uniform on the disc, lifted.
         fn cosine_direction(&mut self) -> [f64; 3] {

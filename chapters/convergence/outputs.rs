@@ -52,8 +52,7 @@ fn plot(path: &Path, cases: &[CaseReport], device: &str) -> Result<()> {
     let rows = cases.iter().flat_map(|c| &c.rows).filter(|r| r.rmse > 0.0 && r.gpu_ms > 0.0);
     let caption = format!("AO error against GPU time ({device})");
     let axes = ("GPU time, ms (thicker: more rays per frame)", "RMSE of visibility");
-    let labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String) =
-        (&|v| format!("{v}"), &|v| format!("{v:.3}"));
+    let labels: (output::TickLabel, output::TickLabel) = (&|v| format!("{v}"), &|v| format!("{v:.3}"));
     let points = rows.map(|r| (r.gpu_ms, r.rmse));
     output::log_log_plot(path, ((720, 480), &caption), axes, labels, points, |chart| {
         let colours = [RED, BLUE, GREEN, MAGENTA, CYAN, BLACK];

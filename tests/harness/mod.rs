@@ -242,6 +242,36 @@ fn stem(path: &Path) -> String {
 
 /// An X server without a screen, for tests that open real windows. Killed when dropped, so a
 /// failing test leaves no X server behind.
+/// A test that cannot run here because a tool it needs is missing. In CI, which installs every
+/// tool (`bash .ci/deps --tests`), that is a failure: a skip there would pass a check that never
+/// ran. Elsewhere it says so on stderr and, under `bash .ci/test`, adds a line to the file named by
+/// `VKGL_SKIPPED`, which that script counts as skipped, not passed, in its closing line.
+pub fn skip(test: &str, why: &str) {
+    let line = match skip_line(std::env::var_os("CI").is_some(), test, why) {
+        Ok(line) => line,
+        Err(fail) => panic!("{fail}"),
+    };
+    eprintln!("skipping {line}");
+    if let Some(file) = std::env::var_os("VKGL_SKIPPED") {
+        use std::io::Write as _;
+        let mut file =
+            std::fs::OpenOptions::new().append(true).create(true).open(file).expect("VKGL_SKIPPED");
+        // One write of one line: tests run on many threads.
+        file.write_all(format!("{line}\n").as_bytes()).expect("writing VKGL_SKIPPED");
+    }
+}
+
+/// What [`skip`] decides: the line that counts the skip, or, in CI, the failure.
+pub fn skip_line(ci: bool, test: &str, why: &str) -> Result<String, String> {
+    if ci {
+        Err(format!(
+            "{test} cannot run: {why}; CI installs it (bash .ci/deps --tests), so it must not be skipped"
+        ))
+    } else {
+        Ok(format!("{test}: {why}"))
+    }
+}
+
 pub struct Xvfb {
     child: Child,
     /// The `DISPLAY` to give the chapter, such as ":1".
@@ -249,8 +279,8 @@ pub struct Xvfb {
 }
 
 impl Xvfb {
-    /// Starts one on a free display. `None` (after saying so) only when Xvfb is not installed
-    /// and this is not CI, which installs it (`.ci/deps`) and must run these tests.
+    /// Starts one on a free display. `None` (after [`skip`] said so) only when Xvfb is not
+    /// installed and this is not CI, which installs it (`.ci/deps`) and must run these tests.
     pub fn start(test: &str) -> Option<Xvfb> {
         Xvfb::start_with(test, &[])
     }
@@ -266,8 +296,8 @@ impl Xvfb {
             .spawn();
         let mut child = match started {
             Ok(child) => child,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound && std::env::var_os("CI").is_none() => {
-                eprintln!("skipping {test}: no Xvfb binary (apt-get install xvfb; CI has it)");
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                skip(test, "no Xvfb binary (apt-get install xvfb)");
                 return None;
             }
             Err(e) => panic!("could not start Xvfb: {e}"),

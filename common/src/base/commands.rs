@@ -244,11 +244,7 @@ impl HostBuffer {
 
     /// The mapped bytes as RGBA32F pixels.
     pub fn rgba32f(&self) -> Vec<[f32; 4]> {
-        let f = |b: &[u8]| f32::from_ne_bytes(b.try_into().unwrap());
-        self.bytes()
-            .chunks_exact(16)
-            .map(|p| [f(&p[0..4]), f(&p[4..8]), f(&p[8..12]), f(&p[12..16])])
-            .collect()
+        bytemuck::cast_slice(self.bytes()).to_vec()
     }
 
     /// The mapped bytes, to fill. The GPU must not be reading them.

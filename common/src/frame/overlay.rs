@@ -23,7 +23,7 @@ pub struct Target {
 
 /// One vertex of an overlay line: world position and colour (24 bytes, as `lines.vert` reads it).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct LineVertex {
     pub position: [f32; 3],
     pub colour: [f32; 3],
@@ -84,7 +84,7 @@ pub struct LineBuffer {
 
 impl LineBuffer {
     pub fn new(gl: &Rc<glow::Context>, vertices: &[LineVertex]) -> Result<Self> {
-        let bytes = crate::scene::gbuffer::as_bytes(vertices);
+        let bytes = bytemuck::cast_slice(vertices);
         let buffer =
             create(gl, "glCreateBuffers for the overlay lines", |gl| unsafe { gl.create_named_buffer() })?;
         let vertex_array = create(gl, "glCreateVertexArrays for the overlay lines", |gl| unsafe {

@@ -61,9 +61,7 @@ static REACHED: AtomicU32 = AtomicU32::new(0);
 pub fn step(what: &str) -> Result<()> {
     let n = REACHED.fetch_add(1, Ordering::Relaxed) + 1;
     match armed() {
-        // One write, whole: another process may print on the same stderr (chapter 14's viewer),
-        // and `eprintln!` writes a line in pieces, which its lines could come between.
-        Some(Armed::List) => eprint!("{}", format!("fail step {n}: {what}\n")),
+        Some(Armed::List) => super::eprint_whole(&format!("fail step {n}: {what}")),
         Some(Armed::At(at)) if at == n => bail!("injected failure at step {n}: {what} (VKGL_FAIL_AT={n})"),
         _ => {}
     }

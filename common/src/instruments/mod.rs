@@ -8,3 +8,9 @@ pub mod output;
 pub mod report;
 pub mod resources;
 pub mod validation;
+
+/// Writes `line` and a newline to stderr in one write. `eprintln!` writes a line in pieces, and
+/// another process printing on the same stderr (chapter 14's viewer) could come between them.
+pub fn eprint_whole(line: &str) {
+    let _ = std::io::Write::write_all(&mut std::io::stderr(), format!("{line}\n").as_bytes());
+}

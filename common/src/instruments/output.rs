@@ -215,14 +215,18 @@ pub type LogLogChart<'a, 'b> = plotters::prelude::ChartContext<
     plotters::prelude::Cartesian2d<plotters::prelude::LogCoord<f64>, plotters::prelude::LogCoord<f64>>,
 >;
 
+/// How [`log_log_plot`] writes an axis' tick value.
+pub type TickLabel<'a> = &'a dyn Fn(&f64) -> String;
+
 /// A log-log plot as an SVG of `size` pixels: `caption` above, the axes named and their labels
 /// written by `labels`, each axis half as wide again each way as `points` span; `draw` adds the
 /// series, then the legend is drawn over a white box. An error if there is no point to span.
+/// `labels` format the x and y axes' tick values.
 pub fn log_log_plot(
     path: &Path,
     (size, caption): ((u32, u32), &str),
     (x_desc, y_desc): (&str, &str),
-    labels: (&dyn Fn(&f64) -> String, &dyn Fn(&f64) -> String),
+    labels: (TickLabel, TickLabel),
     points: impl Iterator<Item = (f64, f64)> + Clone,
     draw: impl FnOnce(&mut LogLogChart) -> Result<()>,
 ) -> Result<()> {

@@ -9,7 +9,7 @@ use crate::instruments::report::Report;
 use crate::interop::handoff::{Apis, HandOver, Handoff};
 use crate::interop::{SharedFormat, SharedImage, acquire_from_gl, release_to_gl};
 use crate::rt::accel::GpuAllocator;
-use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes, raygen_bindings};
+use crate::rt::raytrace::{RayPipeline, RayShaders, raygen_bindings};
 use crate::scene::gbuffer::GBuffers;
 use anyhow::Result;
 use ash::vk;
@@ -260,7 +260,7 @@ impl AoTracer {
             &images,
             timestamps,
             || {},
-            |cb| pipeline.trace(vk, cb, push_bytes(&rays), extent),
+            |cb| pipeline.trace(vk, cb, bytemuck::bytes_of(&rays), extent),
         )?;
         self.gl_has_image = true;
         self.accumulated += rays.samples;
@@ -389,7 +389,7 @@ unsafe fn record(
 // ANCHOR: ao_rays
 /// The push constants of `shaders/ao.rgen` (std430: four 4-byte members, 16 bytes).
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct AoRays {
     /// Rays per pixel this frame.
     pub samples: u32,

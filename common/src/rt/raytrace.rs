@@ -245,7 +245,7 @@ impl StorageImage {
 /// The push constants of `shaders/primary.rgen`, laid out as GLSL lays out its push-constant
 /// block (std430): a mat4, a vec4 and two floats, 88 bytes.
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct PrimaryRays {
     /// GL's clip space back to world space: the inverse of the camera's view-projection.
     pub inverse_view_projection: [f32; 16],
@@ -266,12 +266,6 @@ impl PrimaryRays {
             t_max: camera.far,
         }
     }
-}
-
-/// The bytes of a `#[repr(C)]` push-constant struct.
-pub fn push_bytes<T: Copy>(value: &T) -> &[u8] {
-    // SAFETY: push-constant structs are plain f32/u32 data with no padding (tested below).
-    unsafe { std::slice::from_raw_parts((value as *const T).cast(), size_of::<T>()) }
 }
 
 #[cfg(test)]

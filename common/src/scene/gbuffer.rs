@@ -56,14 +56,26 @@ impl SceneBuffers {
     ) -> Result<Self> {
         let mut meshes = Vec::new();
         for mesh in &scene.meshes {
-            let vertices =
-                share_buffer(vk, gl, as_bytes(&mesh.vertices), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
-            let indices =
-                share_buffer(vk, gl, as_bytes(&mesh.indices), usage | vk::BufferUsageFlags::INDEX_BUFFER)?;
+            let vertices = share_buffer(
+                vk,
+                gl,
+                bytemuck::cast_slice(&mesh.vertices),
+                usage | vk::BufferUsageFlags::VERTEX_BUFFER,
+            )?;
+            let indices = share_buffer(
+                vk,
+                gl,
+                bytemuck::cast_slice(&mesh.indices),
+                usage | vk::BufferUsageFlags::INDEX_BUFFER,
+            )?;
             meshes.push([vertices, indices]);
         }
-        let instances =
-            share_buffer(vk, gl, as_bytes(&scene.instances), usage | vk::BufferUsageFlags::VERTEX_BUFFER)?;
+        let instances = share_buffer(
+            vk,
+            gl,
+            bytemuck::cast_slice(&scene.instances),
+            usage | vk::BufferUsageFlags::VERTEX_BUFFER,
+        )?;
         Ok(SceneBuffers { meshes, instances })
     }
     // ANCHOR_END: share_scene
@@ -357,10 +369,3 @@ unsafe fn framebuffer(
     Ok((fb, depth))
 }
 // ANCHOR_END: framebuffer
-
-/// The bytes of plain `#[repr(C)]` data, to upload.
-pub fn as_bytes<T: Copy>(items: &[T]) -> &[u8] {
-    // SAFETY: callers pass plain #[repr(C)] data without padding (vertices, instances, indices,
-    // line vertices): every byte is initialised.
-    unsafe { std::slice::from_raw_parts(items.as_ptr().cast(), std::mem::size_of_val(items)) }
-}

@@ -9,7 +9,7 @@ use std::ops::Range;
 /// One vertex as both GL (two vec3 attributes) and the BLAS build (R32G32B32 position at offset
 /// 0, stride 24) read it.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Vertex {
     pub position: [f32; 3],
     pub normal: [f32; 3],
@@ -26,7 +26,7 @@ pub struct Mesh {
 /// One instance, laid out exactly as `VkAccelerationStructureInstanceKHR` (64 bytes), so that
 /// one buffer feeds both GL's instanced draw (chapter 05) and the TLAS build (chapter 06).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Instance {
     /// Object to world, the top three rows of a 4x4 matrix, row-major.
     pub transform: [[f32; 4]; 3],
@@ -147,7 +147,7 @@ impl Scene {
 pub struct Random(pub u64);
 
 impl Random {
-    pub fn next(&mut self) -> u64 {
+    pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -157,7 +157,7 @@ impl Random {
 
     /// Uniform in [0, 1).
     pub(super) fn uniform(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
     }
 
     /// Standard normal (Box-Muller).

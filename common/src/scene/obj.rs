@@ -237,13 +237,15 @@ mod tests {
         let mut random = Random(42);
         for case in 0..3000 {
             let mut text: Vec<String> = base.lines().map(|l| format!("{l}\n")).collect();
-            for _ in 0..1 + (random.next() % 4) {
-                let at = (random.next() % (text.len() as u64 + 1)) as usize;
-                match random.next() % 3 {
-                    0 => text.insert(at, pieces[(random.next() % pieces.len() as u64) as usize].to_owned()),
+            for _ in 0..1 + (random.next_u64() % 4) {
+                let at = (random.next_u64() % (text.len() as u64 + 1)) as usize;
+                match random.next_u64() % 3 {
+                    0 => {
+                        text.insert(at, pieces[(random.next_u64() % pieces.len() as u64) as usize].to_owned())
+                    }
                     1 if at < text.len() => {
                         let line = &text[at];
-                        let cut = (random.next() % (line.len() as u64 + 1)) as usize;
+                        let cut = (random.next_u64() % (line.len() as u64 + 1)) as usize;
                         text[at] = line.chars().take(cut).collect(); // a truncated line
                     }
                     _ if at < text.len() => {

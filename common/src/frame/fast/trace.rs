@@ -8,7 +8,7 @@ use crate::interop::handoff::Apis;
 use crate::rt::RayTracedScene;
 use crate::rt::accel::{BufferDesc, DeviceBuffer};
 use crate::rt::ao::Traced;
-use crate::rt::raytrace::{RayPipeline, RayShaders, push_bytes, raygen_bindings};
+use crate::rt::raytrace::{RayPipeline, RayShaders, raygen_bindings};
 use crate::scene::Camera;
 use anyhow::Result;
 use ash::vk;
@@ -21,7 +21,7 @@ const MISS: &[u8] = include_bytes!("../../../../shaders/miss.rmiss.spv");
 /// The push constants of `shaders/visibility_ao.rgen` (std430, 128 bytes: the most every
 /// Vulkan device accepts).
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct SurfaceRays {
     pub inverse_view_projection: [f32; 16],
     pub eye: [f32; 3],
@@ -121,7 +121,7 @@ impl SurfaceTracer {
         pipeline.write_tlas(vk, 0, *shared.structures.tlas.handle);
         // ANCHOR_END: pipeline
         // The mesh table, written once: the ray generation shader reads it by its address.
-        let bytes = crate::scene::gbuffer::as_bytes(ids);
+        let bytes = bytemuck::cast_slice(ids);
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
         let mut meshes = DeviceBuffer::new(
             vk,
@@ -203,7 +203,7 @@ impl SurfaceTracer {
             instances: self.instances,
         };
         let (vk, pipeline) = (apis.vk, &self.pipeline);
-        let trace = |cb| pipeline.trace(vk, cb, push_bytes(&push), targets.extent);
+        let trace = |cb| pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
         hand_over_around(apis, targets, timestamps, between, trace)?;
         self.accumulated += rays.samples;
         Ok(())

@@ -21,7 +21,7 @@ const FRAGMENT_SHADER: &str = include_str!("../../../../shaders/gl/visibility.fr
 /// Mesh m's instance i's triangle t is id `first_id + i * triangles + t + 1`: every instanced
 /// triangle of the scene has its own number, and 0 is left for the background.
 #[repr(C)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct MeshIds {
     /// Device addresses of the mesh's shared vertex and index buffers.
     pub vertices: u64,

@@ -365,6 +365,6 @@ fn one_instance(
     let mut instance = crate::scene::Instance::new(glam::Mat4::IDENTITY, [255, 255, 255]);
     instance.blas_address = blas;
     let mapped = buffer.allocation.mapped_slice_mut().context("the instance buffer is mapped")?;
-    mapped[..size as usize].copy_from_slice(crate::scene::gbuffer::as_bytes(std::slice::from_ref(&instance)));
+    mapped[..size as usize].copy_from_slice(bytemuck::bytes_of(&instance));
     Ok(buffer)
 }
