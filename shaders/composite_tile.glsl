@@ -19,20 +19,8 @@ shared vec3 normals[SIDE * SIDE];
 
 const vec3 BACKGROUND = vec3(0.06, 0.07, 0.09);
 
-vec2 sign_not_zero(vec2 v) {
-    return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
-}
-
-// ao.rgen's unpack_normal (chapter 07).
-vec3 unpack_normal(float bits) {
-    uint q = uint(bits);
-    vec2 p = vec2(q >> 12u, q & 4095u) / 4095.0 * 2.0 - 1.0;
-    vec3 n = vec3(p, 1.0 - abs(p.x) - abs(p.y));
-    if (n.z < 0.0) {
-        n.xy = (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
-    }
-    return normalize(n);
-}
+// unpack_normal, chapter 07's.
+#include "sampling.glsl"
 
 void main() {
     ivec2 size = SURFACE_SIZE;
@@ -45,7 +33,7 @@ void main() {
         ivec2 q = clamp(corner + ivec2(i % side, i / side), ivec2(0), size - 1);
         vec4 s = SURFACE(q);
         visibility_depth[i] = s.xy;
-        normals[i] = s.y > 0.0 ? unpack_normal(s.z) : vec3(0.0);
+        normals[i] = s.y > 0.0 ? unpack_normal(uint(s.z)) : vec3(0.0);
     }
     barrier();
     // ANCHOR_END: tile

@@ -22,34 +22,8 @@ struct MeshIds {
 layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer Meshes { MeshIds m[]; };
 // ANCHOR_END: mesh_ids
 
-// As in ao.rgen (chapter 07): the relative ray offset, the R2 sequence, a per-pixel hash, a basis.
-float ray_offset(vec3 p, float scene_scale, float radius) {
-    float largest = max(max(abs(p.x), abs(p.y)), max(abs(p.z), scene_scale));
-    return min(largest * (1.0 / 65536.0), 1e-3 * radius);
-}
-
-uint pcg(uint v) {
-    uint state = v * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-vec2 r2(uint index, uvec2 rotation) {
-    uvec2 fixed_point = uvec2(index * 3242174889u, index * 2447445414u) + 2147483648u + rotation;
-    return vec2(fixed_point >> 8u) * (1.0 / 16777216.0);
-}
-
-void basis(vec3 n, out vec3 t, out vec3 b) {
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
-vec2 sign_not_zero(vec2 v) {
-    return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
-}
+// The ray offset, the normal's unpacking, the sample sequence and its rotation: chapter 07's.
+#include "sampling.glsl"
 
 // gbuffer.frag's pack_normal (chapter 07): octahedral, 12 + 12 bits, exact in a float.
 float pack_normal(vec3 n) {
@@ -59,15 +33,6 @@ float pack_normal(vec3 n) {
     }
     uvec2 q = uvec2(round(clamp(p * 0.5 + 0.5, 0.0, 1.0) * 4095.0));
     return float(q.x * 4096u + q.y);
-}
-
-vec3 unpack_normal(uint packed) {
-    vec2 p = vec2(packed >> 12u, packed & 4095u) / 4095.0 * 2.0 - 1.0;
-    vec3 n = vec3(p, 1.0 - abs(p.x) - abs(p.y));
-    if (n.z < 0.0) {
-        n.xy = (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
-    }
-    return normalize(n);
 }
 
 // ANCHOR: decode

@@ -76,7 +76,7 @@ fn sources_still_compile() {
         // The xtask's flags, but writing to a temp dir so the committed .spv stay untouched.
         let output = Command::new("glslc")
             .current_dir(shaders_dir())
-            .args(["--target-env=vulkan1.3", "-O", "-I", "."])
+            .args(["--target-env=vulkan1.3", "-O", "-g", "-I", "."])
             .arg("-o")
             .arg(out.path().join(format!("{name}.spv")))
             .arg(&name)

@@ -200,3 +200,14 @@ pub fn share_image(
     Ok(image)
 }
 // ANCHOR_END: share_image
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn push_matches_the_glsl_block() {
+        use common::base::shader_block::{assert_matches_spirv, rust_block};
+        assert_matches_spirv(COMPUTE_SPIRV, "Push", rust_block!(Push { time }));
+    }
+}

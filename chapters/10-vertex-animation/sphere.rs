@@ -341,7 +341,9 @@ mod tests {
 
     #[test]
     fn wave_is_laid_out_as_the_shader_reads_it() {
-        common::base::pipeline::assert_layout!(Wave is 48 bytes: axis at 16, count at 28, speed at 44);
+        use common::base::shader_block::{assert_matches_spirv, rust_block};
+        let rust = rust_block!(Wave { vertices, directions, axis, count, time, amplitude, frequency, speed });
+        assert_matches_spirv(SHADER, "Wave", rust);
     }
 
     #[test]

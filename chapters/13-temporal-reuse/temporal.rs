@@ -471,12 +471,42 @@ pub struct Texel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use common::base::pipeline::assert_layout;
+    use common::base::shader_block::{assert_matches_spirv, rust_block};
 
     #[test]
     fn temporal_rays_match_the_glsl_block() {
-        assert_layout!(TemporalRays is 112 bytes: radius at 32, samples at 44, accept at 64,
-            normal_tolerance at 72, moved at 80, near_motion_cap at 96, pass at 100, fresh_pixels at 104);
-        assert_layout!(Cameras is 256 bytes: eye at 192);
+        let rust = rust_block!(TemporalRays {
+            cameras,
+            meshes,
+            instances,
+            previous_instances,
+            radius,
+            scene_scale,
+            mesh_count,
+            samples,
+            fresh,
+            cap,
+            settled_every,
+            frame,
+            accept,
+            plane_tolerance,
+            normal_tolerance,
+            per_pixel,
+            moved,
+            near_motion_cap,
+            pass,
+            fresh_pixels,
+        });
+        assert_matches_spirv(RAYGEN, "TemporalRays", rust);
+        let rust = rust_block!(Cameras {
+            inverse_view_projection,
+            previous_view_projection,
+            previous_inverse_view_projection,
+            eye,
+            forward,
+            previous_eye,
+            previous_forward,
+        });
+        assert_matches_spirv(RAYGEN, "Cameras", rust);
     }
 }

@@ -1,7 +1,7 @@
 #version 450 core
 // Chapter 12's composite as a GL compute shader: the surface is sampled, the settings are
 // uniforms. The rest, shared with Vulkan's fast_composite.comp, is shaders/composite_tile.glsl,
-// which composite.rs appends to this text.
+// included below. GL has no #include: composite.rs resolves it (with_includes) before compiling.
 
 layout(local_size_x = 16, local_size_y = 16) in;
 
@@ -18,3 +18,5 @@ uniform float normal_tolerance; // a neighbour counts if dot(n, n') >= this
 uniform float power;            // contrast of the occlusion
 uniform int view;               // 0 final, 1 AO, 2 view depth, 3 normal, 4 albedo
 uniform float far_depth;        // for showing depth
+
+#include "composite_tile.glsl"

@@ -34,9 +34,11 @@ fn build(dir: &Path) -> Result<()> {
     let lock = spirv_lock::render_lock(dir)?;
     for name in spirv_lock::vulkan_sources(dir)? {
         // vulkan1.3: SPIR-V 1.6, what our Vulkan 1.3 devices consume. -O: spirv-opt's size and speed
-        // passes. -I .: `#include` resolves in shaders/ wherever the includer lives.
+        // passes. -g: debug information, which keeps the names of blocks and their members (-O
+        // alone strips them); the tests read those names to check the Rust side of every block.
+        // -I .: `#include` resolves in shaders/ wherever the includer lives.
         let mut glslc = Command::new("glslc");
-        glslc.current_dir(dir).args(["--target-env=vulkan1.3", "-O", "-I", "."]);
+        glslc.current_dir(dir).args(["--target-env=vulkan1.3", "-O", "-g", "-I", "."]);
         // glslc's own errors and warnings go straight to our stderr.
         let status = match glslc.args(["-o", &format!("{name}.spv"), &name]).status() {
             Err(e) if e.kind() == io::ErrorKind::NotFound => bail!(
@@ -46,11 +48,34 @@ fn build(dir: &Path) -> Result<()> {
             status => status.context("running glslc")?,
         };
         ensure!(status.success(), "glslc could not compile shaders/{name} (its errors are above)");
+        let spv = dir.join(format!("{name}.spv"));
+        let words = fs::read(&spv).with_context(|| format!("reading {}", spv.display()))?;
+        fs::write(&spv, names_only(&words)?).with_context(|| format!("writing {}", spv.display()))?;
         println!("compiled shaders/{name} -> shaders/{name}.spv");
     }
     fs::write(dir.join(spirv_lock::LOCK_FILE), lock).context("writing shaders/spirv.lock")?;
     println!("wrote shaders/{}", spirv_lock::LOCK_FILE);
     Ok(())
+}
+
+/// SPIR-V without the debug information `-g` adds beside the names: the source text and the line
+/// numbers (`OpSource*`, `OpString`, `OpLine`, `OpNoLine`, `OpModuleProcessed`). What is left is
+/// the program `-O` alone makes, its ids numbered differently, plus `OpName` and `OpMemberName`.
+fn names_only(spv: &[u8]) -> Result<Vec<u8>> {
+    const SOURCE_AND_LINES: [u32; 7] = [2, 3, 4, 7, 8, 317, 330];
+    ensure!(spv.len() % 4 == 0 && spv.len() >= 20, "not SPIR-V: {} bytes", spv.len());
+    let words: Vec<u32> = spv.chunks_exact(4).map(|w| u32::from_le_bytes(w.try_into().unwrap())).collect();
+    let mut kept = words[..5].to_vec(); // the header
+    let mut at = 5;
+    while at < words.len() {
+        let (count, opcode) = ((words[at] >> 16) as usize, words[at] & 0xffff);
+        ensure!(count > 0 && at + count <= words.len(), "SPIR-V instruction at word {at} runs past the end");
+        if !SOURCE_AND_LINES.contains(&opcode) {
+            kept.extend_from_slice(&words[at..at + count]);
+        }
+        at += count;
+    }
+    Ok(kept.iter().flat_map(|w| w.to_le_bytes()).collect())
 }
 
 fn check(dir: &Path) -> Result<ExitCode> {

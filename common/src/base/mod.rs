@@ -11,5 +11,6 @@ pub mod gl;
 pub mod image;
 pub mod owned;
 pub mod pipeline;
+pub mod shader_block;
 pub mod vulkan;
 pub mod window;

@@ -22,10 +22,11 @@ pub fn shader_module(vk: &VulkanContext, spirv: &[u8], stage: &str) -> Result<Sh
     create(&vk.device, &what, || unsafe { vk.device.create_shader_module(&info, None) })
 }
 
-/// Asserts that a `#[repr(C)]` struct another side reads (a shader's block, a CUDA kernel's
-/// parameters, Vulkan's instance record) has the size and byte offsets that side declares:
-/// `assert_layout!(AoRays is 16 bytes: samples at 0, radius at 8)`. For a unit test; the
-/// message names the member whose offset is wrong.
+/// Asserts that a `#[repr(C)]` struct another side reads without SPIR-V to check it against (a
+/// CUDA kernel's parameters, Vulkan's instance record) has the size and byte offsets that side
+/// declares: `assert_layout!(Instance is 64 bytes: blas_address at 56)`. For a unit test; the
+/// message names the member whose offset is wrong. A struct a Vulkan shader reads is checked
+/// against the shader itself instead ([`super::shader_block`]).
 #[macro_export]
 #[doc(hidden)]
 macro_rules! __assert_layout {

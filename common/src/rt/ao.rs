@@ -409,7 +409,11 @@ mod rays_tests {
 
     #[test]
     fn ao_rays_match_the_glsl_block() {
-        crate::base::pipeline::assert_layout!(AoRays is 16 bytes: samples at 0, accumulated at 4, radius at 8,
-            scene_scale at 12);
+        use crate::base::shader_block::{assert_matches_spirv, rust_block};
+        assert_matches_spirv(
+            RAYGEN,
+            "AoRays",
+            rust_block!(AoRays { samples, accumulated, radius, scene_scale }),
+        );
     }
 }

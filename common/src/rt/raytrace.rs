@@ -271,10 +271,12 @@ impl PrimaryRays {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::base::pipeline::assert_layout;
+    use crate::base::shader_block::{assert_matches_spirv, rust_block};
 
     #[test]
     fn primary_rays_match_the_glsl_block() {
-        assert_layout!(PrimaryRays is 88 bytes: inverse_view_projection at 0, eye at 64, t_min at 80, t_max at 84);
+        let spirv = include_bytes!("../../../shaders/primary.rgen.spv");
+        let rust = rust_block!(PrimaryRays { inverse_view_projection, eye, t_min, t_max });
+        assert_matches_spirv(spirv, "PrimaryRays", rust);
     }
 }

@@ -184,6 +184,35 @@ pub fn program_with_geometry(
     program_from(gl, &stages)
 }
 
+/// `source` with each `#include "name"` line replaced by the text of the file of that name in
+/// `files`, which may include others in turn (each file once, as `#pragma once` would). GL has no
+/// `#include` of its own; this lets a GL shader include a file a Vulkan shader includes through
+/// glslc, so that the shared code is written once. Names are relative to `shaders/`, as glslc's
+/// `-I .` resolves them.
+pub fn with_includes(source: &str, files: &[(&str, &str)]) -> Result<String> {
+    fn expand(text: &str, files: &[(&str, &str)], done: &mut Vec<String>, out: &mut String) -> Result<()> {
+        for line in text.lines() {
+            let Some(rest) = line.trim_start().strip_prefix("#include") else {
+                out.push_str(line);
+                out.push('\n');
+                continue;
+            };
+            let name = rest.trim().trim_matches('"');
+            let Some((_, included)) = files.iter().find(|(file, _)| *file == name) else {
+                bail!("`{}` includes {name}, which the program does not pass", line.trim());
+            };
+            if !done.iter().any(|d| d == name) {
+                done.push(name.to_string());
+                expand(included, files, done, out)?;
+            }
+        }
+        Ok(())
+    }
+    let mut out = String::new();
+    expand(source, files, &mut Vec::new(), &mut out)?;
+    Ok(out)
+}
+
 /// A program of one compute shader (chapter 12's composite).
 pub fn compute_program(gl: &Rc<glow::Context>, compute: &str) -> Result<Owned<glow::Program>> {
     program_from(gl, &[(glow::COMPUTE_SHADER, compute, "compute")])

@@ -6,12 +6,13 @@ use anyhow::{Context as _, Result};
 use glow::HasContext;
 use std::rc::Rc;
 
-/// GL's declarations (the surface sampled, the settings as uniforms), then the tile and blur
-/// that Vulkan's compute shader includes too.
-const COMPUTE_SHADER: &str = concat!(
-    include_str!("../../../../shaders/gl/fast_composite.comp"),
-    include_str!("../../../../shaders/composite_tile.glsl")
-);
+/// GL's declarations (the surface sampled, the settings as uniforms), then, through `#include`
+/// (resolved by `with_includes`), the tile and blur that Vulkan's compute shader includes too.
+const COMPUTE_SHADER: &str = include_str!("../../../../shaders/gl/fast_composite.comp");
+const INCLUDES: [(&str, &str); 2] = [
+    ("composite_tile.glsl", include_str!("../../../../shaders/composite_tile.glsl")),
+    ("sampling.glsl", include_str!("../../../../shaders/sampling.glsl")),
+];
 
 /// What the composite shows (its `view` uniform, in this order).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -39,7 +40,8 @@ pub struct ComputeComposite {
 impl ComputeComposite {
     pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
         let program =
-            crate::base::gl::compute_program(gl, COMPUTE_SHADER).context("the composite's compute shader")?;
+            crate::base::gl::compute_program(gl, &crate::base::gl::with_includes(COMPUTE_SHADER, &INCLUDES)?)
+                .context("the composite's compute shader")?;
         Ok(ComputeComposite { program })
     }
 

@@ -280,16 +280,29 @@ pub fn hand_over_released(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::base::pipeline::assert_layout;
+    use crate::base::shader_block::{assert_matches_spirv, rust_block};
 
     #[test]
     fn surface_rays_match_the_glsl_block() {
-        assert_layout!(SurfaceRays is 128 bytes: eye at 64, radius at 76, forward at 80, scene_scale at 92,
-            samples at 96, pattern at 108, meshes at 112, instances at 120);
+        let rust = rust_block!(SurfaceRays {
+            inverse_view_projection,
+            eye,
+            radius,
+            forward,
+            scene_scale,
+            samples,
+            accumulated,
+            mesh_count,
+            pattern,
+            meshes,
+            instances,
+        });
+        assert_matches_spirv(RAYGEN, "SurfaceRays", rust);
     }
 
     #[test]
     fn mesh_ids_match_the_glsl_struct() {
-        assert_layout!(MeshIds is 32 bytes: indices at 8, first_id at 16, instances at 28);
+        let rust = rust_block!(MeshIds { vertices, indices, first_id, triangles, first_instance, instances });
+        assert_matches_spirv(RAYGEN, "MeshIds", rust);
     }
 }
