@@ -1583,9 +1583,7 @@ fn linked_text(line: &[char]) -> Vec<(char, Option<String>)> {
 /// 05-10`, `chapters 01, 02 and 11`, `chapters 01 to 13`), each with its position in `text`.
 fn cited_numbers(text: &[char]) -> Vec<(usize, String)> {
     let lower: Vec<char> = text.iter().map(|c| c.to_ascii_lowercase()).collect();
-    let starts = |at: usize, word: &str| {
-        word.chars().enumerate().all(|(k, w)| lower.get(at + k) == Some(&w))
-    };
+    let starts = |at: usize, word: &str| word.chars().enumerate().all(|(k, w)| lower.get(at + k) == Some(&w));
     let two_digits = |at: usize| {
         text.get(at).is_some_and(char::is_ascii_digit)
             && text.get(at + 1).is_some_and(char::is_ascii_digit)
@@ -1652,7 +1650,9 @@ fn unlinked_citations(name: &str, text: &str, slugs: &BTreeMap<String, String>) 
         let item = trimmed.starts_with("- ")
             || trimmed.starts_with("* ")
             || trimmed.starts_with('|')
-            || trimmed.split_once(". ").is_some_and(|(n, _)| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()));
+            || trimmed
+                .split_once(". ")
+                .is_some_and(|(n, _)| !n.is_empty() && n.chars().all(|c| c.is_ascii_digit()));
         if fenced || trimmed.is_empty() || trimmed.starts_with('#') || trimmed.starts_with("{{#") || item {
             seen.clear();
         }
@@ -1709,7 +1709,9 @@ fn every_chapter_a_page_cites_is_a_link() {
     for name in CITATIONS_PENDING {
         match pending.get(*name) {
             None => errors.push(format!("CITATIONS_PENDING lists {name}, which is not a page")),
-            Some(0) => errors.push(format!("{name} links every chapter it cites: remove it from CITATIONS_PENDING")),
+            Some(0) => {
+                errors.push(format!("{name} links every chapter it cites: remove it from CITATIONS_PENDING"))
+            }
             Some(_) => {}
         }
     }
@@ -1741,4 +1743,291 @@ fn the_citation_check_catches_an_unlinked_chapter() {
     assert_eq!(lines("chapter 99 and chapter 8"), Vec::<usize>::new(), "no such chapter");
     assert!(unlinked_citations("08-composite.md", "chapter 08", &slugs).is_empty(), "its own page");
     assert_eq!(unlinked_citations("08-composite-deeper.md", "chapter 03", &slugs).len(), 1);
+}
+
+/// The chapters a text names after "chapter" or "chapters", ranges expanded: `chapters 05-10,
+/// 12 and 13` -> 05, 06, 07, 08, 09, 10, 12, 13. Links and code spans are read as the reader
+/// sees them.
+fn chapters_named(text: &str) -> BTreeSet<u32> {
+    let shown: Vec<char> =
+        linked_text(&text.chars().collect::<Vec<_>>()).into_iter().map(|(c, _)| c).collect();
+    let cited = cited_numbers(&shown);
+    let mut named = BTreeSet::new();
+    for (i, (at, number)) in cited.iter().enumerate() {
+        let number: u32 = number.parse().unwrap();
+        named.insert(number);
+        // A range: `05-10`, `05–10`, `01 to 13`.
+        if i > 0 {
+            let (before, previous) = &cited[i - 1];
+            let between: String = shown[before + 2..*at].iter().collect();
+            if matches!(between.trim(), "-" | "–" | "to") {
+                named.extend(previous.parse::<u32>().unwrap()..number);
+            }
+        }
+    }
+    named
+}
+
+/// A page's prose as one line per paragraph, list item and table row (headings, fenced blocks and
+/// includes left out).
+fn paragraphs_of(text: &str) -> Vec<String> {
+    let mut found = vec![String::new()];
+    let mut fenced = false;
+    for line in text.lines() {
+        let trimmed = line.trim();
+        if trimmed.starts_with("```") {
+            fenced = !fenced;
+        }
+        if fenced || trimmed.starts_with("```") || trimmed.is_empty() || trimmed.starts_with('#') {
+            found.push(String::new());
+        } else if !trimmed.starts_with("{{#") {
+            if trimmed.starts_with('|') || trimmed.starts_with("- ") || trimmed.starts_with("* ") {
+                found.push(String::new());
+            }
+            let last = found.last_mut().unwrap();
+            last.push(' ');
+            last.push_str(trimmed);
+        }
+    }
+    found.into_iter().filter(|p| !p.trim().is_empty()).collect()
+}
+
+/// The chapters named in the sentence of `page` that says `claim`, before it (from the sentence's
+/// start, or the last `;`): `Chapters 01-05, 11 and 14 need only ...` -> 01-05, 11, 14.
+fn chapters_claiming(page: &str, claim: &str) -> BTreeSet<u32> {
+    let text = std::fs::read_to_string(root().join("book/src").join(page)).unwrap();
+    let paragraph = paragraphs_of(&text)
+        .into_iter()
+        .find(|p| p.contains(claim))
+        .unwrap_or_else(|| panic!("{page} no longer says \"{claim}\": update this test with the page"));
+    let before = &paragraph[..paragraph.find(claim).unwrap()];
+    let start = before.rfind(". ").max(before.rfind("; ")).map_or(0, |at| at + 2);
+    chapters_named(&before[start..])
+}
+
+/// Per chapter number (and `bench`, as 0 is no chapter, left out): the device extensions its
+/// reports enable, all runs together. The reports come from runs on lavapipe, which has no
+/// external semaphores, so these are the extensions each chapter requires.
+fn enabled_extensions(snapshots: &[(String, Value)]) -> BTreeMap<u32, BTreeSet<String>> {
+    let mut found: BTreeMap<u32, BTreeSet<String>> = BTreeMap::new();
+    for (_, report) in snapshots {
+        let Some(number) = report["chapter"].as_str().and_then(|c| c.get(..2)).and_then(|n| n.parse().ok())
+        else {
+            continue;
+        };
+        let extensions = report["vulkan"]["extensions"].as_array().into_iter().flatten();
+        found.entry(number).or_default().extend(extensions.filter_map(|e| e.as_str().map(str::to_owned)));
+    }
+    found
+}
+
+/// A fact stated "for chapters a-b" covers every chapter it is true of, and only those: each
+/// sentence below names a set of chapters, and the set is worked out here from the reports or the
+/// code. (The troubleshooting page's lists once stopped at chapter 10 while chapters 12-14 came.)
+#[test]
+fn facts_stated_for_a_set_of_chapters_name_every_chapter_they_apply_to() {
+    let chapters: BTreeSet<u32> = chapter_slugs().keys().map(|n| n.parse().unwrap()).collect();
+    let extensions = enabled_extensions(&snapshots());
+    assert_eq!(extensions.keys().copied().collect::<BTreeSet<u32>>(), chapters, "a report for every chapter");
+    let only_memory: BTreeSet<u32> = extensions
+        .iter()
+        .filter(|(_, e)| e.iter().eq(["VK_KHR_external_memory_fd"].iter()))
+        .map(|(n, _)| *n)
+        .collect();
+    let ray_tracing: BTreeSet<u32> = extensions
+        .iter()
+        .filter(|(_, e)| {
+            e.contains("VK_KHR_ray_tracing_pipeline") && e.contains("VK_KHR_acceleration_structure")
+        })
+        .map(|(n, _)| *n)
+        .collect();
+    // The 16-byte read-back limit is `common::scene::gbuffer::check_size`'s: every program that
+    // draws G-buffers (or chapter 12's visibility buffer, whose checks draw them) reaches it
+    // through `scene::gbuffer`, and no other program names that module.
+    let sources = sources();
+    let gbuffer: BTreeSet<u32> = chapters
+        .iter()
+        .copied()
+        .filter(|n| {
+            let slug = &chapter_slugs()[&format!("{n:02}")];
+            sources.text.get(&format!("chapters/{slug}")).is_some_and(|t| t.contains("gbuffer"))
+        })
+        .collect();
+    let claims = [
+        (
+            "troubleshooting.md",
+            "need only `VK_KHR_external_memory_fd`",
+            &only_memory,
+            "its reports enable only that",
+        ),
+        ("troubleshooting.md", "need ray tracing", &ray_tracing, "its reports enable ray tracing"),
+        (
+            "troubleshooting.md",
+            "also read a 16-byte-a-pixel G-buffer back",
+            &gbuffer,
+            "its sources use `scene::gbuffer`, whose `check_size` sets the limit",
+        ),
+    ];
+    let mut errors = Vec::new();
+    for (page, claim, truth, why) in claims {
+        let stated = chapters_claiming(page, claim);
+        if &stated != truth {
+            errors.push(format!(
+                "{page}: \"{claim}\" is said of chapters {stated:?}, but is true of {truth:?} ({why})"
+            ));
+        }
+    }
+    assert!(errors.is_empty(), "{}", errors.join("\n"));
+}
+
+/// A sentence that says which chapters make a check (`chapters 03-10 check it
+/// (`hand_over_layouts_agree`)`) names every chapter whose reports have it, and only those: the
+/// chapters of a sentence with the word "check" and two or more chapters named after "chapters"
+/// are those whose reports, on every run, have one of the checks it names in code.
+#[test]
+fn sentences_that_say_which_chapters_check_something_name_them_all() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    let reporting = |name: &str| -> BTreeSet<u32> {
+        checks
+            .always
+            .iter()
+            .filter(|(_, names)| names.contains(name))
+            .filter_map(|(chapter, _)| chapter.get(..2)?.parse().ok())
+            .collect()
+    };
+    let (mut errors, mut found) = (Vec::new(), 0);
+    for page in pages() {
+        let text = std::fs::read_to_string(root().join("book/src").join(&page.name)).unwrap();
+        for paragraph in paragraphs_of(&text) {
+            for sentence in paragraph.split(". ") {
+                let named = chapters_named(sentence);
+                let plural = sentence.to_ascii_lowercase().contains("chapters ");
+                let checked: Vec<&str> = code_spans(sentence)
+                    .into_iter()
+                    .filter(|s| is_check_name(s) && !reporting(s).is_empty())
+                    .collect();
+                if !plural || named.len() < 2 || checked.is_empty() || !sentence.contains("check") {
+                    continue;
+                }
+                found += 1;
+                let truth: BTreeSet<u32> = checked.iter().flat_map(|c| reporting(c)).collect();
+                if named != truth {
+                    errors.push(format!(
+                        "{}: \"{}\" names chapters {named:?}; the reports with {checked:?} are {truth:?}",
+                        page.name,
+                        sentence.trim()
+                    ));
+                }
+            }
+        }
+    }
+    assert!(found >= 2, "only {found} sentences say which chapters check what: did the pages move?");
+    assert!(errors.is_empty(), "{}", errors.join("\n"));
+}
+
+/// `4:1` for 4.0, `3:2` for 1.5: a side's ratio as the troubleshooting page writes it.
+fn ratio(value: f32) -> String {
+    (1..=4)
+        .map(|q| (q, value * q as f32))
+        .find(|(_, p)| (p - p.round()).abs() < 1e-4)
+        .map_or(format!("{value}:1"), |(q, p)| format!("{}:{q}", p.round()))
+}
+
+/// The shape column for a program's `Smallest::shape`: `any`, `16:1 to 1:16`, `any width, at
+/// most 1:2`.
+fn shape_cell(widest: Option<f32>, tallest: Option<f32>) -> String {
+    let flip = |r: String| {
+        let (a, b) = r.split_once(':').unwrap();
+        format!("{b}:{a}")
+    };
+    match (widest, tallest) {
+        (None, None) => "any".to_owned(),
+        (None, Some(t)) => format!("any width, at most {}", flip(ratio(t))),
+        (Some(w), None) => format!("at most {}, any height", ratio(w)),
+        (Some(w), Some(t)) => format!("{} to {}", ratio(w), flip(ratio(t))),
+    }
+}
+
+/// A program's `const SMALLEST: Smallest` from its `main.rs`: (`WxH`, the shape column).
+fn smallest_of(main: &str) -> Option<(String, String)> {
+    let start = main.find("const SMALLEST: Smallest =")?;
+    let rest = &main[start..];
+    let item = &rest[..rest.find(";\n").unwrap_or(rest.len())];
+    if item.contains("Smallest::ANY") {
+        return Some(("1x1".to_owned(), "any".to_owned()));
+    }
+    let number = |key: &str| -> String {
+        let after = &item[item.find(key).unwrap_or_else(|| panic!("no {key} in {item}")) + key.len()..];
+        after.trim_start().chars().take_while(|c| c.is_ascii_digit()).collect()
+    };
+    let size = format!("{}x{}", number("width:"), number("height:"));
+    let shape = match item.split_once("shape: Some((") {
+        None => shape_cell(None, None),
+        Some((_, after)) => {
+            let parts: Vec<&str> = after.split(',').map(str::trim).collect();
+            let side = |s: &str| (s != "f32::INFINITY").then(|| s.parse::<f32>().unwrap());
+            shape_cell(side(parts[0]), side(parts[1]))
+        }
+    };
+    Some((size, shape))
+}
+
+/// The troubleshooting page's table of smallest sizes has a row for every program that states a
+/// `SMALLEST`, with the size and shape its code states.
+#[test]
+fn the_smallest_size_table_is_every_programs_code() {
+    let mut programs = BTreeMap::new();
+    for entry in std::fs::read_dir(root().join("chapters")).unwrap().flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if let Ok(main) = std::fs::read_to_string(entry.path().join("main.rs"))
+            && let Some(smallest) = smallest_of(&main)
+        {
+            programs.insert(name, smallest);
+        }
+    }
+    assert!(programs.len() >= 15, "only {} programs state a SMALLEST: {programs:?}", programs.len());
+    let page = std::fs::read_to_string(root().join("book/src/troubleshooting.md")).unwrap();
+    let table =
+        page.split("| Program | Smallest |").nth(1).expect("the troubleshooting page's smallest-size table");
+    let mut errors = Vec::new();
+    let mut listed = BTreeSet::new();
+    for row in table.lines().skip(2).take_while(|l| l.starts_with('|')) {
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        for program in cells[1].split(',').map(str::trim) {
+            listed.insert(program.to_owned());
+            match programs.get(program) {
+                None => errors.push(format!("the table lists {program}, which states no SMALLEST")),
+                Some((size, shape)) if (size.as_str(), shape.as_str()) != (cells[2], cells[3]) => errors
+                    .push(format!(
+                        "{program}: the table says {} and {}; its code, {size} and {shape}",
+                        cells[2], cells[3]
+                    )),
+                Some(_) => {}
+            }
+        }
+    }
+    for program in programs.keys().filter(|p| !listed.contains(*p)) {
+        errors.push(format!("{program} states a SMALLEST, but the table has no row for it"));
+    }
+    assert!(errors.is_empty(), "troubleshooting.md's smallest sizes:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn the_fact_checkers_read_what_the_pages_write() {
+    assert_eq!(
+        chapters_named("Chapters [05](a.md)-[10](b.md), 12 and 13 read"),
+        BTreeSet::from([5, 6, 7, 8, 9, 10, 12, 13])
+    );
+    assert_eq!(chapters_named("chapters 01 to 03, and chapter 11"), BTreeSet::from([1, 2, 3, 11]));
+    assert_eq!(chapters_named("`chapters 05-10` in code"), BTreeSet::new());
+    assert_eq!(shape_cell(Some(16.0), Some(16.0)), "16:1 to 1:16");
+    assert_eq!(shape_cell(Some(1.5), Some(2.0)), "3:2 to 1:2");
+    assert_eq!(shape_cell(None, Some(2.0)), "any width, at most 1:2");
+    let main = "const SMALLEST: Smallest = Smallest {\n    width: 48,\n    height: 40,\n    why: \"x\",\n    shape: Some((\n        1.5,\n        f32::INFINITY,\n        \"y\",\n    )),\n};\n";
+    assert_eq!(smallest_of(main), Some(("48x40".to_owned(), "at most 3:2, any height".to_owned())));
+    assert_eq!(
+        smallest_of("const SMALLEST: Smallest = Smallest::ANY;\n"),
+        Some(("1x1".to_owned(), "any".to_owned()))
+    );
 }
