@@ -2031,3 +2031,58 @@ fn the_fact_checkers_read_what_the_pages_write() {
         Some(("1x1".to_owned(), "any".to_owned()))
     );
 }
+
+/// Chapter pages whose first command has no transcript yet, each being rewritten as this test
+/// was added; whoever merges the rewrite adds the transcript and empties the list (a page listed
+/// here that has its transcript is an error).
+const TRANSCRIPT_PENDING: &[&str] = &["14-two-processes.md"];
+
+/// Every chapter's page shows, under "## What you should see", the transcript of the first
+/// command it prints at its top: what a reader runs first, and what it prints, generated and
+/// tested by `tests/transcripts.rs`. (That test checks a transcript shown there is the first
+/// command's; this one, that every page shows one.)
+#[test]
+fn every_chapter_page_shows_the_transcript_of_its_first_command() {
+    let mut errors = Vec::new();
+    let mut missing = BTreeSet::new();
+    for page in pages().iter().filter(|p| p.chapter().is_some() && !p.name.ends_with("-deeper.md")) {
+        let text = std::fs::read_to_string(root().join("book/src").join(&page.name)).unwrap();
+        let first = page
+            .blocks
+            .iter()
+            .find(|b| b.info == "sh")
+            .and_then(|b| {
+                b.lines.iter().map(|(_, l)| l.trim()).find(|l| !l.is_empty() && !l.starts_with('#'))
+            })
+            .map(|l| l.split(" #").next().unwrap().split_whitespace().collect::<Vec<_>>().join(" "));
+        let Some(first) = first else {
+            errors.push(format!("{}: prints no command at its top", page.name));
+            continue;
+        };
+        let shown = text
+            .split("\n## What you should see")
+            .nth(1)
+            .map(|s| s.split("\n## ").next().unwrap())
+            .and_then(|s| s.split("{{#include transcripts/").nth(1))
+            .and_then(|s| s.split("}}").next())
+            .and_then(|file| std::fs::read_to_string(root().join("book/src/transcripts").join(file)).ok());
+        let command = shown.as_deref().and_then(|t| t.lines().find_map(|l| l.strip_prefix("$ ")));
+        let command = command.map(|c| c.split_whitespace().collect::<Vec<_>>().join(" "));
+        if command.as_deref() != Some(first.as_str()) {
+            missing.insert(page.name.clone());
+            if !TRANSCRIPT_PENDING.contains(&page.name.as_str()) {
+                errors.push(format!(
+                    "{}: \"What you should see\" shows no transcript of its first command, `{first}` \
+                     (it shows {command:?}): add book/src/transcripts/NAME.txt with `$ {first}` and run \
+                     `cargo run -p xtask -- transcripts`",
+                    page.name
+                ));
+            }
+        }
+    }
+    for name in TRANSCRIPT_PENDING.iter().filter(|n| !missing.contains(**n)) {
+        errors
+            .push(format!("{name} shows its first command's transcript: remove it from TRANSCRIPT_PENDING"));
+    }
+    assert!(errors.is_empty(), "{}", errors.join("\n"));
+}
