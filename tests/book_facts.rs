@@ -2086,3 +2086,44 @@ fn every_chapter_page_shows_the_transcript_of_its_first_command() {
     }
     assert!(errors.is_empty(), "{}", errors.join("\n"));
 }
+
+/// The introduction's table of chapters says, cumulatively, what each chapter needs: a row adds
+/// its `VK_...` extensions to everything above it, `none beyond NN's` starts again from chapter
+/// NN's, and `—` adds nothing. Read that way, each chapter's Vulkan extensions are those its
+/// reports enable (the semaphore extension left out: every chapter that asks for it runs
+/// without it, on the host path, and the reports come from lavapipe, which has none).
+#[test]
+fn the_introductions_table_states_the_extensions_each_chapter_enables() {
+    let extensions = enabled_extensions(&snapshots());
+    let intro = std::fs::read_to_string(root().join("book/src/introduction.md")).unwrap();
+    let mut stated: BTreeMap<u32, BTreeSet<String>> = BTreeMap::new();
+    let mut running: BTreeSet<String> = BTreeSet::new();
+    for row in intro.lines().filter(|l| l.starts_with("| ")) {
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        let Ok(number) = cells[1].parse::<u32>() else { continue };
+        let needs = cells[cells.len() - 2];
+        if let Some(rest) = needs.strip_prefix("none beyond ") {
+            let from: u32 = rest[..2].parse().expect("`none beyond NN's`");
+            running = stated.get(&from).cloned().unwrap_or_default();
+        }
+        running.extend(
+            code_spans(needs)
+                .into_iter()
+                .filter(|s| s.starts_with("VK_") && *s != "VK_KHR_external_semaphore_fd")
+                .map(str::to_owned),
+        );
+        stated.insert(number, running.clone());
+    }
+    assert!(stated.len() >= 14, "the introduction's table has {} chapters", stated.len());
+    let errors: Vec<String> = extensions
+        .iter()
+        .filter(|(n, enabled)| stated.get(n) != Some(enabled))
+        .map(|(n, enabled)| {
+            format!(
+                "chapter {n:02}: the table adds up to {:?}; its reports enable {enabled:?}",
+                stated.get(n)
+            )
+        })
+        .collect();
+    assert!(errors.is_empty(), "introduction.md's \"adds to what it needs\" column:\n{}", errors.join("\n"));
+}
