@@ -1007,10 +1007,24 @@ impl Module {
         if defines {
             return Some(Module::at(self.file.clone()));
         }
-        for line in self.text.lines().map(str::trim) {
-            let Some(used) = line.strip_prefix("pub use ").and_then(|l| l.strip_suffix(';')) else {
-                continue;
-            };
+        // Each `pub use ...;`, on one line or wrapped over several (`pub use a::{\n b, c,\n};`).
+        let statements: Vec<String> = self
+            .text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| l.trim_start().starts_with("pub use "))
+            .filter_map(|(i, _)| {
+                let rest = self.text.lines().skip(i).collect::<Vec<_>>().join("\n");
+                let statement = rest.trim_start().strip_prefix("pub use ")?;
+                Some(statement[..statement.find(';')?].to_owned())
+            })
+            .map(|s| {
+                let joined = s.split_whitespace().collect::<Vec<_>>().join(" ");
+                joined.replace("{ ", "{").replace(", }", "}").replace(" }", "}").replace(",}", "}")
+            })
+            .collect();
+        for used in &statements {
+            let used = used.as_str();
             let (path, names): (&str, Vec<&str>) = match used.split_once("::{") {
                 Some((path, names)) => {
                     (path, names.trim_end_matches('}').split(',').map(str::trim).collect())
