@@ -1035,12 +1035,11 @@ impl Module {
                 },
             };
             let parts: Vec<&str> = path.split("::").collect();
-            if names.contains(&name) || names.contains(&"*") {
-                if let Some(module) = self.module_at(&parts)
-                    && let Some(found) = module.item(name, depth + 1)
-                {
-                    return Some(found);
-                }
+            if (names.contains(&name) || names.contains(&"*"))
+                && let Some(module) = self.module_at(&parts)
+                && let Some(found) = module.item(name, depth + 1)
+            {
+                return Some(found);
             }
         }
         None
@@ -1065,7 +1064,7 @@ fn unresolved(path: &str) -> Option<String> {
             None => break,
         }
     }
-    let Some((item, inner)) = rest.split_first() else { return None };
+    let (item, inner) = rest.split_first()?;
     let Some(defined) = module.item(item, 0) else {
         return Some(format!("{trail} has no public module or item `{item}`"));
     };
