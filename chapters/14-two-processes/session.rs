@@ -176,12 +176,14 @@ impl Session<'_> {
                 let lost = in_flight.len() as u64;
                 match self.recv()? {
                     Some(Message::SlotFree { slot: freed, sent_ns }) => {
-                        let oldest = in_flight.front().map(|&(_, slot, _)| slot);
+                        let Some(&(_, oldest, written_ns)) = in_flight.front() else {
+                            bail!(Broken(format!("the viewer freed slot {freed} with none in flight")));
+                        };
                         ensure!(
-                            oldest == Some(freed),
-                            Broken(format!("the viewer freed slot {freed}, not the oldest sent, {oldest:?}"))
+                            oldest == freed,
+                            Broken(format!("the viewer freed slot {freed}, not the oldest sent, slot {oldest}"))
                         );
-                        let (_, _, written_ns) = in_flight.pop_front().expect("checked above");
+                        in_flight.pop_front();
                         // From our fence to the viewer's "free": the whole hand-over, one clock.
                         measured.times.add("handover", sent_ns.saturating_sub(written_ns) as f64 / 1e6);
                         if let Some(died) = measured.viewer_died_at.take() {

@@ -67,7 +67,7 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 // SAFETY: the renderer started us with this end of its socket pair, for us alone.
                 Socket { fd: unsafe { OwnedFd::from_raw_fd(fd) } }
             }
-            (None, Some(path)) if viewed.sessions.is_empty() && viewed.refused == 0 => wire::connect(path)?,
+            (None, Some(path)) if viewed.first() => wire::connect(path)?,
             // The next renderer: its socket appears when it starts listening.
             (None, Some(path)) => match connect_within(path, args.timeout) {
                 Ok(socket) => socket,
@@ -99,6 +99,13 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             Ok(true) => return record(report, &viewed), // the renderer is gone: so are we
             Ok(false) => return Ok(()),                 // recorded before the summary went
         }
+    }
+}
+
+impl Viewed {
+    /// Is this the first renderer? It must be listening already; a later one may be on its way.
+    fn first(&self) -> bool {
+        self.sessions.is_empty() && self.refused == 0
     }
 }
 
@@ -147,7 +154,7 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
             bail!(Broken(format!("the renderer began with {}, not Hello", other.name())))
         }
         // A renderer that died as we connected (its listening socket closes last): the next one.
-        Received::HungUp if !viewed.sessions.is_empty() => return Ok(true),
+        Received::HungUp if !viewed.first() => return Ok(true),
         Received::HungUp => bail!(Broken("the renderer hung up before saying Hello".into())),
         Received::TimedOut => bail!(Broken(format!("the renderer said nothing for {:?}", args.timeout))),
     };
