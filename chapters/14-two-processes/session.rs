@@ -181,7 +181,9 @@ impl Session<'_> {
                         };
                         ensure!(
                             oldest == freed,
-                            Broken(format!("the viewer freed slot {freed}, not the oldest sent, slot {oldest}"))
+                            Broken(format!(
+                                "the viewer freed slot {freed}, not the oldest sent, slot {oldest}"
+                            ))
                         );
                         in_flight.pop_front();
                         // From our fence to the viewer's "free": the whole hand-over, one clock.
