@@ -154,9 +154,20 @@ fn listener(path: &Path, out: &Path, args: &[&str]) -> (Child, std::thread::Join
     (renderer, rest)
 }
 
-/// Chapter 14 as a viewer of the renderer at `path`, as user `uid` if given (root only).
+/// Chapter 14 as a viewer of the renderer at `path`, as user `uid` if given (root only): then
+/// a copy of the program in `out`, which that user can reach wherever the checkout is.
 fn viewer(path: &Path, out: &Path, args: &[&str], uid: Option<u32>) -> Command {
-    let mut command = Command::new(CH14);
+    let program = match uid {
+        Some(_) => {
+            let copy = out.join("14-two-processes");
+            if !copy.exists() {
+                std::fs::copy(CH14, &copy).unwrap();
+            }
+            copy
+        }
+        None => CH14.into(),
+    };
+    let mut command = Command::new(program);
     command.args(["--headless", "--connect"]).arg(path).arg("--out").arg(out).args(args);
     harness::pin_software_stack(&mut command);
     if let Some(uid) = uid {
