@@ -47,3 +47,25 @@ impl Drop for OwnedChild {
         let _ = self.0.wait();
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Dropped, a child that would run for a minute is killed and reaped: no process, not even a
+    /// zombie, is left with its pid. Ended, one that exits by itself says whether it exited 0.
+    #[test]
+    fn a_dropped_child_is_killed_and_reaped() {
+        let child = OwnedChild::from(std::process::Command::new("sleep").arg("60").spawn().unwrap());
+        let proc = std::path::PathBuf::from(format!("/proc/{}", child.id()));
+        assert!(proc.exists());
+        drop(child);
+        assert!(!proc.exists(), "{} is still there after the drop", proc.display());
+        let exits = OwnedChild::from(std::process::Command::new("true").spawn().unwrap());
+        assert!(exits.end(Duration::from_secs(5)));
+        let hangs = OwnedChild::from(std::process::Command::new("sleep").arg("60").spawn().unwrap());
+        let started = Instant::now();
+        assert!(!hangs.end(Duration::from_millis(50)), "killed: not a clean exit");
+        assert!(started.elapsed() < Duration::from_secs(5));
+    }
+}
