@@ -285,7 +285,7 @@ fn liars() -> Vec<(&'static str, Lie, &'static str)> {
                 }
                 true
             },
-            "semaphores that were not offered|fell silent while importing",
+            "semaphores that were not offered|fell silent during the handshake",
         ),
         ("silent", |_| true, "hung up or fell silent during the handshake"),
         ("hangs up at once", |_| false, "the viewer hung up"),
@@ -428,6 +428,10 @@ fn ch14_a_listening_renderer_refuses_liars_and_serves_the_next_viewer() {
         assert!(why.split('|').any(|why| stderr.contains(why)), "{name}: {why:?} not in\n{stderr}");
     }
     assert_flat(&report["sessions"], &["shared_fds", "fds", "vk_memory"]);
+    eprintln!(
+        "{refused} liars refused, then the viewer served on {} with sync {}",
+        report["vulkan"]["device"], report["sync"]
+    );
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
