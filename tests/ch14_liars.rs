@@ -427,6 +427,26 @@ fn ch14_a_listening_renderer_refuses_liars_and_serves_the_next_viewer() {
     for (name, why, _) in &heard {
         assert!(why.split('|').any(|why| stderr.contains(why)), "{name}: {why:?} not in\n{stderr}");
     }
+    // The deeper page's table of liars quotes these reasons: each is what this run printed.
+    let page =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/book/src/14-two-processes-deeper.md"));
+    let page = page.unwrap();
+    let table = page.split("## What was thrown at the socket").nth(1).unwrap().split("\n## ").next().unwrap();
+    let rows: Vec<&str> =
+        table.lines().filter(|l| l.starts_with("| ") && !l.starts_with("| the liar")).collect();
+    assert_eq!(rows.len(), liars().len() + 1, "a row for each liar, and one for another user");
+    for row in rows {
+        let said = row.rsplit(" | ").next().unwrap();
+        // Where a row gives two (the semaphores row: lavapipe's, then NVIDIA's), either.
+        let quoted: Vec<&str> = said.split('`').skip(1).step_by(2).collect();
+        let uid_row = quoted.iter().any(|q| q.contains("uid 65534"));
+        if !(uid_row && !rustix::process::getuid().is_root()) {
+            assert!(
+                quoted.iter().any(|q| stderr.contains(q)),
+                "the page quotes {quoted:?}; the renderer said none"
+            );
+        }
+    }
     assert_flat(&report["sessions"], &["shared_fds", "fds", "vk_memory"]);
     eprintln!(
         "{refused} liars refused, then the viewer served on {} with sync {}",
