@@ -3,12 +3,13 @@
 //! The Vulkan renderer and the GL viewer are separate programs now: the renderer draws into a ring
 //! of exported images, hands their fds to the viewer once over a Unix-domain socket, then says
 //! "frame k is in slot i" each frame; the viewer reads the slot and answers "slot i is free".
-//! Either side may die at any moment; the other notices and carries on (or, for the viewer, stops
-//! cleanly).
+//! Either side may die or lie at any moment; the other notices and carries on (or, for the
+//! viewer, stops cleanly).
 //!
 //! Run: `cargo run --release --bin 14-two-processes` (the renderer starts its own viewer), or by
-//! hand in two terminals: `-- --listen /tmp/vkgl.sock` and `-- --connect /tmp/vkgl.sock`; or, to
-//! compare, `-- --one-process` (the same hand-over, with GL in the renderer's own process).
+//! hand in two terminals: `-- --listen` and `-- --connect` (a socket in `$XDG_RUNTIME_DIR`, or the
+//! path given); or, to compare, `-- --one-process` (the same hand-over, with GL in the renderer's
+//! own process).
 
 mod draw;
 mod gauges;
@@ -247,7 +248,6 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             // own bug: an error.)
             Err(error) if listener.is_some() && error.is::<wire::Broken>() => {
                 session::refuse(socket, &error);
-                sessions.push(gauges::sample(None));
                 refused += 1;
                 continue;
             }
@@ -285,8 +285,6 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     measured.times.record(report);
     if restarts > 0 {
         report.set("death_to_next_frame_ms", gauges::median_max(&measured.death_to_frame));
-    }
-    if !sessions.is_empty() {
         report.set("sessions", &sessions);
     }
     report.set("frames", next_frame); // `frames`, or as many as were shown until the window closed
