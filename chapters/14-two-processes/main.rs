@@ -115,6 +115,8 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         ensure!(k > slots, "--kill-viewer-every {k}: more than --slots {slots}, or no frame is ever shown");
         ensure!(args.listen.is_none(), "--kill-viewer-every: the renderer kills only a viewer it started");
     }
+    // --listen's path, checked before anything is made (its directory must be ours alone).
+    let listen_path = socket_path(&args.listen)?;
     let (width, height) = (args.common.size.width, args.common.size.height);
     // The renderer has no window; the viewer it starts opens one where there is a display, and
     // then, as every windowed chapter, runs until it is closed unless --frames says otherwise.
@@ -183,7 +185,6 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 
     // 3. Serve viewers until every frame has been shown
     let timeout = args.timeout;
-    let listen_path = socket_path(&args.listen)?;
     let listener = listen_path.as_deref().map(wire::listen).transpose()?;
     let hello = wire::Hello {
         device_uuid: vk.info.device_uuid,
