@@ -201,7 +201,10 @@ fn every_fallible_step_of_every_chapter_fails_cleanly() {
     // A few runs at once: each is one process, mostly waiting on the software driver.
     let workers = std::thread::available_parallelism().map_or(2, |n| n.get()).clamp(2, 4);
     let (mut injected, mut reached, mut failures) = (0, 0, Vec::new());
-    for case in CASES {
+    // `VKGL_ERRORS_ONLY=14-two`: only the programs whose name has it, while working on one.
+    let only = std::env::var("VKGL_ERRORS_ONLY").unwrap_or_default();
+    let cases: Vec<&Case> = CASES.iter().filter(|case| case.name.contains(&only)).collect();
+    for case in &cases {
         // The listing run fails nothing: it must pass its checks, and is the fd baseline.
         let listing = run(case, "list");
         listing.succeeded();
@@ -248,7 +251,7 @@ fn every_fallible_step_of_every_chapter_fails_cleanly() {
         (injected, reached) = (injected + chosen.len(), reached + all.len());
         failures.extend(found);
     }
-    println!("injected failures run: {injected} (of {reached} steps reached) in {} programs", CASES.len());
+    println!("injected failures run: {injected} (of {reached} steps reached) in {} programs", cases.len());
     assert!(failures.is_empty(), "{} unclean error paths:\n{}", failures.len(), failures.join("\n"));
 }
 
@@ -382,4 +385,139 @@ fn the_scan_finds_an_unstepped_call_and_spares_drop() {
                 fn g() {\n    fail::call(\"vkMapMemory\", || unsafe {\n        d.map_memory(m, 0, 4, flags)\n    })?;\n}\n";
     let found = unstepped_calls("x.rs", text);
     assert_eq!(found, ["x.rs:2: unsafe { vk.device.bind_buffer_memory(b, m, 0) }?; (.bind_buffer_memory()"]);
+}
+
+/// The flags `bin --help` lists that take a value, each with its block of help text.
+fn flags_with_values(bin: &str) -> Vec<(String, String)> {
+    let help = std::process::Command::new(bin).arg("--help").output().unwrap();
+    assert!(help.status.success(), "{bin} --help: {help:?}");
+    let help = String::from_utf8(help.stdout).unwrap();
+    let mut flags: Vec<(String, String)> = Vec::new();
+    for line in help.lines() {
+        let trimmed = line.trim_start();
+        // "  -n, --name <VALUE>", "      --name [<VALUE>]": a flag's first line; the rest is its help.
+        let flag =
+            trimmed.strip_prefix("-").and_then(|_| trimmed.split_whitespace().find(|w| w.starts_with("--")));
+        match flag {
+            Some(flag) if line.starts_with(' ') => {
+                let name = flag.trim_end_matches(',').to_owned();
+                let takes_value = trimmed.contains(" <") || trimmed.contains(" [<");
+                flags.push((name, if takes_value { trimmed.to_owned() } else { String::new() }));
+            }
+            _ => {
+                if let Some((_, text)) = flags.last_mut().filter(|(_, text)| !text.is_empty()) {
+                    text.push_str(trimmed);
+                }
+            }
+        }
+    }
+    flags.retain(|(name, text)| !text.is_empty() && name != "--help");
+    flags
+}
+
+/// `bin --flag=value --help`: clap parses every value before it acts on `--help`, so this is
+/// 0 (help printed) when the value is taken and 2 (clap's error) when it is refused, with
+/// nothing run either way.
+fn offer(bin: &str, flag: &str, value: &str) -> (Option<i32>, String) {
+    let output =
+        std::process::Command::new(bin).arg(format!("{flag}={value}")).arg("--help").output().unwrap();
+    (output.status.code(), String::from_utf8_lossy(&output.stderr).into_owned())
+}
+
+/// Every numeric flag of every program, found from its `--help` (so that a flag added later is
+/// covered with no one remembering to), refuses what no flag means: NaN, the infinities, numbers
+/// past any limit. Each refusal exits 2 before anything runs, naming the flag and its range, and
+/// no value panics. Whether each flag takes -1, 0 and 0.5 is in the snapshot, to be read.
+#[test]
+fn every_numeric_flag_refuses_what_it_cannot_mean() {
+    let mut bins: Vec<&str> = CASES.iter().map(|case| case.bin).collect();
+    bins.dedup();
+    let mut table = String::new();
+    for bin in bins {
+        let program = std::path::Path::new(bin).file_name().unwrap().to_str().unwrap().to_owned();
+        let mut numeric = 0;
+        for (flag, help) in flags_with_values(bin) {
+            if help.contains("[possible values:") {
+                continue; // a choice of words
+            }
+            // A flag that takes a word is a path or a name; one that takes no plain number is a
+            // size or a list of words. The rest are numbers.
+            if offer(bin, &flag, "word").0 == Some(0) {
+                continue;
+            }
+            let plain = ["0", "1", "2", "3", "10", "16", "0.5", "100"];
+            if !plain.iter().any(|n| offer(bin, &flag, n).0 == Some(0)) {
+                continue;
+            }
+            numeric += 1;
+            let mut takes = Vec::new();
+            for value in
+                ["nan", "NaN", "inf", "-inf", "1e300", "-1e300", "18446744073709551616", "-1", "0", "0.5"]
+            {
+                let (code, stderr) = offer(bin, &flag, value);
+                let no_sense = !["-1", "0", "0.5"].contains(&value);
+                let refused = code == Some(2)
+                    && stderr.contains(&format!("'{flag} "))
+                    && stderr.contains("expected a number")
+                    && stderr.contains(" from ")
+                    && !stderr.contains("panicked");
+                match (code, no_sense) {
+                    (Some(0), false) => takes.push(value),
+                    (Some(0), true) => panic!("{program} {flag}={value} is taken"),
+                    _ => assert!(
+                        refused,
+                        "{program} {flag}={value}: exit {code:?}, not 2 naming the flag and its range:\n{stderr}"
+                    ),
+                }
+            }
+            // What is taken reaches the program: its field is read from what the parser gave
+            // (a type that differs panics there), and it runs, up to a failure injected at its
+            // first step.
+            let taken = plain.iter().find(|n| offer(bin, &flag, n).0 == Some(0)).unwrap();
+            for value in takes.iter().chain([taken]) {
+                let run = std::process::Command::new(bin)
+                    .arg(format!("{flag}={value}"))
+                    .env("VKGL_FAIL_AT", "1")
+                    .env_remove("DISPLAY")
+                    .env_remove("WAYLAND_DISPLAY")
+                    .output()
+                    .unwrap();
+                let stderr = String::from_utf8_lossy(&run.stderr);
+                assert!(
+                    run.status.code() == Some(2) && !stderr.contains("panicked"),
+                    "{program} {flag}={value}: {:?}\n{stderr}",
+                    run.status
+                );
+            }
+            table.push_str(&format!("{program} {flag}: takes {takes:?}\n"));
+        }
+        assert!(numeric > 0, "{program}: no numeric flag found in its --help (the scan is broken)");
+    }
+    insta::with_settings!({
+        // Not beside the reports: every .snap there is a report (tests/book_facts.rs).
+        snapshot_path => "snapshots/flags",
+        prepend_module_to_snapshot => false,
+        omit_expression => true,
+    }, {
+        insta::assert_snapshot!("numeric-flags", table);
+    });
+}
+
+/// Chapter 14's hidden `--viewer-fd` (the socket its renderer hands its viewer) refuses what
+/// cannot be that socket, before any fd is made of it: -1, stdin/stdout/stderr, and an fd that is
+/// open but not a socket, or not open at all.
+#[test]
+fn ch14_refuses_a_viewer_fd_that_is_not_its_socket() {
+    let bin = env!("CARGO_BIN_EXE_14-two-processes");
+    for fd in ["-1", "0", "2"] {
+        let (code, stderr) = offer(bin, "--viewer-fd", fd);
+        assert_eq!(code, Some(2), "--viewer-fd={fd}: {stderr}");
+        assert!(stderr.contains("expected a number from 3 to 2147483647"), "{stderr}");
+    }
+    for fd in ["3", "1000"] {
+        let run = run_chapter(bin, &["--viewer-fd", fd], &[]);
+        assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+        assert!(run.stderr.contains(&format!("--viewer-fd {fd} is not an open socket")), "{}", run.stderr);
+        assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
+    }
 }

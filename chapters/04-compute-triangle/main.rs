@@ -68,10 +68,10 @@ fn triangle_at(time: f32) -> Triangle {
 struct Args {
     /// Animation time of the first frame, in seconds (frame k shows T + k/60) [default: real
     /// time in a window; 0 headless, where frames may come far faster than 60 a second].
-    #[arg(long, value_name = "T")]
+    #[arg(long, value_name = "T", value_parser = common::base::cli::number::<f32>(-1e5..=1e5), allow_negative_numbers = true)]
     time: Option<f32>,
     /// Every K frames, make the compute image anew at full, half, then quarter size (a leak test).
-    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, value_name = "K", value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
     resize_every: Option<u32>,
 }
 

@@ -36,7 +36,7 @@ struct Args {
     scene: SceneArgs,
     /// Then make the G-buffers anew this many times, at other sizes, as a window's resize
     /// would, and check that nothing is left behind.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1000))]
     resizes: u32,
 }
 

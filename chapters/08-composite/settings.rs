@@ -13,7 +13,7 @@ pub struct Args {
     #[command(flatten)]
     pub ao: AoArgs,
     /// Blur radius in pixels (0 skips the blur).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=8))]
     pub blur: u32,
     /// Which picture to show.
     #[arg(long, value_enum, default_value = "final")]
@@ -23,10 +23,10 @@ pub struct Args {
     pub all_views: bool,
     /// Headless: make every shared image anew at another size every K frames, as a window's
     /// resize does (the leak test uses it).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
     pub resize_every: Option<u32>,
     /// The instance whose box is drawn [default: the first tetrahedron, or the first object].
-    #[arg(long)]
+    #[arg(long, value_parser = common::base::cli::number::<usize>(0..=1_000_000))]
     pub select: Option<usize>,
     /// Start this many times closer to the scene's centre than the framing puts the camera (as
     /// the mouse wheel does; from about 3000 on, the far plane is over 10^5 times the near one).

@@ -49,11 +49,11 @@ struct Args {
     /// The model that runs in the ring [default: the tutorial's assets/bunny.obj].
     #[arg(long)]
     model: Option<std::path::PathBuf>,
-    /// How many run in the ring.
-    #[arg(long, default_value_t = 20)]
+    /// How many run in the ring (2 to 1000).
+    #[arg(long, default_value_t = 20, value_parser = common::base::cli::number::<u32>(2..=1000))]
     count: u32,
-    /// Seconds per lap.
-    #[arg(long, default_value_t = 10.0)]
+    /// Seconds per lap (0.01 to 100000).
+    #[arg(long, default_value_t = 10.0, value_parser = common::base::cli::number::<f32>(0.01..=1e5), allow_negative_numbers = true)]
     lap: f32,
     #[command(flatten)]
     animation: AnimationArgs,

@@ -52,10 +52,10 @@ struct Args {
     #[command(flatten)]
     ao: AoArgs,
     /// Bands of latitude of the sphere (twice as many of longitude).
-    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(4..=2048))]
+    #[arg(long, default_value_t = 128, value_parser = common::base::cli::number::<u32>(4..=2048))]
     rings: u32,
-    /// The wave's height, as a fraction of the sphere's radius.
-    #[arg(long, default_value_t = 0.06)]
+    /// The wave's height, as a fraction of the sphere's radius (0 to 0.3).
+    #[arg(long, default_value_t = 0.06, value_parser = common::base::cli::number::<f32>(0.0..=0.3), allow_negative_numbers = true)]
     amplitude: f32,
     #[command(flatten)]
     animation: AnimationArgs,

@@ -15,22 +15,22 @@ pub struct Args {
     #[command(flatten)]
     pub scene: SceneArgs,
     /// Rays per pixel per frame where the history is still filling (1-64).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(1..=64))]
     pub samples: u32,
     /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=256))]
+    #[arg(long, default_value_t = 32, value_parser = common::base::cli::number::<u32>(1..=256))]
     pub fresh: u32,
     /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
     /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
-    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, default_value_t = 128, value_parser = common::base::cli::number::<u32>(1..=4096))]
     pub cap: u32,
     /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=64))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=64))]
     pub settled_every: u32,
     /// The most rays a pixel remembers where something moved within the radius of it since the
     /// previous frame (its occlusion changed there, by how much no test can tell from a few new
     /// rays); 0: no limit, the cap alone.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(0..=4096))]
+    #[arg(long, default_value_t = 16, value_parser = common::base::cli::number::<u32>(0..=4096))]
     pub near_motion_cap: u32,
     /// Which tests a remembered texel must pass to be reused (`none`: every texel is reused, so
     /// moving things leave ghosts; for measuring what the tests are worth).
@@ -56,14 +56,15 @@ pub struct Args {
     /// kept, drawn along the same path for comparison.
     #[arg(long, value_enum, default_value = "temporal")]
     pub method: Method,
-    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long, allow_negative_numbers = true)]
+    /// How far an occluder counts, in world units, 0 to 1000000 [default: 5% of the scene's
+    /// diagonal].
+    #[arg(long, value_parser = common::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
     pub radius: Option<f32>,
     /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 2.0, value_parser = common::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
     pub power: f32,
     /// Blur radius in pixels (0 skips the blur), as chapter 12's.
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=8))]
     pub blur: u32,
     /// Which picture to show.
     #[arg(long, value_enum, default_value = "final")]
@@ -76,7 +77,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0.5, value_parser = parse_speed)]
     pub orbit_speed: f32,
     /// The frame at which the orbiting camera jumps to another view (0: no cut).
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = 60, value_parser = common::base::cli::number::<u32>(0..=10_000_000))]
     pub cut_at: u32,
     /// Whether one instance moves while the camera does (`circle`) or not (`none`).
     #[arg(long, value_enum, default_value = "circle")]
@@ -87,18 +88,18 @@ pub struct Args {
     /// Headless: after every `--error-every`th frame, trace this many rays per pixel of the
     /// same frame with no history, and report the frame's error against them after the blur
     /// (0: don't; 1024 is the book's reference).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 16))]
+    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1 << 16))]
     pub error_against: u32,
     /// Measure the error on every Kth frame of the path (the frames around the cut always).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    #[arg(long, default_value_t = 1, value_parser = common::base::cli::number::<u32>(1..=1000))]
     pub error_every: u32,
     /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into timeline.json
     /// and timeline.svg in --out, as chapter 12's (0: none).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
+    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
     pub timeline: u32,
     /// Headless: make the images of one size anew every K frames, as a window's resize does
     /// (the history starts again).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
     pub resize_every: Option<u32>,
     /// Headless: draw the path again with chapter 12's frame at 16, 8 and 4 rays and this
     /// chapter's at 1, 2 and 4, each timed and (with --error-against) measured, and write
@@ -161,10 +162,6 @@ pub enum Method {
 }
 
 fn parse_speed(text: &str) -> Result<f32, String> {
-    let speed: f32 = text.parse().map_err(|e| format!("{e}"))?;
-    if speed.is_finite() && (0.0..=30.0).contains(&speed) {
-        Ok(speed)
-    } else {
-        Err("choose between 0 and 30 degrees per frame".into())
-    }
+    common::base::cli::number(0.0..=30.0)(text)
+        .map_err(|_| "expected a number of degrees per frame from 0 to 30".into())
 }

@@ -3,12 +3,13 @@
 //! The Vulkan renderer and the GL viewer are separate programs now: the renderer draws into a ring
 //! of exported images, hands their fds to the viewer once over a Unix-domain socket, then says
 //! "frame k is in slot i" each frame; the viewer reads the slot and answers "slot i is free".
-//! Either side may die at any moment; the other notices and carries on (or, for the viewer, stops
-//! cleanly).
+//! Either side may die or lie at any moment; the other notices and carries on (or, for the
+//! viewer, stops cleanly).
 //!
 //! Run: `cargo run --release --bin 14-two-processes` (the renderer starts its own viewer), or by
-//! hand in two terminals: `-- --listen /tmp/vkgl.sock` and `-- --connect /tmp/vkgl.sock`; or, to
-//! compare, `-- --one-process` (the same hand-over, with GL in the renderer's own process).
+//! hand in two terminals: `-- --listen` and `-- --connect` (a socket in `$XDG_RUNTIME_DIR`, or the
+//! path given); or, to compare, `-- --one-process` (the same hand-over, with GL in the renderer's
+//! own process).
 
 mod draw;
 mod gauges;
@@ -21,7 +22,7 @@ mod wire;
 
 use anyhow::{Result, bail, ensure};
 use ash::vk;
-use common::base::cli::Smallest;
+use common::base::cli::{Smallest, number, seconds};
 use common::base::commands::{Commands, HostBuffer, image_barrier};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
 use common::clocks::timing::PassTimes;
@@ -47,27 +48,28 @@ const SMALLEST: Smallest = Smallest {
 /// Chapter 14: a Vulkan renderer and a GL viewer in two processes, sharing a ring of images.
 #[derive(clap::Parser)]
 struct Args {
-    /// Images in the ring, each a frame in flight: 2 to 16.
-    #[arg(long, default_value_t = 2)]
+    /// Images in the ring, each a frame in flight (2 to 16).
+    #[arg(long, default_value_t = 2, value_parser = number::<u32>(2..=wire::MAX_SLOTS))]
     slots: u32,
-    /// Wait for a viewer at this socket path instead of starting one (the viewer: --connect).
-    #[arg(long, conflicts_with = "connect")]
-    listen: Option<PathBuf>,
-    /// Be the viewer of the renderer listening at this socket path.
-    #[arg(long)]
-    connect: Option<PathBuf>,
-    /// Seconds to wait for the other process before giving up on it.
-    #[arg(long, default_value_t = 10.0)]
-    timeout: f64,
-    /// How many viewers that died are replaced before the renderer gives up.
-    #[arg(long, default_value_t = 3)]
+    /// Wait for a viewer at this socket path instead of starting one (the viewer: --connect)
+    /// [default path: $XDG_RUNTIME_DIR/14-two-processes.sock].
+    #[arg(long, value_name = "PATH", num_args = 0..=1, conflicts_with = "connect")]
+    listen: Option<Option<PathBuf>>,
+    /// Be the viewer of the renderer listening at this socket path [default path: --listen's].
+    #[arg(long, value_name = "PATH", num_args = 0..=1)]
+    connect: Option<Option<PathBuf>>,
+    /// Seconds to wait for the other process before giving up on it (0.001 to 86400).
+    #[arg(long, value_name = "SECONDS", default_value = "10", value_parser = seconds(0.001..=86400.0))]
+    timeout: Duration,
+    /// How many viewers that died are replaced before the renderer gives up (0 to 1000000).
+    #[arg(long, default_value_t = 3, value_parser = number::<u32>(0..=1_000_000))]
     restarts: u32,
     /// Kill the viewer (SIGKILL) each time it has been sent K frames, to see it replaced (as
-    /// long as --restarts allows one more).
-    #[arg(long, value_name = "K")]
+    /// long as --restarts allows one more; K from --slots + 1 to 1000000).
+    #[arg(long, value_name = "K", value_parser = number::<u32>(1..=1_000_000))]
     kill_viewer_every: Option<u32>,
-    /// Ping/Pong round trips to time with each viewer, before its frames.
-    #[arg(long, default_value_t = 20)]
+    /// Ping/Pong round trips to time with each viewer, before its frames (0 to 100000).
+    #[arg(long, default_value_t = 20, value_parser = number::<u32>(0..=100_000))]
     pings: u32,
     /// No viewer: import the ring into GL in this same process and read each frame back there,
     /// timing the same hand-over, to compare with two processes.
@@ -76,8 +78,8 @@ struct Args {
     /// (The viewer, with --connect) outlive the renderer: wait for the next one at the same path.
     #[arg(long, requires = "connect")]
     reconnect: bool,
-    /// (Internal) be the viewer, on this inherited socket.
-    #[arg(long, hide = true)]
+    /// (Internal) be the viewer, on this inherited socket (0, 1 and 2 are stdin, stdout, stderr).
+    #[arg(long, hide = true, value_parser = number::<i32>(3..=i32::MAX))]
     viewer_fd: Option<i32>,
     /// (Internal) the viewer keeps a copy of the first fd it receives: a leak, to prove that
     /// the leak check sees one.
@@ -87,6 +89,11 @@ struct Args {
     /// driver does: the wait this chapter's design rules out.
     #[arg(long, hide = true, requires = "one_process")]
     stall_probe: bool,
+}
+
+/// The socket's path, for `--listen` or `--connect` given with or without one (None: not given).
+fn socket_path(flag: &Option<Option<PathBuf>>) -> Result<Option<PathBuf>> {
+    flag.as_ref().map(|path| path.clone().map_or_else(wire::default_path, Ok)).transpose()
 }
 
 // ANCHOR: picture
@@ -104,15 +111,12 @@ pub fn picture(frame: u64, width: u32, height: u32) -> ([u8; 4], (u32, u32, u32)
 
 fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let slots = args.slots;
-    ensure!(
-        (2..=wire::MAX_SLOTS).contains(&slots),
-        "--slots {slots}: a ring has 2 to {} slots",
-        wire::MAX_SLOTS
-    );
     if let Some(k) = args.kill_viewer_every {
         ensure!(k > slots, "--kill-viewer-every {k}: more than --slots {slots}, or no frame is ever shown");
         ensure!(args.listen.is_none(), "--kill-viewer-every: the renderer kills only a viewer it started");
     }
+    // --listen's path, checked before anything is made (its directory must be ours alone).
+    let listen_path = socket_path(&args.listen)?;
     let (width, height) = (args.common.size.width, args.common.size.height);
     // The renderer has no window; the viewer it starts opens one where there is a display, and
     // then, as every windowed chapter, runs until it is closed unless --frames says otherwise.
@@ -140,7 +144,7 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     };
     if args.stall_probe {
         let gl_context = gl_context.expect("--stall-probe requires --one-process");
-        return stall::probe(&vk, gl_context, Duration::from_secs_f64(args.timeout), report);
+        return stall::probe(&vk, gl_context, args.timeout, report);
     }
     let fds_before = resources::open_fd_targets();
 
@@ -180,8 +184,8 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     })?;
 
     // 3. Serve viewers until every frame has been shown
-    let timeout = Duration::from_secs_f64(args.timeout);
-    let listener = args.listen.as_deref().map(wire::listen).transpose()?;
+    let timeout = args.timeout;
+    let listener = listen_path.as_deref().map(wire::listen).transpose()?;
     let hello = wire::Hello {
         device_uuid: vk.info.device_uuid,
         driver_uuid: vk.info.driver_uuid,
@@ -195,7 +199,7 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     };
     let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
     let memory_fd = |slot: usize| exportable::export_fd(&fd_loader, *ring[slot].1.memory);
-    let (mut next_frame, mut restarts, mut redrawn) = (0u64, 0u32, 0u64);
+    let (mut next_frame, mut restarts, mut redrawn, mut refused) = (0u64, 0u32, 0u64, 0u64);
     let mut measured =
         Measured { times: PassTimes::new(), viewer_died_at: None, death_to_frame: vec![], sync: "host" };
     let mut sessions = Vec::new(); // the renderer's resources after each viewer
@@ -239,6 +243,15 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         let outcome = session.serve(&shared, &mut next_frame, frames, &mut measured, report);
         let outcome = match outcome {
             Ok(outcome) => outcome,
+            // A client of our socket that lied, or was not our user: refused, counted, and the
+            // next one served. No budget: a liar costs one connection and at most --timeout, and
+            // never stops the renderer. (A viewer we started that breaks the protocol is our
+            // own bug: an error.)
+            Err(error) if listener.is_some() && error.is::<wire::Broken>() => {
+                session::refuse(socket, &error);
+                refused += 1;
+                continue;
+            }
             Err(error) => {
                 session::end_viewer(socket, child, GRACE);
                 return Err(error);
@@ -278,6 +291,9 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.set("frames", next_frame); // `frames`, or as many as were shown until the window closed
     report.set("slots", slots);
     report.set("restarts", restarts);
+    if listener.is_some() {
+        report.set("viewers_refused", refused);
+    }
     report.set("frames_drawn_again", redrawn);
     let mode = match (args.one_process, &listener) {
         (true, _) => "one process",
@@ -292,7 +308,7 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     drop(square);
     drop(ring); // each image, then its memory
     drop(gl_context); // --one-process: its textures went in `one_process::serve`
-    if let Some(path) = &args.listen {
+    if let Some(path) = &listen_path {
         let _ = std::fs::remove_file(path);
     }
     // Every fd exported went to a viewer, and ours was closed once sent; every socket is closed.

@@ -2,14 +2,14 @@
 //! handshake, and the frames, one "frame k is in slot i" and one "slot i is free" at a time.
 
 use super::{Args, CHAPTER};
-use crate::wire::{self, Message, Received, Socket};
+use crate::wire::{self, Broken, Message, Received, Socket};
 use anyhow::{Context as _, Result, bail, ensure};
+use common::base::child::OwnedChild;
 use common::clocks::timing::PassTimes;
 use common::instruments::fail;
 use common::{Flags, Report, ms_since};
 use std::collections::VecDeque;
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
-use std::process::Child;
 use std::time::{Duration, Instant};
 
 /// How a viewer's session ended, if not with an error.
@@ -23,7 +23,7 @@ pub enum Outcome {
 /// One viewer, from the handshake to its summary.
 pub struct Session<'a> {
     pub socket: &'a Socket,
-    pub child: Option<&'a mut Child>,
+    pub child: Option<&'a mut OwnedChild>,
     pub kill_every: Option<u32>,
     /// Ping/Pong round trips to time once the ring is shared.
     pub pings: u32,
@@ -63,33 +63,40 @@ impl Session<'_> {
         report: &mut Report,
     ) -> Result<Outcome> {
         let hello = ring.hello;
-        let gone = |why| Ok(Outcome::Gone { why, lost: 0 });
         // ANCHOR: handshake
+        // Only this user's processes are handed our memory: mode 0600 keeps others from
+        // connecting to our socket, and the kernel's word on who connected holds where it cannot.
+        self.socket.ensure_same_user()?;
         // Hello: who we are and what we share. The viewer checks GL runs on our device.
         if !self.socket.send(&Message::Hello(hello.clone()), &[])? {
-            return self.hung_up("hung up before the handshake", 0);
+            return self.left_early("hung up before the handshake");
         }
         let (device_uuid, driver_uuid, renderer, semaphores) = match self.recv()? {
             Some(Message::Welcome { device_uuid, driver_uuid, renderer, semaphores }) => {
                 (device_uuid, driver_uuid, renderer, semaphores)
             }
-            Some(other) => bail!("the viewer answered Hello with {}", other.name()),
-            None => return gone("hung up during the handshake"),
+            Some(other) => bail!(Broken(format!("the viewer answered Hello with {}", other.name()))),
+            None => return self.left_early("hung up or fell silent during the handshake"),
         };
         let same = device_uuid == hello.device_uuid && driver_uuid == hello.driver_uuid;
         report.uuids_match = Some(same);
         let hex = common::instruments::report::uuid_hex;
         ensure!(
             same,
-            "the viewer's GL ({renderer}, device {} driver {}) is not our Vulkan ({}, device {} driver {})",
-            hex(&device_uuid),
-            hex(&driver_uuid),
-            hello.device,
-            hex(&hello.device_uuid),
-            hex(&hello.driver_uuid)
+            Broken(format!(
+                "the viewer's GL ({renderer}, device {} driver {}) is not our Vulkan ({}, device {} driver {})",
+                hex(&device_uuid),
+                hex(&driver_uuid),
+                hello.device,
+                hex(&hello.device_uuid),
+                hex(&hello.driver_uuid)
+            ))
         );
         // Semaphores only where both sides have them: the viewer accepts only what we offered.
-        ensure!(!semaphores || hello.semaphores, "the viewer accepted semaphores that were not offered");
+        ensure!(
+            !semaphores || hello.semaphores,
+            Broken("the viewer accepted semaphores that were not offered".into())
+        );
         measured.sync = if semaphores { "semaphores" } else { "host" };
         // The fds, one message per slot (and one per slot's semaphore). Each is ours until
         // sendmsg returns; then the kernel has given the viewer its own, and ours is closed.
@@ -103,13 +110,13 @@ impl Session<'_> {
                 sent = self.socket.send(&Message::SlotSemaphore { slot }, &[fd.as_fd()])?;
             }
             if !sent {
-                return self.hung_up("hung up while the slots were sent", 0);
+                return self.left_early("hung up while the slots were sent");
             }
         }
         match self.recv()? {
             Some(Message::Ready) => {}
-            Some(other) => bail!("the viewer answered the slots with {}", other.name()),
-            None => return gone("hung up while importing the slots"),
+            Some(other) => bail!(Broken(format!("the viewer answered the slots with {}", other.name()))),
+            None => return self.left_early("hung up or fell silent while importing the slots"),
         }
         // ANCHOR_END: handshake
         // A round trip, Ping to Pong, timed: what one message each way costs.
@@ -120,16 +127,48 @@ impl Session<'_> {
             }
             match self.recv()? {
                 Some(Message::Pong { n: m }) if m == n => measured.times.add("round_trip", ms_since(started)),
-                Some(other) => bail!("the viewer answered Ping {n} with {}", other.name()),
-                None => return gone("hung up"),
+                Some(other) => bail!(Broken(format!("the viewer answered Ping {n} with {}", other.name()))),
+                None => return Ok(Outcome::Gone { why: "hung up", lost: 0 }),
             }
         }
-        // ANCHOR: frames
         // Sent and not yet free, oldest first: (frame, slot, when its fence had signalled).
-        let mut in_flight: VecDeque<(u64, u32, u64)> = VecDeque::new();
+        let mut in_flight = VecDeque::new();
+        let shown = self.frames(ring, semaphores, (next_frame, frames), &mut in_flight, measured);
+        // However the viewer went, refused included, the frames it did not free are drawn again.
+        *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
+        if let Some(gone) = shown? {
+            return Ok(gone);
+        }
+        if !self.socket.send(&Message::Bye, &[])? {
+            while self.recv()?.is_some() {} // its refusal, if it left one, is the error
+            bail!(Broken("the viewer hung up after the last frame, before its summary".into()));
+        }
+        match self.recv()? {
+            // Read into the report: it must be a JSON object, as a viewer of ours sends.
+            Some(Message::Summary { json }) => match serde_json::from_str::<serde_json::Value>(&json) {
+                Ok(summary) if summary.is_object() => Ok(Outcome::Done(json)),
+                _ => bail!(Broken("the viewer's summary is not a JSON object".into())),
+            },
+            Some(other) => bail!(Broken(format!("the viewer answered Bye with {}", other.name()))),
+            None => bail!(Broken("the viewer hung up before its summary".into())),
+        }
+    }
+
+    /// Frames until `frames` have been shown (`None`), or the viewer is gone. `in_flight`: those
+    /// sent and not yet freed, which are drawn again for the next viewer, however this one goes.
+    fn frames(
+        &mut self,
+        ring: &Ring,
+        semaphores: bool,
+        (next_frame, frames): (&mut u64, u64),
+        in_flight: &mut VecDeque<(u64, u32, u64)>,
+        measured: &mut Measured,
+    ) -> Result<Option<Outcome>> {
+        let slots = ring.hello.slots;
+        // ANCHOR: frames
         let mut sent = 0u32;
         while *next_frame < frames || !in_flight.is_empty() {
-            let slot = (*next_frame % hello.slots as u64) as u32;
+            let slot = (*next_frame % slots as u64) as u32;
             // The slot is the viewer's until it says it is free: wait for that, on the CPU, with a
             // timeout. Never on a GPU semaphore: a dead viewer would never signal it.
             let must_wait = *next_frame == frames || in_flight.iter().any(|&(_, s, _)| s == slot);
@@ -137,9 +176,16 @@ impl Session<'_> {
                 let lost = in_flight.len() as u64;
                 match self.recv()? {
                     Some(Message::SlotFree { slot: freed, sent_ns }) => {
-                        let oldest = in_flight.pop_front();
-                        let (_, oldest, written_ns) = oldest.context("a slot freed with none in flight")?;
-                        ensure!(oldest == freed, "the viewer freed slot {freed}, not slot {oldest}");
+                        let Some(&(_, oldest, written_ns)) = in_flight.front() else {
+                            bail!(Broken(format!("the viewer freed slot {freed} with none in flight")));
+                        };
+                        ensure!(
+                            oldest == freed,
+                            Broken(format!(
+                                "the viewer freed slot {freed}, not the oldest sent, slot {oldest}"
+                            ))
+                        );
+                        in_flight.pop_front();
                         // From our fence to the viewer's "free": the whole hand-over, one clock.
                         measured.times.add("handover", sent_ns.saturating_sub(written_ns) as f64 / 1e6);
                         if let Some(died) = measured.viewer_died_at.take() {
@@ -149,15 +195,15 @@ impl Session<'_> {
                     Some(Message::Closed) => {
                         // Its window was closed: the frames in flight are not shown, nor drawn again.
                         *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
+                        in_flight.clear();
                         eprintln!("renderer: the viewer's window was closed; {} frame(s) shown", *next_frame);
-                        break;
+                        return Ok(None);
                     }
-                    Some(other) => bail!("the viewer sent {} during the frames", other.name()),
-                    None => {
-                        // Everything in flight is lost: draw it again for the next viewer.
-                        *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
-                        return Ok(Outcome::Gone { why: "hung up or fell silent", lost });
+                    Some(other) => {
+                        bail!(Broken(format!("the viewer sent {} during the frames", other.name())))
                     }
+                    // Everything in flight is lost: drawn again for the next viewer.
+                    None => return Ok(Some(Outcome::Gone { why: "hung up or fell silent", lost })),
                 }
                 continue;
             }
@@ -170,8 +216,7 @@ impl Session<'_> {
             let written_ns = wire::monotonic_ns();
             let ready = Message::FrameReady { frame: *next_frame, slot };
             if !self.socket.send(&ready, &[])? {
-                *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
-                return self.hung_up("hung up", in_flight.len() as u64);
+                return self.hung_up("hung up", in_flight.len() as u64).map(Some);
             }
             measured.times.add("frame", ms_since(started));
             in_flight.push_back((*next_frame, slot, written_ns));
@@ -185,15 +230,7 @@ impl Session<'_> {
             }
         }
         // ANCHOR_END: frames
-        if !self.socket.send(&Message::Bye, &[])? {
-            while self.recv()?.is_some() {} // its refusal, if it left one, is the error
-            bail!("the viewer hung up after the last frame, before its summary");
-        }
-        match self.recv()? {
-            Some(Message::Summary { json }) => Ok(Outcome::Done(json)),
-            Some(other) => bail!("the viewer answered Bye with {}", other.name()),
-            None => bail!("the viewer hung up before its summary"),
-        }
+        Ok(None)
     }
 
     /// The viewer hung up while we were sending: if it said why first (a refusal waiting in
@@ -203,13 +240,23 @@ impl Session<'_> {
         Ok(Outcome::Gone { why, lost })
     }
 
+    /// The viewer left before it was ready for frames. One we started died: it is replaced. A
+    /// client that connected to our socket and never finished the handshake is refused, as one
+    /// that breaks the protocol is: hanging up and falling silent are ways of lying too.
+    fn left_early(&mut self, why: &'static str) -> Result<Outcome> {
+        ensure!(self.child.is_some(), Broken(format!("the viewer {why}")));
+        self.hung_up(why, 0)
+    }
+
     /// The viewer's next message; `None` if it hung up or said nothing for the timeout. A
     /// refusal is the viewer's error, named.
     fn recv(&mut self) -> Result<Option<Message>> {
         match self.socket.recv()? {
-            Received::Message(Message::Refused { reason }, _) => bail!("the viewer refused: {reason}"),
+            Received::Message(Message::Refused { reason }, _) => {
+                bail!(Broken(format!("the viewer refused: {reason}")))
+            }
             Received::Message(message, fd) => {
-                ensure!(fd.is_none(), "the viewer sent an fd with {}", message.name());
+                ensure!(fd.is_none(), Broken(format!("the viewer sent an fd with {}", message.name())));
                 Ok(Some(message))
             }
             Received::HungUp | Received::TimedOut => Ok(None),
@@ -226,12 +273,12 @@ pub fn spawn_viewer(
     width: u32,
     height: u32,
     windowed: bool,
-) -> Result<(Socket, Option<Child>)> {
+) -> Result<(Socket, Option<OwnedChild>)> {
     let (ours, theirs) = wire::socketpair()?;
     let exe = std::env::current_exe().context("finding this program, to start the viewer")?;
     let mut command = std::process::Command::new(exe);
     let fd = theirs.fd.as_raw_fd();
-    let (size, timeout) = (format!("{width}x{height}"), args.timeout.to_string());
+    let (size, timeout) = (format!("{width}x{height}"), args.timeout.as_secs_f64().to_string());
     command.args(["--viewer-fd", &fd.to_string(), "--size", &size, "--timeout", &timeout]);
     if !windowed {
         command.arg("--headless"); // and in a window, it shows each frame as it arrives
@@ -255,7 +302,8 @@ pub fn spawn_viewer(
             rustix::io::fcntl_setfd(end, rustix::io::FdFlags::empty()).map_err(Into::into)
         });
     }
-    let child = fail::call("starting the viewer process", || command.spawn())?;
+    // Owned from here: on any way out, ours or the caller's, it is killed and reaped.
+    let child = OwnedChild::from(fail::call("starting the viewer process", || command.spawn())?);
     // One write, whole: the viewer is printing on the same stderr already.
     common::instruments::eprint_whole(&format!("renderer: started the viewer (pid {})", child.id()));
     drop(theirs);
@@ -278,13 +326,14 @@ pub fn accept(listener: &std::os::fd::OwnedFd, timeout: Duration) -> Result<Sock
 /// Closes our end of the socket, then reaps the viewer we started (None: we started none): a
 /// viewer that hung up or saw us hang up exits by itself, within `grace`; one that does not is
 /// hung, and is killed. Whether it exited with 0.
-pub fn end_viewer(socket: Socket, child: Option<Child>, grace: Duration) -> Option<bool> {
+pub fn end_viewer(socket: Socket, child: Option<OwnedChild>, grace: Duration) -> Option<bool> {
     drop(socket);
-    let mut child = child?;
-    let started = Instant::now();
-    while child.try_wait().ok()?.is_none() && started.elapsed() < grace {
-        std::thread::sleep(Duration::from_millis(10));
-    }
-    let _ = child.kill(); // a process that has exited ignores it
-    child.wait().ok().map(|status| status.success())
+    child.map(|child| child.end(grace))
+}
+
+/// Turns away a client of our socket (`--listen`) that broke the protocol: it is told why,
+/// if its end still takes a message, and its connection closed, with whatever it sent.
+pub fn refuse(socket: Socket, why: &anyhow::Error) {
+    let _ = socket.send(&Message::Refused { reason: format!("{why:#}") }, &[]);
+    eprintln!("renderer: refused a viewer: {why:#}");
 }

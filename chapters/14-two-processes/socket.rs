@@ -2,7 +2,7 @@
 //! is made (a socket pair for a viewer the renderer starts, a path for `--listen`/`--connect`),
 //! and how a message and its fds go through it (`sendmsg`/`recvmsg` with `SCM_RIGHTS`).
 
-use super::{MAX_MESSAGE, Message, decode, encode};
+use super::{Broken, MAX_MESSAGE, Message, decode, encode};
 use anyhow::{Context as _, Result, bail, ensure};
 use common::instruments::fail;
 use rustix::net::{
@@ -42,16 +42,60 @@ pub fn socketpair() -> Result<(Socket, Socket)> {
 }
 // ANCHOR_END: socketpair
 
+// ANCHOR: listen
 /// A listening socket at `path` (`--listen`), replacing a stale one a killed renderer left.
+/// Whoever can connect to it is handed GPU memory: it is made readable and writable by its
+/// owner alone (mode 0600) before it listens, so no one else ever connects, and each peer's
+/// user is checked too ([`Socket::ensure_same_user`]), in case the path's mode was loosened.
 pub fn listen(path: &std::path::Path) -> Result<OwnedFd> {
+    use std::os::unix::fs::PermissionsExt as _;
     let fd = fail::call("socket (listening)", || {
         rustix::net::socket_with(AddressFamily::UNIX, SocketType::SEQPACKET, SocketFlags::CLOEXEC, None)
     })?;
     let address = rustix::net::SocketAddrUnix::new(path).context("a socket path")?;
     let _ = std::fs::remove_file(path);
     fail::call("bind", || rustix::net::bind(&fd, &address)).with_context(|| path.display().to_string())?;
+    // bind() made the file with the umask's mode (0755 under umask 022); until listen(), a
+    // connect() is refused whatever the mode, so changing it now leaves no moment it is open.
+    let owner_only = std::fs::Permissions::from_mode(0o600);
+    fail::call("chmod 0600 (the socket)", || std::fs::set_permissions(path, owner_only))
+        .with_context(|| path.display().to_string())?;
     fail::call("listen", || rustix::net::listen(&fd, 1))?;
     Ok(fd)
+}
+// ANCHOR_END: listen
+
+/// Where `--listen` and `--connect` meet when given no path: a directory of this user's alone.
+/// `$XDG_RUNTIME_DIR` (`/run/user/UID`, mode 0700, made by the login manager, emptied at
+/// logout), where Wayland and PipeWire put theirs. Without it (a container, a cron job), a
+/// directory `vkgl-interop-UID` in the temporary directory, made with mode 0700 if missing, and
+/// refused if another user owns it or can enter it (as tmux does with `/tmp/tmux-UID`).
+pub fn default_path() -> Result<std::path::PathBuf> {
+    use std::os::unix::fs::{DirBuilderExt as _, MetadataExt as _, PermissionsExt as _};
+    const NAME: &str = "14-two-processes.sock";
+    if let Some(dir) = std::env::var_os("XDG_RUNTIME_DIR").filter(|dir| !dir.is_empty()) {
+        return Ok(std::path::PathBuf::from(dir).join(NAME));
+    }
+    let uid = rustix::process::getuid().as_raw();
+    let dir = std::env::temp_dir().join(format!("vkgl-interop-{uid}"));
+    match std::fs::DirBuilder::new().mode(0o700).create(&dir) {
+        Err(error) if error.kind() != std::io::ErrorKind::AlreadyExists => {
+            return Err(error).with_context(|| format!("making {}", dir.display()));
+        }
+        _ => {}
+    }
+    // symlink_metadata: a link planted in its place is refused, not followed.
+    let metadata = std::fs::symlink_metadata(&dir).with_context(|| dir.display().to_string())?;
+    let mode = metadata.permissions().mode();
+    ensure!(
+        metadata.is_dir() && metadata.uid() == uid && mode & 0o077 == 0,
+        "{} is not a directory of this user's alone (owner uid {}, mode {:o}): set XDG_RUNTIME_DIR, \
+         or give --listen and --connect a path",
+        dir.display(),
+        metadata.uid(),
+        mode & 0o7777
+    );
+    Ok(dir.join(NAME))
 }
 
 /// Connects to a renderer listening at `path` (`--connect`).
@@ -66,6 +110,26 @@ pub fn connect(path: &std::path::Path) -> Result<Socket> {
 }
 
 impl Socket {
+    // ANCHOR: peer
+    /// Refuses a peer run by another user (`SO_PEERCRED`: the kernel's record of who connected,
+    /// which the peer cannot forge). Mode 0600 already keeps others out; this holds even where
+    /// the path's mode or directory was loosened, or the socket was passed on.
+    pub fn ensure_same_user(&self) -> Result<()> {
+        let peer = fail::call("getsockopt SO_PEERCRED", || rustix::net::sockopt::socket_peercred(&self.fd))?;
+        let ours = rustix::process::getuid();
+        ensure!(
+            peer.uid == ours,
+            Broken(format!(
+                "pid {} runs as uid {}, not this program's uid {}",
+                peer.pid.as_raw_pid(),
+                peer.uid.as_raw(),
+                ours.as_raw()
+            ))
+        );
+        Ok(())
+    }
+    // ANCHOR_END: peer
+
     /// Every wait for the other process ends after `timeout` (`SO_RCVTIMEO`): a process that
     /// hangs without dying must not hang this one too.
     pub fn set_timeout(&self, timeout: Duration) -> Result<()> {
@@ -132,10 +196,17 @@ impl Socket {
         if got.bytes == 0 && fds.is_empty() {
             return Ok(Received::HungUp); // end of file: every fd of the other end is closed
         }
-        ensure!(!got.flags.contains(ReturnFlags::TRUNC), "a message longer than {MAX_MESSAGE} bytes");
+        // What the other process sent is refused as its error (`Broken`), not ours: its fds close here.
+        ensure!(
+            !got.flags.contains(ReturnFlags::TRUNC),
+            Broken(format!("a message longer than {MAX_MESSAGE} bytes"))
+        );
         // CTRUNC (MSG_CTRUNC): fds that did not fit were closed by the kernel; refuse the rest.
-        ensure!(!got.flags.contains(ReturnFlags::CTRUNC), "a message with more fds than any carries");
-        let (message, fd) = decode(&bytes[..got.bytes], fds)?;
+        ensure!(
+            !got.flags.contains(ReturnFlags::CTRUNC),
+            Broken("a message with more fds than any carries".into())
+        );
+        let (message, fd) = decode(&bytes[..got.bytes], fds).map_err(|error| Broken(format!("{error:#}")))?;
         Ok(Received::Message(message, fd))
     }
     // ANCHOR_END: recv

@@ -19,7 +19,7 @@ use common::{Flags, Report};
 use glow::HasContext;
 use std::os::fd::{FromRawFd, OwnedFd};
 use std::time::{Duration, Instant};
-use wire::{Message, Received, Socket};
+use wire::{Broken, Message, Received, Socket};
 
 /// What the viewer keeps from one renderer to the next (`--reconnect`).
 struct Viewed {
@@ -36,6 +36,8 @@ struct Viewed {
     last: Option<(u64, Vec<u8>)>,
     /// The viewer's resources after each renderer, for the soak.
     sessions: Vec<gauges::Sample>,
+    /// Renderers refused for breaking the protocol (`--reconnect` waits for the next).
+    refused: u64,
 }
 
 pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
@@ -48,23 +50,30 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         no_fd_leaked: true,
         last: None,
         sessions: vec![],
+        refused: 0,
     };
+    let connect = super::socket_path(&args.connect)?;
     loop {
-        let socket = match (args.viewer_fd, &args.connect) {
+        let socket = match (args.viewer_fd, &connect) {
             (Some(fd), _) => {
-                // Is it open at all? A mistyped --viewer-fd must not become someone else's fd.
-                let borrowed = unsafe { std::os::fd::BorrowedFd::borrow_raw(fd) };
-                rustix::io::fcntl_getfd(borrowed).with_context(|| format!("--viewer-fd {fd} is not open"))?;
+                // Is it an open socket at all? A mistyped --viewer-fd must not become someone
+                // else's fd (asked of /proc by number: no fd is made of it until it is known open).
+                let file = std::fs::metadata(format!("/proc/self/fd/{fd}"));
+                use std::os::unix::fs::FileTypeExt as _;
+                ensure!(
+                    file.is_ok_and(|file| file.file_type().is_socket()),
+                    "--viewer-fd {fd} is not an open socket"
+                );
                 // SAFETY: the renderer started us with this end of its socket pair, for us alone.
                 Socket { fd: unsafe { OwnedFd::from_raw_fd(fd) } }
             }
-            (None, Some(path)) if viewed.sessions.is_empty() => wire::connect(path)?,
+            (None, Some(path)) if viewed.first() => wire::connect(path)?,
             // The next renderer: its socket appears when it starts listening.
-            (None, Some(path)) => match connect_within(path, Duration::from_secs_f64(args.timeout)) {
+            (None, Some(path)) => match connect_within(path, args.timeout) {
                 Ok(socket) => socket,
                 Err(error) => {
                     eprintln!(
-                        "viewer: no renderer came back within {} s ({error:#}); stopping",
+                        "viewer: no renderer came back within {:?} ({error:#}); stopping",
                         args.timeout
                     );
                     return record(report, &viewed);
@@ -76,6 +85,12 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             Err(error) => {
                 // The renderer learns why, rather than only that we hung up (which it would survive).
                 let _ = socket.send(&Message::Refused { reason: format!("{error:#}") }, &[]);
+                // A renderer that lied (`--reconnect`): refused, and the next one waited for.
+                if args.reconnect && error.is::<wire::Broken>() {
+                    eprintln!("viewer: refused the renderer: {error:#}; waiting for the next (--reconnect)");
+                    viewed.refused += 1;
+                    continue;
+                }
                 return Err(error);
             }
             Ok(true) if args.reconnect && args.connect.is_some() => {
@@ -84,6 +99,13 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             Ok(true) => return record(report, &viewed), // the renderer is gone: so are we
             Ok(false) => return Ok(()),                 // recorded before the summary went
         }
+    }
+}
+
+impl Viewed {
+    /// Is this the first renderer? It must be listening already; a later one may be on its way.
+    fn first(&self) -> bool {
+        self.sessions.is_empty() && self.refused == 0
     }
 }
 
@@ -98,6 +120,9 @@ fn record(report: &mut Report, viewed: &Viewed) -> Result<()> {
     report.set("frames_shown", viewed.shown);
     if !viewed.sessions.is_empty() {
         report.set("sessions", &viewed.sessions);
+    }
+    if viewed.refused > 0 {
+        report.set("renderers_refused", viewed.refused);
     }
     Ok(())
 }
@@ -116,15 +141,22 @@ fn connect_within(path: &std::path::Path, timeout: Duration) -> Result<Socket> {
 
 /// One renderer, from its Hello to its Bye (`Ok(false)`) or its hang-up (`Ok(true)`).
 fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut Viewed) -> Result<bool> {
-    socket.set_timeout(Duration::from_secs_f64(args.timeout))?;
+    socket.set_timeout(args.timeout)?;
+    // Only this user's renderer: the fds it sends become our GL's memory.
+    socket.ensure_same_user()?;
     // 1. Hear the renderer's Hello
     let hello = match socket.recv()? {
         Received::Message(Message::Hello(hello), _) => hello,
-        Received::Message(other, _) => bail!("the renderer began with {}, not Hello", other.name()),
+        Received::Message(Message::Refused { reason }, _) => {
+            bail!(Broken(format!("the renderer refused: {reason}")))
+        }
+        Received::Message(other, _) => {
+            bail!(Broken(format!("the renderer began with {}, not Hello", other.name())))
+        }
         // A renderer that died as we connected (its listening socket closes last): the next one.
-        Received::HungUp if !viewed.sessions.is_empty() => return Ok(true),
-        Received::HungUp => bail!("the renderer hung up before saying Hello"),
-        Received::TimedOut => bail!("the renderer said nothing for {} s", args.timeout),
+        Received::HungUp if !viewed.first() => return Ok(true),
+        Received::HungUp => bail!(Broken("the renderer hung up before saying Hello".into())),
+        Received::TimedOut => bail!(Broken(format!("the renderer said nothing for {:?}", args.timeout))),
     };
     let (width, height) = (hello.width, hello.height);
 
@@ -162,10 +194,14 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
     let gl = &gl_context.gl;
     report.uuids_match = Some(common::base::gl::uuids_match(&vulkan, gl_context));
     // Another device's fd would import as garbage, or crash the driver: refuse, naming both.
-    common::base::gl::ensure_same_device(&vulkan, gl_context)?;
+    common::base::gl::ensure_same_device(&vulkan, gl_context)
+        .map_err(|error| Broken(format!("{error:#}")))?;
     // ANCHOR_END: same_device
     let largest = unsafe { gl.get_parameter_i32(glow::MAX_TEXTURE_SIZE) }.max(0) as u32;
-    ensure!(width <= largest && height <= largest, "{width}x{height}: GL_MAX_TEXTURE_SIZE is {largest} here");
+    ensure!(
+        width <= largest && height <= largest,
+        Broken(format!("{width}x{height}: GL_MAX_TEXTURE_SIZE is {largest} here"))
+    );
     // Semaphores where the renderer offers them and GL can import them; else the host path.
     let semaphores = hello.semaphores && gl_context.semaphores.is_some();
     let welcome = Message::Welcome {
@@ -187,14 +223,22 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
         let (slot, memory_size, fd) = match socket.recv()? {
             Received::Message(Message::Slot { slot, memory_size }, Some(fd)) => (slot, memory_size, fd),
             Received::Message(other, _) => {
-                bail!("expected slot {expected}, the renderer sent {}", other.name())
+                bail!(Broken(format!("expected slot {expected}, the renderer sent {}", other.name())))
             }
-            Received::HungUp | Received::TimedOut => bail!("the renderer went away while sending the slots"),
+            Received::HungUp | Received::TimedOut => {
+                bail!(Broken("the renderer went away while sending the slots".into()))
+            }
         };
         // From here until the import succeeds, the fd is ours: every `?` below closes it.
-        ensure!(slot == expected, "the renderer sent slot {slot} where slot {expected} was due");
+        ensure!(
+            slot == expected,
+            Broken(format!("the renderer sent slot {slot} where slot {expected} was due"))
+        );
         let size = hello.memory_size;
-        ensure!(memory_size == size, "slot {slot} is {memory_size} bytes; the Hello said {size}");
+        ensure!(
+            memory_size == size,
+            Broken(format!("slot {slot} is {memory_size} bytes; the Hello said {size}"))
+        );
         let fd = wire::check_memory_fd(fd, memory_size)?;
         if args.keep_a_received_fd && slot == 0 {
             std::mem::forget(fd.try_clone().context("dup, for --keep-a-received-fd")?); // a leak, on purpose
@@ -228,10 +272,10 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
                     Some(import_semaphore(gl_context, wire::check_semaphore_fd(fd)?)?)
                 }
                 Received::Message(other, _) => {
-                    bail!("expected slot {slot}'s semaphore, got {}", other.name())
+                    bail!(Broken(format!("expected slot {slot}'s semaphore, got {}", other.name())))
                 }
                 Received::HungUp | Received::TimedOut => {
-                    bail!("the renderer went away while sending the slots")
+                    bail!(Broken("the renderer went away while sending the slots".into()))
                 }
             },
         };
@@ -253,14 +297,16 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
                 false => break Some("hung up"),
             },
             Received::Message(Message::Bye, _) => break None,
-            Received::Message(other, _) => bail!("the renderer sent {} during the frames", other.name()),
+            Received::Message(other, _) => {
+                bail!(Broken(format!("the renderer sent {} during the frames", other.name())))
+            }
             Received::HungUp => break Some("hung up"),
             Received::TimedOut => break Some("fell silent"),
         };
         let (framebuffer, texture, frame_written) =
-            ring.get(slot as usize).with_context(|| format!("slot {slot} of {}", hello.slots))?;
+            ring.get(slot as usize).ok_or_else(|| Broken(format!("slot {slot} of {}", hello.slots)))?;
         if let Some(previous) = previous.replace(frame) {
-            ensure!(frame > previous, "frame {frame} came after frame {previous}");
+            ensure!(frame > previous, Broken(format!("frame {frame} came after frame {previous}")));
         }
         if let Some(frame_written) = frame_written {
             wait_until_written(gl_context, texture, frame_written);
@@ -278,7 +324,7 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
             };
         }
         // ANCHOR_END: show
-        let pixels = read_slot(gl_context, texture, (width, height), Duration::from_secs_f64(args.timeout))?;
+        let pixels = read_slot(gl_context, texture, (width, height), args.timeout)?;
         viewed.all_right &= is_picture_of(&pixels, frame, width, height);
         viewed.shown += 1;
         viewed.last = Some((frame, pixels));
@@ -338,7 +384,9 @@ fn until_bye(socket: &Socket) -> Result<Option<&'static str>> {
         match socket.recv()? {
             Received::Message(Message::FrameReady { .. }, _) => continue,
             Received::Message(Message::Bye, _) => return Ok(None),
-            Received::Message(other, _) => bail!("the renderer sent {} after Closed", other.name()),
+            Received::Message(other, _) => {
+                bail!(Broken(format!("the renderer sent {} after Closed", other.name())))
+            }
             Received::HungUp => return Ok(Some("hung up")),
             Received::TimedOut => return Ok(Some("fell silent")),
         }

@@ -315,6 +315,22 @@ pub fn decode(bytes: &[u8], mut fds: Vec<OwnedFd>) -> Result<(Message, Option<Ow
 }
 // ANCHOR_END: decode
 
+// ANCHOR: broken
+/// The other process broke the protocol: what it sent, or when, or who it is, is not what this
+/// program would send. An error of the other side's, not ours: a listening renderer refuses that
+/// viewer and serves the next, as a `--reconnect` viewer does with a renderer.
+#[derive(Debug)]
+pub struct Broken(pub String);
+
+impl std::fmt::Display for Broken {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Broken {}
+// ANCHOR_END: broken
+
 // ANCHOR: memory_fd
 /// Refuses an fd that cannot be `memory_size` bytes of exported memory: a socket, a pipe or a
 /// directory, or a file (Mesa exports a memfd) smaller than the message says. A character device
@@ -327,11 +343,10 @@ pub fn check_memory_fd(fd: OwnedFd, memory_size: u64) -> Result<OwnedFd> {
     if kind.is_file() {
         ensure!(
             metadata.len() >= memory_size,
-            "the slot's fd holds {} bytes, the message says {memory_size}",
-            metadata.len()
+            Broken(format!("the slot's fd holds {} bytes, the message says {memory_size}", metadata.len()))
         );
     } else if !kind.is_char_device() {
-        bail!("the slot's fd is not memory ({kind:?}): refused");
+        bail!(Broken(format!("the slot's fd is not memory ({kind:?}): refused")));
     }
     Ok(OwnedFd::from(file))
 }
@@ -344,7 +359,7 @@ pub fn check_semaphore_fd(fd: OwnedFd) -> Result<OwnedFd> {
     let file = std::fs::File::from(fd);
     let kind = file.metadata().context("fstat on the semaphore's fd")?.file_type();
     if kind.is_file() || kind.is_dir() || kind.is_fifo() || kind.is_socket() || kind.is_symlink() {
-        bail!("the semaphore's fd is not a semaphore ({kind:?}): refused");
+        bail!(Broken(format!("the semaphore's fd is not a semaphore ({kind:?}): refused")));
     }
     Ok(OwnedFd::from(file))
 }

@@ -54,7 +54,7 @@ struct Args {
     #[arg(long, value_delimiter = ',', value_parser = parse_size)]
     sizes: Vec<Size>,
     /// Rays per pixel per frame [default: 1,4,16,64; --quick: 1,4].
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = common::base::cli::number::<u32>(1..=256))]
     spp: Vec<u32>,
     /// How GL reports problems while the bench runs (every chapter: synchronous).
     #[arg(long, value_enum, default_value = "synchronous")]
@@ -71,14 +71,14 @@ struct Args {
     #[arg(long, value_enum, default_value = "per-mesh")]
     blas: BlasLayout,
     /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    #[arg(long, value_parser = common::base::cli::number::<u32>(1..=100_000))]
     frames: Option<u32>,
     /// Also draw the last N frames' passes of chapter 08's frame and of chapter 12's, each on one
     /// clock, into timeline-08.svg and fast-frame/timeline.svg (0: none).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
+    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
     timeline: u32,
     /// The ablation's converged reference, in rays per pixel [default: 1024; --quick: 64].
-    #[arg(long, value_parser = clap::value_parser!(u32).range(16..=1 << 20))]
+    #[arg(long, value_parser = common::base::cli::number::<u32>(16..=1 << 20))]
     reference_rays: Option<u32>,
 }
 

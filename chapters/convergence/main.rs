@@ -41,10 +41,10 @@ struct Args {
     #[arg(long)]
     quick: bool,
     /// Scale the exact cases by this factor (1e-4 to 1e4).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, value_parser = common::base::cli::number::<f64>(1e-4..=1e4), allow_negative_numbers = true)]
     scale: f64,
     /// Move the exact cases this many times their own size from the origin (0 to 1e4).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = common::base::cli::number::<f64>(0.0..=1e4), allow_negative_numbers = true)]
     offset: f64,
     /// Only the exact cases (no default scene).
     #[arg(long)]

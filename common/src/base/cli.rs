@@ -1,7 +1,46 @@
 //! The flags every chapter accepts, so that scripts and tests can run them all alike.
 
 use crate::instruments::report::Print;
+use std::ops::RangeInclusive;
 use std::path::PathBuf;
+use std::time::Duration;
+
+// ANCHOR: number
+/// A numeric flag's value parser (`#[arg(long, value_parser = number::<u32>(2..=16))]`): a
+/// number within `range`, or clap refuses it before anything runs (exit 2, naming the flag and
+/// the range): not a number, NaN, an infinity, a negative number where the range has none,
+/// anything past either end. Every numeric flag of every program takes its value through this
+/// (or [`seconds`]), so that no value a user can type reaches the code unchecked; a test feeds
+/// each flag that `--help` lists such values. Name the type (`::<u32>`): clap checks it against
+/// the field's only at run time, and a bare `2..=16` would be an `i32`.
+pub fn number<T>(
+    range: RangeInclusive<T>,
+) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static
+where
+    T: std::str::FromStr + PartialOrd + std::fmt::Display + Send + Sync + 'static,
+{
+    let range = std::sync::Arc::new(range);
+    move |text: &str| match text.trim().parse::<T>() {
+        // NaN is within no range: every comparison with it is false.
+        Ok(value) if range.contains(&value) => Ok(value),
+        _ => Err(format!("expected a number from {} to {}", range.start(), range.end())),
+    }
+}
+
+/// [`number`] for a flag in seconds, as a `Duration` (which would panic on NaN, an infinity or
+/// a negative number: they never reach it).
+pub fn seconds(
+    range: RangeInclusive<f64>,
+) -> impl Fn(&str) -> Result<Duration, String> + Clone + Send + Sync + 'static {
+    let (start, end) = (*range.start(), *range.end());
+    let number = number(range);
+    move |text: &str| {
+        let seconds =
+            number(text).map_err(|_| format!("expected a number of seconds from {start} to {end}"))?;
+        Ok(Duration::from_secs_f64(seconds))
+    }
+}
+// ANCHOR_END: number
 
 /// Flags shared by every chapter: `run_chapter` puts them before the chapter's own (`--time`
 /// where it animates, `--scene` where it loads a model), and `Flags` holds both.
@@ -16,8 +55,9 @@ pub struct CommonArgs {
     #[arg(long, default_value = "800x600", value_parser = parse_size)]
     pub size: Size,
 
-    /// How many frames to run [default: 1 headless; a window runs until it is closed].
-    #[arg(long)]
+    /// How many frames to run, 0 to 10000000 [default: 1 headless; a window runs until it is
+    /// closed, as with 0].
+    #[arg(long, value_parser = number::<u32>(0..=10_000_000))]
     pub frames: Option<u32>,
 
     /// Where images go [default: out/<chapter>/].
@@ -55,29 +95,17 @@ impl CommonArgs {
 #[derive(clap::Args, Debug, Clone)]
 pub struct AnimationArgs {
     /// The time of the first frame, in seconds.
-    #[arg(long, default_value_t = 0.0, value_parser = parse_time, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 0.0, value_parser = number::<f32>(-1e5..=1e5), allow_negative_numbers = true)]
     pub time: f32,
     /// Seconds between frames (0: nothing moves, and the occlusion accumulates).
-    #[arg(long, default_value_t = 1.0 / 30.0, value_parser = parse_step, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 1.0 / 30.0, value_parser = number::<f32>(0.0..=3600.0), allow_negative_numbers = true)]
     pub step: f32,
     /// Rebuild the structure that moves every K frames instead of updating it in place (0: never).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = number::<u32>(0..=1_000_000))]
     pub rebuild_every: u32,
     /// Headless: write every frame, not only the first and the last.
     #[arg(long)]
     pub every_frame: bool,
-}
-
-/// `--time`: any number of seconds (not NaN nor infinite), refused by clap before anything runs.
-fn parse_time(text: &str) -> Result<f32, String> {
-    let time: f32 = text.parse().map_err(|e| format!("{e}"))?;
-    time.is_finite().then_some(time).ok_or_else(|| "must be a number of seconds".into())
-}
-
-/// `--step`: 0 or more seconds, refused by clap before anything runs.
-fn parse_step(text: &str) -> Result<f32, String> {
-    let step: f32 = text.parse().map_err(|e| format!("{e}"))?;
-    (step.is_finite() && step >= 0.0).then_some(step).ok_or_else(|| "must be 0 or more seconds".into())
 }
 
 impl AnimationArgs {

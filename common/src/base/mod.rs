@@ -4,6 +4,7 @@
 //! (`clocks`).
 
 pub mod chapter;
+pub mod child;
 pub mod cli;
 pub mod commands;
 pub mod compute;

@@ -22,17 +22,17 @@ const MISS: &[u8] = include_bytes!("../../../shaders/miss.rmiss.spv");
 #[derive(clap::Args, Debug, Clone)]
 pub struct AoArgs {
     /// AO rays per pixel per frame, 0-256 (0: no rays, visibility 1 everywhere).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(0..=256))]
+    #[arg(long, default_value_t = 16, value_parser = crate::base::cli::number::<u32>(0..=256))]
     pub samples: u32,
-    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal] (0:
-    /// nothing can occlude, no rays).
-    #[arg(long, allow_negative_numbers = true)]
+    /// How far an occluder counts, in world units, 0 to 1000000 [default: 5% of the scene's
+    /// diagonal] (0: nothing can occlude, no rays).
+    #[arg(long, value_parser = crate::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
     pub radius: Option<f32>,
     /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 2.0, value_parser = crate::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
     pub power: f32,
     /// Stop accumulating once a pixel has this many rays (1 to 2^30).
-    #[arg(long, default_value_t = 4096, value_parser = clap::value_parser!(u32).range(1..=1 << 30))]
+    #[arg(long, default_value_t = 4096, value_parser = crate::base::cli::number::<u32>(1..=1 << 30))]
     pub max_samples: u32,
 }
 

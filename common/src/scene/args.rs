@@ -17,7 +17,7 @@ pub struct SceneArgs {
     #[arg(long, value_enum, default_value = "smooth")]
     pub normals: Normals,
     /// Tetrahedra in the default scene (0 to a million).
-    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
+    #[arg(long, default_value_t = 10_000, value_parser = crate::base::cli::number::<u32>(0..=1_000_000))]
     pub instances: u32,
     /// One of the scenes `bench` measures instead: `large` (the default scene's tetrahedra over a
     /// million-triangle rippled ground) or `ceiling` (one triangle every ray misses).

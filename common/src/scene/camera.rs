@@ -18,12 +18,7 @@ pub struct Camera {
 /// and 10^6. Beyond those the near and far planes lose the scene (tests/numerics.rs walks up to
 /// 10^5).
 pub fn parse_zoom(text: &str) -> Result<f32, String> {
-    let zoom: f32 = text.parse().map_err(|e| format!("{e}"))?;
-    if zoom.is_finite() && (1e-3..=1e6).contains(&zoom) {
-        Ok(zoom)
-    } else {
-        Err("choose between 0.001 and 1000000".into())
-    }
+    crate::base::cli::number(1e-3..=1e6)(text)
 }
 
 impl Camera {
