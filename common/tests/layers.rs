@@ -114,10 +114,17 @@ fn violations(relative: &Path, text: &str) -> Vec<String> {
     let shown = relative.display();
     let mut found = Vec::new();
     let Some(layer) = module.first() else {
-        // The crate root: declarations, re-exports and doc comments only.
+        // The crate root: declarations, re-exports and doc comments only. A `pub use` that rustfmt
+        // wrapped (`pub use a::{\n b, c,\n};`) goes on until its `;`.
+        let mut in_use = false;
         for (number, line) in text.lines().enumerate() {
             let code = line.trim_start();
+            let continues = in_use;
+            if code.starts_with("pub use ") || in_use {
+                in_use = !code.ends_with(';');
+            }
             let allowed = code.is_empty()
+                || continues
                 || code.starts_with("//")
                 || code.starts_with("pub mod ")
                 || code.starts_with("pub use ");
@@ -134,7 +141,8 @@ fn violations(relative: &Path, text: &str) -> Vec<String> {
     let own =
         rank(layer).unwrap_or_else(|| panic!("{shown} is in no layer ({layer}); the layers: {LAYERS:?}"));
     let vulkan_only = VULKAN_ONLY.iter().any(|v| shown.to_string().starts_with(v));
-    for (number, line) in text.lines().enumerate() {
+    for (number, line) in logical_lines(text) {
+        let line = line.as_str();
         let at = format!("{shown}:{}", number + 1);
         for path in paths_in(line, &module) {
             let named = path.join("::");
@@ -154,6 +162,29 @@ fn violations(relative: &Path, text: &str) -> Vec<String> {
         }
     }
     found
+}
+
+/// `text`'s lines, numbered from 0, with a `use` that rustfmt wrapped over several lines
+/// (`use crate::{\n    a::B,\n    c::D,\n};`) joined into one, numbered as its first line: a
+/// path on a continuation line must not escape the check.
+fn logical_lines(text: &str) -> Vec<(usize, String)> {
+    let mut out: Vec<(usize, String)> = Vec::new();
+    let mut open = false;
+    for (number, line) in text.lines().enumerate() {
+        let code = line.trim();
+        if open {
+            let last = out.last_mut().expect("a use to continue");
+            last.1.push_str(code);
+        } else {
+            out.push((number, line.to_string()));
+        }
+        let starts =
+            code.starts_with("use ") || code.starts_with("pub use ") || code.starts_with("pub(crate) use ");
+        if starts || open {
+            open = !code.ends_with(';');
+        }
+    }
+    out
 }
 
 /// Every source file of `common`, by its path under `src/`, with its text.
@@ -181,6 +212,15 @@ fn the_check_sees_what_it_must_refuse() {
     let check = |file: &str, text: &str| violations(Path::new(file), text);
     // Down and sideways are fine, in every spelling.
     assert!(check("rt/ao.rs", "use crate::base::vulkan::VulkanContext;").is_empty());
+    // A use rustfmt wrapped over lines is read whole.
+    assert_eq!(
+        check(
+            "scene/gbuffer.rs",
+            "use crate::{\n    base::vulkan::VulkanContext,\n    rt::ao::AoTracer,\n};"
+        )
+        .len(),
+        1
+    );
     assert!(check("rt/ao.rs", "use crate::{base::gl::GlContext, scene::gbuffer::GBuffers};").is_empty());
     assert!(check("frame/probe.rs", "use super::composite::Uniforms;").is_empty());
     assert!(check("base/gl/debug.rs", "use super::super::super::instruments::report::Report;").is_empty());
