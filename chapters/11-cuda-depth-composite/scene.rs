@@ -206,7 +206,7 @@ pub fn trace(p: &TraceParams, traced: &mut [u32]) -> Vec<Hit> {
 // ANCHOR: depth
 /// The depth GL's rasteriser writes for a point at hit distance `t` along the ray through
 /// (x, y) in -1..1: the view depth d = t / |forward + x right + y up| (forward is a unit vector
-/// at right angles to `right` and `up`), then the window depth of `perspective_rh_gl` with
+/// at right angles to `right` and `up`), then the window depth of glam's OpenGL `perspective` with
 /// glDepthRange(0, 1): f (d - n) / ((f - n) d). `raytraced.frag` computes the same.
 pub fn window_depth(t: f32, (x, y): (f32, f32), tan_half: (f32, f32), (near, far): (f32, f32)) -> f32 {
     let view_depth = t / Vec3::new(x * tan_half.0, y * tan_half.1, 1.0).length();

@@ -64,12 +64,12 @@ impl Camera {
     }
 
     pub fn view(&self) -> Mat4 {
-        Mat4::look_at_rh(self.eye, self.target, Vec3::Y)
+        glam::camera::rh::view::look_at_mat4(self.eye, self.target, Vec3::Y)
     }
 
     /// GL's clip space: depth from -1 to 1.
     pub fn projection(&self, aspect: f32) -> Mat4 {
-        Mat4::perspective_rh_gl(self.fov_y, aspect, self.near, self.far)
+        glam::camera::rh::proj::opengl::perspective(self.fov_y, aspect, self.near, self.far)
     }
 
     pub fn view_projection(&self, aspect: f32) -> Mat4 {
