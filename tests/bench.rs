@@ -144,3 +144,81 @@ fn bench_timeline_draws_chapter_08_and_chapter_12() {
         assert!(std::fs::metadata(out.join(picture)).is_ok_and(|m| m.len() > 0), "{picture}");
     }
 }
+
+/// The rows of a `--probe` run that passed its checks, each measured value of `keys` finite and
+/// at least 0 (no timing asserts beyond that: lavapipe's speed says nothing about a GPU's).
+fn probe_rows(args: &[&str], env: &[(&str, &str)], keys: &[&str]) -> Vec<Value> {
+    let run = run_chapter_with(env!("CARGO_BIN_EXE_bench"), args, env);
+    let report = run.succeeded();
+    let rows = report["rows"].as_array().expect("rows").clone();
+    for row in &rows {
+        for key in keys {
+            let value = &row["measured"][key];
+            assert!(value.as_f64().is_some_and(|v| v.is_finite() && v >= 0.0), "{key}: {row}");
+        }
+    }
+    let probe = report["probe"].as_str().unwrap();
+    let table = run.out_dir.path().join(format!("probe-{probe}.md"));
+    assert!(std::fs::read_to_string(&table).is_ok_and(|t| t.lines().count() >= 4 + rows.len()), "{table:?}");
+    rows
+}
+
+/// `--probe layouts` draws chapter 12's ids and a packed normal and depth, timed, over the same
+/// pixels.
+#[test]
+fn probe_layouts_draws_both_lean_buffers_over_the_same_pixels() {
+    let args = ["--quick", "--probe", "layouts", "--sizes", "40x30", "--spp", "1"];
+    let rows = probe_rows(&args, &[], &["ids_r32ui_ms", "normal_depth_rg32ui_ms"]);
+    assert_eq!(rows.len(), 1);
+}
+
+/// `--probe overlap` times the same GL and Vulkan work in two orders (on lavapipe the CPU waits
+/// at every hand-over, so nothing is said of which is faster).
+#[test]
+fn probe_overlap_times_both_orders() {
+    let args = ["--quick", "--probe", "overlap", "--sizes", "64x48", "--spp", "2"];
+    let keys = ["gl_during_vulkan_ms", "gl_after_vulkan_ms", "gl_pass_alone_ms"];
+    for row in probe_rows(&args, &[], &keys) {
+        for key in keys {
+            assert!(row["measured"][key].as_f64().is_some_and(|ms| ms > 0.0), "{key}: {row}");
+        }
+    }
+}
+
+/// `--probe vulkan-composite` runs chapter 12's composite as a Vulkan compute shader: timed, and
+/// its picture GL's within rounding, on both hand-over paths, at a size that is not a whole
+/// number of 16x16 groups, with the widest blur.
+#[test]
+fn probe_vulkan_composite_draws_what_gl_draws() {
+    let args = ["--quick", "--probe", "vulkan-composite", "--sizes", "37x29", "--spp", "2", "--blurs", "8"];
+    for env in [&[][..], &[("VKGL_HIDE_EXTENSIONS", "GL_EXT_semaphore_fd")][..]] {
+        let rows = probe_rows(&args, env, &["gl_compute_ms", "vulkan_compute_ms"]);
+        assert_eq!(rows.len(), 1, "{env:?}");
+        assert!(rows[0]["measured"]["largest_difference"].as_u64().is_some_and(|d| d <= 2), "{env:?}");
+        assert!(rows[0]["measured"]["vulkan_compute_ms"].as_f64().is_some_and(|ms| ms > 0.0), "{env:?}");
+    }
+}
+
+/// `--probe patterns`: each pattern's trace timed, and its error before and after the blur.
+#[test]
+fn probe_patterns_measures_time_and_error_per_pattern() {
+    let args = [
+        "--quick",
+        "--probe",
+        "patterns",
+        "--sizes",
+        "40x30",
+        "--spp",
+        "2",
+        "--patterns",
+        "per-pixel,tile4x4",
+        "--reference-rays",
+        "16",
+    ];
+    let rows = probe_rows(&args, &[], &["ao_ms", "error_raw", "error_blurred"]);
+    let patterns: Vec<&str> = rows.iter().map(|r| r["setting"]["pattern"].as_str().unwrap()).collect();
+    assert_eq!(patterns, ["per-pixel", "tile4x4"]);
+    for row in &rows {
+        assert!(row["measured"]["error_blurred"].as_f64() < row["measured"]["error_raw"].as_f64(), "{row}");
+    }
+}

@@ -677,6 +677,79 @@ fn no_page_cites_an_issue_number() {
     assert!(errors.is_empty(), "pages that cite an issue the reader cannot see:\n{}", errors.join("\n"));
 }
 
+/// Where prose cites another chapter ("chapter 08", "Chapter 07's") without linking it: a
+/// reader should be one click from what the page builds on. Headings, code, pictures' alt text
+/// and a table row's label ("| chapter 08, zero-copy |", a row of measurements) are not
+/// citations; a page's own chapter needs no link.
+fn unlinked_chapter_errors(page: &Page) -> Vec<String> {
+    let own = page.chapter().map(|c| &c[..2]);
+    let mut errors = Vec::new();
+    for (number, line) in &page.prose {
+        let trimmed = line.trim_start();
+        if trimmed.starts_with('#') || trimmed.starts_with("![") || trimmed.starts_with("| chapter ") {
+            continue;
+        }
+        // Outside code spans and links: the even pieces between backticks, then the text
+        // outside `[...](...)`.
+        for (i, piece) in line.split('`').enumerate() {
+            if i % 2 == 1 {
+                continue;
+            }
+            let mut text = String::new();
+            let mut rest = piece;
+            while let Some(start) = rest.find('[') {
+                text.push_str(&rest[..start]);
+                match rest[start..]
+                    .find("](")
+                    .and_then(|mid| rest[start + mid..].find(')').map(|end| start + mid + end))
+                {
+                    Some(end) => rest = &rest[end + 1..],
+                    None => {
+                        rest = &rest[start + 1..];
+                    }
+                }
+            }
+            text.push_str(rest);
+            let words: Vec<&str> = text.split_whitespace().collect();
+            for pair in words.windows(2) {
+                let cited = pair[1].get(..2).filter(|n| n.chars().all(|c| c.is_ascii_digit()));
+                let followed = pair[1][cited.map_or(0, |_| 2)..].chars().next();
+                if pair[0].eq_ignore_ascii_case("chapter")
+                    && let Some(n) = cited
+                    && !followed.is_some_and(|c| c.is_ascii_digit())
+                    && Some(n) != own
+                {
+                    errors.push(format!("{}:{number}: cites \"chapter {n}\" without a link", page.name));
+                }
+            }
+        }
+    }
+    errors
+}
+
+/// The pages that link every chapter they cite. (Chapter 12's two pages so far; a page joins the
+/// list once its citations are links.)
+const PAGES_THAT_LINK_CHAPTERS: &[&str] = &["12-fast-frame.md", "12-fast-frame-deeper.md"];
+
+#[test]
+fn cited_chapters_are_links() {
+    let pages = pages();
+    let mut errors = Vec::new();
+    for name in PAGES_THAT_LINK_CHAPTERS {
+        let page = pages.iter().find(|p| p.name == *name).unwrap_or_else(|| panic!("no page {name}"));
+        errors.extend(unlinked_chapter_errors(page));
+    }
+    assert!(errors.is_empty(), "chapters cited without a link:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn the_chapter_link_check_catches_a_bare_citation() {
+    let text = "As [chapter 08](08-composite.md) does, and as chapter 07's shader does.\n\
+                `chapter 05` in code, chapter 12 itself.\n## As in chapter 09\n| chapter 08, zero-copy | 1 ms |\n";
+    let errors = unlinked_chapter_errors(&Page::parse("12-fast-frame.md", text));
+    assert_eq!(errors, ["12-fast-frame.md:1: cites \"chapter 07\" without a link"]);
+}
+
 /// The introduction's "eleven small programs": one for each chapter folder.
 #[test]
 fn the_introduction_counts_the_chapters() {
@@ -1347,8 +1420,8 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
         "chapter 08's frame, 4K, 16 rays (bench, 2026-11-25)",
         Quoted { page: "performance.md", before: "| default | 3840×2160 | ", after: " ms | 12.81 ms" },
         &[
-            Quoted { page: "12-fast-frame.md", before: "08's frame takes ", after: " ms: " },
-            Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 08, zero-copy | ", after: " ms |" },
+            Quoted { page: "12-fast-frame.md", before: "frame takes ", after: " ms: " },
+            Quoted { page: "12-fast-frame.md", before: "| chapter 08, zero-copy | ", after: " ms |" },
             Quoted {
                 page: "12-fast-frame-deeper.md",
                 before: "| chapter 08 (zero-copy) | ",
@@ -1368,7 +1441,7 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
             before: "| ceiling | 3840×2160 | 12.76 ms | 3.06 ms | 1.71 / 6.83 | ",
             after: " / ",
         },
-        &[Quoted { page: "12-fast-frame.md", before: "trace takes ", after: " ms at 4K" }],
+        &[Quoted { page: "12-fast-frame-deeper.md", before: "trace takes ", after: " ms at 4K" }],
     ),
     (
         "a flat BLAS, per-pixel pattern, 16 rays, in bench's ablation (2026-11-25)",
@@ -1377,12 +1450,12 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
             before: "| + one flat BLAS | 12.93 | 2.50 | ",
             after: " |",
         },
-        &[Quoted { page: "12-fast-frame.md", before: "10.97 → ", after: " ms" }],
+        &[Quoted { page: "12-fast-frame-deeper.md", before: "10.97 → ", after: " ms" }],
     ),
     (
         "the gain of a flat BLAS for chapter 08's trace (first sweep, 2026-11-23)",
         Quoted { page: "performance.md", before: "**A flat BLAS traces ", after: "% faster" },
-        &[Quoted { page: "12-fast-frame.md", before: "layout traces about ", after: "% faster" }],
+        &[Quoted { page: "12-fast-frame-deeper.md", before: "flat BLAS traces about ", after: "% faster" }],
     ),
     (
         "chapter 08's hand-over, 4K, 16 rays (first sweep, 2026-11-23)",

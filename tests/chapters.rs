@@ -139,7 +139,7 @@ fn ch05_g_buffers_bunny() {
 #[test]
 fn ch05_resizing_leaks_nothing() {
     let run = run_chapter(env!("CARGO_BIN_EXE_05-g-buffers"), &["--size", "96x72", "--resizes", "12"], &[]);
-    assert_eq!(run.succeeded()["checks"]["no_fd_growth_across_resizes"], true);
+    assert_eq!(run.succeeded()["checks"]["nothing_grows_across_resizes"], true);
 }
 
 /// Bad OBJ input is an error naming the file and the problem (exit 2), never a panic.
@@ -359,62 +359,6 @@ fn ch12_error_falls_with_rays_and_with_the_blur() {
     assert!(few.1 < few.0 && many.1 < many.0, "the blur lowers the error: {few:?} {many:?}");
 }
 
-/// `--overlap-rounds` times the same GL and Vulkan work in two orders (no timing asserts: on
-/// lavapipe the CPU waits at every hand-over), and the checks still hold on the frames' rays.
-#[test]
-fn ch12_overlap_probe_reports_both_orders() {
-    let args = ["--size", "64x48", "--frames", "2", "--samples", "2", "--overlap-rounds", "2"];
-    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
-    let report = run.succeeded();
-    for key in ["gl_during_vulkan", "gl_after_vulkan", "gl_pass_alone"] {
-        assert!(
-            report["overlap_ms"][key].as_f64().is_some_and(|ms| ms > 0.0),
-            "{key}: {}",
-            report["overlap_ms"]
-        );
-    }
-    assert_eq!(report["checks"]["ao_per_pixel_agrees_with_chapter_08"], true);
-}
-
-/// `--layout-rounds` draws the ids and the packed normal and depth, timed, over the same pixels.
-#[test]
-fn ch12_layout_probe_draws_both_lean_buffers() {
-    let args = ["--size", "40x30", "--frames", "1", "--samples", "1", "--layout-rounds", "2"];
-    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
-    let report = run.succeeded();
-    assert_eq!(report["checks"]["layouts_cover_the_same_pixels"], true);
-    for key in ["ids_r32ui", "normal_depth_rg32ui"] {
-        let ms = &report["layout_raster_ms"][key];
-        assert!(ms.as_f64().is_some_and(|ms| ms > 0.0), "{key}: {ms}");
-    }
-}
-
-/// `--vulkan-composite-rounds` runs the same composite as a Vulkan compute shader: timed, and
-/// its picture GL's within rounding, on both hand-over paths, at a size that is not a whole
-/// number of 16x16 groups, with the widest blur.
-#[test]
-fn ch12_vulkan_composite_draws_what_gl_draws() {
-    let args = [
-        "--size",
-        "37x29",
-        "--frames",
-        "2",
-        "--samples",
-        "2",
-        "--blur",
-        "8",
-        "--vulkan-composite-rounds",
-        "2",
-    ];
-    for env in [&[][..], &[("VKGL_HIDE_EXTENSIONS", "GL_EXT_semaphore_fd")][..]] {
-        let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, env);
-        let report = run.succeeded();
-        assert_eq!(report["checks"]["vulkan_composite_matches_gl"], true, "{env:?}");
-        assert!(report["composite_vulkan_largest_difference"].as_u64().is_some_and(|d| d <= 2));
-        assert!(report["composite_vulkan_compute_ms_median"].as_f64().is_some_and(|ms| ms > 0.0));
-    }
-}
-
 /// `--timeline` writes the last frames' passes on one clock, and the gaps between them.
 #[test]
 fn ch12_timeline_puts_both_apis_on_one_clock() {
@@ -464,9 +408,7 @@ fn ch08_resizing_leaks_nothing() {
     let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(report["resizes"], 5);
-    assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
-    assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
-    assert_eq!(report["checks"]["no_gl_object_growth_across_resizes"], true);
+    assert_eq!(report["checks"]["nothing_grows_across_resizes"], true);
     // The last frame, at the last size, still passes the composite and overlay checks.
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
@@ -482,10 +424,7 @@ fn soak(cycles: u32) {
     let run = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &args, &[]);
     let report = run.succeeded();
     assert_eq!(report["resizes"], cycles);
-    assert_eq!(report["checks"]["no_fd_growth_across_resizes"], true);
-    assert_eq!(report["checks"]["no_resource_growth_across_resizes"], true);
-    assert_eq!(report["checks"]["no_gl_object_growth_across_resizes"], true);
-    eprintln!("after {cycles} resizes: {}", report["live_gl_objects_after_resizes"]);
+    assert_eq!(report["checks"]["nothing_grows_across_resizes"], true);
 }
 
 #[test]

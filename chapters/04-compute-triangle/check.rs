@@ -4,7 +4,8 @@ use crate::{CLEAR, Triangle};
 use anyhow::Result;
 use ash::vk;
 use common::clocks::timing::PassTimes;
-use common::{Report, open_fd_count};
+use common::instruments::resources::ResizeCensus;
+use common::{GlContext, Report};
 use std::f32::consts::TAU;
 
 /// What the frames showed and how long they took, gathered frame by frame for the report.
@@ -17,8 +18,8 @@ pub struct Checks {
     last_seen: Option<(Vec<u8>, f32)>,
     /// GPU time of each frame's dispatch and draw, and CPU time of each whole frame.
     pub times: PassTimes,
-    /// Open fds once a whole cycle of `--resize-every` sizes has run (back at full size).
-    pub fds_after_cycle: Option<usize>,
+    /// What exists once a whole cycle of `--resize-every` sizes has run (back at full size).
+    pub census: ResizeCensus,
 }
 
 impl Checks {
@@ -41,9 +42,9 @@ impl Checks {
         }
     }
 
-    /// The checks, the fd counts across resizes (when it resized every `resize_every` frames),
-    /// and the timings, into the report.
-    pub fn report(self, report: &mut Report, resize_every: Option<u32>) -> Result<()> {
+    /// The checks, what exists at the end against after the first cycle of resizes (if it
+    /// was counted), and the timings, into the report.
+    pub fn report(self, report: &mut Report, gl: &GlContext) -> Result<()> {
         report.check("centre_pixel_inside_triangle", self.centre_lit.unwrap_or(true));
         report.check("triangle_shows_computed_image", self.shows_image.unwrap_or(true));
         match (&self.first_seen, &self.last_seen) {
@@ -59,14 +60,7 @@ impl Checks {
             }
             _ => {}
         }
-        if resize_every.is_some() {
-            let at_end = open_fd_count()?;
-            report.check("no_fd_growth_across_resizes", self.fds_after_cycle == Some(at_end));
-            report.set(
-                "fds",
-                serde_json::json!({ "after_first_cycle": self.fds_after_cycle, "at_end": at_end }),
-            );
-        }
+        self.census.check(gl, report)?;
         self.times.record(report);
         Ok(())
     }

@@ -211,7 +211,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 eprintln!("compute image: {}x{}", extent.width, extent.height);
             }
             if resizes == 3 && args.resize_every.is_some() {
-                checks.fds_after_cycle = Some(open_fd_count()?); // back at full size
+                checks.census.count(&gl_context)?; // back at full size, after a whole cycle
             }
         }
         // ANCHOR_END: resize
@@ -292,7 +292,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         checks.times.add("compute_gpu", t.read_ms(&vk)?); // the last frame's
     }
     gl_timer.finish(gl, &mut checks.times);
-    checks.report(report, args.resize_every)?;
+    checks.report(report, &gl_context)?;
     report.set("frames", frame);
     report.set("resizes", resizes);
     report.set("compute_image", [extent.width, extent.height]);

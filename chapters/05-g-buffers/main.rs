@@ -12,6 +12,7 @@ use common::base::cli::Smallest;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, transfers_to_host};
 use common::clocks::timing::{GlPassTimer, PassTimes, VkPassTimer};
 use common::instruments::output;
+use common::instruments::resources::ResizeCensus;
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::scene::gbuffer::{self, GBUFFERS, GBuffer, GBuffers, SceneBuffers};
 use common::scene::{Camera, Scene, SceneArgs};
@@ -163,7 +164,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 
     // 8. Resize: every shared image made anew, its GL twin too
     // ANCHOR: resize
-    let mut fds_after_first = None;
+    let mut census = ResizeCensus::default();
     for i in 0..args.resizes {
         let quarters = [2, 3, 4][i as usize % 3];
         let size = vk::Extent2D {
@@ -175,11 +176,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         let new = GBuffers::new(&vk, &gl_context, &handoff, &buffers, size, usage)?;
         drop(std::mem::replace(&mut gbuffers, new)); // GL's objects, then each image, GL's side first
         gbuffers.draw(gl, &scene, &camera);
-        fds_after_first = fds_after_first.or(Some(open_fd_count()?));
+        census.count(&gl_context)?; // what exists after one resize must exist after every later one
     }
-    if let Some(before) = fds_after_first {
-        report.check("no_fd_growth_across_resizes", open_fd_count()? == before);
-    }
+    census.check(&gl_context, report)?;
     // ANCHOR_END: resize
 
     common::interop::report_handoff(report, &handoff);

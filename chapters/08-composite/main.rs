@@ -18,6 +18,7 @@ use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::input::{resize_every, window_input};
 use common::frame::{Composite, Overlays, View};
+use common::instruments::resources::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
@@ -91,7 +92,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
     let mut frame = 0;
     let mut drew_a_frame = false;
-    let (mut resizes, mut fds_after_first_resize) = (0, None);
+    let (mut resizes, mut census) = (0, ResizeCensus::default());
     // Each pass's GPU time: GL's read when they arrive, the trace's once its fence has signalled
     // for the next frame's trace (the wait that frame makes anyway): timing adds no wait.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
@@ -144,11 +145,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             composite.resize(gl, &gbuffers)?;
             drop(old); // GL's objects, then each image, GL's side first
             resizes += 1;
-            if resizes == 1 {
-                // What exists after one resize must be what exists after every later one.
-                let live = (common::instruments::resources::live(), gl_context.live_objects());
-                fds_after_first_resize = Some((open_fd_count()?, live));
-            }
+            census.count(&gl_context)?; // what exists after one resize must exist after every later one
         }
         // ANCHOR_END: resize
         // ANCHOR: frame
@@ -193,19 +190,11 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         frame += 1;
         drew_a_frame = true;
     }
-    if let Some((fds, (live, gl_live))) = fds_after_first_resize {
+    if resizes > 0 {
         report.set("resizes", resizes);
-        report.check("no_fd_growth_across_resizes", open_fd_count()? == fds);
-        // Exportable and host memory, exportable images, GL's memory objects, textures and
-        // renderbuffers, as counted where they are made and destroyed...
-        let now = common::instruments::resources::live();
-        report.check("no_resource_growth_across_resizes", now == live);
-        report.set("live_resources_after_resizes", now);
-        // ... and every kind of GL object, as GL itself counts them.
-        let gl_now = gl_context.live_objects();
-        report.check("no_gl_object_growth_across_resizes", gl_now == gl_live);
-        report.set("live_gl_objects_after_resizes", gl_now);
     }
+    // Open fds, the resources `common` counts, and every kind of GL object as GL counts them.
+    census.check(&gl_context, report)?;
     if trace_pending {
         common::clocks::timing::read_after(
             &vk,

@@ -4,7 +4,7 @@
 //! of G-buffers; Vulkan's ray generation shader rebuilds the exact hit point and normal from the
 //! scene's shared buffers and traces the occlusion; a GL compute shader blurs and composites;
 //! the overlays are drawn over it, tested against the id pass's depth. Each choice is measured
-//! on the book's performance page.
+//! by `bench` (the book's deeper page for this chapter says which command measures which).
 //!
 //! Run: `cargo run --release --bin 12-fast-frame` (keys: 1-5 views, +/- rays, [/] radius,
 //! B blur, P power, O overlays, T sample pattern, Esc quits; drag to orbit, wheel to zoom).
@@ -17,7 +17,11 @@ use common::clocks::timeline::{self, Timeline};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::Overlays;
+use common::frame::fast::composite::ComputeComposite;
+use common::frame::fast::trace::SurfaceTracer;
+use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 use common::frame::input::{Settings as Keys, resize_every, window_input};
+use common::instruments::resources::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
@@ -27,14 +31,8 @@ use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
-mod layouts;
-mod overlap;
+mod checks;
 mod settings;
-mod vk_composite;
-use common::frame::fast::check;
-use common::frame::fast::composite::ComputeComposite;
-use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
-use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 use settings::{Args, Settings};
 
 const CHAPTER: &str = "12-fast-frame";
@@ -93,7 +91,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // 5. Every frame: input, ids, rays, composite, overlays
     let frame_limit =
         if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
-    let (mut frame, mut resizes, mut after_first_resize) = (0, 0, None);
+    let (mut frame, mut resizes, mut census) = (0, 0, ResizeCensus::default());
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let timestamps = Timestamps::new(&vk)?;
     let mut trace_pending = None; // the traced frame's timeline slot, if any, once submitted
@@ -146,9 +144,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             drop(std::mem::replace(&mut targets, Targets::new(&vk, &gl_context, &handoff, size.extent())?));
             tracer.resized(&vk, &targets);
             resizes += 1;
-            // What exists after one resize must be what exists after every later one.
-            let live = (open_fd_count()?, common::instruments::resources::live(), gl_context.live_objects());
-            after_first_resize.get_or_insert(live);
+            census.count(&gl_context)?; // what exists after one resize must exist after every later one
         }
         // ANCHOR_END: resize
         // ANCHOR: frame
@@ -208,86 +204,29 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     }
     times.record(report);
     gl_context.check_error("the frame loop")?;
-    if let Some(first) = after_first_resize {
-        let now = (open_fd_count()?, common::instruments::resources::live(), gl_context.live_objects());
-        report.check("nothing_grows_across_resizes", now == first);
-    }
+    census.check(&gl_context, report)?;
 
     // 6. Check the last frame, and the lean frame against chapter 08's on the same rays
+    // ANCHOR: checks
     let (accumulated, scene_scale) = (tracer.accumulated, scene.size() / 2.0);
     let rays = settings.rays(if skipped.is_some() { 0 } else { settings.samples }, scene_scale);
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
-    // The measurements a flag asks for, on the last frame (overlap.rs, layouts.rs, vk_composite.rs).
-    let probe = overlap::Probe {
-        visibility: &visibility,
-        targets: &targets,
-        scene: &scene,
-        ids: &ids,
-        camera: &camera,
-        rays,
-    };
-    if args.overlap_rounds > 0 {
-        let (during, after, alone) = overlap::measure(apis, &mut tracer, &probe, args.overlap_rounds)?;
-        let overlap = serde_json::json!({ "gl_during_vulkan": during, "gl_after_vulkan": after, "gl_pass_alone": alone });
-        report.set("overlap_ms", overlap);
-        // The probe traced into the surface: the frames' rays again, for the checks.
-        tracer.retrace(apis, &targets, &camera, rays, accumulated)?;
-    }
-    if args.layout_rounds > 0 {
-        layouts::measure(&gl_context, &probe, &shared.buffers, args.layout_rounds, report)?;
-    }
-    if args.vulkan_composite_rounds > 0 {
-        let settled = (&settings.uniforms(camera.far), args.vulkan_composite_rounds);
-        vk_composite::compare(apis, &shared.allocator, (&targets, &composite), settled, report)?;
-    }
-    let surface = check::Surface::read(gl, &targets);
-    surface.require_covered(CHAPTER)?;
-    if frame > 0 {
-        let uniforms = settings.uniforms(camera.far);
-        let last = check::LastFrame {
-            gl,
-            targets: &targets,
-            composite: &composite,
-            overlays: &overlays,
-            camera: &camera,
-            uniforms,
-        };
-        for (name, ok) in last.check(&surface) {
-            report.check(name, ok);
-        }
-        if window.is_none() {
-            let prefix = args.scene.picture_name(CHAPTER);
-            last.write_pictures(report, &surface, &args.common.out_dir(CHAPTER), &prefix)?;
-        }
-        if args.error_against > 0 && skipped.is_none() {
-            let against =
-                check::ErrorAgainst { last: &last, tracer: &mut tracer, rays, reference: args.error_against };
-            let (raw, blurred) = against.measure(apis)?;
-            report.set(
-                "ao_rms_error",
-                serde_json::json!({ "rays": args.error_against, "raw": raw, "blurred": blurred }),
-            );
-        }
-    }
-    surface.check_values(report);
-    // Chapter 08 traces with its own pattern: where this frame used another, the same rays are
-    // traced again per pixel, so that every pixel can be compared, not only the means.
-    let per_pixel = if rays.pattern == Pattern::PerPixel || rays.samples == 0 {
-        None
-    } else {
-        tracer.retrace(apis, &targets, &camera, Rays { pattern: Pattern::PerPixel, ..rays }, accumulated)?;
-        Some(check::Surface::read(gl, &targets))
-    };
-    let run = check::Chapter08Run {
+    let drawn = checks::Drawn {
         scene: &scene,
         shared: &shared,
+        targets: &targets,
+        composite: &composite,
+        overlays: &overlays,
         camera: &camera,
-        per_frame: rays.samples,
-        total: accumulated,
-        radius: settings.radius,
+        uniforms: settings.uniforms(camera.far),
+        rays,
+        accumulated,
+        frames: frame,
     };
-    let chapter_08 = check::trace_chapter_08(apis, &targets, run)?;
-    chapter_08.compare(&surface, per_pixel.as_ref(), report);
+    let pictures = window.is_none().then(|| (args.common.out_dir(CHAPTER), args.scene.picture_name(CHAPTER)));
+    let asked = checks::Asked { chapter: CHAPTER, pictures, error_against: args.error_against };
+    checks::after_the_frames(apis, drawn, &mut tracer, asked, report)?;
+    // ANCHOR_END: checks
     report.set("samples_per_pixel", accumulated);
     report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());
     report.set("frames", frame);

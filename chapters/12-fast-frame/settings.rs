@@ -38,18 +38,6 @@ pub struct Args {
     /// frame's occlusion was from that converged one, before and after the blur (0: don't).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1 << 20))]
     pub error_against: u32,
-    /// After the frames: measure whether GL's work runs beside Vulkan's on this driver
-    /// (`overlap.rs`), over this many rounds of each order (0: don't).
-    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1000))]
-    pub overlap_rounds: u32,
-    /// Headless: after the frames, draw the ids and the other lean buffer this chapter measured
-    /// (a packed normal and depth) this many times each, timed by GL (`layouts.rs`; 0: don't).
-    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1000))]
-    pub layout_rounds: u32,
-    /// Headless: after the frames, time chapter 08's composite as a Vulkan compute shader over
-    /// this many dispatches (`vk_composite.rs`), and compare its picture with GL's (0: don't).
-    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1000))]
-    pub vulkan_composite_rounds: u32,
     /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into
     /// timeline.json and timeline.svg in --out (0: none).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]

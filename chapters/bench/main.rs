@@ -9,7 +9,11 @@
 //! Per-pass times come from the GPU (GL time queries, Vulkan timestamps); a frame's time is
 //! the wall-clock time between frames, once many frames run back to back.
 //!
-//! Run: `cargo run --release --bin bench -- [--json] [--quick] [--out DIR]`.
+//! `--probe NAME` instead answers one of chapter 12's design questions on its frame
+//! (`probes/`): which lean buffer, whether GL's work runs beside Vulkan's, GL's composite or
+//! Vulkan's.
+//!
+//! Run: `cargo run --release --bin bench -- [--json] [--quick] [--out DIR] [--probe NAME]`.
 
 use anyhow::{Result, ensure};
 use ash::vk;
@@ -30,8 +34,10 @@ use std::process::ExitCode;
 mod fast;
 mod frame;
 mod outputs;
+mod probes;
 mod round_trip;
 
+use common::frame::fast::trace::Pattern;
 use common::scene::builtin::{Ground, SceneKind};
 use frame::{Frame, Samples, Setting};
 
@@ -53,7 +59,7 @@ struct Args {
     /// Sizes, WIDTHxHEIGHT [default: 1920x1080,3840x2160; --quick: 64x48,96x64].
     #[arg(long, value_delimiter = ',', value_parser = parse_size)]
     sizes: Vec<Size>,
-    /// Rays per pixel per frame [default: 1,4,16,64; --quick: 1,4].
+    /// Rays per pixel per frame [default: 1,4,16,64; --quick: 1,4; with --probe: 16].
     #[arg(long, value_delimiter = ',', value_parser = common::base::cli::number::<u32>(1..=256))]
     spp: Vec<u32>,
     /// How GL reports problems while the bench runs (every chapter: synchronous).
@@ -70,16 +76,33 @@ struct Args {
     /// or `flat`, every instance's triangles in one BLAS under one TLAS instance.
     #[arg(long, value_enum, default_value = "per-mesh")]
     blas: BlasLayout,
-    /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones.
+    /// Measured frames per mode and setting [default: 30; --quick: 3], after 2 unmeasured ones
+    /// (with --probe: the frames drawn before the probe).
     #[arg(long, value_parser = common::base::cli::number::<u32>(1..=100_000))]
     frames: Option<u32>,
     /// Also draw the last N frames' passes of chapter 08's frame and of chapter 12's, each on one
     /// clock, into timeline-08.svg and fast-frame/timeline.svg (0: none).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
     timeline: u32,
-    /// The ablation's converged reference, in rays per pixel [default: 1024; --quick: 64].
+    /// The converged reference of the ablation and of `--probe patterns`, in rays per pixel
+    /// [default: 1024; --quick: 64].
     #[arg(long, value_parser = common::base::cli::number::<u32>(16..=1 << 20))]
     reference_rays: Option<u32>,
+    /// Instead of the sweep: one of chapter 12's design questions, measured on its frame at
+    /// every scene [default: default], size and ray count: `layouts` (the ids or a packed normal
+    /// and depth), `overlap` (GL's work beside Vulkan's), `vulkan-composite` (GL's compute
+    /// composite against Vulkan's) or `patterns` (each sample pattern's trace time and error).
+    #[arg(long, value_enum)]
+    probe: Option<probes::Probe>,
+    /// The probe's rounds at each setting [default: 100; --quick: 2].
+    #[arg(long, value_parser = common::base::cli::number::<u32>(1..=100_000))]
+    rounds: Option<u32>,
+    /// The blur radii the probe composites with, 0-8 [default: 2].
+    #[arg(long, value_delimiter = ',', value_parser = common::base::cli::number::<u32>(0..=8))]
+    blurs: Vec<u32>,
+    /// The sample patterns `--probe patterns` compares [default: all six].
+    #[arg(long, value_enum, value_delimiter = ',')]
+    patterns: Vec<Pattern>,
 }
 
 /// How the frame's images travel between GL and Vulkan.
@@ -167,9 +190,23 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         (spps, _) => spps.to_vec(),
     };
     ensure!(spps.iter().all(|s| (1..=256).contains(s)), "--spp: each must be 1 to 256");
+    let ground = if args.quick { Ground::Coarse } else { Ground::Fine };
+    if let Some(probe) = args.probe {
+        let settings = probes::Settings {
+            scenes: if args.scenes.is_empty() { vec![SceneKind::Default] } else { args.scenes.clone() },
+            sizes,
+            spps: if args.spp.is_empty() { vec![16] } else { spps },
+            blurs: if args.blurs.is_empty() { vec![2] } else { args.blurs.clone() },
+            patterns: if args.patterns.is_empty() { Pattern::ALL.to_vec() } else { args.patterns.clone() },
+            reference: args.reference_rays.unwrap_or(if args.quick { 64 } else { 1024 }),
+            frames: args.frames.unwrap_or(if args.quick { 3 } else { 30 }),
+            rounds: args.rounds.unwrap_or(if args.quick { 2 } else { 100 }),
+            ground,
+        };
+        return probes::run(probe, &settings, &args.out, report);
+    }
     // Half in each of two rounds.
     let frames_per_run = args.frames.unwrap_or(if args.quick { 3 } else { 30 }).div_ceil(2);
-    let ground = if args.quick { Ground::Coarse } else { Ground::Fine };
 
     // 2. Vulkan, GL, and both ways to synchronise
     let vk = VulkanContext::new(&RAY_TRACED_INTEROP)?;

@@ -284,7 +284,7 @@ pub struct Traced<'a> {
 /// output, once it has had it), Vulkan records `work` between the barriers that take them from
 /// GL and give them back, and GL is told to wait for that before it samples the output.
 /// `between` runs once Vulkan's work is submitted and before GL is told to wait (chapter 12's
-/// `overlap.rs`). Chapter 07's tracer and chapter 12's both hand over through it.
+/// `bench --probe overlap`). Chapter 07's tracer and chapter 12's both hand over through it.
 pub fn hand_over_around(
     apis: Apis,
     images: &Traced,

@@ -178,7 +178,7 @@ impl SurfaceTracer {
     // ANCHOR_END: frame
 
     /// [`SurfaceTracer::trace`], with `between` run once Vulkan's work is submitted and before GL
-    /// is told to wait for it: GL work there does not depend on Vulkan's (`overlap.rs`).
+    /// is told to wait for it: GL work there does not depend on Vulkan's (`bench --probe overlap`).
     pub fn trace_around(
         &mut self,
         apis: Apis,
@@ -233,7 +233,7 @@ impl SurfaceTracer {
 /// the ids it just drew (and the surface, once it has had it), Vulkan records `work` between the
 /// barriers that take both from GL and give them back, and GL is told to wait for that before it
 /// composites. `between` runs once Vulkan's work is submitted and before GL is told to wait
-/// (`overlap.rs`). Chapter 13's tracer hands the same two images over around its own work.
+/// (`bench --probe overlap`). Chapter 13's tracer hands the same two images over around its own work.
 pub fn hand_over_around(
     apis: Apis,
     targets: &Targets,

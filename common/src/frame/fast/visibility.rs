@@ -191,7 +191,7 @@ impl VisibilityPass {
         Self::with_fragment_shader(gl, buffers, FRAGMENT_SHADER)
     }
 
-    /// The same pass, writing what `fragment_shader` writes (`layouts.rs` measures another).
+    /// The same pass, writing what `fragment_shader` writes (`bench --probe layouts` measures another).
     pub fn with_fragment_shader(
         gl: &GlContext,
         buffers: &SceneBuffers,

@@ -1,5 +1,5 @@
-//! Which lean buffer? `--layout-rounds N`, after the frames, draws the scene N times into each
-//! of two layouts, each with the same 32-bit depth buffer, timed by GL:
+//! Which lean buffer? `bench --probe layouts --rounds N`, after the frames, draws the scene N
+//! times into each of two layouts, each with the same 32-bit depth buffer, timed by GL:
 //!
 //! - the ids this chapter draws (R32UI, 4 bytes a pixel): the ray generation shader rebuilds the
 //!   hit, its normal and its albedo from the triangle the id names;
@@ -8,18 +8,18 @@
 //!
 //! Both come from the same vertex stage, so they must cover the same pixels: that is checked.
 
-use crate::overlap::Probe;
+use super::Frame;
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
+use common::GlContext;
 use common::base::gl::{Owned, create};
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::fast::visibility::VisibilityPass;
 use common::scene::gbuffer::SceneBuffers;
-use common::{GlContext, Report};
 use glow::HasContext;
 use std::rc::Rc;
 
-const NORMAL_DEPTH: &str = include_str!("../../shaders/gl/normal_depth.frag");
+const NORMAL_DEPTH: &str = include_str!("../../../shaders/gl/normal_depth.frag");
 
 /// An unsigned integer colour texture of `format` and a depth buffer, as one framebuffer.
 /// Deleted when dropped (the framebuffer first).
@@ -76,15 +76,9 @@ impl Layout {
     }
 }
 
-/// The two layouts' passes over `rounds` rounds, for the frame `f` shows (drawn from `buffers`),
-/// into the report: their median GPU milliseconds, and whether they cover the same pixels.
-pub fn measure(
-    gl: &GlContext,
-    f: &Probe,
-    buffers: &SceneBuffers,
-    rounds: u32,
-    report: &mut Report,
-) -> Result<()> {
+/// The two layouts' passes over `rounds` rounds, for the frame `f` shows (drawn from `buffers`):
+/// their median GPU milliseconds, and whether they cover the same pixels.
+pub fn measure(gl: &GlContext, f: &Frame, buffers: &SceneBuffers, rounds: u32) -> Result<(f64, f64, bool)> {
     let (g, extent) = (&gl.gl, f.targets.extent);
     let normal_depth = VisibilityPass::with_fragment_shader(gl, buffers, NORMAL_DEPTH)?;
     let targets = [Layout::new(g, glow::R32UI, extent)?, Layout::new(g, glow::RG32UI, extent)?];
@@ -92,21 +86,17 @@ pub fn measure(
     let mut times = PassTimes::new();
     for _ in 0..rounds {
         let at = |t: &Layout| (*t.framebuffer, extent);
-        timer.time(g, "ids", || f.visibility.draw_into(g, at(&targets[0]), f.scene, f.ids, f.camera))?;
+        timer.time(g, "ids", || f.visibility.draw_into(g, at(&targets[0]), f.scene, &f.ids, &f.camera))?;
         timer.time(g, "normal_depth", || {
-            normal_depth.draw_into(g, at(&targets[1]), f.scene, f.ids, f.camera)
+            normal_depth.draw_into(g, at(&targets[1]), f.scene, &f.ids, &f.camera)
         })?;
         timer.end_frame(g, &mut times);
     }
     timer.finish(g, &mut times);
-    gl.check_error("the layouts' passes").context("--layout-rounds")?;
+    gl.check_error("the layouts' passes").context("--probe layouts")?;
     let median = |pass| common::clocks::timestamps::median_p95(times.samples(pass)).0;
     // Drawn or not: 0 where the clear left it, an id from 1, a view depth above 0 (its bits too).
     let (ids, depths) = (targets[0].last_channel(1, extent), targets[1].last_channel(2, extent));
     let differing = ids.iter().zip(&depths).filter(|(id, z)| (**id == 0) != (**z == 0)).count();
-    let times =
-        serde_json::json!({ "ids_r32ui": median("ids"), "normal_depth_rg32ui": median("normal_depth") });
-    report.set("layout_raster_ms", times);
-    report.check("layouts_cover_the_same_pixels", differing == 0);
-    Ok(())
+    Ok((median("ids"), median("normal_depth"), differing == 0))
 }

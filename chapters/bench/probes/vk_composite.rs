@@ -1,24 +1,24 @@
-//! Would Vulkan composite faster than GL? `--vulkan-composite-rounds N`: after the frames,
+//! Would Vulkan composite faster than GL? `bench --probe vulkan-composite --rounds N`: after the frames,
 //! Vulkan takes the surface from GL and runs the same composite (`composite_tile.glsl`) as a
 //! Vulkan compute shader N times, each between two timestamps, into a picture of its own, which
 //! must match GL's. Either way the picture goes to GL afterwards (GL draws the overlays with its
 //! depth, and shows it), so a Vulkan composite saves no hand-over: only the difference between
 //! the two dispatches could pay.
 
+use super::Frame;
 use anyhow::{Context as _, Result};
 use ash::vk;
-use common::Report;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, first_use, transfers_to_host};
 use common::base::compute::ComputePipeline;
 use common::clocks::timestamps::Timestamps;
-use common::frame::fast::composite::{ComputeComposite, Uniforms};
+use common::frame::fast::composite::Uniforms;
 use common::frame::fast::visibility::Targets;
 use common::interop::handoff::Apis;
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel::GpuAllocator;
 use common::rt::raytrace::StorageImage;
 
-const SPIRV: &[u8] = include_bytes!("../../shaders/fast_composite.comp.spv");
+const SPIRV: &[u8] = include_bytes!("../../../shaders/fast_composite.comp.spv");
 
 /// `fast_composite.comp`'s push constants: the composite's uniforms, as GL's shader has them.
 #[repr(C)]
@@ -64,7 +64,7 @@ pub fn measure(
     let bytes = extent.width as u64 * extent.height as u64 * 4;
     let read_back = HostBuffer::new(vk, bytes, vk::BufferUsageFlags::TRANSFER_DST)?;
     let stamps = Timestamps::with_count(vk, 2 * rounds)?
-        .with_context(|| format!("--vulkan-composite-rounds: {} writes no timestamps", vk.info.name))?;
+        .with_context(|| format!("--probe vulkan-composite: {} writes no timestamps", vk.info.name))?;
     let commands = &Commands::new(vk)?; // made last: dropped first, it waits for its submission
     pipeline.write_images(vk, &[*targets.surface.view, *picture.view]);
 
@@ -134,24 +134,20 @@ pub fn measure(
     Ok(measured)
 }
 
-/// [`measure`], then GL's composite of the same surface with the same uniforms, into the report:
-/// Vulkan's median time, and the largest difference of any channel between the two pictures
-/// (in 1/255), which must be rounding.
+/// [`measure`], then GL's composite of the same surface with the same uniforms: Vulkan's
+/// median time, and the largest difference of any channel between the two pictures (in 1/255),
+/// which must be rounding.
 pub fn compare(
     apis: Apis,
     allocator: &GpuAllocator,
-    (targets, composite): (&Targets, &ComputeComposite),
-    (u, rounds): (&Uniforms, u32),
-    report: &mut Report,
-) -> Result<()> {
-    let measured = measure(apis, allocator, targets, u, rounds)?;
+    frame: &Frame,
+    u: &Uniforms,
+    rounds: u32,
+) -> Result<(f64, u8)> {
+    let measured = measure(apis, allocator, &frame.targets, u, rounds)?;
     let gl = &apis.gl.gl;
-    composite.draw(gl, targets, u);
-    let drawn = common::frame::fast::check::read_picture(gl, targets);
+    frame.composite.draw(gl, &frame.targets, u);
+    let drawn = common::frame::fast::check::read_picture(gl, &frame.targets);
     let largest = measured.picture.iter().zip(&drawn).map(|(a, b)| a.abs_diff(*b)).max().unwrap_or(0);
-    report.set("composite_vulkan_compute_ms_median", measured.median_ms);
-    report.set("composite_vulkan_largest_difference", largest);
-    // The same code, compiled by two drivers: rounding may differ (as the CPU check allows).
-    report.check("vulkan_composite_matches_gl", largest <= 2);
-    Ok(())
+    Ok((measured.median_ms, largest))
 }

@@ -1,6 +1,6 @@
-//! Do GL and Vulkan work run at the same time on this driver? Frames in flight (GL drawing the
-//! next frame's ids while Vulkan traces this one) pay only if they do. The same work in two
-//! orders, timed on the CPU from the first GL call to both APIs being done:
+//! Do GL and Vulkan work run at the same time on this driver (`bench --probe overlap`)? Frames
+//! in flight (GL drawing the next frame's ids while Vulkan traces this one) pay only if they do.
+//! The same work in two orders, timed on the CPU from the first GL call to both APIs being done:
 //!
 //! - *during*: GL draws the ids, hands them over, Vulkan's trace is submitted, and GL draws a
 //!   second set of ids (other images, nothing Vulkan uses) before it is told to wait for Vulkan;
@@ -9,31 +9,21 @@
 //! If the driver runs GL's work beside Vulkan's, *during* is shorter by up to the second pass's
 //! time; if it runs one API's work at a time, the two take as long.
 
+use super::Frame;
 use anyhow::Result;
 use common::clocks::timestamps::median_p95;
-use common::frame::fast::trace::{Rays, SurfaceTracer};
-use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
+use common::frame::fast::visibility::Targets;
 use common::interop::handoff::Apis;
-use common::scene::{Camera, Scene};
 use glow::HasContext;
 use std::time::Instant;
 
-/// What one measurement needs: the frame's passes, its images and a second set for GL alone.
-pub struct Probe<'a> {
-    pub visibility: &'a VisibilityPass,
-    pub targets: &'a Targets,
-    pub scene: &'a Scene,
-    pub ids: &'a [MeshIds],
-    pub camera: &'a Camera,
-    pub rays: Rays,
-}
-
 /// Medians over `rounds` of each order, in milliseconds: (during, after, the second pass alone).
-pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: &Probe, rounds: u32) -> Result<(f64, f64, f64)> {
+pub fn measure(apis: Apis, p: &mut Frame, rounds: u32) -> Result<(f64, f64, f64)> {
     let Apis { vk, gl, commands, .. } = apis;
     let spare = Targets::new(vk, gl, apis.handoff, p.targets.extent)?;
     let g = &gl.gl;
-    let draw_spare = || p.visibility.draw(g, &spare, p.scene, p.ids, p.camera);
+    let Frame { scene, ids, camera, rays, tracer, visibility, targets, .. } = p;
+    let draw_spare = || visibility.draw(g, &spare, scene, ids, camera);
     let done = || -> Result<()> {
         unsafe { g.finish() };
         commands.wait(vk, "vkWaitForFences for an overlap sample")?;
@@ -44,7 +34,7 @@ pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: &Probe, rounds: u32) -
     for round in 0..2 * rounds + 2 {
         let gl_during = round % 2 == 0;
         let start = Instant::now();
-        p.visibility.draw(g, p.targets, p.scene, p.ids, p.camera);
+        visibility.draw(g, targets, scene, ids, camera);
         tracer.accumulated = 0;
         // ANCHOR: orders
         let between = || {
@@ -52,7 +42,7 @@ pub fn measure(apis: Apis, tracer: &mut SurfaceTracer, p: &Probe, rounds: u32) -
                 draw_spare()
             }
         };
-        tracer.trace_around(apis, p.targets, p.camera, p.rays, None, between)?;
+        tracer.trace_around(apis, targets, camera, *rays, None, between)?;
         if !gl_during {
             draw_spare();
         }
