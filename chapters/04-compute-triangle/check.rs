@@ -4,7 +4,7 @@ use crate::{CLEAR, Triangle};
 use anyhow::Result;
 use ash::vk;
 use common::clocks::timing::PassTimes;
-use common::instruments::resources::ResizeCensus;
+use common::instruments::census::ResizeCensus;
 use common::{GlContext, Report};
 use std::f32::consts::TAU;
 

@@ -18,7 +18,7 @@ use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::input::{resize_every, window_input};
 use common::frame::{Composite, Overlays, View};
-use common::instruments::resources::ResizeCensus;
+use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;

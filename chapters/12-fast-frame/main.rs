@@ -21,7 +21,7 @@ use common::frame::fast::composite::ComputeComposite;
 use common::frame::fast::trace::SurfaceTracer;
 use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 use common::frame::input::{Settings as Keys, resize_every, window_input};
-use common::instruments::resources::ResizeCensus;
+use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;

@@ -3,6 +3,7 @@
 //! failure injection (`VKGL_FAIL_AT`), the validation layer's messages, and the images and plots
 //! a chapter writes. Nothing here names Vulkan's or GL's objects of the tutorial.
 
+pub mod census;
 pub mod fail;
 pub mod output;
 pub mod report;

@@ -399,8 +399,8 @@ pub fn ensure_same_device(vulkan: &DeviceInfo, gl: &GlContext) -> Result<()> {
 }
 // ANCHOR_END: same_device
 
-/// For the resize census (`instruments::resources::ResizeCensus`): GL's own count.
-impl crate::instruments::resources::LiveObjects for GlContext {
+/// For the resize census (`instruments::census::ResizeCensus`): GL's own count.
+impl crate::instruments::census::LiveObjects for GlContext {
     fn live_objects(&self) -> std::collections::BTreeMap<&'static str, usize> {
         GlContext::live_objects(self)
     }
