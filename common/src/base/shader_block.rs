@@ -43,7 +43,7 @@ pub use __rust_block as rust_block;
 /// Checks `rust` (from [`rust_block!`]) against the struct named `block` in `spirv`: a push
 /// constant block, a descriptor's buffer, or a struct reached through a buffer reference. Panics
 /// naming the first difference; for a unit test.
-#[cfg(feature = "reflect")]
+#[cfg(any(test, feature = "reflect"))]
 pub fn assert_matches_spirv(spirv: &[u8], block: &str, (rust, size): (Vec<Member>, usize)) {
     let shader = match reflect(spirv, block) {
         Ok(members) => members,
@@ -67,7 +67,7 @@ pub fn assert_matches_spirv(spirv: &[u8], block: &str, (rust, size): (Vec<Member
 /// type of the module counts, also one no variable has (a buffer reference's, such as `Cameras`
 /// in `temporal_ao.rgen`, reached only by casting an address). A GLSL struct used both in a
 /// buffer and as a local variable is two SPIR-V types of one name; the one with offsets is read.
-#[cfg(feature = "reflect")]
+#[cfg(any(test, feature = "reflect"))]
 pub fn reflect(spirv: &[u8], block: &str) -> Result<(Vec<Member>, usize), String> {
     use spirq::ty::Type;
     let mut found = None;
