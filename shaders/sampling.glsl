@@ -23,8 +23,9 @@ vec2 sign_not_zero(vec2 v) {
     return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
 }
 
-vec3 unpack_normal(uint packed) {
-    vec2 p = vec2(packed >> 12u, packed & 4095u) / 4095.0 * 2.0 - 1.0;
+// (`bits`, not `packed`: GL's GLSL reserves that word.)
+vec3 unpack_normal(uint bits) {
+    vec2 p = vec2(bits >> 12u, bits & 4095u) / 4095.0 * 2.0 - 1.0;
     vec3 n = vec3(p, 1.0 - abs(p.x) - abs(p.y));
     if (n.z < 0.0) {
         n.xy = (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
