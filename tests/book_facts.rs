@@ -26,6 +26,10 @@ struct Block {
     /// The fence's info string: `sh`, `text`, `console`, `rust` ...
     info: String,
     lines: Vec<(usize, String)>,
+    /// The lines of the fences that open and close it.
+    fences: (usize, usize),
+    /// Whether its lines come from a generated transcript (`{{#include transcripts/...}}`).
+    transcript: bool,
 }
 
 impl Page {
@@ -38,9 +42,13 @@ impl Page {
             match (&mut open, fence) {
                 (None, true) => {
                     let info = line.trim_start().trim_start_matches('`').trim().to_owned();
-                    open = Some(Block { info, lines: Vec::new() });
+                    open =
+                        Some(Block { info, lines: Vec::new(), fences: (number, number), transcript: false });
                 }
-                (Some(_), true) => blocks.push(open.take().unwrap()),
+                (Some(block), true) => {
+                    block.fences.1 = number;
+                    blocks.push(open.take().unwrap());
+                }
                 // A generated transcript (`book/src/transcripts/`): its lines, at the include's.
                 (Some(block), false) if line.trim().starts_with("{{#include transcripts/") => {
                     let file = line.trim().trim_start_matches("{{#include ").trim_end_matches("}}");
@@ -48,6 +56,7 @@ impl Page {
                     let included =
                         std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
                     block.lines.extend(included.lines().map(|l| (number, l.to_owned())));
+                    block.transcript = true;
                 }
                 (Some(block), false) => block.lines.push((number, line.to_owned())),
                 (None, false) => prose.push((number, line.to_owned())),
@@ -278,6 +287,82 @@ fn transcripts_show_the_checks_the_chapters_report() {
     let checks = checks(&snapshots, &sources);
     let errors: Vec<String> = pages().iter().flat_map(|p| transcript_errors(p, &checks)).collect();
     assert!(errors.is_empty(), "transcripts that no longer match the chapters:\n{}", errors.join("\n"));
+}
+
+/// The paragraphs around a transcript say what its run shows: a check they name passes in it
+/// (`[ ok ] name`), or fails in it (`[FAIL] name`) where the sentence naming it says it fails. So
+/// a page's command makes the checks the page names, and a "try this" that says a check fails
+/// makes it fail (the transcripts themselves are runs, `tests/transcripts.rs`).
+fn transcript_claim_errors(page: &Page, checks: &Checks) -> Vec<String> {
+    let mut errors = Vec::new();
+    // The prose paragraph that ends just before `line` (backwards) or starts just after it.
+    let paragraph = |from: usize, step: i64| -> Vec<&(usize, String)> {
+        let mut found = Vec::new();
+        let mut at = from as i64 + step;
+        while let Some(line) = page.prose.iter().find(|(n, _)| *n as i64 == at) {
+            if line.1.trim().is_empty() || line.1.starts_with('#') {
+                break;
+            }
+            found.push(line);
+            at += step;
+        }
+        found
+    };
+    for block in page.blocks.iter().filter(|b| b.transcript) {
+        let shows =
+            |mark: &str, name: &str| block.lines.iter().any(|(_, l)| l.trim() == format!("{mark} {name}"));
+        let around = paragraph(block.fences.0, -1).into_iter().chain(paragraph(block.fences.1, 1));
+        for (number, line) in around {
+            // One sentence at a time: "fails" speaks of the checks of its own sentence.
+            for sentence in line.split(". ") {
+                let fails = sentence.contains("fails") || sentence.contains("failed");
+                for name in
+                    code_spans(sentence).into_iter().filter(|n| is_check_name(n) && checks.known.contains(*n))
+                {
+                    let (mark, said) = if fails { ("[FAIL]", "fails") } else { ("[ ok ]", "passes") };
+                    if !shows(mark, name) {
+                        errors.push(format!(
+                            "{}:{number}: says `{name}` {said} in the run beside it, whose transcript has no `{mark} {name}`",
+                            page.name
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn the_runs_a_page_shows_make_the_checks_it_names() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    let errors: Vec<String> = pages().iter().flat_map(|p| transcript_claim_errors(p, &checks)).collect();
+    assert!(errors.is_empty(), "pages that say a run makes a check it does not:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn the_claim_check_sees_what_it_must_refuse() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    // A paragraph on line 1, the transcript's fences on lines 3 and 5.
+    let page = |before: &str| Page {
+        name: "99-test.md".into(),
+        prose: vec![(1, before.to_owned()), (2, String::new())],
+        blocks: vec![Block {
+            info: "console".into(),
+            lines: ["$ run", "  [ ok ] no_fd_leaked", "  [FAIL] ao_within_0_and_1"]
+                .map(|l| (4, l.to_owned()))
+                .into(),
+            fences: (3, 5),
+            transcript: true,
+        }],
+    };
+    let errors = |before: &str| transcript_claim_errors(&page(before), &checks).len();
+    // Said and shown; said to pass but failed; said to fail but passed.
+    assert_eq!(errors("It checks `no_fd_leaked`. Then `ao_within_0_and_1` fails."), 0);
+    assert_eq!(errors("Here `ao_within_0_and_1` holds."), 1);
+    assert_eq!(errors("Here `no_fd_leaked` fails."), 1);
 }
 
 /// A chapter page's "## Checks" table lists every check its report always has, and only checks
@@ -530,6 +615,13 @@ fn command_errors(page: &Page, bins: &BTreeSet<String>, sources: &Sources) -> Ve
             commands.push((*number, line.trim().trim_start_matches("$ ").to_owned()));
         }
     }
+    // The other programs the page's commands run (`convergence`, where a page measures its
+    // chapter's frame with the tool): a flag the page quotes alone may be one of theirs.
+    let others: BTreeSet<String> = commands
+        .iter()
+        .filter_map(|(_, c)| c.split_whitespace().skip_while(|w| *w != "--bin").nth(1).map(str::to_owned))
+        .filter(|b| Some(b.as_str()) != page.chapter())
+        .collect();
     for (number, line) in &page.prose {
         for span in code_spans(line) {
             // A chapter page quoting its own flags alone (`--headless --size 320x240`): as if typed
@@ -569,7 +661,12 @@ fn command_errors(page: &Page, bins: &BTreeSet<String>, sources: &Sources) -> Ve
                         continue;
                     }
                     let Some(dashes) = rest.iter().position(|w| *w == "--") else { continue };
-                    let texts = sources_of(bin, sources);
+                    let mut texts = sources_of(bin, sources);
+                    // A flag quoted alone on a chapter page: the chapter's, or a program's whose
+                    // command the page prints.
+                    if Some(bin) == page.chapter() && !command.starts_with("cargo run --release") {
+                        texts.extend(others.iter().flat_map(|other| sources_of(other, sources)));
+                    }
                     for flag in rest[dashes + 1..].iter().filter_map(|w| w.strip_prefix("--")) {
                         let flag = flag.split('=').next().unwrap();
                         if flag.is_empty()
