@@ -123,21 +123,32 @@ struct Checks {
     /// Every check name a report or the code knows (the conditional ones are string literals in
     /// the sources, e.g. `no_fd_growth_across_resizes`).
     known: BTreeSet<String>,
+    /// The names that are checks for sure: a report's, or a `check("name"` in the sources.
+    named: BTreeSet<String>,
 }
 
 fn checks(snapshots: &[(String, Value)], sources: &Sources) -> Checks {
     let mut always: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
     let mut counts: BTreeMap<String, BTreeSet<usize>> = BTreeMap::new();
     let mut known = sources.literals.clone();
+    let mut named: BTreeSet<String> = sources
+        .text
+        .values()
+        .flat_map(|text| text.split("check(\"").skip(1))
+        .filter_map(|rest| rest.split('"').next())
+        .filter(|name| is_check_name(name))
+        .map(str::to_owned)
+        .collect();
     for (_, report) in snapshots {
         let Some(chapter) = report["chapter"].as_str() else { continue };
         let names: BTreeSet<String> =
             report["checks"].as_object().map(|c| c.keys().cloned().collect()).unwrap_or_default();
         known.extend(names.iter().cloned());
+        named.extend(names.iter().cloned());
         counts.entry(chapter.to_owned()).or_default().insert(names.len());
         always.entry(chapter.to_owned()).and_modify(|a| a.retain(|n| names.contains(n))).or_insert(names);
     }
-    Checks { always, counts, known }
+    Checks { always, counts, known, named }
 }
 
 /// The Rust sources: every identifier, and every string literal that looks like a name.
@@ -225,6 +236,17 @@ fn transcript_errors(page: &Page, checks: &Checks) -> Vec<String> {
         for (line_number, line) in &block.lines {
             let at = format!("{}:{line_number}", page.name);
             let line = line.trim();
+            // A transcript of several runs: each run lists its own checks.
+            if line.starts_with("$ ") {
+                errors.extend(left_out(
+                    page,
+                    &block.lines,
+                    (ends_a_run, chapter.as_deref()),
+                    &listed,
+                    checks,
+                ));
+                (listed, ends_a_run) = (Vec::new(), false);
+            }
             if let Some(name) = line.strip_prefix("[ ok ] ").or_else(|| line.strip_prefix("[FAIL] ")) {
                 listed.push(name.trim().to_owned());
             } else if let Some((slug, rest)) = line.split_once(": all ")
@@ -259,23 +281,37 @@ fn transcript_errors(page: &Page, checks: &Checks) -> Vec<String> {
                 }
             }
         }
-        let first = block.lines.first().map_or(0, |l| l.0);
-        for name in &listed {
-            if !checks.known.contains(name) {
-                errors.push(format!(
-                    "{}:{first}: the transcript shows `{name}`, which no report or source has",
-                    page.name
-                ));
-            }
+        errors.extend(left_out(page, &block.lines, (ends_a_run, chapter.as_deref()), &listed, checks));
+    }
+    errors
+}
+
+/// What is wrong with the checks one run of a transcript `listed`: a name no report or source
+/// has, and, where the run ended (`ends_a_run`), a check its chapter reports on every run.
+fn left_out(
+    page: &Page,
+    lines: &[(usize, String)],
+    (ends_a_run, chapter): (bool, Option<&str>),
+    listed: &[String],
+    checks: &Checks,
+) -> Vec<String> {
+    let mut errors = Vec::new();
+    let first = lines.first().map_or(0, |l| l.0);
+    for name in listed {
+        if !checks.known.contains(name) {
+            errors.push(format!(
+                "{}:{first}: the transcript shows `{name}`, which no report or source has",
+                page.name
+            ));
         }
-        if ends_a_run && let Some(always) = chapter.as_deref().and_then(|c| checks.always.get(c)) {
-            for name in always.iter().filter(|n| !listed.contains(n)) {
-                errors.push(format!(
-                    "{}:{first}: the run's transcript leaves out `{name}`, which {} reports on every run",
-                    page.name,
-                    chapter.as_deref().unwrap()
-                ));
-            }
+    }
+    if ends_a_run && let Some(always) = chapter.and_then(|c| checks.always.get(c)) {
+        for name in always.iter().filter(|n| !listed.contains(n)) {
+            errors.push(format!(
+                "{}:{first}: the run's transcript leaves out `{name}`, which {} reports on every run",
+                page.name,
+                chapter.unwrap()
+            ));
         }
     }
     errors
@@ -289,43 +325,44 @@ fn transcripts_show_the_checks_the_chapters_report() {
     assert!(errors.is_empty(), "transcripts that no longer match the chapters:\n{}", errors.join("\n"));
 }
 
-/// The paragraphs around a transcript say what its run shows: a check they name passes in it
-/// (`[ ok ] name`), or fails in it (`[FAIL] name`) where the sentence naming it says it fails. So
-/// a page's command makes the checks the page names, and a "try this" that says a check fails
-/// makes it fail (the transcripts themselves are runs, `tests/transcripts.rs`).
+/// The paragraph that introduces a transcript says what its run shows: a check it names passes
+/// in it (`[ ok ] name`), or fails in it (`[FAIL] name`) where the sentence naming it says it
+/// fails. So a page's command makes the checks the page names, and a "try this" that says a check
+/// fails makes it fail (the transcripts themselves are runs, `tests/transcripts.rs`). Only the
+/// names of checks count: those a report has, or a `check("name", ...)` in the sources.
 fn transcript_claim_errors(page: &Page, checks: &Checks) -> Vec<String> {
     let mut errors = Vec::new();
-    // The prose paragraph that ends just before `line` (backwards) or starts just after it.
-    let paragraph = |from: usize, step: i64| -> Vec<&(usize, String)> {
-        let mut found = Vec::new();
-        let mut at = from as i64 + step;
-        while let Some(line) = page.prose.iter().find(|(n, _)| *n as i64 == at) {
-            if line.1.trim().is_empty() || line.1.starts_with('#') {
+    for block in page.blocks.iter().filter(|b| b.transcript) {
+        // The prose paragraph that ends just before the block's opening fence, past the blank
+        // line between them.
+        let mut at = block.fences.0 - 1;
+        while at > 0 && page.prose.iter().any(|(n, l)| *n == at && l.trim().is_empty()) {
+            at -= 1;
+        }
+        let mut lines = Vec::new();
+        while let Some((n, line)) = page.prose.iter().find(|(n, _)| *n == at) {
+            if line.trim().is_empty() || line.starts_with('#') {
                 break;
             }
-            found.push(line);
-            at += step;
+            lines.push((*n, line.as_str()));
+            at -= 1;
         }
-        found
-    };
-    for block in page.blocks.iter().filter(|b| b.transcript) {
+        lines.reverse();
+        let Some(&(number, _)) = lines.first() else { continue };
+        let paragraph: Vec<&str> = lines.iter().map(|(_, l)| *l).collect();
         let shows =
             |mark: &str, name: &str| block.lines.iter().any(|(_, l)| l.trim() == format!("{mark} {name}"));
-        let around = paragraph(block.fences.0, -1).into_iter().chain(paragraph(block.fences.1, 1));
-        for (number, line) in around {
-            // One sentence at a time: "fails" speaks of the checks of its own sentence.
-            for sentence in line.split(". ") {
-                let fails = sentence.contains("fails") || sentence.contains("failed");
-                for name in
-                    code_spans(sentence).into_iter().filter(|n| is_check_name(n) && checks.known.contains(*n))
-                {
-                    let (mark, said) = if fails { ("[FAIL]", "fails") } else { ("[ ok ]", "passes") };
-                    if !shows(mark, name) {
-                        errors.push(format!(
-                            "{}:{number}: says `{name}` {said} in the run beside it, whose transcript has no `{mark} {name}`",
-                            page.name
-                        ));
-                    }
+        // One sentence at a time: "fails" speaks of the checks of its own sentence.
+        for sentence in paragraph.join(" ").split(". ") {
+            let fails = sentence.contains("fails") || sentence.contains("failed");
+            for name in code_spans(sentence).into_iter().filter(|n| checks.named.contains(*n)) {
+                let (mark, said) = if fails { ("[FAIL]", "fails") } else { ("[ ok ]", "passes") };
+                if !shows(mark, name) {
+                    errors.push(format!(
+                        "{}:{number}: says `{name}` {said} in the run it shows next, whose transcript has no \
+                         `{mark} {name}`",
+                        page.name
+                    ));
                 }
             }
         }
@@ -1112,7 +1149,17 @@ impl Module {
         if defines {
             return Some(Module::at(self.file.clone()));
         }
+        // Each `pub use` whole, as rustfmt may break its group over several lines.
+        let mut statements: Vec<String> = Vec::new();
+        let mut open = false;
         for line in self.text.lines().map(str::trim) {
+            match statements.last_mut() {
+                Some(last) if open => last.push_str(line),
+                _ => statements.push(line.to_owned()),
+            }
+            open = statements.last().is_some_and(|l| l.starts_with("pub use ") && !l.ends_with(';'));
+        }
+        for line in statements.iter().map(|l| l.replace(",}", "}")) {
             let Some(used) = line.strip_prefix("pub use ").and_then(|l| l.strip_suffix(';')) else {
                 continue;
             };

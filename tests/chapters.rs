@@ -805,6 +805,18 @@ fn ch13_temporal_reuse_orbit_with_a_cut() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+/// The orbit without its cut: nothing is read back before the last frame, so every frame but the
+/// last draws the next one's ids before it waits; and no cut check is made.
+#[test]
+fn ch13_orbit_without_a_cut_draws_every_next_ids_early() {
+    let args = ["--size", "64x48", "--frames", "4", "--cut-at", "0", "--instances", "400"];
+    let run = run_chapter(env!("CARGO_BIN_EXE_13-temporal-reuse"), &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["frames_with_ids_drawn_ahead"], 3);
+    assert!(report["checks"].get("no_history_kept_across_the_cut_from_unseen_surfaces").is_none());
+    assert_report_snapshot("13-temporal-reuse-no-cut", report);
+}
+
 /// On a pan, what the pixels keep agrees with a new trace of the same frame within its noise.
 #[test]
 fn ch13_pan_keeps_what_a_new_trace_finds() {
