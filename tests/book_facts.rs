@@ -981,6 +981,22 @@ fn chapter_pages_fit_a_workshop_slot() {
     assert!(too_long.is_empty(), "{}", too_long.join("\n"));
 }
 
+/// A chapter's deeper page is read as the page is, and held to the same length: what does not
+/// fit is a table (with its command) rather than prose.
+#[test]
+fn deeper_pages_fit_a_reading_too() {
+    let pages = pages();
+    let deeper: Vec<&Page> = pages.iter().filter(|p| p.name.ends_with("-deeper.md")).collect();
+    assert!(deeper.len() >= 10, "only {} deeper pages", deeper.len());
+    let too_long: Vec<String> = deeper
+        .iter()
+        .map(|page| (page, words(page)))
+        .filter(|(_, count)| *count > CORE_WORDS)
+        .map(|(page, count)| format!("{}: {count} words, more than {CORE_WORDS}", page.name))
+        .collect();
+    assert!(too_long.is_empty(), "{}", too_long.join("\n"));
+}
+
 /// The count is the one stated: words outside code, tables and headings included.
 #[test]
 fn words_count_prose_not_code() {
