@@ -61,6 +61,20 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     );
     assert_eq!(set("scene"), [r#""ceiling""#, r#""default""#, r#""large""#]);
     assert_eq!(set("spp"), ["1", "4"]);
+    // Chapter 13's rows at chapter 12's error: for every scene, size and ray count, chapter 12's
+    // error along chapter 13's orbit, and the fewest rays a frame of chapter 13's that reach it
+    // (or the most tried, where none does), both measured.
+    let equal = report["temporal_equal_error"].as_array().expect("temporal_equal_error");
+    assert_eq!(equal.len(), 12, "3 scenes x 2 sizes x 2 ray counts");
+    for e in equal {
+        let (spp, samples) = (e["spp"].as_u64().unwrap(), e["samples"].as_u64().unwrap());
+        let (theirs, ours) = (e["chapter_12_error"].as_f64().unwrap(), e["error"].as_f64().unwrap());
+        // The ceiling scene occludes nothing within the radius: both errors are 0 there.
+        let occluded = e["scene"] != "ceiling";
+        assert!(theirs >= 0.0 && ours >= 0.0 && (!occluded || (theirs > 0.0 && ours > 0.0)), "{e}");
+        assert!((1..=spp).contains(&samples), "{e}");
+        assert!(ours <= theirs || samples == spp, "the fewest rays that reach chapter 12's error: {e}");
+    }
     // The large scene's acceleration structures: sizes and GPU build times.
     let large = &report["large_scene"];
     for field in ["triangles", "blas_bytes", "compacted_bytes", "tlas_bytes"] {
@@ -82,6 +96,8 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     // The rest of the report, snapshotted: which rows (not their times), the checks, the settings,
     // the large scene's sizes (lavapipe builds the same structures every run), what was created.
     let mut snapshot = report.clone();
+    // Which rays a frame chapter 13 needed may differ with the driver's rounding: counted only.
+    snapshot["temporal_equal_error"] = Value::from(equal.len());
     snapshot["rows"] = rows
         .iter()
         .map(|r| {

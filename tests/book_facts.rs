@@ -26,6 +26,10 @@ struct Block {
     /// The fence's info string: `sh`, `text`, `console`, `rust` ...
     info: String,
     lines: Vec<(usize, String)>,
+    /// The lines of the fences that open and close it.
+    fences: (usize, usize),
+    /// Whether its lines come from a generated transcript (`{{#include transcripts/...}}`).
+    transcript: bool,
 }
 
 impl Page {
@@ -38,9 +42,13 @@ impl Page {
             match (&mut open, fence) {
                 (None, true) => {
                     let info = line.trim_start().trim_start_matches('`').trim().to_owned();
-                    open = Some(Block { info, lines: Vec::new() });
+                    open =
+                        Some(Block { info, lines: Vec::new(), fences: (number, number), transcript: false });
                 }
-                (Some(_), true) => blocks.push(open.take().unwrap()),
+                (Some(block), true) => {
+                    block.fences.1 = number;
+                    blocks.push(open.take().unwrap());
+                }
                 // A generated transcript (`book/src/transcripts/`): its lines, at the include's.
                 (Some(block), false) if line.trim().starts_with("{{#include transcripts/") => {
                     let file = line.trim().trim_start_matches("{{#include ").trim_end_matches("}}");
@@ -48,6 +56,7 @@ impl Page {
                     let included =
                         std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
                     block.lines.extend(included.lines().map(|l| (number, l.to_owned())));
+                    block.transcript = true;
                 }
                 (Some(block), false) => block.lines.push((number, line.to_owned())),
                 (None, false) => prose.push((number, line.to_owned())),
@@ -114,21 +123,32 @@ struct Checks {
     /// Every check name a report or the code knows (the conditional ones are string literals in
     /// the sources, e.g. `no_fd_growth_across_resizes`).
     known: BTreeSet<String>,
+    /// The names that are checks for sure: a report's, or a `check("name"` in the sources.
+    named: BTreeSet<String>,
 }
 
 fn checks(snapshots: &[(String, Value)], sources: &Sources) -> Checks {
     let mut always: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
     let mut counts: BTreeMap<String, BTreeSet<usize>> = BTreeMap::new();
     let mut known = sources.literals.clone();
+    let mut named: BTreeSet<String> = sources
+        .text
+        .values()
+        .flat_map(|text| text.split("check(\"").skip(1))
+        .filter_map(|rest| rest.split('"').next())
+        .filter(|name| is_check_name(name))
+        .map(str::to_owned)
+        .collect();
     for (_, report) in snapshots {
         let Some(chapter) = report["chapter"].as_str() else { continue };
         let names: BTreeSet<String> =
             report["checks"].as_object().map(|c| c.keys().cloned().collect()).unwrap_or_default();
         known.extend(names.iter().cloned());
+        named.extend(names.iter().cloned());
         counts.entry(chapter.to_owned()).or_default().insert(names.len());
         always.entry(chapter.to_owned()).and_modify(|a| a.retain(|n| names.contains(n))).or_insert(names);
     }
-    Checks { always, counts, known }
+    Checks { always, counts, known, named }
 }
 
 /// The Rust sources: every identifier, and every string literal that looks like a name.
@@ -216,6 +236,17 @@ fn transcript_errors(page: &Page, checks: &Checks) -> Vec<String> {
         for (line_number, line) in &block.lines {
             let at = format!("{}:{line_number}", page.name);
             let line = line.trim();
+            // A transcript of several runs: each run lists its own checks.
+            if line.starts_with("$ ") {
+                errors.extend(left_out(
+                    page,
+                    &block.lines,
+                    (ends_a_run, chapter.as_deref()),
+                    &listed,
+                    checks,
+                ));
+                (listed, ends_a_run) = (Vec::new(), false);
+            }
             if let Some(name) = line.strip_prefix("[ ok ] ").or_else(|| line.strip_prefix("[FAIL] ")) {
                 listed.push(name.trim().to_owned());
             } else if let Some((slug, rest)) = line.split_once(": all ")
@@ -250,23 +281,37 @@ fn transcript_errors(page: &Page, checks: &Checks) -> Vec<String> {
                 }
             }
         }
-        let first = block.lines.first().map_or(0, |l| l.0);
-        for name in &listed {
-            if !checks.known.contains(name) {
-                errors.push(format!(
-                    "{}:{first}: the transcript shows `{name}`, which no report or source has",
-                    page.name
-                ));
-            }
+        errors.extend(left_out(page, &block.lines, (ends_a_run, chapter.as_deref()), &listed, checks));
+    }
+    errors
+}
+
+/// What is wrong with the checks one run of a transcript `listed`: a name no report or source
+/// has, and, where the run ended (`ends_a_run`), a check its chapter reports on every run.
+fn left_out(
+    page: &Page,
+    lines: &[(usize, String)],
+    (ends_a_run, chapter): (bool, Option<&str>),
+    listed: &[String],
+    checks: &Checks,
+) -> Vec<String> {
+    let mut errors = Vec::new();
+    let first = lines.first().map_or(0, |l| l.0);
+    for name in listed {
+        if !checks.known.contains(name) {
+            errors.push(format!(
+                "{}:{first}: the transcript shows `{name}`, which no report or source has",
+                page.name
+            ));
         }
-        if ends_a_run && let Some(always) = chapter.as_deref().and_then(|c| checks.always.get(c)) {
-            for name in always.iter().filter(|n| !listed.contains(n)) {
-                errors.push(format!(
-                    "{}:{first}: the run's transcript leaves out `{name}`, which {} reports on every run",
-                    page.name,
-                    chapter.as_deref().unwrap()
-                ));
-            }
+    }
+    if ends_a_run && let Some(always) = chapter.and_then(|c| checks.always.get(c)) {
+        for name in always.iter().filter(|n| !listed.contains(n)) {
+            errors.push(format!(
+                "{}:{first}: the run's transcript leaves out `{name}`, which {} reports on every run",
+                page.name,
+                chapter.unwrap()
+            ));
         }
     }
     errors
@@ -278,6 +323,83 @@ fn transcripts_show_the_checks_the_chapters_report() {
     let checks = checks(&snapshots, &sources);
     let errors: Vec<String> = pages().iter().flat_map(|p| transcript_errors(p, &checks)).collect();
     assert!(errors.is_empty(), "transcripts that no longer match the chapters:\n{}", errors.join("\n"));
+}
+
+/// The paragraph that introduces a transcript says what its run shows: a check it names passes
+/// in it (`[ ok ] name`), or fails in it (`[FAIL] name`) where the sentence naming it says it
+/// fails. So a page's command makes the checks the page names, and a "try this" that says a check
+/// fails makes it fail (the transcripts themselves are runs, `tests/transcripts.rs`). Only the
+/// names of checks count: those a report has, or a `check("name", ...)` in the sources.
+fn transcript_claim_errors(page: &Page, checks: &Checks) -> Vec<String> {
+    let mut errors = Vec::new();
+    for block in page.blocks.iter().filter(|b| b.transcript) {
+        // The prose paragraph that ends just before the block's opening fence, past the blank
+        // line between them.
+        let mut at = block.fences.0 - 1;
+        while at > 0 && page.prose.iter().any(|(n, l)| *n == at && l.trim().is_empty()) {
+            at -= 1;
+        }
+        let mut lines = Vec::new();
+        while let Some((n, line)) = page.prose.iter().find(|(n, _)| *n == at) {
+            if line.trim().is_empty() || line.starts_with('#') {
+                break;
+            }
+            lines.push((*n, line.as_str()));
+            at -= 1;
+        }
+        lines.reverse();
+        let Some(&(number, _)) = lines.first() else { continue };
+        let paragraph: Vec<&str> = lines.iter().map(|(_, l)| *l).collect();
+        let shows =
+            |mark: &str, name: &str| block.lines.iter().any(|(_, l)| l.trim() == format!("{mark} {name}"));
+        // One sentence at a time: "fails" speaks of the checks of its own sentence.
+        for sentence in paragraph.join(" ").split(". ") {
+            let fails = sentence.contains("fails") || sentence.contains("failed");
+            for name in code_spans(sentence).into_iter().filter(|n| checks.named.contains(*n)) {
+                let (mark, said) = if fails { ("[FAIL]", "fails") } else { ("[ ok ]", "passes") };
+                if !shows(mark, name) {
+                    errors.push(format!(
+                        "{}:{number}: says `{name}` {said} in the run it shows next, whose transcript has no \
+                         `{mark} {name}`",
+                        page.name
+                    ));
+                }
+            }
+        }
+    }
+    errors
+}
+
+#[test]
+fn the_runs_a_page_shows_make_the_checks_it_names() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    let errors: Vec<String> = pages().iter().flat_map(|p| transcript_claim_errors(p, &checks)).collect();
+    assert!(errors.is_empty(), "pages that say a run makes a check it does not:\n{}", errors.join("\n"));
+}
+
+#[test]
+fn the_claim_check_sees_what_it_must_refuse() {
+    let (snapshots, sources) = (snapshots(), sources());
+    let checks = checks(&snapshots, &sources);
+    // A paragraph on line 1, the transcript's fences on lines 3 and 5.
+    let page = |before: &str| Page {
+        name: "99-test.md".into(),
+        prose: vec![(1, before.to_owned()), (2, String::new())],
+        blocks: vec![Block {
+            info: "console".into(),
+            lines: ["$ run", "  [ ok ] no_fd_leaked", "  [FAIL] ao_within_0_and_1"]
+                .map(|l| (4, l.to_owned()))
+                .into(),
+            fences: (3, 5),
+            transcript: true,
+        }],
+    };
+    let errors = |before: &str| transcript_claim_errors(&page(before), &checks).len();
+    // Said and shown; said to pass but failed; said to fail but passed.
+    assert_eq!(errors("It checks `no_fd_leaked`. Then `ao_within_0_and_1` fails."), 0);
+    assert_eq!(errors("Here `ao_within_0_and_1` holds."), 1);
+    assert_eq!(errors("Here `no_fd_leaked` fails."), 1);
 }
 
 /// A chapter page's "## Checks" table lists every check its report always has, and only checks
@@ -530,6 +652,13 @@ fn command_errors(page: &Page, bins: &BTreeSet<String>, sources: &Sources) -> Ve
             commands.push((*number, line.trim().trim_start_matches("$ ").to_owned()));
         }
     }
+    // The other programs the page's commands run (`convergence`, where a page measures its
+    // chapter's frame with the tool): a flag the page quotes alone may be one of theirs.
+    let others: BTreeSet<String> = commands
+        .iter()
+        .filter_map(|(_, c)| c.split_whitespace().skip_while(|w| *w != "--bin").nth(1).map(str::to_owned))
+        .filter(|b| Some(b.as_str()) != page.chapter())
+        .collect();
     for (number, line) in &page.prose {
         for span in code_spans(line) {
             // A chapter page quoting its own flags alone (`--headless --size 320x240`): as if typed
@@ -569,7 +698,12 @@ fn command_errors(page: &Page, bins: &BTreeSet<String>, sources: &Sources) -> Ve
                         continue;
                     }
                     let Some(dashes) = rest.iter().position(|w| *w == "--") else { continue };
-                    let texts = sources_of(bin, sources);
+                    let mut texts = sources_of(bin, sources);
+                    // A flag quoted alone on a chapter page: the chapter's, or a program's whose
+                    // command the page prints.
+                    if Some(bin) == page.chapter() && !command.starts_with("cargo run --release") {
+                        texts.extend(others.iter().flat_map(|other| sources_of(other, sources)));
+                    }
                     for flag in rest[dashes + 1..].iter().filter_map(|w| w.strip_prefix("--")) {
                         let flag = flag.split('=').next().unwrap();
                         if flag.is_empty()
@@ -917,6 +1051,22 @@ fn chapter_pages_fit_a_workshop_slot() {
             ));
         }
     }
+    assert!(too_long.is_empty(), "{}", too_long.join("\n"));
+}
+
+/// A chapter's deeper page is read as the page is, and held to the same length: what does not
+/// fit is a table (with its command) rather than prose.
+#[test]
+fn deeper_pages_fit_a_reading_too() {
+    let pages = pages();
+    let deeper: Vec<&Page> = pages.iter().filter(|p| p.name.ends_with("-deeper.md")).collect();
+    assert!(deeper.len() >= 10, "only {} deeper pages", deeper.len());
+    let too_long: Vec<String> = deeper
+        .iter()
+        .map(|page| (page, words(page)))
+        .filter(|(_, count)| *count > CORE_WORDS)
+        .map(|(page, count)| format!("{}: {count} words, more than {CORE_WORDS}", page.name))
+        .collect();
     assert!(too_long.is_empty(), "{}", too_long.join("\n"));
 }
 
@@ -1411,7 +1561,7 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
             Quoted { page: "12-fast-frame.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" },
             Quoted {
                 page: "12-fast-frame-deeper.md",
-                before: "| chapter 08 (zero-copy) | 26.88 | 8.99 | ",
+                before: "| [chapter 08](08-composite.md) (zero-copy) | 26.88 | 8.99 | ",
                 after: " |",
             },
         ],
@@ -1421,10 +1571,14 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
         Quoted { page: "performance.md", before: "| default | 3840×2160 | ", after: " ms | 12.81 ms" },
         &[
             Quoted { page: "12-fast-frame.md", before: "frame takes ", after: " ms: " },
-            Quoted { page: "12-fast-frame.md", before: "| chapter 08, zero-copy | ", after: " ms |" },
+            Quoted {
+                page: "12-fast-frame.md",
+                before: "| [chapter 08](08-composite.md), zero-copy | ",
+                after: " ms |",
+            },
             Quoted {
                 page: "12-fast-frame-deeper.md",
-                before: "| chapter 08 (zero-copy) | ",
+                before: "| [chapter 08](08-composite.md) (zero-copy) | ",
                 after: " | 8.99",
             },
         ],
@@ -1598,14 +1752,7 @@ fn the_common_file_check_catches_an_unnamed_file() {
 /// The pages being rewritten on their own as this test was added; each fails it today (the test
 /// below prints where). Whoever merges those rewrites links their citations and empties this
 /// list: a page listed here that no longer fails is an error, so the list cannot outlive its use.
-const CITATIONS_PENDING: &[&str] = &[
-    "12-fast-frame.md",
-    "12-fast-frame-deeper.md",
-    "13-temporal-reuse.md",
-    "13-temporal-reuse-deeper.md",
-    "14-two-processes.md",
-    "14-two-processes-deeper.md",
-];
+const CITATIONS_PENDING: &[&str] = &[];
 
 /// The chapters' slugs by number: `08` -> `08-composite`.
 fn chapter_slugs() -> BTreeMap<String, String> {
@@ -2224,7 +2371,7 @@ fn the_introductions_table_states_the_extensions_each_chapter_enables() {
 
 /// Chapters the workshop kit has no slot for yet, being added as this test was written; whoever
 /// merges the slot empties the list (a chapter listed here that has its slot is an error).
-const WORKSHOP_PENDING: &[&str] = &["13"];
+const WORKSHOP_PENDING: &[&str] = &[];
 
 /// The workshop kit promises a slot per chapter ("One per chapter"): its time table has a row for
 /// every chapter folder, and every row's chapter has a challenge headed `**NN · ...**` (which

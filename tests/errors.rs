@@ -72,15 +72,35 @@ const CASES: &[Case] = &[
     chapter(
         "13-temporal-reuse",
         env!("CARGO_BIN_EXE_13-temporal-reuse"),
-        &["--size", "64x48", "--frames", "4", "--cut-at", "2", "--instances", "50", "--error-against", "8"],
+        &["--size", "64x48", "--frames", "4", "--cut-at", "2", "--instances", "50"],
     ),
-    // The same walk without the error measured or a cut: every frame but the last draws the
-    // next one's ids before it waits (`--next-ids early`), and those steps fail too.
+    // The same walk without a cut: every frame but the last draws the next one's ids before it
+    // waits, and those steps fail too.
     chapter(
         "13-temporal-reuse, next ids early",
         env!("CARGO_BIN_EXE_13-temporal-reuse"),
         &["--size", "64x48", "--frames", "4", "--cut-at", "0", "--instances", "50"],
     ),
+    // Chapter 13's frame measured: the error against a converged trace of each frame.
+    Case {
+        name: "convergence temporal",
+        bin: env!("CARGO_BIN_EXE_convergence"),
+        args: &[
+            "temporal",
+            "--size",
+            "64x48",
+            "--frames",
+            "4",
+            "--cut-at",
+            "2",
+            "--instances",
+            "50",
+            "--error-against",
+            "8",
+        ],
+        headless: false,
+        fail_at: "VKGL_FAIL_AT",
+    },
     // Two processes: VKGL_FAIL_AT fails the renderer's steps (its viewer is started without it);
     // VKGL_VIEWER_FAIL_AT, which the renderer passes on as the viewer's VKGL_FAIL_AT, the
     // viewer's, whose refusal the renderer reports as its own error (exit 2). The viewer's list

@@ -457,9 +457,8 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("Xvfb :7", Skip::Always("starts an X server, which runs until it is stopped")),
     ("DISPLAY=:7 __GLX_VENDOR_LIBRARY_NAME=nvidia", Skip::Always("needs an NVIDIA GPU and the X server above")),
     ("cargo run --release --bin 13-temporal-reuse$", Skip::Slow("a window's size, 120 frames headless: minutes")),
-    ("cargo run --release --bin 13-temporal-reuse -- --headless --size 1920x1080", Skip::Always("sized for a GPU")),
-    ("cargo run --release --bin 13-temporal-reuse -- --headless --size 3840x2160", Skip::Always("sized for a GPU")),
-    ("cargo run --release --features flip --bin 13-temporal-reuse", Skip::Always("sized for a GPU, and FLIP needs a C++ build")),
+    ("cargo run --release --bin convergence -- temporal --size 1920x1080", Skip::Always("sized for a GPU")),
+    ("cargo run --release --bin convergence -- temporal --size 3840x2160", Skip::Always("sized for a GPU")),
 ];
 // ANCHOR_END: skipped
 
@@ -549,10 +548,10 @@ fn printed_commands_run_as_printed() {
     assert!(failed.is_empty(), "printed commands that fail as printed:\n\n{}", failed.join("\n\n"));
 }
 
-/// The run a chapter's page shows under "## What you should see" (its first transcript there) is
-/// the output of the first command the page prints at its top, the one a reader (and a workshop
-/// laptop without a GPU) runs first: not the same program at another size, whose numbers differ,
-/// nor a window's run. Pure text: no program runs.
+/// The run a chapter's page shows under "## Run it" or "## What you should see" (its first
+/// transcript there) is the output of the first command the page prints at its top, the one a
+/// reader (and a workshop laptop without a GPU) runs first: not the same program at another
+/// size, whose numbers differ, nor a window's run. Pure text: no program runs.
 #[test]
 fn each_page_shows_the_run_of_a_command_it_prints_at_the_top() {
     let mut errors = Vec::new();
@@ -573,7 +572,11 @@ fn each_page_shows_the_run_of_a_command_it_prints_at_the_top() {
                     .collect()
             })
             .unwrap_or_default();
-        let Some(section) = text.split("\n## What you should see").nth(1) else { continue };
+        // The run sits under "## Run it" where a page shows it before its steps, else under
+        // "## What you should see".
+        let section =
+            text.split("\n## Run it").nth(1).or_else(|| text.split("\n## What you should see").nth(1));
+        let Some(section) = section else { continue };
         let Some(file) =
             section.split("{{#include transcripts/").nth(1).and_then(|rest| rest.split("}}").next())
         else {

@@ -131,6 +131,12 @@ const SOLUTIONS: &[Solution] = &[
         proof: Proof::Check("decoded_triangles_cover_their_pixels"),
     },
     Solution {
+        patch: "13-history-age.diff",
+        chapter: "13-temporal-reuse",
+        args: &["--headless", "--size", "96x72", "--frames", "8", "--cut-at", "4", "--instances", "400"],
+        proof: Proof::Check("history_holds_no_more_rays_than_were_traced"),
+    },
+    Solution {
         // Two processes: the viewer's check comes back in the renderer's report, renamed.
         patch: "14-skipped-frame.diff",
         chapter: "14-two-processes",

@@ -5,40 +5,31 @@
 //! instance's previous transform), keeps that frame's occlusion if it saw the same surface, and
 //! adds one or two new rays to it; a pixel just uncovered traces more, and a pixel whose history
 //! is full traces less. The camera orbits, cuts to another view once, and one instance runs in a
-//! circle; every frame's error is measured against a converged trace of that frame.
+//! circle. The frame is `common::frame::temporal`; `convergence temporal` measures it.
 //!
-//! Run: `cargo run --release --bin 13-temporal-reuse` (keys: H history on/off, Esc quits).
+//! Run: `cargo run --release --bin 13-temporal-reuse` (keys: H chapter 12's frame and back, Esc quits).
 
 use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::{Size, Smallest};
 use common::base::commands::Commands;
+use common::base::window::{Key, NamedKey, Window};
 use common::clocks::timestamps::Timestamps;
 use common::frame::Overlays;
+use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
+use common::frame::fast::trace::SurfaceTracer;
+use common::frame::fast::visibility::{self, Targets, VisibilityPass};
+use common::frame::temporal::{Budget, Checks, Clock, Drawn, Motion, Passes, Sized, TemporalTracer, check};
+use common::frame::temporal::{Path, PathArgs, RayArgs};
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
 use common::rt::ao::AoArgs;
 use common::scene::gbuffer::contexts_in_window;
-use common::scene::{Camera, Instance};
+use common::scene::{Camera, Instance, SceneArgs};
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
-
-mod frame;
-mod history_check;
-mod measure;
-mod path;
-mod settings;
-mod temporal;
-mod walk;
-
-use common::frame::fast::composite::{ComputeComposite, Uniforms};
-use common::frame::fast::trace::SurfaceTracer;
-use common::frame::fast::visibility::{self, Targets, VisibilityPass};
-use frame::{Drawn, Motion, Passes, Sized};
-use settings::{Args, Method};
-use temporal::{Budget, TemporalTracer};
 
 const CHAPTER: &str = "13-temporal-reuse";
 /// The smallest picture this chapter can check, and why (the largest is the device's).
@@ -53,20 +44,46 @@ const SMALLEST: Smallest = Smallest {
         "framed taller, the gizmo's axes leave the picture; wider, the overlay checks find no pixel to probe",
     )),
 };
+/// The frames a headless run draws unless `--frames` says otherwise: the whole path.
+const PATH_FRAMES: u32 = 120;
+
+/// Chapter 13: chapter 12's frame, its ambient occlusion reused from frame to frame.
+#[derive(clap::Parser)]
+struct Args {
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    rays: RayArgs,
+    #[command(flatten)]
+    path: PathArgs,
+    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
+    #[arg(long, allow_negative_numbers = true)]
+    radius: Option<f32>,
+    /// Contrast: the picture shows visibility to this power (1-3).
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    power: f32,
+    /// Blur radius in pixels (0 skips the blur), as chapter 12's.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    blur: u32,
+    /// Which picture to show.
+    #[arg(long, value_enum, default_value = "final")]
+    view: View,
+    /// As chapter 12's `--blas`; only the per-mesh layout lets an instance move.
+    #[arg(long, value_enum, default_value = "per-mesh")]
+    blas: BlasLayout,
+    /// Headless: make the images of one size anew every K frames, as a window's resize does
+    /// (the history starts again).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    resize_every: Option<u32>,
+}
 
 fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
-    ensure!(
-        !(args.compare && args.resize_every.is_some()),
-        "--compare walks every method at one size: leave out --resize-every"
-    );
     let size = args.common.size;
-    // Read first: a file that is not there or not a compare.csv is refused before any GPU work.
-    let times = args.times_from.as_deref().map(measure::read_times).transpose()?;
 
     // 1. The scene, the path the camera and one instance follow, and the rays' budget
     let mut scene = args.scene.load()?;
     let start = Camera::framing(scene.bounds, size.aspect());
-    let path = path::Path::new(&scene, start, args);
+    let path = Path::new(&scene, start, &args.path);
     if let Some(moving) = &path.moving {
         ensure!(
             args.blas == BlasLayout::PerMesh,
@@ -75,15 +92,13 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         // Where it stands at frame 0, before the scene is shared and its structures built.
         scene.instances[moving.index].transform = Instance::new(moving.at(0), [0; 3]).transform;
     }
-    let ao = AoArgs { samples: args.samples, radius: args.radius, power: args.power, max_samples: 1 };
+    let ao = AoArgs { samples: args.rays.samples, radius: args.radius, power: args.power, max_samples: 1 };
     let radius = ao.radius(&scene)?;
-    let budget = Budget::new(args, radius, scene.size() / 2.0);
+    let budget = Budget::new(&args.rays, radius, scene.size() / 2.0);
     if let Some(reason) = common::rt::ao::nothing_to_trace(budget.fresh, radius) {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
     }
-    report.set("path", args.path);
-    report.set("fresh_pass", args.fresh_pass);
-    report.set("next_ids", args.next_ids);
+    report.set("path", args.path.path);
     report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
@@ -117,7 +132,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let targets = Targets::new(&vk, &gl_context, &handoff, size.extent())?;
     let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
     let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
-    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets, args.fresh_pass)?;
+    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets, budget.fresh_pass)?;
     let mut sized = Sized { targets, fresh, temporal };
     let composite = ComputeComposite::new(gl)?;
     let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
@@ -127,7 +142,6 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // for the last frame's Vulkan work before any of that is destroyed.
     let commands = Commands::new(&vk)?;
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
-    let uniforms = Uniforms::new(args.blur, args.power, args.view, start.far);
     let passes = Passes {
         apis,
         scene: &scene,
@@ -144,30 +158,15 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             updates: &updates,
         }),
         timestamps: timestamps.as_ref(),
-        ids_ahead: args.next_ids == settings::NextIds::Early,
-        uniforms,
+        ids_ahead: true, // the next frame's ids are drawn before the CPU waits (step 5)
+        uniforms: Uniforms::new(args.blur, args.power, args.view, start.far),
         radius,
     };
-    let chosen = match args.method {
-        Method::Temporal => Drawn::Temporal(budget),
-        Method::Fresh => Drawn::Fresh(args.samples),
-    };
 
-    // 5. The frames: in a window until it closes, else the path, once per method compared
-    if let Some(window) = window.as_mut() {
-        walk::in_window(&passes, &mut sized, window, chosen, args.common.window_frames(), report)?;
-    } else {
-        let mut walks = walk::headless(&passes, &mut sized, chosen, args, report)?;
-        if let Some(times) = &times {
-            measure::take_times(&mut walks, times, path.cut())?;
-        }
-        if args.compare {
-            let table = measure::write(&args.common.out_dir(CHAPTER), &walks, path.cut(), &vk.info.name)?;
-            eprint!("{table}");
-        }
-        if args.error_against > 0 || args.compare {
-            report.set("walks", &walks); // frame by frame: times and errors
-        }
+    // 5. The frames: in a window until it closes, else the whole path, checked as it goes
+    match window.as_mut() {
+        Some(window) => in_window(&passes, &mut sized, window, budget, args.common.window_frames(), report)?,
+        None => headless(&passes, &mut sized, budget, args, report)?,
     }
     gl_context.check_error("the frames")?;
     common::interop::report_handoff(report, &handoff);
@@ -193,15 +192,106 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     Ok(())
 }
 
-/// A new window size: every image of the old size goes, once neither API uses it, and the
-/// tracers point at the new ones (the history starts again).
-pub fn resize(passes: &Passes, sized: &mut Sized, size: Size) -> Result<()> {
-    let Apis { vk, gl, commands, .. } = passes.apis;
-    unsafe { gl.gl.finish() };
-    commands.wait(vk, "vkWaitForFences before a resize")?;
-    drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, passes.apis.handoff, size.extent())?));
-    sized.fresh.resized(vk, &sized.targets);
-    sized.temporal.resized(vk, &passes.shared.allocator, &sized.targets)
+// ANCHOR: headless
+/// The whole path headless, each frame checked as it passes (`Checks`: the cut, the last frame);
+/// with `--resize-every K`, new images every K frames, as a window's resize makes them.
+fn headless(
+    p: &Passes,
+    sized: &mut Sized,
+    budget: Budget,
+    args: &Flags<Args>,
+    report: &mut Report,
+) -> Result<()> {
+    let frames = args.common.frames.unwrap_or(PATH_FRAMES).max(1);
+    let (out, prefix) = (args.common.out_dir(CHAPTER), args.scene.picture_name(CHAPTER));
+    let mut checks = Checks { chapter: CHAPTER, frames, out, prefix, before_cut: None };
+    let mut clock = Clock::new(&p.apis.gl.gl, None)?;
+    let drawn = Drawn::Temporal(budget);
+    let resized_at = |frame: u32| args.resize_every.filter(|k| frame > 0 && frame % k == 0);
+    let (mut resizes, mut after_first_resize) = (0, None);
+    for frame in 0..frames {
+        if let Some(every) = resized_at(frame) {
+            // Three quarters, whole, half, as chapter 12's `--resize-every`.
+            let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(SMALLEST.width);
+            let (w, h) = (args.common.size.width, args.common.size.height);
+            p.resize(sized, Size { width: scale(w), height: scale(h) })?;
+            resizes += 1;
+            if after_first_resize.is_none() {
+                after_first_resize = Some(check::alive(p)?);
+            }
+        }
+        // The next frame's ids are drawn at the end of this one, before the CPU waits for its
+        // trace, unless the checks read this frame back or the next has images of another size.
+        let next = frame + 1 < frames && resized_at(frame + 1).is_none() && !checks.reads_back(p.path, frame);
+        let camera = p.draw(sized, drawn, frame, &mut clock, next)?;
+        checks.after(p, sized, (drawn, &camera, frame), report)?;
+    }
+    if let Some(first) = after_first_resize {
+        report.check("nothing_grows_across_resizes", check::alive(p)? == first);
+        report.set("resizes", resizes);
+    }
+    clock.finish(p)?;
+    clock.times.record(report);
+    report.set("frames_with_ids_drawn_ahead", clock.frames_drawn_ahead);
+    report.set("frames", frames);
+    eprintln!("walk: {} done ({frames} frames)", drawn.name());
+    Ok(())
+}
+// ANCHOR_END: headless
+
+/// Frames in a window until it closes (or `frames`, if not 0): the path plays on, H switches
+/// between this chapter's frame and chapter 12's, and a new window size remakes the images.
+fn in_window(
+    p: &Passes,
+    sized: &mut Sized,
+    window: &mut Window,
+    budget: Budget,
+    frames: u32,
+    report: &mut Report,
+) -> Result<()> {
+    let mut clock = Clock::new(&p.apis.gl.gl, None)?;
+    let (ours, chapter_12) = (Drawn::Temporal(budget), Drawn::Fresh(16));
+    let mut drawn = ours;
+    let (mut frame, mut camera, mut resizes, mut after_first_resize) = (0, None, 0, None);
+    while frames == 0 || frame < frames {
+        let keys: Vec<Key> = window.poll(p.apis.gl).collect();
+        if keys.contains(&Key::Named(NamedKey::Escape)) || window.close_requested() {
+            break;
+        }
+        if keys.iter().any(|k| matches!(k.as_ref(), Key::Character("h" | "H"))) {
+            drawn = if drawn == ours { chapter_12 } else { ours };
+            sized.temporal.forget();
+            eprintln!("window: {}", drawn.name());
+        }
+        let (width, height) = window.size();
+        if (width, height) != (sized.targets.extent.width, sized.targets.extent.height)
+            && width >= SMALLEST.width
+            && height >= SMALLEST.height
+        {
+            p.resize(sized, Size { width, height })?;
+            resizes += 1;
+            if after_first_resize.is_none() {
+                after_first_resize = Some(check::alive(p)?);
+            }
+        }
+        // A window may change size before any frame: each frame draws its own ids.
+        camera = Some(p.draw(sized, drawn, frame, &mut clock, false)?);
+        window.show_times(|| clock.times.line());
+        sized.targets.show(&p.apis.gl.gl, window.size());
+        window.swap_buffers(p.apis.gl)?;
+        frame += 1;
+    }
+    clock.finish(p)?;
+    clock.times.record(report);
+    report.set("frames", frame);
+    report.set("resizes", resizes);
+    if let Some(first) = after_first_resize {
+        report.check("nothing_grows_across_resizes", check::alive(p)? == first);
+    }
+    if let Some(camera) = camera {
+        check::chapter_12_checks(p, sized, &camera, CHAPTER, report)?;
+    }
+    Ok(())
 }
 
 fn main() -> ExitCode {

@@ -1,8 +1,10 @@
 //! Chapter 12's frame in the bench: the chapter's own program, run headless with `--json` at each
 //! scene, size and ray count, its GPU pass times read from its report into one more row
 //! (`fast-frame`). Its own program, not its code copied in: the row measures exactly the frame
-//! chapter 12 draws, with its checks passed. And the ablation: chapter 12 with its choices
-//! undone one at a time, each with its time and its error after the blur.
+//! chapter 12 draws, with its checks passed. Chapter 13's program too, at the rays a frame that
+//! reach chapter 12's error (measured by the `convergence` tool's walk of its frame). And the
+//! ablation: chapter 12 with its choices undone one at a time, each with its time and its error
+//! after the blur.
 
 use crate::{Mode, Row};
 use anyhow::{Context as _, Result, bail, ensure};
@@ -12,7 +14,8 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// Chapter 12's program and chapter 13's, which the bench runs as they are.
+/// Chapter 12's program and chapter 13's, which the bench runs as they are (and `convergence`,
+/// whose walk of chapter 13's frame measures its error).
 const FAST: &str = "12-fast-frame";
 const TEMPORAL: &str = "13-temporal-reuse";
 
@@ -84,23 +87,100 @@ pub fn row(scene: SceneKind, size: Size, spp: u32, frames: u32, covered: u64, ou
     Ok(Row { grays_per_s, ..row })
 }
 
-/// The two `temporal-reuse` rows: chapter 13's defaults at one setting, `spp` rays per pixel
-/// whose history is filling, in each of the two views its path shows. Its orbit cuts once to a
-/// closer view, where every method's frame costs about twice as much, so one median over its
-/// path would fall in whichever view has more frames: one row orbits without the cut
-/// (`--cut-at 0`), the other cuts at frame 1 and orbits on in the closer view. Their frames
-/// trace fewer rays than `spp` per covered pixel, so no ray rate is given.
-pub fn temporal_rows(scene: SceneKind, size: Size, spp: u32, frames: u32, out: &Path) -> Result<[Row; 2]> {
+/// Chapter 13 at chapter 12's error: at one scene and size, the fewest rays a frame (1, 2, 4 ...,
+/// up to chapter 12's `spp`) at which chapter 13's mean error along its orbit is at most that of
+/// chapter 12's frame at `spp` rays along the same orbit. Both errors come from the `convergence`
+/// tool's walk of chapter 13's frame (`convergence temporal --error-against`), against
+/// `reference` rays a pixel.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct EqualError {
+    pub scene: &'static str,
+    pub width: u32,
+    pub height: u32,
+    /// Chapter 12's rays a frame, and its mean error after the blur along chapter 13's orbit.
+    pub spp: u32,
+    pub chapter_12_error: f64,
+    /// Chapter 13's rays a frame: the fewest that reach chapter 12's error (the most tried, where
+    /// none does), and its mean error.
+    pub samples: u32,
+    pub error: f64,
+}
+
+/// The mean error after the blur of `convergence temporal` along chapter 13's orbit without the
+/// cut, `frames` long, against `reference` rays, with `extra` flags.
+fn orbit_error(
+    scene: SceneKind,
+    size: Size,
+    (frames, reference): (u32, u32),
+    extra: &[String],
+    out: &Path,
+) -> Result<f64> {
+    let mut args = vec!["temporal".to_owned(), "--size".into(), format!("{}x{}", size.width, size.height)];
+    args.extend(["--frames".into(), frames.to_string(), "--cut-at".into(), "0".into()]);
+    args.extend(["--error-against".into(), reference.to_string()]);
+    if scene != SceneKind::Default {
+        args.extend(["--builtin".into(), scene.name().into()]);
+    }
+    args.extend(extra.iter().cloned());
+    let report = run_chapter("convergence", &args, out)?;
+    report["walks"][0]["error_mean"]
+        .as_f64()
+        .with_context(|| format!("convergence {} measured no error", args.join(" ")))
+}
+
+/// The two `temporal-reuse` rows at one setting, at chapter 12's error (`EqualError`): chapter
+/// 13's program at the rays a frame that reach the error of chapter 12's at `spp`, in each of the
+/// two views its path shows. Its orbit cuts once to a closer view, where every method's frame
+/// costs about twice as much, so one median over its path would fall in whichever view has more
+/// frames: one row orbits without the cut (`--cut-at 0`), the other cuts at frame 1 and orbits on
+/// in the closer view. The rows' `spp` is chapter 12's, whose error they match; their frames
+/// trace fewer rays than that per covered pixel, so no ray rate is given.
+pub fn temporal_rows(
+    scene: SceneKind,
+    size: Size,
+    spp: u32,
+    (frames, reference): (u32, u32),
+    out: &Path,
+) -> Result<([Row; 2], EqualError)> {
+    let errors = out.join("error");
+    let fresh = ["--method".to_owned(), "fresh".into(), "--samples".into(), spp.to_string()];
+    let chapter_12_error = orbit_error(scene, size, (frames, reference), &fresh, &errors)?;
+    let (mut samples, mut error) = (1, f64::INFINITY);
+    loop {
+        let ours = ["--samples".to_owned(), samples.to_string()];
+        error = error.min(orbit_error(scene, size, (frames, reference), &ours, &errors)?);
+        if error <= chapter_12_error || samples * 2 > spp.min(64) {
+            break;
+        }
+        samples *= 2;
+    }
     let view = |mode: Mode, cut_at: &str, out: &Path| -> Result<Row> {
-        let mut args = setting(scene, size, spp, frames);
+        let mut args = setting(scene, size, samples, frames);
         args.extend(["--cut-at".into(), cut_at.into()]);
         let report = run_chapter(TEMPORAL, &args, out)?;
         Ok(row_of(&report, mode, (scene, size, spp)))
     };
-    Ok([
+    let rows = [
         view(Mode::TemporalReuse, "0", &out.join("orbit"))?,
         view(Mode::TemporalReuseCloser, "1", &out.join("closer"))?,
-    ])
+    ];
+    let (scene, width, height) = (scene.name(), size.width, size.height);
+    Ok((rows, EqualError { scene, width, height, spp, chapter_12_error, samples, error }))
+}
+
+/// Chapter 13 at chapter 12's error, as a markdown table.
+pub fn equal_error_table(found: &[EqualError]) -> String {
+    let mut table = String::from(
+        "| scene | size | chapter 12: rays a frame | its mean error | chapter 13: rays a frame | its mean error |\n\
+         |---|---|---:|---:|---:|---:|\n",
+    );
+    for e in found {
+        table.push_str(&format!(
+            "| {} | {}x{} | {} | {:.4} | {} | {:.4} |\n",
+            e.scene, e.width, e.height, e.spp, e.chapter_12_error, e.samples, e.error
+        ));
+    }
+    table
 }
 
 /// A row from a chapter's report: its GPU medians of the ids, the trace and the composite with

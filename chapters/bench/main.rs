@@ -84,8 +84,8 @@ struct Args {
     /// clock, into timeline-08.svg and fast-frame/timeline.svg (0: none).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
     timeline: u32,
-    /// The converged reference of the ablation and of `--probe patterns`, in rays per pixel
-    /// [default: 1024; --quick: 64].
+    /// The converged reference of the ablation, of `--probe patterns` and of chapter 13's error, in
+    /// rays per pixel [default: 1024; --quick: 64].
     #[arg(long, value_parser = common::base::cli::number::<u32>(16..=1 << 20))]
     reference_rays: Option<u32>,
     /// Instead of the sweep: one of chapter 12's design questions, measured on its frame at
@@ -242,6 +242,10 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
 
     // 3. Every scene, size and ray count, the modes interleaved
     let mut rows = Vec::new();
+    // Chapter 13 at chapter 12's error, per scene, size and ray count (`fast::EqualError`),
+    // against the ablation's converged reference.
+    let mut equal_error = Vec::new();
+    let reference = args.reference_rays.unwrap_or(if args.quick { 64 } else { 1024 });
     let scenes_count = scenes.len();
     let (mut depth_first_differences, mut pixels_compared) = (0, 0);
     let mut covered_everywhere = true;
@@ -299,9 +303,13 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
                 let out = args.out.join("fast-frame");
                 rows.push(fast::row(kind, size, spp, 2 * frames_per_run, covered, &out)?);
                 if spp <= 64 {
-                    // Chapter 13's frame in each view of its path, as many frames again.
+                    // Chapter 13's frame in each view of its path, as many frames again, at the
+                    // rays a frame that reach chapter 12's error at this setting.
                     let out = args.out.join("temporal-reuse");
-                    rows.extend(fast::temporal_rows(kind, size, spp, 2 * frames_per_run, &out)?);
+                    let run = (2 * frames_per_run, reference);
+                    let (two, found) = fast::temporal_rows(kind, size, spp, run, &out)?;
+                    rows.extend(two);
+                    equal_error.push(found);
                 }
                 eprintln!("bench: {} {}x{} {spp} spp done", kind.name(), size.width, size.height);
             }
@@ -362,17 +370,22 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
     // The ablation: chapter 12 with its choices undone one at a time, on the default scene at
     // the largest size, at 16 rays (or the most asked for, if fewer).
     let (size, spp) = ablation_setting(&sizes, &spps);
-    let reference = args.reference_rays.unwrap_or(if args.quick { 64 } else { 1024 });
     let steps = fast::ablation(size, spp, 2 * frames_per_run, reference, &args.out.join("fast-frame"))?;
     let chapter_08 = rows.iter().find(|r| {
         (r.mode, r.scene, r.width, r.height, r.spp)
             == (Mode::ZeroCopy, "default", size.width, size.height, spp)
     });
     let ablation = fast::table(chapter_08, &steps);
+    let equal = fast::equal_error_table(&equal_error);
+    report.check(
+        "temporal_rows_measured_at_chapter_12s_error",
+        equal_error.iter().all(|e| e.error.is_finite() && e.chapter_12_error.is_finite()),
+    );
+    report.set("temporal_equal_error", &equal_error);
     report.set("ablation", serde_json::json!({ "size": format!("{}x{}", size.width, size.height), "spp": spp, "reference_rays": reference, "steps": steps }));
-    outputs::write(&args.out, &rows, &vk.info.name, &vk.info.driver, &ablation)?;
+    outputs::write(&args.out, &rows, &vk.info.name, &vk.info.driver, (&ablation, &equal))?;
     if !args.json {
-        eprintln!("{}\n{ablation}", outputs::table(&rows));
+        eprintln!("{}\n{ablation}\n{equal}", outputs::table(&rows));
     }
     report.set("rows", &rows);
     Ok(())

@@ -8,14 +8,23 @@ use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
 
-pub fn write(dir: &Path, rows: &[Row], device: &str, driver: &str, ablation: &str) -> Result<()> {
+/// `(ablation, equal)`: the ablation's table, and chapter 13's rays a frame at chapter 12's error.
+pub fn write(
+    dir: &Path,
+    rows: &[Row],
+    device: &str,
+    driver: &str,
+    (ablation, equal): (&str, &str),
+) -> Result<()> {
     output::create_dir(dir)?;
     let json = serde_json::json!({ "device": device, "driver": driver, "rows": rows });
     let path = dir.join("bench.json");
     output::write_file(&path, serde_json::to_string_pretty(&json)?)?;
     let path = dir.join("bench.md");
     let text = format!(
-        "Measured on {device} ({driver}).\n\n{}\nChapter 12, one choice at a time:\n\n{ablation}",
+        "Measured on {device} ({driver}).\n\n{}\nChapter 13's rows run at the rays a frame that reach \
+         chapter 12's error at the row's spp, along chapter 13's orbit:\n\n{equal}\n\
+         Chapter 12, one choice at a time:\n\n{ablation}",
         table(rows)
     );
     output::write_file(&path, text)?;

@@ -6,10 +6,14 @@
 //! same tracer (the default scene). It writes a CSV, a markdown table and a log-log plot.
 //!
 //! Run: `cargo run --release --bin convergence -- [--json] [--out DIR] [--quick]`.
+//!
+//! `convergence temporal [FLAGS]` measures chapter 13's frame along its path instead: error
+//! against time per method, and what each of the chapter's choices buys (`temporal/mod.rs`).
 
 mod cases;
 mod exact;
 mod outputs;
+mod temporal;
 
 use anyhow::{Result, ensure};
 use ash::vk;
@@ -83,6 +87,14 @@ pub struct CaseReport {
 }
 
 fn main() -> ExitCode {
+    // `convergence temporal ...`: chapter 13's frame along its path (`temporal/mod.rs`). The
+    // word may come after flags every chapter takes (`--json --out DIR temporal ...`).
+    let mut all: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let word = (1..all.len()).find(|&i| all[i] == "temporal" && all[i - 1] != "--out");
+    if let Some(i) = word {
+        all.remove(i);
+        return temporal::main(all);
+    }
     let args = Args::parse();
     let mut report = Report::new("convergence");
     if let Err(error) = common::base::chapter::accounted(|| run(&args, &mut report)) {

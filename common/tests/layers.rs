@@ -4,6 +4,8 @@
 //! higher layer, or goes through the crate root (which only re-exports) instead of naming the
 //! module. The acceleration structures and ray pipelines are Vulkan only: they may not name GL.
 //! Inside a layer too, modules use each other one way: no two (or more) use each other in a circle.
+//! The chapter folders are held to the same: no circle, no `#[path]`, and no module below a
+//! chapter's `main.rs` reaching up into it (for its flags, its name or its sizes).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -455,7 +457,7 @@ const ROLES: [&str; 7] = [
     "memory Vulkan exports and GL imports, the hand-off between them, CUDA's import",
     "meshes, instances, OBJ files, the camera; the G-buffers GL draws (chapter 05)",
     "acceleration structures and ray pipelines (Vulkan only), the AO tracer (06-07)",
-    "the composite, overlay lines and pixel probes the frames of 08-12 share",
+    "the composite, overlay lines, pixel probes; the frames of 08, 12 and 13",
 ];
 
 /// The modules of one layer as the picture names them: files, and folders with a slash.
@@ -568,4 +570,136 @@ fn the_books_picture_shows_the_layers_as_they_are() {
          VKGL_UPDATE_IMAGES=1 cargo test -p common --test layers",
         picture.display()
     );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Chapter folders
+
+/// What chapter folders still break, each with the rule (`#[path]`, `reaches up`, `circle`) and
+/// where. Empty this list as they are mended: an entry whose folder no longer breaks its rule
+/// fails too, so that the list cannot stay longer than it must.
+const CHAPTERS_PENDING: [(&str, &str, &str); 6] = [
+    ("14-two-processes", "#[path]", "`wire.rs` mounts `socket.rs` and `wire_tests.rs`"),
+    ("14-two-processes", "reaches up", "`session.rs` and `viewer.rs` name `Args` and `CHAPTER`, and more"),
+    ("03-semaphores", "reaches up", "`pattern.rs` names `CHAPTER`"),
+    ("04-compute-triangle", "reaches up", "`check.rs` names `CLEAR` and `Triangle`"),
+    ("08-composite", "reaches up", "`check.rs` names `CHAPTER`"),
+    ("11-cuda-depth-composite", "reaches up", "`check.rs` names `Path`"),
+];
+
+/// A chapter folder's files, `main.rs` standing as the root of its modules (the crate root, as
+/// `lib.rs` stands in `common`).
+fn chapter_sources(dir: &Path) -> Vec<(PathBuf, String)> {
+    let mut paths = Vec::new();
+    sources(dir, &mut paths);
+    paths.sort();
+    paths
+        .iter()
+        .map(|p| {
+            let relative = p.strip_prefix(dir).unwrap();
+            let relative =
+                if relative == Path::new("main.rs") { PathBuf::from("lib.rs") } else { relative.into() };
+            (relative, std::fs::read_to_string(p).unwrap())
+        })
+        .collect()
+}
+
+/// What is wrong with one chapter folder's modules: a `#[path]` (code two chapters share lives
+/// in `common`, a child module in a file named for it), a module below `main.rs` that names
+/// `main.rs`'s own items through `crate::` or `super::` (it takes what it needs as arguments),
+/// and every circle of modules.
+fn chapter_errors(files: &[(PathBuf, String)]) -> Vec<(&'static str, String)> {
+    let mut found = Vec::new();
+    let modules: BTreeMap<Vec<String>, String> =
+        files.iter().map(|(relative, text)| (module_of(relative), text.clone())).collect();
+    for (relative, text) in files {
+        let shown = if relative == Path::new("lib.rs") { PathBuf::from("main.rs") } else { relative.clone() };
+        for (number, line, module) in lines_with_modules(relative, text) {
+            let at = format!("{}:{number}", shown.display());
+            let code = line.trim_start();
+            if code.starts_with("//") {
+                continue;
+            }
+            if code.contains("#[path") {
+                found.push((
+                    "#[path]",
+                    format!("{at}: #[path] mounts a file that is not the module's own: {code}"),
+                ));
+            }
+            if module.is_empty() {
+                continue; // main.rs itself
+            }
+            for path in paths_in(&line, &module) {
+                if resolve(&path, &modules).is_empty() {
+                    let why =
+                        format!("{at}: `{}` reaches up into main.rs; pass it in instead", path.join("::"));
+                    found.push(("reaches up", why));
+                }
+            }
+        }
+    }
+    found.extend(cycles(files).into_iter().map(|c| ("circle", format!("modules that use each other: {c}"))));
+    found
+}
+
+#[test]
+fn chapter_folders_read_one_way() {
+    let chapters = Path::new(env!("CARGO_MANIFEST_DIR")).join("../chapters");
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(&chapters)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.is_dir() && p.file_name().unwrap().to_string_lossy().starts_with(|c: char| c.is_ascii_digit())
+        })
+        .collect();
+    dirs.sort();
+    assert!(dirs.len() >= 14, "found only {} chapter folders in {}", dirs.len(), chapters.display());
+    let mut found = Vec::new();
+    for dir in &dirs {
+        let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+        let errors = chapter_errors(&chapter_sources(dir));
+        let pending = |rule: &str| CHAPTERS_PENDING.iter().any(|(c, r, _)| *c == name && *r == rule);
+        for (rule, error) in &errors {
+            if !pending(rule) {
+                found.push(format!("chapters/{name}/{error}"));
+            }
+        }
+        for (_, rule, why) in CHAPTERS_PENDING.iter().filter(|(c, _, _)| *c == name) {
+            if !errors.iter().any(|(r, _)| r == rule) {
+                found.push(format!(
+                    "chapters/{name} no longer breaks `{rule}` ({why}): take it off CHAPTERS_PENDING"
+                ));
+            }
+        }
+    }
+    assert!(found.is_empty(), "chapter folders that do not read one way:\n{}", found.join("\n"));
+}
+
+#[test]
+fn the_chapter_check_sees_what_it_must_refuse() {
+    let check = |list: &[(&str, &str)]| {
+        let files: Vec<(PathBuf, String)> =
+            list.iter().map(|(p, t)| (PathBuf::from(p), t.to_string())).collect();
+        chapter_errors(&files)
+    };
+    // Two modules that use each other (the flags naming the path's kinds, the path the flags).
+    let circle = check(&[
+        ("lib.rs", "mod path;\nmod settings;\nuse settings::Args;"),
+        ("path.rs", "pub enum PathKind {}\npub fn new(a: &crate::settings::Args) {}"),
+        ("settings.rs", "use crate::path::PathKind;\npub struct Args;"),
+    ]);
+    assert_eq!(circle.len(), 1, "{circle:?}");
+    // A child reaching up for the chapter's name, its sizes, its resize; and a #[path].
+    let up = check(&[
+        ("lib.rs", "const CHAPTER: &str = \"13\";\nmod walk;\n#[path = \"../12/overlap.rs\"]\nmod overlap;"),
+        ("walk.rs", "fn f() { let s = crate::SMALLEST.width; crate::resize(); let c = super::CHAPTER; }"),
+        ("overlap.rs", "pub fn g() {}"),
+    ]);
+    assert_eq!(up.len(), 4, "{up:?}");
+    // Down only, arguments passed in, test modules' `super::*`: nothing to say.
+    let fine = check(&[
+        ("lib.rs", "mod walk;\nuse walk::headless;\nconst CHAPTER: &str = \"13\";"),
+        ("walk.rs", "pub fn headless(chapter: &str) {}\n#[cfg(test)]\nmod tests {\n    use super::*;\n}"),
+    ]);
+    assert!(fine.is_empty(), "{fine:?}");
 }

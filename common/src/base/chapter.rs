@@ -36,11 +36,22 @@ pub fn run_chapter<A: clap::Args + clap::FromArgMatches>(
     smallest: Smallest,
     run: impl FnOnce(&Flags<A>, &mut Report) -> anyhow::Result<()>,
 ) -> ExitCode {
+    run_chapter_with_args(chapter, smallest, std::env::args_os(), run)
+}
+
+/// [`run_chapter`] on `args` (the program's name first) instead of the process's own: for a
+/// tool whose subcommand drives a chapter's frame (`convergence temporal`).
+pub fn run_chapter_with_args<A: clap::Args + clap::FromArgMatches>(
+    chapter: &'static str,
+    smallest: Smallest,
+    args: impl IntoIterator<Item = std::ffi::OsString>,
+    run: impl FnOnce(&Flags<A>, &mut Report) -> anyhow::Result<()>,
+) -> ExitCode {
     use clap::{Args as _, FromArgMatches as _};
     // Every chapter's flags, then the chapter's own (whose doc comment is the command's about);
     // a flag clap refuses exits here, with code 2 and clap's message, as `A::parse` would.
     let mut command = A::augment_args(CommonArgs::augment_args(clap::Command::new(chapter)));
-    let matches = command.get_matches_mut();
+    let matches = command.try_get_matches_from_mut(args).unwrap_or_else(|error| error.exit());
     let parsed = A::from_arg_matches(&matches)
         .and_then(|own| Ok(Flags { common: CommonArgs::from_arg_matches(&matches)?, own }));
     let args = parsed.unwrap_or_else(|error| error.format(&mut command).exit());

@@ -2,23 +2,25 @@
 //! GL's ids, the rays (reused or all new), chapter 12's composite and overlays, each timed; and,
 //! where nothing is read back before the next frame, that frame's ids, drawn early.
 
-use crate::path::Path;
-use crate::temporal::{Budget, TemporalTracer};
+use super::path::Path;
+use super::tracer::{Budget, TemporalTracer};
+use crate::base::cli::Size;
+use crate::base::commands::Commands;
+use crate::base::gl::{Owned, create};
+use crate::clocks::timeline::{Timeline, stamp_into as stamp};
+use crate::clocks::timestamps::Timestamps;
+use crate::clocks::timing::{GlPassTimer, PassTimes, read_after};
+use crate::frame::fast::composite::{ComputeComposite, Uniforms, View};
+use crate::frame::fast::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
+use crate::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
+use crate::frame::overlay::Overlays;
+use crate::instruments::fail;
+use crate::interop::exportable::ExportedBuffer;
+use crate::interop::handoff::Apis;
+use crate::rt::RayTracedScene;
+use crate::rt::accel::{InPlace, Refresh};
+use crate::scene::{Camera, Scene};
 use anyhow::Result;
-use common::base::commands::Commands;
-use common::base::gl::{Owned, create};
-use common::clocks::timeline::{Timeline, stamp_into as stamp};
-use common::clocks::timestamps::Timestamps;
-use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
-use common::frame::Overlays;
-use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
-use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
-use common::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
-use common::instruments::fail;
-use common::interop::exportable::ExportedBuffer;
-use common::interop::handoff::Apis;
-use common::rt::accel::{InPlace, Refresh};
-use common::scene::{Camera, Scene};
 use glow::HasContext;
 
 /// How a frame's occlusion is made.
@@ -52,7 +54,7 @@ pub struct Motion<'a> {
 pub struct Passes<'a> {
     pub apis: Apis<'a>,
     pub scene: &'a Scene,
-    pub shared: &'a common::rt::RayTracedScene,
+    pub shared: &'a RayTracedScene,
     pub ids: &'a [MeshIds],
     pub visibility: &'a VisibilityPass,
     pub composite: &'a ComputeComposite,
@@ -60,7 +62,8 @@ pub struct Passes<'a> {
     pub path: &'a Path,
     pub motion: Option<Motion<'a>>,
     pub timestamps: Option<&'a Timestamps>,
-    /// Whether this chapter's frame draws the next frame's ids before it waits (`--next-ids`).
+    /// Whether this chapter's frame draws the next frame's ids before it waits (chapter 13
+    /// does; `convergence temporal --next-ids late` does not, to measure what it buys).
     pub ids_ahead: bool,
     pub uniforms: Uniforms,
     pub radius: f32,
@@ -149,6 +152,17 @@ impl Clock {
 }
 
 impl Passes<'_> {
+    /// A new picture size: every image of the old size goes, once neither API uses it, and the
+    /// tracers point at the new ones (the history starts again).
+    pub fn resize(&self, sized: &mut Sized, size: Size) -> Result<()> {
+        let Apis { vk, gl, commands, .. } = self.apis;
+        unsafe { gl.gl.finish() };
+        commands.wait(vk, "vkWaitForFences before a resize")?;
+        drop(std::mem::replace(&mut sized.targets, Targets::new(vk, gl, self.apis.handoff, size.extent())?));
+        sized.fresh.resized(vk, &sized.targets);
+        sized.temporal.resized(vk, &self.shared.allocator, &sized.targets)
+    }
+
     /// The uniforms of the composite for `camera` (its far plane shows depth).
     pub fn uniforms(&self, camera: &Camera, view: View) -> Uniforms {
         Uniforms { far_depth: camera.far, view, ..self.uniforms }
@@ -243,7 +257,7 @@ impl Passes<'_> {
     }
     // ANCHOR_END: place
 
-    /// GL's ids of frame `frame`, timed, and with `--next-ids early` a fence after them, for the
+    /// GL's ids of frame `frame`, timed, and where ids are drawn early a fence after them, for the
     /// next ids drawn early to wait on (`Clock::wait_for_ids`).
     fn draw_ids(&self, sized: &Sized, frame: u32, camera: &Camera, clock: &mut Clock) -> Result<()> {
         let g = &self.apis.gl.gl;

@@ -2,23 +2,22 @@
 //! occlusion, the two history images it reads and writes in turn, the cameras and previous
 //! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
 
-use crate::settings::{Accept, Args, FreshPass};
+use crate::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
+use crate::base::vulkan::VulkanContext;
+use crate::clocks::timestamps::Timestamps;
+use crate::frame::fast::trace::{hand_over_around, hand_over_released};
+use crate::frame::fast::visibility::Targets;
+use crate::interop::handoff::Apis;
+use crate::rt::RayTracedScene;
+use crate::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
+use crate::rt::raytrace::{RayPipeline, RayShaders, StorageImage};
+use crate::scene::Camera;
 use anyhow::{Context as _, Result};
 use ash::vk;
-use common::VulkanContext;
-use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
-use common::clocks::timestamps::Timestamps;
-use common::frame::fast::trace::{hand_over_around, hand_over_released};
-use common::frame::fast::visibility::Targets;
-use common::interop::handoff::Apis;
-use common::rt::RayTracedScene;
-use common::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
-use common::rt::raytrace::{RayPipeline, RayShaders, StorageImage};
-use common::scene::Camera;
 use gpu_allocator::MemoryLocation;
 
-const RAYGEN: &[u8] = include_bytes!("../../shaders/temporal_ao.rgen.spv");
-const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
+const RAYGEN: &[u8] = include_bytes!("../../../../shaders/temporal_ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../../../shaders/miss.rmiss.spv");
 const HISTORY_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
 
 // ANCHOR: push
@@ -74,7 +73,7 @@ const LISTED: u32 = 2;
 
 /// The shader's `accept` bits (`HAS_HISTORY`, then one per test).
 const HAS_HISTORY: u32 = 1;
-fn accept_bits(accept: &[Accept]) -> u32 {
+pub fn accept_bits(accept: &[Accept]) -> u32 {
     accept.iter().fold(0, |bits, a| {
         bits | match a {
             Accept::Instance => 2,
@@ -83,6 +82,54 @@ fn accept_bits(accept: &[Accept]) -> u32 {
             Accept::None => 0,
         }
     })
+}
+
+/// How many rays a pixel traces and remembers: the flags chapter 13 and `convergence temporal`
+/// share.
+#[derive(clap::Args, Clone, Debug)]
+pub struct RayArgs {
+    /// Rays per pixel per frame where the history is still filling (1-64).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub samples: u32,
+    /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub fresh: u32,
+    /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
+    /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub cap: u32,
+    /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=64))]
+    pub settled_every: u32,
+    /// The most rays a pixel remembers where something moved within the radius of it since the
+    /// previous frame (its occlusion changed there, by how much no test can tell from a few new
+    /// rays); 0: no limit, the cap alone.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(0..=4096))]
+    pub near_motion_cap: u32,
+}
+
+/// A test a remembered texel must pass to be reused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Accept {
+    /// The texel saw the same instance.
+    Instance,
+    /// The point the texel saw lies on this point's plane.
+    Plane,
+    /// The texel's normal is this point's.
+    Normal,
+    /// No test: everything remembered is reused.
+    None,
+}
+
+/// Where the rays of a pixel with nothing remembered are traced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FreshPass {
+    /// In a second launch, one ray per invocation, over the pixels the first listed.
+    Packed,
+    /// In the one launch, beside the pixels that trace a few.
+    Inline,
 }
 
 /// What every frame's rays are asked to do, from the flags.
@@ -95,20 +142,24 @@ pub struct Budget {
     pub accept: u32,
     pub radius: f32,
     pub scene_scale: f32,
-    /// Chapter 07's rotation per pixel instead of chapter 12's 4x4 blocks (`--pattern`).
+    /// Chapter 07's rotation per pixel instead of chapter 12's 4x4 blocks (a still camera then
+    /// traces chapter 08's very rays; `convergence temporal --pattern`).
     pub per_pixel: bool,
     /// The most rays a pixel remembers near what moved (`--near-motion-cap`).
     pub near_motion_cap: u32,
-    /// Where a pixel with nothing remembered traces (`--fresh-pass`).
+    /// Where a pixel with nothing remembered traces (`convergence temporal --fresh-pass`).
     pub fresh_pass: FreshPass,
 }
 
 impl Budget {
-    pub fn new(args: &Args, radius: f32, scene_scale: f32) -> Budget {
+    /// Chapter 13's budget: the rays `args` asks for, every test of a texel on, chapter 12's 4x4
+    /// blocks, and the pixels with nothing remembered traced in a launch of their own. No rays
+    /// at all where the occlusion radius is 0.
+    pub fn new(args: &RayArgs, radius: f32, scene_scale: f32) -> Budget {
         let (samples, fresh) = if radius > 0.0 { (args.samples, args.fresh) } else { (0, 0) };
-        let (cap, settled_every, accept) = (args.cap, args.settled_every, accept_bits(&args.accept));
-        let per_pixel = args.pattern == crate::settings::Pattern::PerPixel;
-        let (near_motion_cap, fresh_pass) = (args.near_motion_cap, args.fresh_pass);
+        let (cap, settled_every) = (args.cap, args.settled_every);
+        let accept = accept_bits(&[Accept::Instance, Accept::Plane, Accept::Normal]);
+        let (per_pixel, near_motion_cap, fresh_pass) = (false, args.near_motion_cap, FreshPass::Packed);
         Budget {
             samples,
             fresh,
@@ -422,7 +473,7 @@ impl TemporalTracer {
     pub fn read_history(
         &self,
         vk: &VulkanContext,
-        commands: &common::base::commands::Commands,
+        commands: &crate::base::commands::Commands,
     ) -> Result<Vec<Texel>> {
         let last = &self.history[1 - self.written];
         let extent = last.extent;
@@ -471,7 +522,7 @@ pub struct Texel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use common::base::shader_block::{assert_matches_spirv, rust_block};
+    use crate::base::shader_block::{assert_matches_spirv, rust_block};
 
     #[test]
     fn temporal_rays_match_the_glsl_block() {

@@ -1,8 +1,8 @@
 //! Chapter 13's path: where the camera and the one moving instance are at every frame. The
 //! same on every run and for every method, so that errors and times along it compare.
 
-use common::interop::exportable::ExportedBuffer;
-use common::scene::{Camera, Instance, Scene};
+use crate::interop::exportable::ExportedBuffer;
+use crate::scene::{Camera, Instance, Scene};
 use glam::{Mat4, Vec3, Vec4};
 use std::f32::consts::TAU;
 
@@ -25,6 +25,33 @@ pub enum Mover {
     /// One instance runs in a circle (a scene of one instance: it turns where it stands).
     Circle,
     None,
+}
+
+/// The path's flags, which chapter 13 and `convergence temporal` share.
+#[derive(clap::Args, Clone, Debug)]
+pub struct PathArgs {
+    /// What the camera does: `orbit` (turns about the scene, with one cut), `pan` (slides
+    /// sideways), `still`.
+    #[arg(long, value_enum, default_value = "orbit")]
+    pub path: PathKind,
+    /// The orbit's speed, in degrees per frame (0-30).
+    #[arg(long, default_value_t = 0.5, value_parser = parse_speed)]
+    pub orbit_speed: f32,
+    /// The frame at which the orbiting camera jumps to another view (0: no cut).
+    #[arg(long, default_value_t = 60)]
+    pub cut_at: u32,
+    /// Whether one instance moves while the camera does (`circle`) or not (`none`).
+    #[arg(long, value_enum, default_value = "circle")]
+    pub mover: Mover,
+}
+
+fn parse_speed(text: &str) -> Result<f32, String> {
+    let speed: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if speed.is_finite() && (0.0..=30.0).contains(&speed) {
+        Ok(speed)
+    } else {
+        Err("choose between 0 and 30 degrees per frame".into())
+    }
 }
 
 /// Frames per lap of the moving instance.
@@ -53,7 +80,7 @@ pub struct Moving {
 }
 
 impl Path {
-    pub fn new(scene: &Scene, start: Camera, args: &crate::settings::Args) -> Path {
+    pub fn new(scene: &Scene, start: Camera, args: &PathArgs) -> Path {
         let moving = (args.mover == Mover::Circle).then(|| Moving::choose(scene));
         let (kind, cut_at) = (args.path, if args.path == PathKind::Orbit { args.cut_at } else { 0 });
         Path { kind, start, bounds: scene.bounds, speed: args.orbit_speed.to_radians(), cut_at, moving }
@@ -84,6 +111,11 @@ impl Path {
         camera
     }
     // ANCHOR_END: camera
+
+    /// What the camera does.
+    pub fn kind(&self) -> PathKind {
+        self.kind
+    }
 
     pub fn is_after_cut(&self, frame: u32) -> bool {
         self.cut_at > 0 && frame >= self.cut_at
