@@ -168,9 +168,13 @@ pub struct Tolerance {
 /// higher where it lies, which the percentile catches even when the region is small.
 pub const DEFAULT_TOLERANCE: Tolerance = Tolerance { mean: 0.04, percentile: (0.99, 0.15) };
 
-/// Compares every image the report lists with `tests/snapshots/<name>.png`.
+/// Compares every image the report lists with `tests/snapshots/<name>.png`; a report that lists
+/// none fails.
 pub fn assert_images_match(report: &Value, tolerance: Tolerance) {
-    for image in report["images"].as_array().expect("images is an array") {
+    let images = report["images"].as_array().expect("images is an array");
+    // A run that wrote no picture would pass a loop over its pictures: it is a failure instead.
+    assert!(!images.is_empty(), "{} lists no image: there is nothing to compare", report["chapter"]);
+    for image in images {
         let name = image["name"].as_str().expect("image name");
         let actual = Path::new(image["path"].as_str().expect("image path"));
         let reference = snapshot_dir().join(format!("{name}.png"));
