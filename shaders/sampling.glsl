@@ -18,20 +18,8 @@ float ray_offset(vec3 p, float scene_scale, float radius) {
 }
 // ANCHOR_END: offset
 
-// The geometric normal, packed by gbuffer.frag (pack_normal) into 12 + 12 bits, exact in a float.
-vec2 sign_not_zero(vec2 v) {
-    return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
-}
-
-// (`bits`, not `packed`: GL's GLSL reserves that word.)
-vec3 unpack_normal(uint bits) {
-    vec2 p = vec2(bits >> 12u, bits & 4095u) / 4095.0 * 2.0 - 1.0;
-    vec3 n = vec3(p, 1.0 - abs(p.x) - abs(p.y));
-    if (n.z < 0.0) {
-        n.xy = (1.0 - abs(n.yx)) * sign_not_zero(n.xy);
-    }
-    return normalize(n);
-}
+// sign_not_zero, pack_normal and unpack_normal: the normal in 24 bits, GL's and Vulkan's.
+#include "octahedral.glsl"
 
 // A per-pixel hash (PCG), to give each pixel its own rotation of the sample sequence.
 uint pcg(uint v) {

@@ -25,16 +25,6 @@ layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer Mes
 // The ray offset, the normal's unpacking, the sample sequence and its rotation: chapter 07's.
 #include "sampling.glsl"
 
-// gbuffer.frag's pack_normal (chapter 07): octahedral, 12 + 12 bits, exact in a float.
-float pack_normal(vec3 n) {
-    vec2 p = n.xy / (abs(n.x) + abs(n.y) + abs(n.z));
-    if (n.z < 0.0) {
-        p = (1.0 - abs(p.yx)) * sign_not_zero(p);
-    }
-    uvec2 q = uvec2(round(clamp(p * 0.5 + 0.5, 0.0, 1.0) * 4095.0));
-    return float(q.x * 4096u + q.y);
-}
-
 // ANCHOR: decode
 // Which mesh, instance and triangle an id names: the last mesh whose first id is not above it
 // (a binary search over the few meshes), then a division.

@@ -9,19 +9,8 @@ in vec3 view_position;
 
 layout(location = 0) out uvec2 normal_depth;
 
-vec2 sign_not_zero(vec2 v) {
-    return vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
-}
-
-// gbuffer.frag's pack_normal, as an integer.
-uint pack_normal(vec3 n) {
-    vec2 p = n.xy / (abs(n.x) + abs(n.y) + abs(n.z));
-    if (n.z < 0.0) {
-        p = (1.0 - abs(p.yx)) * sign_not_zero(p);
-    }
-    uvec2 q = uvec2(round(clamp(p * 0.5 + 0.5, 0.0, 1.0) * 4095.0));
-    return q.x * 4096u + q.y;
-}
+// pack_normal: gbuffer.frag's (shaders/octahedral.glsl), as the integer it is.
+#include "octahedral.glsl"
 
 void main() {
     // The triangle's own normal from the position's screen-space derivatives; in view space the

@@ -80,7 +80,8 @@ impl Layout {
 /// their median GPU milliseconds, and whether they cover the same pixels.
 pub fn measure(gl: &GlContext, f: &Frame, buffers: &SceneBuffers, rounds: u32) -> Result<(f64, f64, bool)> {
     let (g, extent) = (&gl.gl, f.targets.extent);
-    let normal_depth = VisibilityPass::with_fragment_shader(gl, buffers, NORMAL_DEPTH)?;
+    let source = common::base::gl::with_includes(NORMAL_DEPTH, &[common::scene::gbuffer::OCTAHEDRAL])?;
+    let normal_depth = VisibilityPass::with_fragment_shader(gl, buffers, &source)?;
     let targets = [Layout::new(g, glow::R32UI, extent)?, Layout::new(g, glow::RG32UI, extent)?];
     let mut timer = GlPassTimer::new(g)?;
     let mut times = PassTimes::new();

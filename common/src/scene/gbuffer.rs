@@ -34,6 +34,8 @@ pub const GBUFFERS: [GBuffer; 3] = [
 const VERTEX_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.vert");
 const GEOMETRY_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.geom");
 const FRAGMENT_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.frag");
+/// What `gbuffer.frag` includes: the normal's packing, which Vulkan's shaders include too.
+pub const OCTAHEDRAL: (&str, &str) = ("octahedral.glsl", include_str!("../../../shaders/octahedral.glsl"));
 
 /// Every mesh's vertices and indices, and all instances, in buffers Vulkan allocated and GL
 /// imported: Vulkan's side (`.vk`, for the acceleration structures) and GL's (`.gl`, for drawing).
@@ -123,8 +125,8 @@ impl GBuffers {
         // ANCHOR_END: images
         let gl_ = &gl.gl;
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
-        let program =
-            crate::base::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, FRAGMENT_SHADER)?;
+        let fragment = crate::base::gl::with_includes(FRAGMENT_SHADER, &[OCTAHEDRAL])?;
+        let program = crate::base::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, &fragment)?;
         let instances = &buffers.instances.gl;
         let vertex_arrays = buffers
             .meshes

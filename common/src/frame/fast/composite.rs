@@ -9,9 +9,10 @@ use std::rc::Rc;
 /// GL's declarations (the surface sampled, the settings as uniforms), then, through `#include`
 /// (resolved by `with_includes`), the tile and blur that Vulkan's compute shader includes too.
 const COMPUTE_SHADER: &str = include_str!("../../../../shaders/gl/fast_composite.comp");
-const INCLUDES: [(&str, &str); 2] = [
+const INCLUDES: [(&str, &str); 3] = [
     ("composite_tile.glsl", include_str!("../../../../shaders/composite_tile.glsl")),
     ("sampling.glsl", include_str!("../../../../shaders/sampling.glsl")),
+    crate::scene::gbuffer::OCTAHEDRAL,
 ];
 
 /// What the composite shows (its `view` uniform, in this order).
