@@ -28,8 +28,8 @@ fn ch01_exportable_memory() {
     let extensions = enabled_extensions(report);
     assert_eq!(extensions, ["VK_KHR_external_memory_fd"], "01 enables exactly what it needs");
     assert!(RAY_TRACING_EXTENSIONS.iter().all(|rt| !extensions.contains(rt)));
+    // Chapter 01 draws nothing: its report, snapshotted, lists no image, so none is compared.
     assert_report_snapshot("01-exportable-memory", report);
-    assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
 #[test]
