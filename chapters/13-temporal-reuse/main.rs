@@ -57,13 +57,13 @@ struct Args {
     #[command(flatten)]
     path: PathArgs,
     /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, value_parser = common::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
     radius: Option<f32>,
     /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 2.0, value_parser = common::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
     power: f32,
     /// Blur radius in pixels (0 skips the blur), as chapter 12's.
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=8))]
     blur: u32,
     /// Which picture to show.
     #[arg(long, value_enum, default_value = "final")]
@@ -73,7 +73,7 @@ struct Args {
     blas: BlasLayout,
     /// Headless: make the images of one size anew every K frames, as a window's resize does
     /// (the history starts again).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
     resize_every: Option<u32>,
 }
 

@@ -53,13 +53,13 @@ struct Args {
     #[command(flatten)]
     path: PathArgs,
     /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, value_parser = common::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
     radius: Option<f32>,
     /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 2.0, value_parser = common::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
     power: f32,
     /// Blur radius in pixels (0 skips the blur), as chapter 12's.
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=8))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=8))]
     blur: u32,
     /// As chapter 12's `--blas`; only the per-mesh layout lets an instance move.
     #[arg(long, value_enum, default_value = "per-mesh")]
@@ -91,14 +91,14 @@ struct Args {
     /// After every `--error-every`th frame, trace this many rays per pixel of the same frame with
     /// no history, and report the frame's error against them after the blur (0: don't; 1024 is
     /// the book's reference).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1 << 16))]
+    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1 << 16))]
     error_against: u32,
     /// Measure the error on every Kth frame of the path (the frames around the cut always).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    #[arg(long, default_value_t = 1, value_parser = common::base::cli::number::<u32>(1..=1000))]
     error_every: u32,
     /// The last N frames' passes, GL's and Vulkan's on one clock, into timeline.json and
     /// timeline.svg in --out, as chapter 12's (0: none).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=64))]
+    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
     timeline: u32,
     /// Draw the path again with chapter 12's frame at 16, 8 and 4 rays and chapter 13's at 1, 2
     /// and 4, each timed and (with --error-against) measured, and write compare.md, compare.csv

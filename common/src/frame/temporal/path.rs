@@ -35,23 +35,14 @@ pub struct PathArgs {
     #[arg(long, value_enum, default_value = "orbit")]
     pub path: PathKind,
     /// The orbit's speed, in degrees per frame (0-30).
-    #[arg(long, default_value_t = 0.5, value_parser = parse_speed)]
+    #[arg(long, default_value_t = 0.5, value_parser = crate::base::cli::number::<f32>(0.0..=30.0))]
     pub orbit_speed: f32,
     /// The frame at which the orbiting camera jumps to another view (0: no cut).
-    #[arg(long, default_value_t = 60)]
+    #[arg(long, default_value_t = 60, value_parser = crate::base::cli::number::<u32>(0..=1_000_000))]
     pub cut_at: u32,
     /// Whether one instance moves while the camera does (`circle`) or not (`none`).
     #[arg(long, value_enum, default_value = "circle")]
     pub mover: Mover,
-}
-
-fn parse_speed(text: &str) -> Result<f32, String> {
-    let speed: f32 = text.parse().map_err(|e| format!("{e}"))?;
-    if speed.is_finite() && (0.0..=30.0).contains(&speed) {
-        Ok(speed)
-    } else {
-        Err("choose between 0 and 30 degrees per frame".into())
-    }
 }
 
 /// Frames per lap of the moving instance.

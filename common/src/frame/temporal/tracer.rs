@@ -89,22 +89,22 @@ pub fn accept_bits(accept: &[Accept]) -> u32 {
 #[derive(clap::Args, Clone, Debug)]
 pub struct RayArgs {
     /// Rays per pixel per frame where the history is still filling (1-64).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=64))]
+    #[arg(long, default_value_t = 2, value_parser = crate::base::cli::number::<u32>(1..=64))]
     pub samples: u32,
     /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=256))]
+    #[arg(long, default_value_t = 32, value_parser = crate::base::cli::number::<u32>(1..=256))]
     pub fresh: u32,
     /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
     /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
-    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    #[arg(long, default_value_t = 128, value_parser = crate::base::cli::number::<u32>(1..=4096))]
     pub cap: u32,
     /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(0..=64))]
+    #[arg(long, default_value_t = 2, value_parser = crate::base::cli::number::<u32>(0..=64))]
     pub settled_every: u32,
     /// The most rays a pixel remembers where something moved within the radius of it since the
     /// previous frame (its occlusion changed there, by how much no test can tell from a few new
     /// rays); 0: no limit, the cap alone.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(0..=4096))]
+    #[arg(long, default_value_t = 16, value_parser = crate::base::cli::number::<u32>(0..=4096))]
     pub near_motion_cap: u32,
 }
 
