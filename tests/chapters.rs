@@ -442,13 +442,15 @@ fn ch08_soak_1000_resizes() {
 #[test]
 fn ch08_in_a_window_under_xvfb() {
     let Some(xvfb) = harness::Xvfb::start("ch08_in_a_window_under_xvfb") else { return };
-    let args = ["--size", "96x72", "--frames", "3", "--samples", "2"];
+    let args = ["--size", "96x72", "--frames", "4", "--samples", "4"];
     let run =
         harness::run_chapter_with(env!("CARGO_BIN_EXE_08-composite"), &args, &[("DISPLAY", &xvfb.display)]);
     drop(xvfb);
     let report = run.succeeded();
     assert_eq!(report["window"], true, "{}", run.stderr);
-    assert_eq!(report["frames"], 3);
+    assert_eq!(report["frames"], 4);
+    // A window refines: 1, 1, 2 and 4 rays a pixel in its four frames (headless: 4 in each).
+    assert_eq!(report["samples_per_pixel"], 8);
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
 
@@ -465,13 +467,15 @@ fn ch12_resizing_leaks_nothing() {
 #[test]
 fn ch12_in_a_window_under_xvfb() {
     let Some(xvfb) = harness::Xvfb::start("ch12_in_a_window_under_xvfb") else { return };
-    let args = ["--size", "96x72", "--frames", "3", "--samples", "2"];
+    let args = ["--size", "96x72", "--frames", "4", "--samples", "4"];
     let run =
         harness::run_chapter_with(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[("DISPLAY", &xvfb.display)]);
     drop(xvfb);
     let report = run.succeeded();
     assert_eq!(report["window"], true, "{}", run.stderr);
-    assert_eq!(report["frames"], 3);
+    assert_eq!(report["frames"], 4);
+    // Refining as chapter 08's window does: 1, 1, 2 and 4 rays a pixel.
+    assert_eq!(report["samples_per_pixel"], 8);
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
     assert_eq!(report["checks"]["rebuilt_hits_match_the_rasterised_positions"], true);
 }

@@ -22,7 +22,7 @@ use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
-use common::rt::ao::{AoRays, AoTracer};
+use common::rt::ao::{AoRays, AoTracer, rays_this_frame};
 use common::scene::Camera;
 use common::scene::gbuffer::{self, GBuffers};
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
@@ -157,7 +157,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             }
             tracer.fill_unoccluded(&vk, &gl_context, &handoff)?; // once per AO image
         } else if tracer.accumulated < args.ao.max_samples {
-            let samples = settings.samples.min(args.ao.max_samples - tracer.accumulated);
+            // A window refines: its first picture after a change costs one ray a pixel, not 16.
+            let refine = window.is_some();
+            let samples = rays_this_frame(settings.samples, tracer.accumulated, args.ao.max_samples, refine);
             let scene_scale = scene.size() / 2.0;
             let rays = AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale };
             if std::mem::take(&mut trace_pending) {

@@ -25,6 +25,7 @@ use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::TlasFlags;
+use common::rt::ao::rays_this_frame;
 use common::scene::Camera;
 use common::scene::gbuffer::contexts_in_window;
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
@@ -156,7 +157,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             let samples = if skipped.is_some() {
                 0
             } else {
-                settings.samples.min(args.ao.max_samples - tracer.accumulated)
+                // A window refines: its first picture after a change costs one ray a pixel.
+                let refine = window.is_some();
+                rays_this_frame(settings.samples, tracer.accumulated, args.ao.max_samples, refine)
             };
             let rays = settings.rays(samples, scene.size() / 2.0);
             if let Some(traced) = trace_pending.take() {

@@ -89,6 +89,18 @@ pub fn nothing_to_trace(samples: u32, radius: f32) -> Option<&'static str> {
     }
 }
 
+// ANCHOR: rays_this_frame
+/// Rays a pixel to trace this frame: `per_frame` (`--samples`), and no more than `max` in all.
+/// A window refines instead (`refine`): the first frame after a change traces one ray a pixel, and
+/// each frame after it as many as all the frames before, up to `per_frame` (1, 1, 2, 4, 8, 16,
+/// 16, ...). Its first picture then costs one ray a pixel, not `per_frame`, and the running mean
+/// passes through the same rays in the same order: only their grouping into frames differs.
+pub fn rays_this_frame(per_frame: u32, accumulated: u32, max: u32, refine: bool) -> u32 {
+    let this_frame = if refine { per_frame.min(accumulated.max(1)) } else { per_frame };
+    this_frame.min(max.saturating_sub(accumulated))
+}
+// ANCHOR_END: rays_this_frame
+
 /// The AO pipeline, the shared R32F image it accumulates into, and how far it has got. Dropped,
 /// the image goes first (GL's side, then Vulkan's), then the pipeline; the GPU must be done
 /// with both.
@@ -415,5 +427,31 @@ mod rays_tests {
             "AoRays",
             rust_block!(AoRays { samples, accumulated, radius, scene_scale }),
         );
+    }
+
+    /// The rays of each frame, with the running total after it, until `max` is reached.
+    fn frames(per_frame: u32, max: u32, refine: bool) -> Vec<(u32, u32)> {
+        let (mut accumulated, mut frames) = (0, Vec::new());
+        while accumulated < max && frames.len() < 12 {
+            let rays = rays_this_frame(per_frame, accumulated, max, refine);
+            accumulated += rays;
+            frames.push((rays, accumulated));
+        }
+        frames
+    }
+
+    #[test]
+    fn a_window_refines_from_one_ray() {
+        let totals = |frames: Vec<(u32, u32)>| frames.iter().map(|f| f.1).collect::<Vec<_>>();
+        // Each frame doubles the total until a frame holds --samples.
+        assert_eq!(totals(frames(16, 64, true)), [1, 2, 4, 8, 16, 32, 48, 64]);
+        // Headless, every frame traces --samples; both stop at --max-samples exactly.
+        assert_eq!(totals(frames(16, 40, false)), [16, 32, 40]);
+        assert_eq!(totals(frames(16, 20, true)), [1, 2, 4, 8, 16, 20]);
+        assert_eq!(totals(frames(1, 3, true)), [1, 2, 3]);
+        assert_eq!(totals(frames(3, 12, true)), [1, 2, 4, 7, 10, 12]);
+        // --samples 0 traces nothing, refining or not.
+        assert_eq!(rays_this_frame(0, 0, 64, true), 0);
+        assert_eq!(rays_this_frame(0, 0, 64, false), 0);
     }
 }
