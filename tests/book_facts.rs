@@ -1552,30 +1552,26 @@ fn quoted(quote: &Quoted) -> Option<String> {
 /// measurement" from two that share a value and a unit, so this is an explicit list, made from
 /// the quantities once quoted with different numbers; add to it when a page quotes a table.
 /// Numbers that come from different runs on purpose (chapter 12's pattern table, 60 frames,
-/// beside `bench`'s ablation, 100 frames) are not listed: each page names its run and date.
+/// beside `bench`'s ablation, 30 frames) are not listed: each page names its run and date.
 const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
     (
-        "chapter 08's trace, 4K, 16 rays (bench, 2026-11-25)",
-        Quoted { page: "performance.md", before: "| 2.50 / 8.99 | 9.67 / ", after: " |" },
-        &[
-            Quoted { page: "12-fast-frame.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" },
-            Quoted {
-                page: "12-fast-frame-deeper.md",
-                before: "| [chapter 08](08-composite.md) (zero-copy) | 26.88 | 8.99 | ",
-                after: " |",
-            },
-        ],
+        "chapter 08's trace, 4K, 16 rays (bench on the H200, 2026-11-28)",
+        Quoted {
+            page: "12-fast-frame-deeper.md",
+            before: "| [chapter 08](08-composite.md) (zero-copy) | 26.90 | 8.99 | ",
+            after: " |",
+        },
+        &[Quoted { page: "12-fast-frame.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" }],
     ),
     (
-        "chapter 08's frame, 4K, 16 rays (bench, 2026-11-25)",
-        Quoted { page: "performance.md", before: "| default | 3840×2160 | ", after: " ms | 12.81 ms" },
+        "chapter 08's frame, 4K, 16 rays (bench on the H200, 2026-11-28)",
+        Quoted {
+            page: "12-fast-frame.md",
+            before: "| [chapter 08](08-composite.md), zero-copy | ",
+            after: " ms |",
+        },
         &[
             Quoted { page: "12-fast-frame.md", before: "frame takes ", after: " ms: " },
-            Quoted {
-                page: "12-fast-frame.md",
-                before: "| [chapter 08](08-composite.md), zero-copy | ",
-                after: " ms |",
-            },
             Quoted {
                 page: "12-fast-frame-deeper.md",
                 before: "| [chapter 08](08-composite.md) (zero-copy) | ",
@@ -1584,9 +1580,25 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
         ],
     ),
     (
-        "chapter 08's G-buffers, 4K (bench, 2026-11-25)",
-        Quoted { page: "performance.md", before: "| 26.88 ms | 12.81 ms | 2.50 / ", after: " |" },
+        "chapter 08's G-buffers, 4K (bench on the H200, 2026-11-28)",
+        Quoted {
+            page: "12-fast-frame-deeper.md",
+            before: "| [chapter 08](08-composite.md) (zero-copy) | 26.90 | ",
+            after: " |",
+        },
         &[Quoted { page: "12-fast-frame.md", before: "26.9 ms: ", after: " ms of G-buffers" }],
+    ),
+    (
+        "chapter 12's frame, 4K, 16 rays (bench on the H200, 2026-11-28)",
+        Quoted { page: "12-fast-frame.md", before: "| chapter 12 | ", after: " ms |" },
+        &[
+            Quoted { page: "12-fast-frame.md", before: "Chapter 12's takes ", after: " ms, " },
+            Quoted {
+                page: "12-fast-frame-deeper.md",
+                before: "| + 4x4 blocks of one run (chapter 12) | ",
+                after: " | 2.50",
+            },
+        ],
     ),
     (
         "chapter 12's trace of the ceiling scene, 4K, 16 rays (bench, 2026-11-25)",
@@ -1598,13 +1610,13 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
         &[Quoted { page: "12-fast-frame-deeper.md", before: "trace takes ", after: " ms at 4K" }],
     ),
     (
-        "a flat BLAS, per-pixel pattern, 16 rays, in bench's ablation (2026-11-25)",
+        "a flat BLAS, per-pixel pattern, 16 rays, in bench's ablation (H200, 2026-11-28)",
         Quoted {
             page: "12-fast-frame-deeper.md",
             before: "| + one flat BLAS | 12.93 | 2.50 | ",
             after: " |",
         },
-        &[Quoted { page: "12-fast-frame-deeper.md", before: "10.97 → ", after: " ms" }],
+        &[Quoted { page: "12-fast-frame-deeper.md", before: "10.98 → ", after: " ms" }],
     ),
     (
         "the gain of a flat BLAS for chapter 08's trace (first sweep, 2026-11-23)",
