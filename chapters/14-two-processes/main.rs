@@ -232,6 +232,7 @@ fn main() -> ExitCode {
             headless: args.common.headless,
             out_dir: args.common.out_dir(CHAPTER),
         };
+        report.chapter = format!("{CHAPTER} viewer"); // its summary line, beside the renderer's
         viewer::run(&settings, report)
     })
 }
