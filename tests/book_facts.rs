@@ -252,13 +252,23 @@ fn transcript_errors(page: &Page, checks: &Checks) -> Vec<String> {
             } else if let Some((slug, rest)) = line.split_once(": all ")
                 && let Some(count) = rest.strip_suffix(" checks passed")
             {
-                ends_a_run = true;
-                chapter = Some(slug.to_owned());
                 let count = count_of(count).unwrap_or(usize::MAX);
                 if count != listed.len() {
                     errors
                         .push(format!("{at}: says {count} checks passed, but lists {} above", listed.len()));
                 }
+                // A second process of the chapter's own run (chapter 14's viewer, `<chapter>
+                // viewer`) prints its summary first: its checks, each known, come back in the
+                // chapter's report under other names, and the chapter's list starts again.
+                if let Some(of) = slug.strip_suffix(" viewer")
+                    && checks.counts.contains_key(of)
+                {
+                    errors.extend(left_out(page, &block.lines, (false, None), &listed, checks));
+                    listed = Vec::new();
+                    continue;
+                }
+                ends_a_run = true;
+                chapter = Some(slug.to_owned());
                 match checks.counts.get(slug) {
                     Some(counts) if counts.iter().any(|c| count >= *c) => {}
                     Some(counts) => {
@@ -2288,7 +2298,7 @@ fn the_fact_checkers_read_what_the_pages_write() {
 /// Chapter pages whose first command has no transcript yet, each being rewritten as this test
 /// was added; whoever merges the rewrite adds the transcript and empties the list (a page listed
 /// here that has its transcript is an error).
-const TRANSCRIPT_PENDING: &[&str] = &["14-two-processes.md"];
+const TRANSCRIPT_PENDING: &[&str] = &[];
 
 /// Every chapter's page shows the transcript of the first command it prints at its top (right
 /// after the command, as the house order has it, or under "## What you should see"): what a

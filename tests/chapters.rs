@@ -865,20 +865,21 @@ fn ch14_in_a_window_under_xvfb() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
-/// `--one-process`: the same ring, imported into GL in the renderer's own process and read back
-/// with the viewer's code; every frame is the one drawn, the hand-over is timed as with two
-/// processes, and the imports give back every fd.
+/// `bench --probe one-process`: chapter 14's ring, imported into GL in one process and read back
+/// with the viewer's code; every frame is the one drawn, the hand-over is timed as the chapter
+/// times it, the imports give back every fd, and the last frame is the chapter's.
 #[test]
 fn ch14_one_process_for_comparison() {
-    let run = run_chapter(CH14, &["--size", "96x64", "--frames", "8", "--one-process"], &[]);
+    let args = ["--probe", "one-process", "--sizes", "96x64", "--frames", "8"];
+    let run = harness::run_chapter_with(env!("CARGO_BIN_EXE_bench"), &args, &[]);
     let report = run.succeeded();
-    assert_eq!(report["mode"], "one process");
+    assert_eq!(report["probe"], "one-process");
     assert_eq!(report["uuids_match"], true);
-    assert_eq!(report["frames"], 8);
     assert_eq!(report["sync"], "host", "lavapipe shares no semaphores");
     assert_eq!(report["checks"]["every_frame_is_the_one_announced"], true);
     assert_eq!(report["checks"]["no_fd_leaked"], true);
-    assert!(report["timings_ms"]["handover_median"].as_f64().is_some(), "{}", report["timings_ms"]);
+    let measured = &report["rows"][0]["measured"];
+    assert!(measured["handover_ms"].as_f64().is_some_and(|ms| ms >= 0.0), "{measured}");
     assert!(!run.stderr.contains("started the viewer"), "{}", run.stderr);
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
@@ -1082,11 +1083,13 @@ fn ch14_kills_soak() {
     ch14_soak_with(1000, 100);
 }
 
-/// The leak check can fail: a viewer that keeps a copy of one fd it received (a hidden flag)
-/// fails `viewer_no_fd_leaked`, naming the memory it kept, and the run exits 1.
+/// The leak check can fail: a viewer that keeps a copy of one fd it received
+/// (`VKGL_KEEP_A_RECEIVED_FD=1`, `common::instruments::fail`) fails `viewer_no_fd_leaked`, naming
+/// the memory it kept, and the run exits 1.
 #[test]
 fn ch14_a_kept_fd_fails_the_leak_check() {
-    let run = run_chapter(CH14, &["--size", "32x24", "--frames", "3", "--keep-a-received-fd"], &[]);
+    let keep = [("VKGL_KEEP_A_RECEIVED_FD", "1")];
+    let run = run_chapter(CH14, &["--size", "32x24", "--frames", "3"], &keep);
     assert_eq!(run.output.status.code(), Some(1), "{}", run.stderr);
     let report: serde_json::Value = serde_json::from_slice(&run.output.stdout).unwrap();
     assert_eq!(report["checks"]["viewer_no_fd_leaked"], false, "{}", run.stderr);
@@ -1102,7 +1105,10 @@ fn ch14_refuses_what_cannot_work() {
         (&["--slots", "1"], "invalid value '1' for '--slots <SLOTS>': expected a number from 2 to 16"),
         (&["--kill-viewer-every", "2"], "--kill-viewer-every 2: more than --slots 2"),
         (&["--kill-viewer-every", "5", "--listen", "/tmp/unused.sock"], "kills only a viewer it started"),
-        (&["--one-process", "--listen", "/tmp/unused.sock"], "'--one-process' cannot be used with '--listen"),
+        (
+            &["--listen", "/tmp/unused.sock", "--connect"],
+            "'--listen [<PATH>]' cannot be used with '--connect",
+        ),
     ];
     for (args, expected) in cases {
         let run = run_chapter(CH14, args, &[]);
@@ -1110,9 +1116,13 @@ fn ch14_refuses_what_cannot_work() {
         assert!(run.stderr.contains(expected), "{args:?}: {}", run.stderr);
         assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
     }
-    // The stall probe needs semaphores on both sides: without GL's, it says so (on any stack).
+    // `bench`'s stall probe needs semaphores on both sides: without GL's, it says so (on any stack).
     let hidden = [("VKGL_HIDE_EXTENSIONS", "GL_EXT_semaphore_fd")];
-    let run = run_chapter(CH14, &["--one-process", "--stall-probe", "--timeout", "1"], &hidden);
+    let run = harness::run_chapter_with(
+        env!("CARGO_BIN_EXE_bench"),
+        &["--probe", "gl-stall", "--sizes", "32x24"],
+        &hidden,
+    );
     assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
-    assert!(run.stderr.contains("--stall-probe needs shared semaphores"), "{}", run.stderr);
+    assert!(run.stderr.contains("--probe gl-stall needs shared semaphores"), "{}", run.stderr);
 }

@@ -144,6 +144,7 @@ fn transcripts() -> Vec<Transcript> {
 ///   vector width LLVM picked for this CPU) -> `LLVM [v]`, `Mesa [v]`, `[n] bits`;
 /// - UUIDs (32 hex digits) -> `[uuid]`;
 /// - file descriptor numbers (`fd 6`, `open fds: 7 before ...`, `"4 -> /memfd:..."`) -> `[n]`;
+/// - process ids (`(pid 4711)`: chapter 14's viewer) -> `[n]`;
 /// - trailing spaces.
 ///
 /// Everything else must match: which checks ran, in which order, passed or failed, how many, the
@@ -171,7 +172,7 @@ fn normalise_line(line: &str) -> String {
         {
             let end = word.find([')', ',']).unwrap_or(word.len());
             format!("[v]{}", &word[end..])
-        } else if !head.is_empty() && (previous == Some("fd") || fds) {
+        } else if !head.is_empty() && (previous == Some("fd") || previous == Some("pid") || fds) {
             format!("[n]{tail}")
         } else if word.starts_with("[\"") && next == Some("->") {
             "[\"[n]".to_owned()
@@ -213,6 +214,7 @@ fn normalise_masks_only_what_varies() {
             "buffer fd 6 -> /memfd:llvmpipe memory fd (deleted)",
             "buffer fd [n] -> /memfd:llvmpipe memory fd (deleted)",
         ),
+        ("renderer: started the viewer (pid 4711)", "renderer: started the viewer (pid [n])"),
         (
             "open fds: 7 before exporting, 7 after cleaning up",
             "open fds: [n] before exporting, [n] after cleaning up",

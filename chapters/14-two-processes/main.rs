@@ -4,33 +4,24 @@
 //! of exported images, hands their fds to the viewer once over a Unix-domain socket, then says
 //! "frame k is in slot i" each frame; the viewer reads the slot and answers "slot i is free".
 //! Either side may die or lie at any moment; the other notices and carries on (or, for the
-//! viewer, stops cleanly).
+//! viewer, stops cleanly). The ring and its picture are `common::frame::ring`, the messages
+//! `common::interop::wire`; `bench --probe one-process` times the same hand-over in one process.
 //!
 //! Run: `cargo run --release --bin 14-two-processes` (the renderer starts its own viewer), or by
 //! hand in two terminals: `-- --listen` and `-- --connect` (a socket in `$XDG_RUNTIME_DIR`, or the
-//! path given); or, to compare, `-- --one-process` (the same hand-over, with GL in the renderer's
-//! own process).
+//! path given).
 
-mod draw;
-mod gauges;
-mod one_process;
 mod session;
-mod slot;
-mod stall;
 mod viewer;
-mod wire;
 
 use anyhow::{Result, bail, ensure};
-use ash::vk;
 use common::base::cli::{Smallest, number, seconds};
-use common::base::commands::{Commands, HostBuffer, image_barrier};
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS};
-use common::clocks::timing::PassTimes;
-use common::instruments::{fail, resources};
-use common::interop::exportable::{self, Dedicated};
-use common::interop::handoff;
+use common::clocks::timing::{PassTimes, median_max};
+use common::frame::ring::Ring;
+use common::instruments::{census, resources};
+use common::interop::{handoff, wire};
 use common::{Flags, Report, Requirements, VulkanContext};
-use session::{Measured, Outcome, Ring, Session};
+use session::{Measured, Outcome, Session, Shared};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
@@ -71,43 +62,18 @@ struct Args {
     /// Ping/Pong round trips to time with each viewer, before its frames (0 to 100000).
     #[arg(long, default_value_t = 20, value_parser = number::<u32>(0..=100_000))]
     pings: u32,
-    /// No viewer: import the ring into GL in this same process and read each frame back there,
-    /// timing the same hand-over, to compare with two processes.
-    #[arg(long, conflicts_with_all = ["listen", "connect", "kill_viewer_every"])]
-    one_process: bool,
     /// (The viewer, with --connect) outlive the renderer: wait for the next one at the same path.
     #[arg(long, requires = "connect")]
     reconnect: bool,
     /// (Internal) be the viewer, on this inherited socket (0, 1 and 2 are stdin, stdout, stderr).
     #[arg(long, hide = true, value_parser = number::<i32>(3..=i32::MAX))]
     viewer_fd: Option<i32>,
-    /// (Internal) the viewer keeps a copy of the first fd it receives: a leak, to prove that
-    /// the leak check sees one.
-    #[arg(long, hide = true)]
-    keep_a_received_fd: bool,
-    /// (Internal, with --one-process) GL waits on a semaphore nobody signals, to see what the
-    /// driver does: the wait this chapter's design rules out.
-    #[arg(long, hide = true, requires = "one_process")]
-    stall_probe: bool,
 }
 
 /// The socket's path, for `--listen` or `--connect` given with or without one (None: not given).
 fn socket_path(flag: &Option<Option<PathBuf>>) -> Result<Option<PathBuf>> {
     flag.as_ref().map(|path| path.clone().map_or_else(wire::default_path, Ok)).transpose()
 }
-
-// ANCHOR: picture
-/// Frame `frame`'s picture, which both processes know: a background colour no nearby frame
-/// shares, and a white square (x, y, side) that moves one step a frame. A viewer that read a
-/// slot too early, or the wrong slot, sees another frame's colour or square.
-pub fn picture(frame: u64, width: u32, height: u32) -> ([u8; 4], (u32, u32, u32)) {
-    let channel = |step: u64| (20 + frame * step % 200) as u8;
-    let background = [channel(37), channel(91), channel(53), 255];
-    let side = width.min(height) / 4;
-    let x = (frame * 3 % (width - side + 1) as u64) as u32;
-    (background, (x, (height - side) / 2, side))
-}
-// ANCHOR_END: picture
 
 fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let slots = args.slots;
@@ -120,7 +86,7 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (width, height) = (args.common.size.width, args.common.size.height);
     // The renderer has no window; the viewer it starts opens one where there is a display, and
     // then, as every windowed chapter, runs until it is closed unless --frames says otherwise.
-    let windowed = !args.common.headless && common::base::window::display_available() && !args.one_process;
+    let windowed = !args.common.headless && common::base::window::display_available();
     let frames = match windowed {
         true => Some(args.common.window_frames()).filter(|&n| n > 0).map_or(u64::MAX, u64::from),
         false => args.common.headless_frames() as u64,
@@ -136,52 +102,10 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.vulkan = Some(vk.report());
     let offer_semaphores =
         vk.has_extension(handoff::SEMAPHORE_EXTENSION) && handoff::vulkan_can_export_semaphores(&vk);
-    // --one-process: GL in this process too, on the same device, opened before the fds are
-    // counted, as the viewer's is (the driver may keep files of its own for the context's life).
-    let gl_context = match args.one_process {
-        true => Some(GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?),
-        false => None,
-    };
-    if args.stall_probe {
-        let gl_context = gl_context.expect("--stall-probe requires --one-process");
-        return stall::probe(&vk, gl_context, args.timeout, report);
-    }
     let fds_before = resources::open_fd_targets();
 
     // 2. A ring of exportable images
-    // ANCHOR: ring
-    let usage = vk::ImageUsageFlags::TRANSFER_DST // Vulkan clears and copies into it
-        | vk::ImageUsageFlags::COLOR_ATTACHMENT // a windowed viewer blits from a framebuffer on it
-        | vk::ImageUsageFlags::SAMPLED; // GL reads it as a texture (glGetTexImage)
-    let extent = vk::Extent2D { width, height };
-    let ring = (0..slots)
-        .map(|_| -> Result<_> {
-            let image = exportable::create_image(&vk, vk::Format::R8G8B8A8_UNORM, usage, extent)?;
-            let requirements = unsafe { vk.device.get_image_memory_requirements(*image) };
-            let local = vk::MemoryPropertyFlags::DEVICE_LOCAL;
-            let memory = exportable::allocate(&vk, &requirements, local, Dedicated::Image(*image))?;
-            fail::call("vkBindImageMemory (a ring slot)", || unsafe {
-                vk.device.bind_image_memory(*image, *memory.memory, 0)
-            })?;
-            Ok((image, memory)) // dropped in that order: the image, then its memory
-        })
-        .collect::<Result<Vec<_>>>()?;
-    // ANCHOR_END: ring
-    let side = picture(0, width, height).1.2;
-    let mut square = HostBuffer::new(&vk, side as u64 * side as u64 * 4, vk::BufferUsageFlags::TRANSFER_SRC)?;
-    square.bytes_mut().fill(255); // white, opaque
-    let commands = Commands::new(&vk)?; // dropped first: it waits for its last submission
-    // Every slot starts outside Vulkan, in GENERAL, as it is after each frame's release.
-    commands.run_once(&vk, |cb| unsafe {
-        let to_general = (vk::ImageLayout::UNDEFINED, vk::ImageLayout::GENERAL);
-        let (none, families) = (vk::AccessFlags::NONE, (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL));
-        let barriers: Vec<_> = ring
-            .iter()
-            .map(|(image, _)| image_barrier(**image, to_general, (none, none), families))
-            .collect();
-        let (top, bottom) = (vk::PipelineStageFlags::TOP_OF_PIPE, vk::PipelineStageFlags::BOTTOM_OF_PIPE);
-        vk.device.cmd_pipeline_barrier(cb, top, bottom, vk::DependencyFlags::empty(), &[], &[], &barriers);
-    })?;
+    let ring = Ring::new(&vk, slots, ash::vk::Extent2D { width, height })?;
 
     // 3. Serve viewers until every frame has been shown
     let timeout = args.timeout;
@@ -193,12 +117,10 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         format: wire::FORMAT_RGBA8,
         width,
         height,
-        memory_size: ring[0].1.size,
+        memory_size: ring.memory_size(),
         slots,
         semaphores: offer_semaphores,
     };
-    let fd_loader = ash::khr::external_memory_fd::Device::new(&vk.instance, &vk.device);
-    let memory_fd = |slot: usize| exportable::export_fd(&fd_loader, *ring[slot].1.memory);
     let (mut next_frame, mut restarts, mut redrawn, mut refused) = (0u64, 0u32, 0u64, 0u64);
     let mut measured =
         Measured { times: PassTimes::new(), viewer_died_at: None, death_to_frame: vec![], sync: "host" };
@@ -212,36 +134,17 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             true => (0..slots).map(|_| handoff::exportable_semaphore(&vk)).collect::<Result<Vec<_>>>()?,
             false => Vec::new(),
         };
-        let semaphore_fd = |slot: usize| handoff::semaphore_fd(&vk, *frame_written[slot]);
         // ANCHOR_END: frame_written
-        let draw = |frame: u64, slot: usize, signal: bool| {
-            let frame_written = signal.then(|| *frame_written[slot]);
-            draw::draw(&vk, &commands, *ring[slot].0, &square, picture(frame, width, height), frame_written)
-        };
-        let shared = Ring { hello: &hello, memory_fd: &memory_fd, semaphore_fd: &semaphore_fd, draw: &draw };
-        if let Some(gl_context) = &gl_context {
-            let out_dir = args.common.out_dir(CHAPTER);
-            one_process::serve(
-                (&vk.info, gl_context),
-                &shared,
-                frames,
-                (timeout, &out_dir),
-                &mut measured,
-                report,
-            )?;
-            next_frame = frames;
-            break None; // no viewer, no summary
-        }
+        let shared = Shared { vk: &vk, hello: &hello, ring: &ring, frame_written: &frame_written };
         let (socket, mut child) = match &listener {
             Some(listener) => (session::accept(listener, timeout)?, None),
-            None => session::spawn_viewer(args, hello.width, hello.height, windowed)?,
+            None => session::spawn_viewer((width, height), windowed, timeout, &args.common.out_dir(CHAPTER))?,
         };
         socket.set_timeout(timeout)?;
         // Killed on purpose only while a replacement is allowed: the run then finishes.
         let kill_every = args.kill_viewer_every.filter(|_| restarts < args.restarts);
         let session = Session { socket: &socket, child: child.as_mut(), kill_every, pings: args.pings };
-        let outcome = session.serve(&shared, &mut next_frame, frames, &mut measured, report);
-        let outcome = match outcome {
+        let outcome = match session.serve(&shared, &mut next_frame, frames, &mut measured, report) {
             Ok(outcome) => outcome,
             // A client of our socket that lied, or was not our user: refused, counted, and the
             // next one served. No budget: a liar costs one connection and at most --timeout, and
@@ -261,12 +164,12 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             Outcome::Done(summary) => {
                 let exited = session::end_viewer(socket, child, GRACE);
                 report.check("viewer_exited_cleanly", exited != Some(false));
-                break Some(summary);
+                break summary;
             }
             Outcome::Gone { why, lost } => {
                 measured.viewer_died_at = Some(std::time::Instant::now());
                 session::end_viewer(socket, child, GRACE);
-                sessions.push(gauges::sample(None));
+                sessions.push(census::sample(None));
                 restarts += 1;
                 redrawn += lost;
                 eprintln!("renderer: the viewer {why}; {lost} frame(s) in flight will be drawn again");
@@ -279,13 +182,19 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             }
         }
     };
-    if let Some(summary) = &summary {
-        gauges::merge_summary(report, summary)?;
+
+    // 4. The viewer's report into ours, then our own counts
+    let summary: serde_json::Value = serde_json::from_str(&summary)?;
+    report.merge("viewer", &summary);
+    report.set("frames_shown_by_the_last_viewer", &summary["frames_shown"]);
+    report.set("window", summary["window"] == true); // the viewer's: the renderer has none
+    if let Some(sessions) = summary.get("sessions") {
+        report.set("viewer_sessions", sessions);
     }
     report.sync = Some(measured.sync);
     measured.times.record(report);
     if restarts > 0 {
-        report.set("death_to_next_frame_ms", gauges::median_max(&measured.death_to_frame));
+        report.set("death_to_next_frame_ms", median_max(&measured.death_to_frame));
         report.set("sessions", &sessions);
     }
     report.set("frames", next_frame); // `frames`, or as many as were shown until the window closed
@@ -295,32 +204,35 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         report.set("viewers_refused", refused);
     }
     report.set("frames_drawn_again", redrawn);
-    let mode = match (args.one_process, &listener) {
-        (true, _) => "one process",
-        (false, Some(_)) => "listen",
-        (false, None) => "one command",
-    };
-    report.set("mode", mode);
+    report.set("mode", if listener.is_some() { "listen" } else { "one command" });
 
-    // 4. Clean up, newest first (the last frame's fence has signalled)
+    // 5. Clean up, newest first (the last frame's fence has signalled)
     drop(listener);
-    drop(commands);
-    drop(square);
-    drop(ring); // each image, then its memory
-    drop(gl_context); // --one-process: its textures went in `one_process::serve`
+    drop(ring); // its commands, the square, then each image and its memory
     if let Some(path) = &listen_path {
         let _ = std::fs::remove_file(path);
     }
     // Every fd exported went to a viewer, and ours was closed once sent; every socket is closed.
-    report.check("no_fd_leaked", gauges::no_fd_leaked("renderer", &fds_before));
+    report.check("no_fd_leaked", resources::no_fd_leaked("renderer", &fds_before));
     Ok(())
 }
 
 fn main() -> ExitCode {
     common::run_chapter(CHAPTER, SMALLEST, |args: &Flags<Args>, report: &mut Report| {
-        match args.viewer_fd.is_some() || args.connect.is_some() {
-            true => viewer::run(args, report),
-            false => render(args, report),
-        }
+        let renderer = match (args.viewer_fd, socket_path(&args.connect)?) {
+            (Some(fd), _) => viewer::Renderer::Inherited(fd),
+            (None, Some(path)) => viewer::Renderer::At(path),
+            (None, None) => return render(args, report),
+        };
+        let settings = viewer::Settings {
+            chapter: CHAPTER,
+            renderer,
+            timeout: args.timeout,
+            reconnect: args.reconnect,
+            headless: args.common.headless,
+            out_dir: args.common.out_dir(CHAPTER),
+        };
+        report.chapter = format!("{CHAPTER} viewer"); // its summary line, beside the renderer's
+        viewer::run(&settings, report)
     })
 }

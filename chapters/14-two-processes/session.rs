@@ -1,15 +1,19 @@
 //! Chapter 14's renderer side of the conversation: starting (or accepting) a viewer, the
 //! handshake, and the frames, one "frame k is in slot i" and one "slot i is free" at a time.
 
-use super::{Args, CHAPTER};
-use crate::wire::{self, Broken, Message, Received, Socket};
 use anyhow::{Context as _, Result, bail, ensure};
+use ash::vk;
 use common::base::child::OwnedChild;
+use common::base::owned::Owned;
 use common::clocks::timing::PassTimes;
+use common::frame::ring::Ring;
 use common::instruments::fail;
-use common::{Flags, Report, ms_since};
+use common::interop::handoff;
+use common::interop::wire::{self, Broken, Message, Received, Socket};
+use common::{Report, VulkanContext, ms_since};
 use std::collections::VecDeque;
-use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::os::fd::{AsFd, AsRawFd};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// How a viewer's session ended, if not with an error.
@@ -29,16 +33,21 @@ pub struct Session<'a> {
     pub pings: u32,
 }
 
-/// What the renderer shares with a viewer, and how it draws into it.
-pub struct Ring<'a> {
+/// What the renderer shares with a viewer, and what draws into it.
+pub struct Shared<'a> {
+    pub vk: &'a VulkanContext,
     pub hello: &'a wire::Hello,
-    /// A new fd for slot i's memory.
-    pub memory_fd: &'a dyn Fn(usize) -> Result<OwnedFd>,
-    /// A new fd for slot i's "frame written" semaphore (asked only when both sides share them).
-    pub semaphore_fd: &'a dyn Fn(usize) -> Result<OwnedFd>,
-    /// Draws frame k into slot i, signalling the slot's semaphore if told to, and waits for
-    /// its fence.
-    pub draw: &'a dyn Fn(u64, usize, bool) -> Result<()>,
+    pub ring: &'a Ring,
+    /// Each slot's "frame written" semaphore, for this viewer (empty: the host path).
+    pub frame_written: &'a [Owned<vk::Semaphore>],
+}
+
+impl Shared<'_> {
+    /// Frame `frame` into slot `slot`, signalling its semaphore if `signal`; waits for the fence.
+    fn draw(&self, frame: u64, slot: usize, signal: bool) -> Result<()> {
+        let frame_written = signal.then(|| *self.frame_written[slot]);
+        self.ring.draw(self.vk, frame, slot, frame_written)
+    }
 }
 
 /// What the renderer measures across viewers, for its report.
@@ -56,7 +65,7 @@ pub struct Measured {
 impl Session<'_> {
     pub fn serve(
         mut self,
-        ring: &Ring,
+        ring: &Shared,
         next_frame: &mut u64,
         frames: u64,
         measured: &mut Measured,
@@ -101,12 +110,12 @@ impl Session<'_> {
         // The fds, one message per slot (and one per slot's semaphore). Each is ours until
         // sendmsg returns; then the kernel has given the viewer its own, and ours is closed.
         for slot in 0..hello.slots {
-            let fd = (ring.memory_fd)(slot as usize)?;
+            let fd = ring.ring.memory_fd(slot as usize)?;
             let slot_message = Message::Slot { slot, memory_size: hello.memory_size };
             let mut sent = self.socket.send(&slot_message, &[fd.as_fd()])?;
             drop(fd); // sent or not, ours is closed: the viewer has its own, or is gone
             if sent && semaphores {
-                let fd = (ring.semaphore_fd)(slot as usize)?;
+                let fd = handoff::semaphore_fd(ring.vk, *ring.frame_written[slot as usize])?;
                 sent = self.socket.send(&Message::SlotSemaphore { slot }, &[fd.as_fd()])?;
             }
             if !sent {
@@ -158,7 +167,7 @@ impl Session<'_> {
     /// sent and not yet freed, which are drawn again for the next viewer, however this one goes.
     fn frames(
         &mut self,
-        ring: &Ring,
+        ring: &Shared,
         semaphores: bool,
         (next_frame, frames): (&mut u64, u64),
         in_flight: &mut VecDeque<(u64, u32, u64)>,
@@ -212,7 +221,7 @@ impl Session<'_> {
             // path the message is the synchronisation. With semaphores, the slot's semaphore is
             // signalled by then too: GL's wait on it is satisfied, and cannot be left hanging by
             // our death (a signal submitted, then cut short, would leave it waiting for ever).
-            (ring.draw)(*next_frame, slot as usize, semaphores)?;
+            ring.draw(*next_frame, slot as usize, semaphores)?;
             let written_ns = wire::monotonic_ns();
             let ready = Message::FrameReady { frame: *next_frame, slot };
             if !self.socket.send(&ready, &[])? {
@@ -269,24 +278,21 @@ impl Session<'_> {
 /// the end it inherits. Our copy of that end is closed once it has started, so that its death is
 /// our hang-up (a socket reads as hung up only when every copy of the other end is closed).
 pub fn spawn_viewer(
-    args: &Flags<Args>,
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     windowed: bool,
+    timeout: Duration,
+    out_dir: &Path,
 ) -> Result<(Socket, Option<OwnedChild>)> {
     let (ours, theirs) = wire::socketpair()?;
     let exe = std::env::current_exe().context("finding this program, to start the viewer")?;
     let mut command = std::process::Command::new(exe);
     let fd = theirs.fd.as_raw_fd();
-    let (size, timeout) = (format!("{width}x{height}"), args.timeout.as_secs_f64().to_string());
+    let (size, timeout) = (format!("{width}x{height}"), timeout.as_secs_f64().to_string());
     command.args(["--viewer-fd", &fd.to_string(), "--size", &size, "--timeout", &timeout]);
     if !windowed {
         command.arg("--headless"); // and in a window, it shows each frame as it arrives
     }
-    command.arg("--out").arg(args.common.out_dir(CHAPTER));
-    if args.keep_a_received_fd {
-        command.arg("--keep-a-received-fd");
-    }
+    command.arg("--out").arg(out_dir);
     command.stdout(std::process::Stdio::null()); // --json's one document is the renderer's
     // Failure injection is the renderer's; the viewer's comes from VKGL_VIEWER_FAIL_AT.
     command.env_remove("VKGL_FAIL_AT");
@@ -314,13 +320,7 @@ pub fn spawn_viewer(
 /// The next viewer to connect to `listener` (`--listen`), within `timeout`.
 pub fn accept(listener: &std::os::fd::OwnedFd, timeout: Duration) -> Result<Socket> {
     eprintln!("renderer: waiting up to {timeout:?} for a viewer (--connect)");
-    let recv = rustix::net::sockopt::Timeout::Recv;
-    fail::call("setsockopt SO_RCVTIMEO (listening)", || {
-        rustix::net::sockopt::set_socket_timeout(listener, recv, Some(timeout))
-    })?;
-    let fd = fail::call("accept", || rustix::net::accept_with(listener, rustix::net::SocketFlags::CLOEXEC))
-        .with_context(|| format!("no viewer connected within {timeout:?}"))?;
-    Ok(Socket { fd })
+    wire::accept(listener, timeout)
 }
 
 /// Closes our end of the socket, then reaps the viewer we started (None: we started none): a

@@ -5,21 +5,42 @@
 //! there is a display, it also shows each frame in a window as it arrives. With `--reconnect` it
 //! outlives its renderer and waits for the next one.
 
-use super::slot::{is_picture_of, read_slot, wait_until_written, window_shows};
-use super::{Args, CHAPTER, gauges, wire};
-use anyhow::{Context as _, Result, bail, ensure};
+use anyhow::{Result, bail, ensure};
+use common::Report;
 use common::base::cli::Size;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, create};
 use common::base::vulkan::DeviceInfo;
 use common::base::window::{self, Key, NamedKey, Window};
-use common::instruments::{output, resources};
+use common::frame::ring::{is_picture_of, read_slot, wait_until_written, window_shows};
+use common::instruments::census::{self, Sample};
+use common::instruments::{fail, output, resources};
 use common::interop::handoff::import_semaphore;
+use common::interop::wire::{self, Broken, Message, Received, Socket};
 use common::interop::{self, exportable::MemoryTerms};
-use common::{Flags, Report};
 use glow::HasContext;
-use std::os::fd::{FromRawFd, OwnedFd};
-use std::time::{Duration, Instant};
-use wire::{Broken, Message, Received, Socket};
+use std::os::fd::{AsFd as _, FromRawFd, OwnedFd};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Where the viewer finds its renderer.
+pub enum Renderer {
+    /// The end of the renderer's socket pair this process inherited (`--viewer-fd`).
+    Inherited(i32),
+    /// A renderer listening at this path (`--connect`).
+    At(PathBuf),
+}
+
+/// The viewer's settings, from the chapter's flags.
+pub struct Settings {
+    /// The chapter's name: the window's title and the picture's file name.
+    pub chapter: &'static str,
+    pub renderer: Renderer,
+    pub timeout: Duration,
+    /// Outlive the renderer: wait for the next one at the same path.
+    pub reconnect: bool,
+    pub headless: bool,
+    pub out_dir: PathBuf,
+}
 
 /// What the viewer keeps from one renderer to the next (`--reconnect`).
 struct Viewed {
@@ -35,12 +56,12 @@ struct Viewed {
     /// The last complete frame read, and its number.
     last: Option<(u64, Vec<u8>)>,
     /// The viewer's resources after each renderer, for the soak.
-    sessions: Vec<gauges::Sample>,
+    sessions: Vec<Sample>,
     /// Renderers refused for breaking the protocol (`--reconnect` waits for the next).
     refused: u64,
 }
 
-pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
+pub fn run(args: &Settings, report: &mut Report) -> Result<()> {
     let mut viewed = Viewed {
         gl: None,
         window: None,
@@ -52,10 +73,9 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         sessions: vec![],
         refused: 0,
     };
-    let connect = super::socket_path(&args.connect)?;
     loop {
-        let socket = match (args.viewer_fd, &connect) {
-            (Some(fd), _) => {
+        let socket = match &args.renderer {
+            &Renderer::Inherited(fd) => {
                 // Is it an open socket at all? A mistyped --viewer-fd must not become someone
                 // else's fd (asked of /proc by number: no fd is made of it until it is known open).
                 let file = std::fs::metadata(format!("/proc/self/fd/{fd}"));
@@ -67,9 +87,9 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 // SAFETY: the renderer started us with this end of its socket pair, for us alone.
                 Socket { fd: unsafe { OwnedFd::from_raw_fd(fd) } }
             }
-            (None, Some(path)) if viewed.first() => wire::connect(path)?,
+            Renderer::At(path) if viewed.first() => wire::connect(path)?,
             // The next renderer: its socket appears when it starts listening.
-            (None, Some(path)) => match connect_within(path, args.timeout) {
+            Renderer::At(path) => match wire::connect_within(path, args.timeout) {
                 Ok(socket) => socket,
                 Err(error) => {
                     eprintln!(
@@ -79,7 +99,6 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                     return record(report, &viewed);
                 }
             },
-            (None, None) => unreachable!("main runs the viewer only with --viewer-fd or --connect"),
         };
         match view(args, report, &socket, &mut viewed) {
             Err(error) => {
@@ -93,7 +112,7 @@ pub fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 }
                 return Err(error);
             }
-            Ok(true) if args.reconnect && args.connect.is_some() => {
+            Ok(true) if args.reconnect && matches!(args.renderer, Renderer::At(_)) => {
                 eprintln!("viewer: waiting for the next renderer (--reconnect)");
             }
             Ok(true) => return record(report, &viewed), // the renderer is gone: so are we
@@ -127,20 +146,8 @@ fn record(report: &mut Report, viewed: &Viewed) -> Result<()> {
     Ok(())
 }
 
-/// Connects to the renderer at `path`, trying again until one listens there or `timeout` passes.
-fn connect_within(path: &std::path::Path, timeout: Duration) -> Result<Socket> {
-    let started = Instant::now();
-    loop {
-        match wire::connect(path) {
-            Ok(socket) => return Ok(socket),
-            Err(error) if started.elapsed() > timeout => return Err(error),
-            Err(_) => std::thread::sleep(Duration::from_millis(20)),
-        }
-    }
-}
-
 /// One renderer, from its Hello to its Bye (`Ok(false)`) or its hang-up (`Ok(true)`).
-fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut Viewed) -> Result<bool> {
+fn view(args: &Settings, report: &mut Report, socket: &Socket, viewed: &mut Viewed) -> Result<bool> {
     socket.set_timeout(args.timeout)?;
     // Only this user's renderer: the fds it sends become our GL's memory.
     socket.ensure_same_user()?;
@@ -174,13 +181,13 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
     if viewed.gl.is_none() {
         // A window's GL where there is a display (the window system's choice of device, which
         // the UUID check below then holds to the renderer's), else GL on the renderer's device.
-        let windowed = !args.common.headless && window::display_available();
-        if !args.common.headless && !windowed {
+        let windowed = !args.headless && window::display_available();
+        if !args.headless && !windowed {
             eprintln!("viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset): running headless");
         }
         let (window, gl_context) = match windowed {
             true => {
-                let title = format!("{CHAPTER} (viewer)");
+                let title = format!("{} (viewer)", args.chapter);
                 Window::open(&title, Size { width, height }, &MEMORY_EXTENSIONS)
                     .map(|(w, gl)| (Some(w), gl))?
             }
@@ -240,9 +247,7 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
             Broken(format!("slot {slot} is {memory_size} bytes; the Hello said {size}"))
         );
         let fd = wire::check_memory_fd(fd, memory_size)?;
-        if args.keep_a_received_fd && slot == 0 {
-            std::mem::forget(fd.try_clone().context("dup, for --keep-a-received-fd")?); // a leak, on purpose
-        }
+        fail::keep_a_copy_if_asked(fd.as_fd())?; // the leak check's own test: VKGL_KEEP_A_RECEIVED_FD
         // A successful import takes the fd (GL closes it with the memory object); a failed one
         // does not, and `import_texture_2d` closes it.
         let texture = interop::import_texture_2d(gl_context, memory, fd, glow::RGBA8, (width, height))?;
@@ -348,7 +353,7 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
 
     // 5. Keep the last complete frame
     if let Some((frame, pixels)) = &viewed.last {
-        output::save_rgba8(report, &args.common.out_dir(CHAPTER), CHAPTER, (width, height), pixels)?;
+        output::save_rgba8(report, &args.out_dir, args.chapter, (width, height), pixels)?;
         report.set("last_frame", frame);
     }
     if let Some(why) = gone {
@@ -362,10 +367,10 @@ fn view(args: &Flags<Args>, report: &mut Report, socket: &Socket, viewed: &mut V
     drop(ring); // each framebuffer, texture and its memory object, then its semaphore
     gl_context.check_error("cleaning up")?;
     // Each slot's fd was GL's from its import, and went with its memory object.
-    viewed.no_fd_leaked &= gauges::no_fd_leaked("viewer", &fds_before);
+    viewed.no_fd_leaked &= resources::no_fd_leaked("viewer", &fds_before);
     report.set("renderer_gone", gone.is_some());
     if args.reconnect {
-        viewed.sessions.push(gauges::sample(Some(gl_context)));
+        viewed.sessions.push(census::sample(Some(gl_context)));
     }
     if gone.is_none() {
         record(report, viewed)?;

@@ -11,7 +11,8 @@
 //!
 //! `--probe NAME` instead answers one of chapter 12's design questions on its frame
 //! (`probes/`): which lean buffer, whether GL's work runs beside Vulkan's, GL's composite or
-//! Vulkan's.
+//! Vulkan's; or one of chapter 14's: the hand-over in one process, GL's wait on a semaphore
+//! nobody signals.
 //!
 //! Run: `cargo run --release --bin bench -- [--json] [--quick] [--out DIR] [--probe NAME]`.
 
@@ -91,7 +92,9 @@ struct Args {
     /// Instead of the sweep: one of chapter 12's design questions, measured on its frame at
     /// every scene [default: default], size and ray count: `layouts` (the ids or a packed normal
     /// and depth), `overlap` (GL's work beside Vulkan's), `vulkan-composite` (GL's compute
-    /// composite against Vulkan's) or `patterns` (each sample pattern's trace time and error).
+    /// composite against Vulkan's) or `patterns` (each sample pattern's trace time and error);
+    /// chapter 14's on its own frame: `one-process` (the hand-over with no second process) or
+    /// `gl-stall` (GL waiting on a semaphore nobody signals).
     #[arg(long, value_enum)]
     probe: Option<probes::Probe>,
     /// The probe's rounds at each setting [default: 100; --quick: 2].

@@ -9,7 +9,9 @@
 //! - `vulkan-composite`: would Vulkan's compute shader composite faster than GL's
 //!   (`vk_composite.rs`);
 //! - `patterns`: which sample pattern buys the least error after the blur for its time
-//!   (`patterns.rs`).
+//!   (`patterns.rs`);
+//! - `one-process` and `gl-stall`: chapter 14's, on its own frame (`two_processes.rs`): what the
+//!   second process costs the hand-over, and what GL does with a wait nobody will satisfy.
 //!
 //! Each prints one markdown table (and writes it to `probe-NAME.md` in `--out`), one row per
 //! setting, and sets its rows in the report.
@@ -35,6 +37,7 @@ use std::path::Path;
 mod layouts;
 mod overlap;
 mod patterns;
+mod two_processes;
 mod vk_composite;
 
 /// A question `--probe` answers.
@@ -45,6 +48,10 @@ pub enum Probe {
     Overlap,
     VulkanComposite,
     Patterns,
+    /// Chapter 14's hand-over with GL in the renderer's own process.
+    OneProcess,
+    /// Chapter 14's ruled-out wait: GL on a semaphore nobody signals.
+    GlStall,
 }
 
 /// Where the probe runs: every scene, size, ray count, blur radius and sample pattern, `frames`
@@ -133,6 +140,9 @@ fn gl_composite_ms(
 /// a markdown table on stderr and in `out`.
 pub fn run(probe: Probe, s: &Settings, out: &Path, report: &mut Report) -> Result<()> {
     ensure!(s.rounds > 0, "--rounds: at least 1");
+    if matches!(probe, Probe::OneProcess | Probe::GlStall) {
+        return two_processes::run(probe, s, out, report);
+    }
     let vk = VulkanContext::new(&common::RAY_TRACED_INTEROP)?;
     let gl = GlContext::headless(&vk.info, &common::base::gl::MEMORY_EXTENSIONS)?;
     common::connect(report, &vk, &gl)?;
@@ -159,6 +169,7 @@ pub fn run(probe: Probe, s: &Settings, out: &Path, report: &mut Report) -> Resul
         Probe::Patterns => {
             "| scene | size | `--pattern` | rays | AO ms | error | after blur |\n|---|---|---|---:|---:|---:|---:|\n"
         }
+        Probe::OneProcess | Probe::GlStall => unreachable!("run by two_processes::run above"),
     });
     // Every probe but `patterns` draws the chapter's own pattern.
     let patterns = if probe == Probe::Patterns { s.patterns.clone() } else { vec![Pattern::Tile4x4] };
@@ -219,6 +230,7 @@ pub fn run(probe: Probe, s: &Settings, out: &Path, report: &mut Report) -> Resul
                         )?;
                         serde_json::json!({ "ao_ms": ao, "error_raw": raw, "error_blurred": blurred })
                     }
+                    Probe::OneProcess | Probe::GlStall => unreachable!("run by two_processes::run above"),
                 };
                 let at = serde_json::json!({ "scene": kind.name(), "width": size.width, "height": size.height, "spp": spp, "blur": blur, "pattern": pattern });
                 rows.push(serde_json::json!({ "setting": at, "measured": row }));
@@ -234,7 +246,7 @@ pub fn run(probe: Probe, s: &Settings, out: &Path, report: &mut Report) -> Resul
         Probe::Layouts => report.check("layouts_cover_the_same_pixels", all_agree),
         Probe::VulkanComposite => report.check("vulkan_composite_matches_gl", all_agree),
         Probe::Patterns => report.check("the_blur_lowers_every_error", all_agree),
-        Probe::Overlap => true,
+        Probe::Overlap | Probe::OneProcess | Probe::GlStall => true,
     };
     report.check("hand_over_layouts_agreed", handoff.layouts_agreed());
     drop(handoff);

@@ -353,6 +353,15 @@ impl VkPassTimer {
     }
 }
 
+/// The median and the largest of `values` (milliseconds), and how many, for a report: what a
+/// handful of rare events took (chapter 14's deaths to the next frame).
+pub fn median_max(values: &[f64]) -> serde_json::Value {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+    serde_json::json!({ "median": median, "max": sorted.last().copied().unwrap_or(0.0), "n": sorted.len() })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

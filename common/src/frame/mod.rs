@@ -10,6 +10,7 @@ pub mod fast;
 pub mod input;
 pub mod overlay;
 pub mod probe;
+pub mod ring;
 pub mod temporal;
 
 pub use composite::{Composite, Uniforms, View};

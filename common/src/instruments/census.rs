@@ -3,7 +3,7 @@
 //! which it uses both.
 
 use crate::instruments::report::Report;
-use crate::instruments::resources::{live, open_fd_count};
+use crate::instruments::resources::{self, live, open_fd_count};
 use std::collections::BTreeMap;
 
 /// Whatever can count the objects it holds as the driver sees them, by kind: the GL context
@@ -107,5 +107,33 @@ mod tests {
         let mut report = Report::new("test");
         ResizeCensus::default().check(&gl, &mut report).unwrap();
         assert!(report.checks.is_empty());
+    }
+}
+
+/// One process's resources after one session of chapter 14's (a viewer served, or a renderer
+/// watched), all that it made for that session gone: the soak checks these stay flat.
+#[derive(serde::Serialize, Debug, Clone, PartialEq)]
+pub struct Sample {
+    /// Open fds of the kinds the program makes itself (`resources::is_shared_object`).
+    pub shared_fds: usize,
+    /// Every open fd, the driver's included.
+    pub fds: usize,
+    /// Vulkan memory objects alive (the renderer's ring; 0 in the viewer).
+    pub vk_memory: i64,
+    /// GL objects alive, as the driver counts them (`GlContext::live_objects`; 0 without GL).
+    pub gl_objects: usize,
+    pub rss_kib: u64,
+}
+
+/// This process's resources now, GL's counted by `gl` if there is one.
+pub fn sample(gl: Option<&dyn LiveObjects>) -> Sample {
+    let targets = resources::open_fd_targets();
+    let live = live();
+    Sample {
+        shared_fds: targets.iter().filter(|(t, _)| resources::is_shared_object(t)).map(|(_, n)| n).sum(),
+        fds: targets.values().sum(),
+        vk_memory: live.iter().filter(|(kind, _)| kind.starts_with("vk_memory")).map(|(_, n)| n).sum(),
+        gl_objects: gl.map_or(0, |gl| gl.live_objects().values().sum()),
+        rss_kib: resources::resident_kib(),
     }
 }

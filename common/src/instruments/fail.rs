@@ -79,6 +79,21 @@ where
 }
 // ANCHOR_END: step
 
+/// A leak on purpose, to prove a leak check can fail: with `VKGL_KEEP_A_RECEIVED_FD=1`, the first
+/// fd this process receives and passes here is copied, and the copy never closed. (Chapter 14's
+/// viewer passes each slot's memory.)
+pub fn keep_a_copy_if_asked(fd: std::os::fd::BorrowedFd<'_>) -> Result<()> {
+    static KEPT: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let asked = std::env::var_os("VKGL_KEEP_A_RECEIVED_FD").is_some_and(|v| v == "1");
+    if asked && !KEPT.swap(true, Ordering::Relaxed) {
+        let copy = fd
+            .try_clone_to_owned()
+            .map_err(|error| anyhow::anyhow!("dup, for VKGL_KEEP_A_RECEIVED_FD: {error}"))?;
+        std::mem::forget(copy); // the leak
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -112,6 +112,30 @@ impl Report {
         });
     }
 
+    /// Takes in the report of another process of the same run (chapter 14's viewer, `who`,
+    /// sent as JSON with its `gl_errors` count): its GL, its checks as `who_name`, a check
+    /// `who_no_gl_errors`, and the images it wrote. What else it holds the caller picks.
+    pub fn merge(&mut self, who: &str, other: &serde_json::Value) {
+        let text = |v: &serde_json::Value| v.as_str().unwrap_or_default().to_owned();
+        let gl = &other["gl"];
+        self.gl = Some(GlReport {
+            renderer: text(&gl["renderer"]),
+            version: text(&gl["version"]),
+            device_uuid: text(&gl["device_uuid"]),
+            driver_uuid: text(&gl["driver_uuid"]),
+            extensions: gl["extensions"].as_array().into_iter().flatten().map(text).collect(),
+        });
+        for (name, ok) in other["checks"].as_object().into_iter().flatten() {
+            self.check(&format!("{who}_{name}"), ok.as_bool() == Some(true));
+        }
+        self.check(&format!("{who}_no_gl_errors"), other["gl_errors"] == 0);
+        for image in other["images"].as_array().into_iter().flatten() {
+            let size = |key: &str| image[key].as_u64().unwrap_or(0) as u32;
+            let path = std::path::PathBuf::from(text(&image["path"]));
+            self.image(&text(&image["name"]), &path, size("width"), size("height"), &text(&image["format"]));
+        }
+    }
+
     /// Prints the report and decides the exit code (a chapter's `run_chapter` returns it), from the checks
     /// and from `validation`, the layer's and GL's error counts that the caller filled in.
     pub fn finish(self, print: Print) -> ExitCode {

@@ -175,6 +175,19 @@ pub fn new_shared_fds(before: &BTreeMap<String, usize>) -> Vec<String> {
 }
 // ANCHOR_END: shared_fds
 
+// ANCHOR: fd_check
+/// The check `no_fd_leaked` of a program that shares memory across processes: no socket,
+/// exported memory or semaphore is open now that was not open at `before` ([`is_shared_object`]
+/// says why the driver's own files are not counted). Each one left is named on stderr, after `who`.
+pub fn no_fd_leaked(who: &str, before: &BTreeMap<String, usize>) -> bool {
+    let leaked = new_shared_fds(before);
+    if !leaked.is_empty() {
+        eprintln!("{who}: fds left open: {leaked:?}");
+    }
+    leaked.is_empty()
+}
+// ANCHOR_END: fd_check
+
 /// This process's resident memory (`VmRSS` in `/proc/self/status`), in KiB; 0 if unknown.
 pub fn resident_kib() -> u64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();

@@ -5,6 +5,7 @@ pub mod cuda;
 pub mod exportable;
 pub mod handoff;
 mod import;
+pub mod wire;
 
 pub use import::*;
 

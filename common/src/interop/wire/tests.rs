@@ -51,7 +51,7 @@ fn tagged_fd(dir: &std::path::Path, tag: &str, bytes: u64) -> OwnedFd {
 }
 
 fn open_with(tag: &str) -> usize {
-    common::instruments::resources::open_fds().iter().filter(|fd| fd.contains(tag)).count()
+    crate::instruments::resources::open_fds().iter().filter(|fd| fd.contains(tag)).count()
 }
 
 #[test]

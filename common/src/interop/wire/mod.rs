@@ -22,7 +22,7 @@ pub const MAX_MESSAGE: usize = HEADER + 2 + MAX_SUMMARY;
 /// The most slots a ring may have: 2 is double buffering, 3 triple; 16 is far past any use.
 pub const MAX_SLOTS: u32 = 16;
 /// The widest and tallest image (`--size`'s own limit).
-pub const MAX_SIDE: u32 = common::base::cli::TYPED_LIMIT;
+pub const MAX_SIDE: u32 = crate::base::cli::TYPED_LIMIT;
 const MAX_NAME: usize = 256;
 const MAX_REASON: usize = 2048;
 const MAX_SUMMARY: usize = 32 * 1024;
@@ -371,10 +371,8 @@ pub fn monotonic_ns() -> u64 {
     now.tv_sec as u64 * 1_000_000_000 + now.tv_nsec as u64
 }
 
-#[path = "socket.rs"]
 mod socket;
 pub use socket::*;
 
 #[cfg(test)]
-#[path = "wire_tests.rs"]
 mod tests;

@@ -3,8 +3,8 @@
 //! and how a message and its fds go through it (`sendmsg`/`recvmsg` with `SCM_RIGHTS`).
 
 use super::{Broken, MAX_MESSAGE, Message, decode, encode};
+use crate::instruments::fail;
 use anyhow::{Context as _, Result, bail, ensure};
-use common::instruments::fail;
 use rustix::net::{
     AddressFamily, RecvAncillaryBuffer, RecvAncillaryMessage, RecvFlags, ReturnFlags, SendAncillaryBuffer,
     SendAncillaryMessage, SendFlags, SocketFlags, SocketType,
@@ -107,6 +107,29 @@ pub fn connect(path: &std::path::Path) -> Result<Socket> {
     fail::call("connect", || rustix::net::connect(&fd, &address))
         .with_context(|| format!("no renderer listening at {}", path.display()))?;
     Ok(Socket { fd })
+}
+
+/// The next client of `listener` (`--listen`), within `timeout`.
+pub fn accept(listener: &OwnedFd, timeout: Duration) -> Result<Socket> {
+    let recv = rustix::net::sockopt::Timeout::Recv;
+    fail::call("setsockopt SO_RCVTIMEO (listening)", || {
+        rustix::net::sockopt::set_socket_timeout(listener, recv, Some(timeout))
+    })?;
+    let fd = fail::call("accept", || rustix::net::accept_with(listener, SocketFlags::CLOEXEC))
+        .with_context(|| format!("no viewer connected within {timeout:?}"))?;
+    Ok(Socket { fd })
+}
+
+/// [`connect`], tried again every 20 ms until a renderer listens at `path` or `timeout` passes.
+pub fn connect_within(path: &std::path::Path, timeout: Duration) -> Result<Socket> {
+    let started = std::time::Instant::now();
+    loop {
+        match connect(path) {
+            Ok(socket) => return Ok(socket),
+            Err(error) if started.elapsed() > timeout => return Err(error),
+            Err(_) => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
 }
 
 impl Socket {
