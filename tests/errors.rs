@@ -425,10 +425,11 @@ fn commands_in(help: &str) -> Vec<String> {
     for line in help.lines() {
         if !line.starts_with(' ') {
             inside = line.trim_end() == "Commands:";
-        } else if inside && let Some(word) = line.split_whitespace().next() {
-            if word != "help" {
-                commands.push(word.to_owned());
-            }
+        } else if inside
+            && let Some(word) = line.split_whitespace().next()
+            && word != "help"
+        {
+            commands.push(word.to_owned());
         }
     }
     commands
