@@ -238,7 +238,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.check("vulkan_sees_each_frame_gl_drew", vulkan_saw_gl);
     report.check("gl_sees_each_frame_vulkan_wrote", gl_saw_vulkan);
     let out_dir = args.common.out_dir(CHAPTER);
-    pattern::save_last_frame(report, &out_dir, extent, &last_seen_by_gl, &gl_pixels_seen_by_vulkan)?;
+    pattern::save_last_frame(report, &out_dir, CHAPTER, extent, &last_seen_by_gl, &gl_pixels_seen_by_vulkan)?;
     times.record(report);
     let (median, _) = median_p95(times.samples("handshake_cpu"));
     eprintln!("{} handshake: the CPU spends {median:.3} ms a frame in it (median)", handoff.name());

@@ -28,17 +28,18 @@ pub fn first_pixel_is(readback: &HostBuffer, colour: [u8; 3]) -> bool {
     readback.bytes()[..3].iter().zip(colour).all(|(&a, b)| a.abs_diff(b) <= 1)
 }
 
-/// The last frame's two pictures: Vulkan's pattern as GL read it back, and GL's clear as Vulkan
-/// copied it out.
+/// The last frame's two pictures, `chapter.png` and `chapter-gl.png`: Vulkan's pattern as GL
+/// read it back, and GL's clear as Vulkan copied it out.
 pub fn save_last_frame(
     report: &mut Report,
     out_dir: &Path,
+    chapter: &str,
     extent: vk::Extent2D,
     seen_by_gl: &[u8],
     seen_by_vulkan: &HostBuffer,
 ) -> anyhow::Result<()> {
     let size = (extent.width, extent.height);
-    output::save_rgba8(report, out_dir, crate::CHAPTER, size, seen_by_gl)?;
-    let name = format!("{}-gl", crate::CHAPTER);
+    output::save_rgba8(report, out_dir, chapter, size, seen_by_gl)?;
+    let name = format!("{chapter}-gl");
     output::save_rgba8(report, out_dir, &name, size, seen_by_vulkan.bytes())
 }

@@ -1,6 +1,5 @@
 //! Chapter 04's checks: what the frame should show, computed on the CPU.
 
-use crate::{CLEAR, Triangle};
 use anyhow::Result;
 use ash::vk;
 use common::clocks::timing::PassTimes;
@@ -11,6 +10,8 @@ use std::f32::consts::TAU;
 /// What the frames showed and how long they took, gathered frame by frame for the report.
 #[derive(Default)]
 pub struct Checks {
+    /// The colour GL clears to: a pixel that differs from it is lit.
+    clear: [f32; 4],
     centre_lit: Option<bool>,
     shows_image: Option<bool>,
     /// The first and last frames read back, with their animation times.
@@ -23,16 +24,22 @@ pub struct Checks {
 }
 
 impl Checks {
-    /// Checks one read-back frame: the triangle covers the centre and shows the computed image.
+    /// Checks for frames that GL clears to `clear` before it draws the triangle.
+    pub fn new(clear: [f32; 4]) -> Checks {
+        Checks { clear, ..Checks::default() }
+    }
+
+    /// Checks one read-back frame: the triangle (its corners x, y, u, v) covers the centre and
+    /// shows the computed image.
     pub fn frame(
         &mut self,
         pixels: Vec<u8>,
         (width, height): (u32, u32),
-        triangle: &Triangle,
+        triangle: &[[f32; 4]; 3],
         image: vk::Extent2D,
         time: f32,
     ) {
-        let lit = is_lit(pixel(&pixels, width, height, [0.0, 0.0]));
+        let lit = is_lit(pixel(&pixels, width, height, [0.0, 0.0]), self.clear);
         let shows = shows_compute_image(&pixels, (width, height), triangle, image, time);
         self.centre_lit = Some(self.centre_lit.unwrap_or(true) && lit);
         self.shows_image = Some(self.shows_image.unwrap_or(true) && shows);
@@ -99,7 +106,7 @@ fn sampled_colour(uv: [f32; 2], size: vk::Extent2D, time: f32) -> [f32; 3] {
 fn shows_compute_image(
     pixels: &[u8],
     (width, height): (u32, u32),
-    triangle: &Triangle,
+    triangle: &[[f32; 4]; 3],
     size: vk::Extent2D,
     time: f32,
 ) -> bool {
@@ -122,7 +129,7 @@ fn shows_compute_image(
 // ANCHOR_END: shader_on_cpu
 
 /// The texture coordinate GL interpolates at `p` (normalised device coordinates) in `triangle`.
-fn uv_at(triangle: &Triangle, p: [f32; 2]) -> [f32; 2] {
+fn uv_at(triangle: &[[f32; 4]; 3], p: [f32; 2]) -> [f32; 2] {
     let [a, b, c] = triangle;
     let area = |p: [f32; 2], q: &[f32; 4], r: &[f32; 4]| {
         (q[0] - p[0]) * (r[1] - p[1]) - (r[0] - p[0]) * (q[1] - p[1])
@@ -145,8 +152,8 @@ fn pixel(pixels: &[u8], width: u32, height: u32, p: [f32; 2]) -> [u8; 4] {
     pixels[at..at + 4].try_into().unwrap()
 }
 
-fn is_lit(p: [u8; 4]) -> bool {
-    CLEAR.iter().zip(p).any(|(c, p)| ((c * 255.0).round() as u8).abs_diff(p) > 12)
+fn is_lit(p: [u8; 4], clear: [f32; 4]) -> bool {
+    clear.iter().zip(p).any(|(c, p)| ((c * 255.0).round() as u8).abs_diff(p) > 12)
 }
 
 /// Two frames differ when at least 1% of their pixels changed visibly.

@@ -147,7 +147,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 
     let out_dir = args.common.out_dir(CHAPTER);
     let started = Instant::now();
-    let (mut checks, mut gl_timer) = (Checks::default(), common::clocks::timing::GlPassTimer::new(gl)?);
+    let (mut checks, mut gl_timer) = (Checks::new(CLEAR), common::clocks::timing::GlPassTimer::new(gl)?);
     // Made after everything its submissions use: an early return drops it first, and its Drop
     // waits for the last submission before the image or the pipeline it used is destroyed.
     let commands = Commands::new(&vk)?;

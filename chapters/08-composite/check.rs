@@ -56,10 +56,12 @@ impl LastFrame<'_> {
 
     /// Headless: a picture of each of `views` (the last frame's own, or with `--all-views` every
     /// debug view), as `prefix[-view].png` in `out_dir`; the mean AO shown. A size the scene
-    /// covers no pixel of is refused here, where the mean would be over none.
+    /// covers no pixel of is refused here, where the mean would be over none (the error names
+    /// `chapter`).
     pub fn write_pictures(
         &self,
         report: &mut Report,
+        chapter: &str,
         out_dir: &Path,
         prefix: &str,
         views: &[View],
@@ -73,7 +75,7 @@ impl LastFrame<'_> {
             let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
             let covered: Vec<usize> = (0..(w * h) as usize).filter(|&i| positions[i * 4 + 3] > 0.0).collect();
             // A mean over no pixel is not a number: refuse the size instead.
-            check_covered("--size", crate::CHAPTER, Size { width: w, height: h }, covered.len() as u64)?;
+            check_covered("--size", chapter, Size { width: w, height: h }, covered.len() as u64)?;
             covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len() as f64
         };
         report.set("ao_mean", (ao_mean * 1e3).round() / 1e3);

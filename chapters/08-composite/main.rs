@@ -235,9 +235,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         report.set("blas_layout", args.blas);
         report.set("frames", frame);
         if window.is_none() {
-            let out_dir = args.common.out_dir(CHAPTER);
+            let (out_dir, prefix) = (args.common.out_dir(CHAPTER), args.scene.picture_name(CHAPTER));
             let views = if args.all_views { View::ALL.to_vec() } else { vec![last_frame.uniforms.view] };
-            last_frame.write_pictures(report, &out_dir, &args.scene.picture_name(CHAPTER), &views)?;
+            last_frame.write_pictures(report, CHAPTER, &out_dir, &prefix, &views)?;
         }
     }
 

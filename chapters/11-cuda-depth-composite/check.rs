@@ -1,7 +1,6 @@
 //! Chapter 11's checks: the CUDA picture against the CPU tracer, the composite against what the
 //! tracer wrote, the lines' depth test, and the composite's depth against rasterised depth.
 
-use crate::Path;
 use crate::composite::{DepthComposite, DepthUniforms, Source};
 use crate::scene::{self, GROUND, TraceParams};
 use anyhow::Result;
@@ -31,19 +30,20 @@ pub enum TracedBy {
     Cpu,
 }
 
-/// Medians of the per-frame GPU times (CPU time for the CPU tracer), under `<path>.<what>`.
-pub fn report_times(report: &mut Report, path: Path, traced_by: TracedBy, times: &[Vec<f64>; 3]) {
+/// Medians of the per-frame GPU times (CPU time for the CPU tracer), under `<path>.<what>`, for
+/// the path named `path` (`pbo`, `zero_copy`).
+pub fn report_times(report: &mut Report, path: &str, traced_by: TracedBy, times: &[Vec<f64>; 3]) {
     let trace = match traced_by {
         TracedBy::Cuda => "cuda_kernel",
         TracedBy::Cpu => "cpu_trace",
     };
-    let mut line = format!("{:>9}:", path.name());
+    let mut line = format!("{path:>9}:");
     for (what, samples) in [trace, "gl_upload", "gl_composite"].iter().zip(times) {
         if samples.is_empty() {
             continue;
         }
         let (median, _) = common::clocks::timestamps::median_p95(samples);
-        report.time_ms(&format!("{}.{what}_median", path.name()), median);
+        report.time_ms(&format!("{path}.{what}_median"), median);
         line += &format!("  {what} {median:.3} ms");
     }
     eprintln!("{line}");
@@ -61,17 +61,18 @@ pub struct Frame<'a> {
 }
 
 impl Frame<'_> {
-    /// Records this path's checks; returns the picture (composite and lines, bottom row first).
+    /// Records the checks of the path named `path`, each named `<path>_<check>`; returns the
+    /// picture (composite and lines, bottom row first).
     pub fn check(
         &self,
         report: &mut Report,
-        path: Path,
+        path: &str,
         params: &TraceParams,
         traced: &[u32],
     ) -> Result<Vec<u8>> {
         let Frame { gl, composite, traced_by, .. } = *self;
         let (w, h) = (composite.width as usize, composite.height as usize);
-        let name = |check: &str| format!("{}_{check}", path.name());
+        let name = |check: &str| format!("{path}_{check}");
 
         // The CPU tracer's picture: the reference for CUDA's, and the scene's hits.
         let mut reference = vec![0u32; 2 * w * h];

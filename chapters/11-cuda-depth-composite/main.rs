@@ -297,7 +297,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             })?);
             // ANCHOR_END: frame
         }
-        check::report_times(report, path, traced_by, &times);
+        check::report_times(report, path.name(), traced_by, &times);
 
         // 7. Check what this path drew
         let (source, buffer) = match path {
@@ -314,7 +314,7 @@ fn draw_paths(s: &Setup, tracer: Option<&CudaTracer>, report: &mut Report) -> Re
             camera: s.camera,
             traced_by,
         };
-        pictures.push((path, frame.check(report, path, &params, &traced)?));
+        pictures.push((path, frame.check(report, path.name(), &params, &traced)?));
     }
     if let [(_, a), (_, b)] = &pictures[..] {
         report.check("both_paths_show_the_same_picture", a == b);

@@ -9,24 +9,12 @@
 //!
 //! Run: `cargo run --release --bin 13-temporal-reuse` (keys: H chapter 12's frame and back, Esc quits).
 
-use anyhow::{Result, ensure};
-use ash::vk;
+use anyhow::Result;
 use common::base::cli::{Size, Smallest};
-use common::base::commands::Commands;
 use common::base::window::{Key, NamedKey, Window};
-use common::clocks::timestamps::Timestamps;
-use common::frame::Overlays;
-use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
-use common::frame::fast::trace::SurfaceTracer;
-use common::frame::fast::visibility::{self, Targets, VisibilityPass};
-use common::frame::temporal::{Budget, Checks, Clock, Drawn, Motion, Passes, Sized, TemporalTracer, check};
-use common::frame::temporal::{Path, PathArgs, RayArgs};
-use common::interop::handoff::Apis;
-use common::rt::RayTracedScene;
-use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
-use common::rt::ao::AoArgs;
+use common::frame::fast::composite::{Uniforms, View};
+use common::frame::temporal::{Budget, Checks, Clock, Drawn, Objects, Passes, Sized, TemporalArgs, check};
 use common::scene::gbuffer::contexts_in_window;
-use common::scene::{Camera, Instance, SceneArgs};
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
@@ -51,26 +39,10 @@ const PATH_FRAMES: u32 = 120;
 #[derive(clap::Parser)]
 struct Args {
     #[command(flatten)]
-    scene: SceneArgs,
-    #[command(flatten)]
-    rays: RayArgs,
-    #[command(flatten)]
-    path: PathArgs,
-    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long, value_parser = common::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
-    radius: Option<f32>,
-    /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0, value_parser = common::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
-    power: f32,
-    /// Blur radius in pixels (0 skips the blur), as chapter 12's.
-    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=8))]
-    blur: u32,
+    temporal: TemporalArgs,
     /// Which picture to show.
     #[arg(long, value_enum, default_value = "final")]
     view: View,
-    /// As chapter 12's `--blas`; only the per-mesh layout lets an instance move.
-    #[arg(long, value_enum, default_value = "per-mesh")]
-    blas: BlasLayout,
     /// Headless: make the images of one size anew every K frames, as a window's resize does
     /// (the history starts again).
     #[arg(long, value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
@@ -81,92 +53,26 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let size = args.common.size;
 
     // 1. The scene, the path the camera and one instance follow, and the rays' budget
-    let mut scene = args.scene.load()?;
-    let start = Camera::framing(scene.bounds, size.aspect());
-    let path = Path::new(&scene, start, &args.path);
-    if let Some(moving) = &path.moving {
-        ensure!(
-            args.blas == BlasLayout::PerMesh,
-            "--blas flat holds every instance in one tree, so none can move: use --blas per-mesh, or --mover none"
-        );
-        // Where it stands at frame 0, before the scene is shared and its structures built.
-        scene.instances[moving.index].transform = Instance::new(moving.at(0), [0; 3]).transform;
-    }
-    let ao = AoArgs { samples: args.rays.samples, radius: args.radius, power: args.power, max_samples: 1 };
-    let radius = ao.radius(&scene)?;
-    let budget = Budget::new(&args.rays, radius, scene.size() / 2.0);
-    if let Some(reason) = common::rt::ao::nothing_to_trace(budget.fresh, radius) {
-        eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
-    }
-    report.set("path", args.path.path);
-    report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
+    let stage = args.temporal.stage(size.aspect(), report)?;
 
     // 2. Vulkan, then GL: in a window when there is a display, headless otherwise
     let (vk, mut window, gl_context, handoff) =
         contexts_in_window(CHAPTER, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
+    let apis = (&vk, &gl_context, &handoff);
 
     // 3. The shared scene and its structures; a TLAS that can be updated where an instance moves
-    // ANCHOR: structures
-    let flags = if path.moving.is_some() { TlasFlags::UPDATABLE } else { TlasFlags::STATIC };
-    let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, flags, args.blas)?;
-    let ids = visibility::number_triangles(&vk, &scene, &shared.buffers)?;
-    let loader = &shared.structures.loader;
-    let tlas = match path.moving {
-        Some(_) => {
-            let inputs = BuildInputs {
-                handle: *shared.structures.tlas.handle,
-                ty: vk::AccelerationStructureTypeKHR::TOP_LEVEL,
-                flags: flags.0,
-                geometry: instances_geometry(&vk, &shared.buffers.instances.vk),
-                primitives: scene.instances.len() as u32,
-            };
-            Some(InPlace::new(&vk, &shared.allocator, loader, inputs)?)
-        }
-        None => None,
-    };
-    // ANCHOR_END: structures
-
     // 4. Chapter 12's images and passes, the history, and the command buffers
-    let targets = Targets::new(&vk, &gl_context, &handoff, size.extent())?;
-    let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
-    let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
-    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets, budget.fresh_pass)?;
-    let mut sized = Sized { targets, fresh, temporal };
-    let composite = ComputeComposite::new(gl)?;
-    let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
-    let timestamps = Timestamps::new(&vk)?;
-    let updates = Commands::new(&vk)?;
-    // Made after everything the frames use: an early return drops it first, and its Drop waits
-    // for the last frame's Vulkan work before any of that is destroyed.
-    let commands = Commands::new(&vk)?;
-    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
-    let passes = Passes {
-        apis,
-        scene: &scene,
-        shared: &shared,
-        ids: &ids,
-        visibility: &visibility,
-        composite: &composite,
-        overlays: Some(&overlays),
-        path: &path,
-        motion: tlas.as_ref().map(|tlas| Motion {
-            instances: &shared.buffers.instances.vk,
-            tlas,
-            loader,
-            updates: &updates,
-        }),
-        timestamps: timestamps.as_ref(),
-        ids_ahead: true, // the next frame's ids are drawn before the CPU waits (step 5)
-        uniforms: Uniforms::new(args.blur, args.power, args.view, start.far),
-        radius,
-    };
+    let mut objects = Objects::new(apis, &stage, args.temporal.blas, size.extent())?;
+    let uniforms = Uniforms::new(args.temporal.blur, args.temporal.power, args.view, stage.start.far);
+    // The next frame's ids are drawn before the CPU waits (step 5).
+    let (passes, sized) = objects.passes(apis, &stage, uniforms, true);
 
     // 5. The frames: in a window until it closes, else the whole path, checked as it goes
     match window.as_mut() {
-        Some(window) => in_window(&passes, &mut sized, window, budget, args.common.window_frames(), report)?,
-        None => headless(&passes, &mut sized, budget, args, report)?,
+        Some(window) => in_window(&passes, sized, window, stage.budget, args.common.window_frames(), report)?,
+        None => headless(&passes, sized, stage.budget, args, report)?,
     }
     gl_context.check_error("the frames")?;
     common::interop::report_handoff(report, &handoff);
@@ -175,15 +81,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // ANCHOR: cleanup
     unsafe { gl.finish() };
     vk.wait_idle()?; // once: no guard below waits
-    drop(commands);
-    drop(updates);
-    drop(timestamps);
-    drop(overlays);
-    drop(composite);
-    drop(sized); // the tracers' pipelines and history, then the images of one size
-    drop(visibility);
-    drop(tlas);
-    drop(shared); // the structures, then the shared buffers, each GL side first
+    drop(objects); // its fields in the order written: the command buffers first, the shared scene last
     drop(handoff);
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
@@ -203,7 +101,7 @@ fn headless(
     report: &mut Report,
 ) -> Result<()> {
     let frames = args.common.frames.unwrap_or(PATH_FRAMES).max(1);
-    let (out, prefix) = (args.common.out_dir(CHAPTER), args.scene.picture_name(CHAPTER));
+    let (out, prefix) = (args.common.out_dir(CHAPTER), args.temporal.scene.picture_name(CHAPTER));
     let mut checks = Checks { chapter: CHAPTER, frames, out, prefix, before_cut: None };
     let mut clock = Clock::new(&p.apis.gl.gl, None)?;
     let drawn = Drawn::Temporal(budget);

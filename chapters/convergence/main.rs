@@ -34,6 +34,7 @@ use std::process::ExitCode;
 
 /// Error against run time for the ray-traced ambient occlusion.
 #[derive(Parser)]
+#[command(after_help = COMMANDS)]
 struct Args {
     /// Print one JSON report on stdout; everything human-readable goes to stderr.
     #[arg(long)]
@@ -54,6 +55,11 @@ struct Args {
     #[arg(long)]
     exact_only: bool,
 }
+
+/// The command `main` takes instead of this program's flags, listed in `--help` as clap lists
+/// its own (`convergence temporal --help` lists its flags).
+const COMMANDS: &str = "Commands:
+  temporal  Chapter 13's frame along its path, its choices varied: error and time per method";
 
 /// One measurement: `spp` rays per pixel in each of `frames` frames.
 #[derive(Serialize, Clone)]

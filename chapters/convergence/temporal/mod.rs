@@ -9,24 +9,12 @@
 mod measure;
 mod walk;
 
-use anyhow::{Result, ensure};
-use ash::vk;
+use anyhow::Result;
 use common::base::cli::Smallest;
-use common::base::commands::Commands;
-use common::clocks::timestamps::Timestamps;
-use common::frame::Overlays;
-use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
-use common::frame::fast::trace::SurfaceTracer;
-use common::frame::fast::visibility::{self, Targets, VisibilityPass};
+use common::frame::fast::composite::{Uniforms, View};
 use common::frame::temporal::tracer::accept_bits;
-use common::frame::temporal::{Accept, Budget, Drawn, FreshPass, Motion, Passes, Sized, TemporalTracer};
-use common::frame::temporal::{Path, PathArgs, RayArgs};
-use common::interop::handoff::Apis;
-use common::rt::RayTracedScene;
-use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
-use common::rt::ao::AoArgs;
+use common::frame::temporal::{Accept, Drawn, FreshPass, Objects, TemporalArgs};
 use common::scene::gbuffer::contexts_in_window;
-use common::scene::{Camera, Instance, SceneArgs};
 use common::{CommonArgs, Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
@@ -46,24 +34,9 @@ const SMALLEST: Smallest = Smallest {
 /// times measured. Headless always.
 #[derive(clap::Parser)]
 struct Args {
+    /// Chapter 13's own flags, as the chapter takes them.
     #[command(flatten)]
-    scene: SceneArgs,
-    #[command(flatten)]
-    rays: RayArgs,
-    #[command(flatten)]
-    path: PathArgs,
-    /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long, value_parser = common::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
-    radius: Option<f32>,
-    /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0, value_parser = common::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
-    power: f32,
-    /// Blur radius in pixels (0 skips the blur), as chapter 12's.
-    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=8))]
-    blur: u32,
-    /// As chapter 12's `--blas`; only the per-mesh layout lets an instance move.
-    #[arg(long, value_enum, default_value = "per-mesh")]
-    blas: BlasLayout,
+    temporal: TemporalArgs,
     /// Which tests a remembered texel must pass to be reused (`none`: every texel is reused, so
     /// moving things leave ghosts; for measuring what the tests are worth).
     #[arg(long, value_enum, value_delimiter = ',', default_value = "instance,plane,normal")]
@@ -146,88 +119,26 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // Read first: a file that is not there or not a compare.csv is refused before any GPU work.
     let times = args.times_from.as_deref().map(measure::read_times).transpose()?;
 
-    // Chapter 13's steps 1-4, as its main.rs makes them; then the choices this run varies.
-    let mut scene = args.scene.load()?;
-    let start = Camera::framing(scene.bounds, size.aspect());
-    let path = Path::new(&scene, start, &args.path);
-    if let Some(moving) = &path.moving {
-        ensure!(
-            args.blas == BlasLayout::PerMesh,
-            "--blas flat holds every instance in one tree, so none can move: use --blas per-mesh, or --mover none"
-        );
-        scene.instances[moving.index].transform = Instance::new(moving.at(0), [0; 3]).transform;
-    }
-    let ao = AoArgs { samples: args.rays.samples, radius: args.radius, power: args.power, max_samples: 1 };
-    let radius = ao.radius(&scene)?;
-    let budget = Budget {
-        accept: accept_bits(&args.accept),
-        per_pixel: args.pattern == Pattern::PerPixel,
-        fresh_pass: args.fresh_pass,
-        ..Budget::new(&args.rays, radius, scene.size() / 2.0)
-    };
-    if let Some(reason) = common::rt::ao::nothing_to_trace(budget.fresh, radius) {
-        eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
-    }
-    report.set("path", args.path.path);
+    // Chapter 13's steps 1-4, as its main.rs makes them, with the choices this run varies.
+    let mut stage = args.temporal.stage(size.aspect(), report)?;
+    stage.budget.accept = accept_bits(&args.accept);
+    stage.budget.per_pixel = args.pattern == Pattern::PerPixel;
+    stage.budget.fresh_pass = args.fresh_pass;
     report.set("fresh_pass", args.fresh_pass);
     report.set("next_ids", args.next_ids);
-    report.set("moving_instance", path.moving.as_ref().map(|m| m.index));
 
     let headless = CommonArgs { headless: true, ..args.common.clone() };
     let (vk, window, gl_context, handoff) = contexts_in_window(NAME, report, &RAY_TRACED_INTEROP, &headless)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
-    let flags = if path.moving.is_some() { TlasFlags::UPDATABLE } else { TlasFlags::STATIC };
-    let shared = RayTracedScene::with_layout(&vk, &gl_context, &scene, flags, args.blas)?;
-    let ids = visibility::number_triangles(&vk, &scene, &shared.buffers)?;
-    let loader = &shared.structures.loader;
-    let tlas = match path.moving {
-        Some(_) => {
-            let inputs = BuildInputs {
-                handle: *shared.structures.tlas.handle,
-                ty: vk::AccelerationStructureTypeKHR::TOP_LEVEL,
-                flags: flags.0,
-                geometry: instances_geometry(&vk, &shared.buffers.instances.vk),
-                primitives: scene.instances.len() as u32,
-            };
-            Some(InPlace::new(&vk, &shared.allocator, loader, inputs)?)
-        }
-        None => None,
-    };
-    let targets = Targets::new(&vk, &gl_context, &handoff, size.extent())?;
-    let visibility = VisibilityPass::new(&gl_context, &shared.buffers)?;
-    let fresh = SurfaceTracer::new(&vk, &shared, &ids, &targets)?;
-    let temporal = TemporalTracer::new(&vk, &shared, fresh.mesh_table(), &targets, args.fresh_pass)?;
-    let mut sized = Sized { targets, fresh, temporal };
-    let composite = ComputeComposite::new(gl)?;
-    let overlays = Overlays::new(gl, &scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
-    let timestamps = Timestamps::new(&vk)?;
-    let updates = Commands::new(&vk)?;
-    let commands = Commands::new(&vk)?; // made last: dropped first, it waits for its work
-    let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
-    let passes = Passes {
-        apis,
-        scene: &scene,
-        shared: &shared,
-        ids: &ids,
-        visibility: &visibility,
-        composite: &composite,
-        overlays: Some(&overlays),
-        path: &path,
-        motion: tlas.as_ref().map(|tlas| Motion {
-            instances: &shared.buffers.instances.vk,
-            tlas,
-            loader,
-            updates: &updates,
-        }),
-        timestamps: timestamps.as_ref(),
-        ids_ahead: args.next_ids == NextIds::Early,
-        uniforms: Uniforms::new(args.blur, args.power, View::Final, start.far),
-        radius,
-    };
+    let apis = (&vk, &gl_context, &handoff);
+    let mut objects = Objects::new(apis, &stage, args.temporal.blas, size.extent())?;
+    // The error is measured on the picture a reader sees: the final view.
+    let uniforms = Uniforms::new(args.temporal.blur, args.temporal.power, View::Final, stage.start.far);
+    let (passes, sized) = objects.passes(apis, &stage, uniforms, args.next_ids == NextIds::Early);
     let chosen = match args.method {
-        Method::Temporal => Drawn::Temporal(budget),
-        Method::Fresh => Drawn::Fresh(args.rays.samples),
+        Method::Temporal => Drawn::Temporal(stage.budget),
+        Method::Fresh => Drawn::Fresh(args.temporal.rays.samples),
     };
     let out = args.common.out_dir(NAME);
     let walking = walk::Walking {
@@ -238,14 +149,14 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         error_every: args.error_every,
         timeline: args.timeline,
         out: out.clone(),
-        prefix: args.scene.picture_name(NAME),
+        prefix: args.temporal.scene.picture_name(NAME),
     };
-    let mut walks = walk::headless(&passes, &mut sized, (chosen, budget), &walking, report)?;
+    let mut walks = walk::headless(&passes, sized, (chosen, stage.budget), &walking, report)?;
     if let Some(times) = &times {
-        measure::take_times(&mut walks, times, path.cut())?;
+        measure::take_times(&mut walks, times, stage.path.cut())?;
     }
     if args.compare {
-        let table = measure::write(&out, &walks, path.cut(), &vk.info.name)?;
+        let table = measure::write(&out, &walks, stage.path.cut(), &vk.info.name)?;
         eprint!("{table}");
     }
     if args.error_against > 0 || args.compare {
@@ -256,15 +167,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 
     unsafe { gl.finish() };
     vk.wait_idle()?; // once: no owner below waits
-    drop(commands);
-    drop(updates);
-    drop(timestamps);
-    drop(overlays);
-    drop(composite);
-    drop(sized);
-    drop(visibility);
-    drop(tlas);
-    drop(shared);
+    drop(objects);
     drop(handoff);
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);

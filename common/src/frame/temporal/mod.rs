@@ -1,15 +1,18 @@
 //! Chapter 13's frame: chapter 12's passes, with the occlusion each pixel traced kept from frame
 //! to frame. The path the camera and one instance follow (`path`), the tracer that reprojects
 //! and reuses its history (`tracer`), one frame between GL's ids and its composite (`frame`),
-//! and the chapter's checks (`check`). Chapter 13 draws it as its lesson; `convergence temporal`
-//! walks it again with its choices varied, measuring error against time.
+//! the chapter's checks (`check`), and the flags and setup both programs share (`setup`).
+//! Chapter 13 draws it as its lesson; `convergence temporal` walks it again with its choices
+//! varied, measuring error against time.
 
 pub mod check;
 pub mod frame;
 pub mod path;
+pub mod setup;
 pub mod tracer;
 
 pub use check::Checks;
 pub use frame::{Clock, Drawn, Motion, Passes, Sized};
 pub use path::{Mover, Path, PathArgs, PathKind};
+pub use setup::{Objects, Stage, TemporalArgs};
 pub use tracer::{Accept, Budget, FreshPass, RayArgs, TemporalTracer, Texel};
