@@ -19,8 +19,6 @@ pub const SEMAPHORE_FD: &CStr = ash::khr::external_semaphore_fd::NAME;
 pub struct WgpuDevice {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
-    pub adapter: wgpu::Adapter,
-    pub instance: wgpu::Instance,
     /// Name, driver and UUIDs, as common's Vulkan context would report them.
     pub info: DeviceInfo,
     /// Did the callback enable [`SEMAPHORE_FD`]?
@@ -145,7 +143,7 @@ pub fn open(instance: wgpu::Instance) -> Result<WgpuDevice> {
     // wgpu's own validation (a misused wgpu call) is counted with the layer's, not a panic.
     device.on_uncaptured_error(Arc::new(|error| validation::count_message(true, &format!("wgpu: {error}"))));
     enabled.sort();
-    Ok(WgpuDevice { device, queue, adapter, instance, info, semaphores, extensions: enabled })
+    Ok(WgpuDevice { device, queue, info, semaphores, extensions: enabled })
 }
 
 /// Counts the validation layer's messages, which wgpu-hal's messenger passes to the `log` crate

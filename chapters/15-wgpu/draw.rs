@@ -96,12 +96,15 @@ pub struct Readback {
 }
 
 /// What one frame of wgpu's needs: the images, whether GL had them (an acquire first), whether
-/// to read them back, and the semaphores ([wgpu done, GL done]) where both sides share them.
+/// to read them back, and the semaphores ([wgpu done, GL done]) where both sides share them,
+/// with whether GL has signalled its one (once it has, every submission waits for it: after a
+/// resize too, when the new images were never GL's, or the signal would be left pending).
 pub struct Frame<'a> {
     pub images: [&'a SharedImage; 2],
     pub gl_had_them: bool,
     pub read_back: bool,
     pub semaphores: Option<[vk::Semaphore; 2]>,
+    pub gl_signalled: bool,
 }
 
 // ANCHOR: frame
@@ -168,7 +171,7 @@ pub fn frame(
     if let Some([wgpu_done, gl_done]) = frame.semaphores {
         // SAFETY: the semaphores live until the queue is idle (their owner is dropped after).
         let hal = unsafe { queue.as_hal::<Vulkan>() }.context("a Vulkan queue")?;
-        if frame.gl_had_them {
+        if frame.gl_signalled {
             hal.add_wait_semaphore(gl_done, None, vk::PipelineStageFlags::ALL_COMMANDS);
         }
         hal.add_signal_semaphore(wgpu_done, None);

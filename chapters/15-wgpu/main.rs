@@ -25,7 +25,7 @@ use common::instruments::output;
 use common::instruments::report::{VulkanReport, uuid_hex};
 use common::{Flags, Report, open_fd_count};
 use glow::HasContext;
-use shared::{GL_LAYOUT, RELEASED, SharedImage, WRAPPED, share_image};
+use shared::{RELEASED, SharedImage, WRAPPED, share_image};
 use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
@@ -102,7 +102,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let pipeline = draw::pipeline(&wgpu.device)?;
     let mut show = show::Show::new(gl, (size.width, size.height))?;
 
-    let (mut frame, mut resizes, mut gl_had_them, mut last) = (0, 0, false, None);
+    let (mut frame, mut resizes, mut last) = (0, 0, None);
+    let (mut gl_had_them, mut gl_signalled) = (false, false);
     while frames == 0 || frame < frames {
         // 6. A new size: from the window, or every K frames headless
         let wanted = match window.as_mut() {
@@ -139,79 +140,37 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             gl_had_them,
             read_back: is_last,
             semaphores: raw_semaphores,
+            gl_signalled,
         };
         let readbacks = draw::frame(&wgpu.device, &wgpu.queue, &pipeline, wgpu_frame)?;
 
         // 8. GL acquires them, shows them, draws the line, and releases them to wgpu
         // ANCHOR: gl_turn
-        let textures = shared::gl_textures(&[&images[0], &images[1]]);
-        let layouts = [GL_LAYOUT; 2];
-        let names: Vec<u32> = textures.iter().map(|t| t.0.get()).collect();
+        let textures = shared::gl_textures(&images);
         match &semaphores {
-            Some([wgpu_done, _]) => unsafe {
-                let ext = gl_context.semaphores.as_ref().context("GL_EXT_semaphore_fd")?;
-                (ext.WaitSemaphoreEXT)(
-                    wgpu_done.gl.0,
-                    0,
-                    std::ptr::null(),
-                    2,
-                    names.as_ptr(),
-                    layouts.as_ptr(),
-                );
-            },
+            Some([wgpu_done, _]) => shared::gl_semaphore(&gl_context, wgpu_done, textures, false)?,
             // The host path: the CPU waits until wgpu's submission is done.
             None => {
                 drop(wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?)
             }
         }
-        show.draw(gl, [textures[0], textures[1]], true);
+        show.draw(gl, textures, true);
         // ANCHOR_END: gl_turn
         if is_last {
             let [picture, depth] = [&readbacks[0], &readbacks[1]].map(|r| r.bytes(&wgpu.device));
             let saw = check::WgpuSaw { picture: picture?, depth: depth? };
-            last = Some((
-                check::last_frame(gl, &show, [textures[0], textures[1]], &saw, (size.width, size.height)),
-                saw,
-            ));
+            last = Some((check::last_frame(gl, &show, textures, &saw, (size.width, size.height)), saw));
         }
         // ANCHOR: gl_release
         match &semaphores {
-            Some([_, gl_done]) => unsafe {
-                let ext = gl_context.semaphores.as_ref().context("GL_EXT_semaphore_fd")?;
-                (ext.SignalSemaphoreEXT)(
-                    gl_done.gl.0,
-                    0,
-                    std::ptr::null(),
-                    2,
-                    names.as_ptr(),
-                    layouts.as_ptr(),
-                );
-                gl.flush(); // the signal reaches GL's queue now, not at some later flush
-            },
+            Some([_, gl_done]) => shared::gl_semaphore(&gl_context, gl_done, textures, true)?,
             None => unsafe { gl.finish() },
         }
         // ANCHOR_END: gl_release
-        gl_had_them = true;
+        (gl_had_them, gl_signalled) = (true, true);
         gl_context.check_error("GL's turn")?;
         if let Some(window) = &window {
-            let (w, h) = window.size();
-            unsafe {
-                gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.target.framebuffer));
-                gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, None);
-                let (sw, sh) = (size.width as i32, size.height as i32);
-                gl.blit_framebuffer(
-                    0,
-                    0,
-                    sw,
-                    sh,
-                    0,
-                    0,
-                    w as i32,
-                    h as i32,
-                    glow::COLOR_BUFFER_BIT,
-                    glow::NEAREST,
-                );
-            }
+            show.blit(gl, window.size());
             window.swap_buffers(&gl_context)?;
         }
         frame += 1;

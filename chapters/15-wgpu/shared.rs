@@ -11,6 +11,7 @@ use common::instruments::fail;
 use common::interop::exportable::{self, HANDLE_TYPE, MemoryTerms};
 use common::interop::handoff::{SharedSemaphore, import_semaphore};
 use common::interop::{SharedTexture, import_texture_2d};
+use glow::HasContext;
 use std::sync::atomic::{AtomicU32, Ordering};
 use wgpu::hal::api::Vulkan;
 
@@ -24,6 +25,7 @@ pub struct SharedImage {
     device: wgpu::Device,
     pub gl: SharedTexture,
     pub image: Owned<vk::Image>,
+    #[allow(dead_code)] // never read: held to be freed last, when dropped
     pub memory: Owned<vk::DeviceMemory>,
 }
 
@@ -188,9 +190,32 @@ pub fn share_semaphores(
 // ANCHOR_END: semaphores
 
 /// GL's texture names of `images`, for its semaphore calls and reads.
-pub fn gl_textures(images: &[&SharedImage]) -> Vec<glow::Texture> {
-    images.iter().map(|image| *image.gl.texture).collect()
+pub fn gl_textures(images: &[SharedImage; 2]) -> [glow::Texture; 2] {
+    [0, 1].map(|i| *images[i].gl.texture)
 }
 
-/// GL's name for the layout wgpu leaves the images in for GL, and GL leaves them in for wgpu.
+// ANCHOR: gl_semaphores
+/// The layout wgpu leaves the images in for GL, and GL leaves them in for wgpu (GL's name).
 pub const GL_LAYOUT: u32 = gl::layout::SHADER_READ_ONLY;
+
+/// GL waits for wgpu (`wait`) or signals that it is done (`signal`), on `semaphore`, for
+/// `textures`, each named with the layout it is in: GL_EXT_semaphore's two calls.
+pub fn gl_semaphore(
+    gl: &GlContext,
+    semaphore: &SharedSemaphore,
+    textures: [glow::Texture; 2],
+    signal: bool,
+) -> Result<()> {
+    let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
+    let call = if signal { ext.SignalSemaphoreEXT } else { ext.WaitSemaphoreEXT };
+    let names = textures.map(|t| t.0.get());
+    let layouts = [GL_LAYOUT; 2];
+    // No buffers, two textures; GL reads one layout per texture.
+    unsafe { call(semaphore.gl.0, 0, std::ptr::null(), 2, names.as_ptr(), layouts.as_ptr()) };
+    if signal {
+        // The signal sits in GL's queue until flushed: without this wgpu could wait forever.
+        unsafe { gl.gl.flush() };
+    }
+    Ok(())
+}
+// ANCHOR_END: gl_semaphores

@@ -107,4 +107,15 @@ impl Show {
         }
     }
     // ANCHOR_END: draw
+
+    /// Into a window: GL's target, scaled to the window's back buffer.
+    pub fn blit(&self, gl: &glow::Context, (w, h): (u32, u32)) {
+        let (tw, th) = (self.target.width as i32, self.target.height as i32);
+        unsafe {
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*self.target.framebuffer));
+            gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, None);
+            let (to, colour) = ([0, 0, w as i32, h as i32], glow::COLOR_BUFFER_BIT);
+            gl.blit_framebuffer(0, 0, tw, th, to[0], to[1], to[2], to[3], colour, glow::NEAREST);
+        }
+    }
 }
