@@ -2,7 +2,7 @@
 //! memory against wgpu's readback (the same bytes), GL's picture against wgpu's (the same
 //! pixels), wgpu's triangle against chapter 02's colours, and the line against wgpu's depth.
 
-use crate::show::{LINE_COLOUR, LINE_DEPTH, LINE_Y, Show};
+use crate::show::{LINE_COLOUR, LINE_Y, Show};
 use common::frame::shows_colour;
 use common::instruments::output;
 use glow::HasContext;
@@ -71,8 +71,7 @@ pub fn last_frame(
         let (column, row) = at(x, LINE_Y);
         (column.clamp(1, w as usize - 2), row.clamp(1, h as usize - 2), LINE_COLOUR)
     };
-    // The line's depth against the triangle's, 0.5 + 0.375 x: nearer for x > 0.
-    debug_assert!(LINE_DEPTH == 0.5);
+    // The line's depth (LINE_DEPTH, 0.5) against the triangle's, 0.5 + 0.375 x: nearer for x > 0.
     checks.push(("line_hidden_behind_the_triangle", !shows_colour(&with_line, w as usize, probe(-0.35))));
     checks.push(("line_shown_in_front_of_the_triangle", shows_colour(&with_line, w as usize, probe(0.35))));
     checks.push(("line_shown_in_the_open", shows_colour(&with_line, w as usize, probe(-0.85))));

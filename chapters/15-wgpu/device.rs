@@ -90,7 +90,7 @@ pub fn open(instance: wgpu::Instance) -> Result<WgpuDevice> {
     let info = DeviceInfo {
         name: base.device_name_as_c_str().unwrap_or(c"?").to_string_lossy().into_owned(),
         driver: format!(
-            "{} ({})",
+            "{} {}",
             driver.driver_name_as_c_str().unwrap_or(c"?").to_string_lossy(),
             driver.driver_info_as_c_str().unwrap_or(c"?").to_string_lossy()
         ),
@@ -112,7 +112,9 @@ pub fn open(instance: wgpu::Instance) -> Result<WgpuDevice> {
     };
     if !has(MEMORY_FD) {
         let name = MEMORY_FD.to_string_lossy();
-        bail!("{} lacks {name}, which sharing memory with GL needs ({})", info.name, extension_hint(&name));
+        let why = if hidden.iter().any(|h| *h == name) { " (hidden by VKGL_HIDE_EXTENSIONS)" } else { "" };
+        let fix = extension_hint(&name);
+        bail!("{} lacks {name}{why}, which sharing memory with GL needs ({fix})", info.name);
     }
     let semaphores = has(SEMAPHORE_FD);
     let features = wgpu::Features::empty();

@@ -25,7 +25,7 @@ use common::instruments::output;
 use common::instruments::report::{VulkanReport, uuid_hex};
 use common::{Flags, Report, open_fd_count};
 use glow::HasContext;
-use shared::{RELEASED, SharedImage, WRAPPED, share_image};
+use shared::{DESTROYED_IN_USE, RELEASED, SharedImage, WRAPPED, share_image};
 use std::process::ExitCode;
 use std::sync::atomic::Ordering;
 
@@ -126,8 +126,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             // GL deletes its side, and the chapter destroys the images and frees their memory.
             unsafe { gl.finish() };
             let fresh = share(new)?;
-            drop(std::mem::replace(&mut images, fresh));
-            wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?;
+            drop(std::mem::replace(&mut images, fresh)); // as in step 10
             show.resize(gl, (new.width, new.height))?;
             (size, gl_had_them, resizes) = (new, false, resizes + 1);
         }
@@ -201,13 +200,13 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     unsafe { gl.finish() };
     wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?;
     drop(show);
-    drop(images); // wgpu's textures (released at the next poll), GL's side, the images, their memory
-    wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?;
+    drop(images); // each: wgpu's texture destroyed and polled for, GL's side, the image, its memory
     let (wrapped, released) = (WRAPPED.load(Ordering::SeqCst), RELEASED.load(Ordering::SeqCst));
+    let in_use = DESTROYED_IN_USE.load(Ordering::SeqCst); // destroyed before wgpu let go
     drop(semaphores); // GL's side, then Vulkan's: no submission uses them now
     // ANCHOR_END: cleanup
     report.set("wgpu_released", format!("{released} of {wrapped} images"));
-    report.check("wgpu_let_go_of_every_image", released == wrapped);
+    report.check("wgpu_let_go_of_every_image", released == wrapped && in_use == 0);
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);

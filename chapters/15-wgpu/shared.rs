@@ -12,7 +12,8 @@ use common::interop::exportable::{self, HANDLE_TYPE, MemoryTerms};
 use common::interop::handoff::{SharedSemaphore, import_semaphore};
 use common::interop::{SharedTexture, import_texture_2d};
 use glow::HasContext;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use wgpu::hal::api::Vulkan;
 
 // ANCHOR: shared_image
@@ -23,6 +24,8 @@ use wgpu::hal::api::Vulkan;
 pub struct SharedImage {
     pub wgpu: wgpu::Texture,
     device: wgpu::Device,
+    /// Set by wgpu's drop callback: wgpu is done with the image.
+    released: Arc<AtomicBool>,
     pub gl: SharedTexture,
     pub image: Owned<vk::Image>,
     #[allow(dead_code)] // never read: held to be freed last, when dropped
@@ -37,14 +40,18 @@ impl Drop for SharedImage {
         if let Err(error) = self.device.poll(wgpu::PollType::wait_indefinitely()) {
             eprintln!("wgpu: Device::poll before destroying a shared image: {error}");
         }
+        if !self.released.load(Ordering::SeqCst) {
+            DESTROYED_IN_USE.fetch_add(1, Ordering::SeqCst); // the report's check fails
+        }
     }
 }
 // ANCHOR_END: shared_image
 
-/// How many wrapped images wgpu has made and let go of (its drop callbacks): equal once every
-/// `SharedImage` is dropped and the device polled.
+/// How many images wgpu has wrapped and let go of (its drop callbacks), and how many the chapter
+/// would have destroyed while wgpu still held them: equal, and none, once all are dropped.
 pub static WRAPPED: AtomicU32 = AtomicU32::new(0);
 pub static RELEASED: AtomicU32 = AtomicU32::new(0);
+pub static DESTROYED_IN_USE: AtomicU32 = AtomicU32::new(0);
 
 // ANCHOR: share_image
 /// A `format` image of `extent` that wgpu renders to and GL samples (`gl_format`, its twin).
@@ -114,7 +121,10 @@ pub fn share_image(
             | wgpu::TextureUsages::COPY_SRC,
         view_formats: &[],
     };
-    let on_drop: wgpu::hal::DropCallback = Box::new(|| {
+    let released = Arc::new(AtomicBool::new(false));
+    let flag = released.clone();
+    let on_drop: wgpu::hal::DropCallback = Box::new(move || {
+        flag.store(true, Ordering::SeqCst);
         RELEASED.fetch_add(1, Ordering::SeqCst);
     });
     fail::step("wgpu: texture_from_raw + create_texture_from_hal")?;
@@ -147,7 +157,7 @@ pub fn share_image(
         wgpu.create_texture_from_hal::<Vulkan>(hal_texture, &descriptor, wgpu::TextureUses::UNINITIALIZED)
     };
     // ANCHOR_END: wrap
-    Ok(SharedImage { wgpu: texture, device: wgpu.clone(), gl: gl_texture, image, memory })
+    Ok(SharedImage { wgpu: texture, device: wgpu.clone(), released, gl: gl_texture, image, memory })
 }
 
 // ANCHOR: semaphores
