@@ -31,7 +31,7 @@ pub struct WgpuDevice {
 /// wgpu's Vulkan backend alone, with the validation layer wherever common's contexts would have
 /// it (installed, and not `VKGL_VALIDATION=0`), its messages counted as theirs are.
 pub fn instance() -> Result<wgpu::Instance> {
-    let validate = std::env::var("VKGL_VALIDATION").map_or(true, |v| v != "0");
+    let validate = !std::env::var("VKGL_VALIDATION").is_ok_and(|v| v == "0");
     let flags = if validate { wgpu::InstanceFlags::VALIDATION } else { wgpu::InstanceFlags::empty() };
     let descriptor = wgpu::hal::InstanceDescriptor {
         name: "chapter 15",

@@ -83,9 +83,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let open_fds_before = open_fd_count()?;
 
     // 3. How the two take turns: semaphores in wgpu's submissions, or the CPU waiting
+    // Made before the images: dropped after them, once their drop has waited for wgpu's queue.
     let semaphores = shared::share_semaphores(&wgpu.device, &gl_context, wgpu.semaphores)?;
     report.sync = Some(if semaphores.is_some() { "semaphores" } else { "host" });
-    // Made before the images: dropped after them, once their drop has waited for wgpu's queue.
     let raw_semaphores = semaphores.as_ref().map(|[a, b]| [*a.vk, *b.vk]);
 
     // 4. Share the two images: memory this chapter allocates, wgpu draws into, GL imports
@@ -150,7 +150,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             Some([wgpu_done, _]) => shared::gl_semaphore(&gl_context, wgpu_done, textures, false)?,
             // The host path: the CPU waits until wgpu's submission is done.
             None => {
-                drop(wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?)
+                wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?;
             }
         }
         show.draw(gl, textures, true);
