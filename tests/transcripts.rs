@@ -81,8 +81,8 @@ impl Scratch {
     }
 }
 
-/// `cargo run [--release] --bin NAME [-- ARGS]`, as the pages print it, runs the binary `cargo
-/// test` built; nothing else.
+/// `cargo run [--release] [-p PACKAGE] --bin NAME [-- ARGS]`, as the pages print it, runs the
+/// binary `cargo test` built; nothing else.
 const CARGO_STAND_IN: &str = r#"#!/bin/sh
 # The tests' stand-in for cargo (tests/transcripts.rs): runs `cargo run --bin NAME -- ARGS` as
 # the binary that `cargo test` built, and nothing else.
@@ -93,6 +93,7 @@ while [ $# -gt 0 ]; do
     case "$1" in
         --release) shift ;;
         --bin) bin=$2; shift 2 ;;
+        -p) shift 2 ;; # chapter 15's package: its binary is built beside the others
         --) shift; break ;;
         *) echo "cargo (stand-in): '$1' is not a flag the tests pass on" >&2; exit 97 ;;
     esac

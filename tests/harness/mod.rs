@@ -150,8 +150,12 @@ fn redact_values(
     }
 }
 
+/// The workspace's tests/snapshots, for the root package's tests and for chapter 15's (a
+/// package of its own, in chapters/15-wgpu) alike.
 pub fn snapshot_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/snapshots")
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = manifest.ancestors().find(|dir| dir.join("Cargo.lock").exists()).unwrap_or(manifest);
+    root.join("tests/snapshots")
 }
 
 /// How far an image may be from its reference, in FLIP error (0 = identical, 1 = maximal).

@@ -68,3 +68,21 @@ unsafe extern "system" fn on_validation_message(
     }
     vk::FALSE
 }
+
+/// For a program whose Vulkan instance a library made (chapter 15's wgpu, which installs its
+/// own messenger): the layer is on for this run, as [`validation_counts`] reports.
+pub fn layer_enabled_elsewhere() {
+    VALIDATION_ON.store(true, Ordering::Relaxed);
+}
+
+/// One message from that library's messenger (or its own validation), counted and printed as
+/// this module's messenger counts and prints the layer's.
+pub fn count_message(error: bool, message: &str) {
+    if error {
+        VALIDATION_ERRORS.fetch_add(1, Ordering::Relaxed);
+        eprintln!("validation error: {message}");
+    } else {
+        VALIDATION_WARNINGS.fetch_add(1, Ordering::Relaxed);
+        eprintln!("validation warning: {message}");
+    }
+}

@@ -1,0 +1,130 @@
+//! Chapter 15 (wgpu and GL), which is a package of its own so that the other chapters do not
+//! build wgpu: its tests are that package's (only they can name its binary), with the harness,
+//! snapshots and reference images every chapter's tests use.
+
+#[path = "../harness/mod.rs"]
+mod harness;
+
+use harness::{DEFAULT_TOLERANCE, assert_images_match, assert_report_snapshot, run_chapter};
+
+const BIN: &str = env!("CARGO_BIN_EXE_15-wgpu");
+
+#[test]
+fn ch15_wgpu() {
+    let run = run_chapter(BIN, &["--size", "160x120", "--frames", "2"], &[]);
+    let report = run.succeeded();
+    // lavapipe and llvmpipe share memory but not semaphores: the host path, and it says so.
+    assert_eq!(report["sync"], "host");
+    assert!(run.stderr.contains("sync: host"), "{}", run.stderr);
+    assert_eq!(report["uuids_match"], true);
+    let extensions = report["vulkan"]["extensions"].as_array().unwrap();
+    assert!(extensions.iter().any(|e| e == "VK_KHR_external_memory_fd"), "{extensions:?}");
+    assert_report_snapshot("15-wgpu", report);
+    assert_images_match(report, DEFAULT_TOLERANCE);
+}
+
+/// Every shared image made anew three times: wgpu lets go of each (its drop callback), and
+/// nothing is left, in fds or in counted resources.
+#[test]
+fn ch15_resizes_every_shared_image() {
+    let run = run_chapter(BIN, &["--size", "64x48", "--frames", "7", "--resize-every", "2"], &[]);
+    let report = run.succeeded();
+    assert_eq!(report["resizes"], 3);
+    assert_eq!(report["wgpu_released"], "8 of 8 images");
+}
+
+#[test]
+fn ch15_missing_memory_extension_is_named() {
+    let hide = [("VKGL_HIDE_EXTENSIONS", "VK_KHR_external_memory_fd")];
+    let run = run_chapter(BIN, &[], &hide);
+    assert_eq!(run.output.status.code(), Some(2), "{}", run.stderr);
+    assert!(run.stderr.contains("lacks VK_KHR_external_memory_fd"), "{}", run.stderr);
+    assert!(run.stderr.contains("lavapipe"), "the fix is named: {}", run.stderr);
+    assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
+}
+
+#[test]
+fn ch15_resize_every_refuses_what_it_cannot_mean() {
+    for value in ["nan", "inf", "-inf", "-1", "0", "1e300", "0.5", "18446744073709551616"] {
+        let output = std::process::Command::new(BIN).arg(format!("--resize-every={value}")).output().unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "--resize-every={value}:\n{stderr}");
+        assert!(stderr.contains("'--resize-every ") && stderr.contains("expected a number"), "{stderr}");
+    }
+}
+
+/// Each fallible step, failed the first and the last time a run reaches it: exit 2 naming the
+/// step, no panic, no validation message, nothing left alive, no fd left open beyond those a
+/// run that fails nothing leaves (the driver's).
+#[test]
+fn ch15_every_fallible_step_fails_cleanly() {
+    let args = ["--size", "32x24", "--frames", "3"];
+    let listing = run_chapter(BIN, &args, &[("VKGL_FAIL_AT", "list")]);
+    listing.succeeded();
+    let steps: Vec<(u32, String)> = listing
+        .stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix("fail step ")?.split_once(": "))
+        .map(|(n, what)| (n.parse().unwrap(), what.to_owned()))
+        .collect();
+    assert!(steps.len() > 10, "too few steps: {steps:?}");
+    let mut first_and_last = std::collections::BTreeMap::new();
+    for (n, what) in &steps {
+        first_and_last.entry(what.clone()).and_modify(|(_, last)| *last = *n).or_insert((*n, *n));
+    }
+    let fds = |stderr: &str| -> Vec<String> {
+        let line = stderr.lines().find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "));
+        let line = line.unwrap_or_else(|| panic!("no list of the fds left:\n{stderr}"));
+        let mut targets: Vec<String> = line
+            .split("\", \"")
+            .filter_map(|fd| fd.split_once(" -> "))
+            .map(|(_, t)| t.trim_end_matches("\"]").to_owned())
+            .filter(|t| !(t.starts_with("/proc/") && t.ends_with("/fd")))
+            .collect();
+        targets.sort();
+        targets
+    };
+    let kept_by_driver = fds(&listing.stderr);
+    let mut problems = Vec::new();
+    for (what, (first, last)) in first_and_last {
+        for n in if first == last { vec![first] } else { vec![first, last] } {
+            let run = run_chapter(BIN, &args, &[("VKGL_FAIL_AT", &n.to_string())]);
+            let named = format!("injected failure at step {n}: {what} (VKGL_FAIL_AT={n})");
+            let mut wrong = Vec::new();
+            if run.output.status.code() != Some(2) {
+                wrong.push(format!("exit {:?}", run.output.status.code()));
+            }
+            if !run.stderr.lines().any(|l| l.starts_with("error: ") && l.contains(&named)) {
+                wrong.push("no error naming the step".into());
+            }
+            for bad in ["panicked", "has not been destroyed", "validation error"] {
+                if run.stderr.contains(bad) {
+                    wrong.push(format!("stderr contains {bad:?}"));
+                }
+            }
+            if !run.stderr.contains("resources: alive after the chapter ran: []") {
+                wrong.push("resources left alive".into());
+            }
+            let left: Vec<String> =
+                fds(&run.stderr).into_iter().filter(|fd| !kept_by_driver.contains(fd)).collect();
+            if !left.is_empty() {
+                wrong.push(format!("fds left open: {left:?}"));
+            }
+            if !wrong.is_empty() {
+                problems.push(format!("step {n} ({what}): {}\n{}", wrong.join(", "), run.stderr));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n\n"));
+}
+
+#[test]
+fn ch15_shows_its_picture_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch15_shows_its_picture_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "160x120", "--frames", "3"];
+    let run = harness::run_chapter_with(BIN, &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["frames"], 3);
+}
