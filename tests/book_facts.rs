@@ -2363,7 +2363,10 @@ fn the_introductions_table_states_the_extensions_each_chapter_enables() {
     let intro = std::fs::read_to_string(root().join("book/src/introduction.md")).unwrap();
     let mut stated: BTreeMap<u32, BTreeSet<String>> = BTreeMap::new();
     let mut running: BTreeSet<String> = BTreeSet::new();
-    for row in intro.lines().filter(|l| l.starts_with("| ")) {
+    // The chapters' table alone: the first table whose rows start with a chapter's number (a later
+    // table of exit codes has rows numbered 0 to 2).
+    let table = intro.lines().skip_while(|l| !l.starts_with("| 01 ")).take_while(|l| l.starts_with("| "));
+    for row in table {
         let cells: Vec<&str> = row.split('|').map(str::trim).collect();
         let Ok(number) = cells[1].parse::<u32>() else { continue };
         let needs = cells[cells.len() - 2];
@@ -2395,7 +2398,7 @@ fn the_introductions_table_states_the_extensions_each_chapter_enables() {
 
 /// Chapters the workshop kit has no slot for yet, being added as this test was written; whoever
 /// merges the slot empties the list (a chapter listed here that has its slot is an error).
-const WORKSHOP_PENDING: &[&str] = &[];
+const WORKSHOP_PENDING: &[&str] = &["15"];
 
 /// The workshop kit promises a slot per chapter ("One per chapter"): its time table has a row for
 /// every chapter folder, and every row's chapter has a challenge headed `**NN · ...**` (which
