@@ -171,17 +171,7 @@ fn fds_left(run: &Run) -> Vec<String> {
 
 /// The fds a run listed, if it got as far as listing them.
 fn listed_fds(run: &Run) -> Option<Vec<String>> {
-    let line = run.stderr.lines().find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "))?;
-    let mut targets: Vec<String> = line
-        .split("\", \"")
-        .filter_map(|fd| fd.split_once(" -> "))
-        .map(|(_, t)| t.trim_end_matches("\"]").to_owned())
-        // The listing's own handle on /proc/<pid>/fd: new at each listing, at whichever number
-        // is free then (chapter 14's viewer closes its socket in between, so it moves).
-        .filter(|t| !(t.starts_with("/proc/") && t.ends_with("/fd")))
-        .collect();
-    targets.sort();
-    Some(targets)
+    harness::fds_listed(&run.stderr)
 }
 
 /// What is wrong with a run whose step `n` failed, if anything: its exit code, its error, what

@@ -19,10 +19,8 @@ use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::{Largest, Size, Smallest};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, uuids_match};
-use common::base::vulkan::version_string;
 use common::base::window::{self, Key, NamedKey, Window};
 use common::instruments::output;
-use common::instruments::report::{VulkanReport, uuid_hex};
 use common::{Flags, Report, open_fd_count};
 use glow::HasContext;
 use shared::{DESTROYED_IN_USE, RELEASED, SharedImage, WRAPPED, share_image};
@@ -76,7 +74,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.uuids_match = Some(uuids_match(&wgpu.info, &gl_context));
     ensure_same_device(&wgpu.info, &gl_context)?;
     // ANCHOR_END: gl
-    report.vulkan = Some(vulkan_report(&wgpu));
+    report.vulkan = Some(wgpu.info.report(wgpu.extensions.clone()));
     report.gl = Some(gl_context.report());
     report.set("window", windowed);
     largest_size(&wgpu, gl).check(CHAPTER, size)?;
@@ -211,18 +209,6 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
     drop(window);
     Ok(())
-}
-
-/// What the report says of the Vulkan side, as common's contexts fill it.
-fn vulkan_report(wgpu: &device::WgpuDevice) -> VulkanReport {
-    VulkanReport {
-        device: wgpu.info.name.clone(),
-        driver: wgpu.info.driver.clone(),
-        api: version_string(wgpu.info.api_version),
-        device_uuid: uuid_hex(&wgpu.info.device_uuid),
-        driver_uuid: uuid_hex(&wgpu.info.driver_uuid),
-        extensions: wgpu.extensions.clone(),
-    }
 }
 
 /// The largest picture: wgpu's largest texture, GL's largest texture and renderbuffer.

@@ -360,3 +360,19 @@ pub fn assert_no_source_has(what: &str, scan: impl Fn(&str, &str) -> Vec<String>
         .collect();
     assert!(found.is_empty(), "{what}:\n{}", found.join("\n"));
 }
+
+/// The targets of the fds a chapter listed as left open after it ran (`fds: left open after the
+/// chapter ran: [...]`), sorted, or None if it got as far as listing none. The listing's own handle
+/// on /proc/<pid>/fd is left out: new at each listing, at whichever number is free then (chapter
+/// 14's viewer closes its socket in between, so it moves).
+pub fn fds_listed(stderr: &str) -> Option<Vec<String>> {
+    let line = stderr.lines().find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "))?;
+    let mut targets: Vec<String> = line
+        .split("\", \"")
+        .filter_map(|fd| fd.split_once(" -> "))
+        .map(|(_, t)| t.trim_end_matches("\"]").to_owned())
+        .filter(|t| !(t.starts_with("/proc/") && t.ends_with("/fd")))
+        .collect();
+    targets.sort();
+    Some(targets)
+}

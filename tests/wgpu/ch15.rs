@@ -73,16 +73,7 @@ fn ch15_every_fallible_step_fails_cleanly() {
         first_and_last.entry(what.clone()).and_modify(|(_, last)| *last = *n).or_insert((*n, *n));
     }
     let fds = |stderr: &str| -> Vec<String> {
-        let line = stderr.lines().find_map(|l| l.strip_prefix("fds: left open after the chapter ran: "));
-        let line = line.unwrap_or_else(|| panic!("no list of the fds left:\n{stderr}"));
-        let mut targets: Vec<String> = line
-            .split("\", \"")
-            .filter_map(|fd| fd.split_once(" -> "))
-            .map(|(_, t)| t.trim_end_matches("\"]").to_owned())
-            .filter(|t| !(t.starts_with("/proc/") && t.ends_with("/fd")))
-            .collect();
-        targets.sort();
-        targets
+        harness::fds_listed(stderr).unwrap_or_else(|| panic!("no list of the fds left:\n{stderr}"))
     };
     let kept_by_driver = fds(&listing.stderr);
     let mut problems = Vec::new();

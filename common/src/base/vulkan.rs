@@ -71,6 +71,21 @@ pub struct DeviceInfo {
     pub driver_uuid: [u8; vk::UUID_SIZE],
 }
 
+impl DeviceInfo {
+    /// The `vulkan` section of a chapter report: this device, with the extensions enabled on it
+    /// (a device made by another library, as chapter 15's wgpu, reports through this too).
+    pub fn report(&self, extensions: Vec<String>) -> VulkanReport {
+        VulkanReport {
+            device: self.name.clone(),
+            driver: self.driver.clone(),
+            api: version_string(self.api_version),
+            device_uuid: uuid_hex(&self.device_uuid),
+            driver_uuid: uuid_hex(&self.driver_uuid),
+            extensions,
+        }
+    }
+}
+
 pub struct VulkanContext {
     /// Destroyed after the device (fields drop after `Drop::drop`, which destroys the device).
     pub instance: Instance,
@@ -176,14 +191,7 @@ impl VulkanContext {
 
     /// The `vulkan` section of the chapter report.
     pub fn report(&self) -> VulkanReport {
-        VulkanReport {
-            device: self.info.name.clone(),
-            driver: self.info.driver.clone(),
-            api: version_string(self.info.api_version),
-            device_uuid: uuid_hex(&self.info.device_uuid),
-            driver_uuid: uuid_hex(&self.info.driver_uuid),
-            extensions: self.enabled_extensions.clone(),
-        }
+        self.info.report(self.enabled_extensions.clone())
     }
 
     /// Was `name` enabled on the device (required, or optional and present)?
