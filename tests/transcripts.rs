@@ -446,7 +446,6 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("cargo run --release --bin 09-animated-instances -- --headless --json --size 1920x1080", Skip::Always("sized for a GPU")),
     ("cargo run --release --bin 10-vertex-animation -- --headless --json --size 1920x1080", Skip::Always("sized for a GPU")),
     ("cargo run --release --bin bench -- --json", Skip::Always("the full sweep: minutes on a GPU")),
-    ("cargo run --release --bin bench -- --spp 16 --frames 100", Skip::Always("the full sweep at 16 rays: minutes on a GPU")),
     ("cargo run --release --bin bench -- --scenes default --spp 16", Skip::Always("the default scene's sweep at 16 rays: minutes on a GPU")),
     ("cargo run --release --bin bench -- --probe", Skip::Always("4K and 1080p: sized for a GPU")),
     ("cargo run --release --bin convergence -- --json", Skip::Always("the full sweep: minutes on a GPU")),
