@@ -462,6 +462,8 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("cargo run --release --bin 13-temporal-reuse$", Skip::Slow("a window's size, 120 frames headless: minutes")),
     ("cargo run --release --bin convergence -- temporal --size 1920x1080", Skip::Always("sized for a GPU")),
     ("cargo run --release --bin convergence -- temporal --size 3840x2160", Skip::Always("sized for a GPU")),
+    ("VKGL_VALIDATION=0 cargo run --release --bin 03-semaphores -- --headless --size 3840x2160", Skip::Always("sized for a GPU")),
+    ("VKGL_VALIDATION=0 cargo run --release -p chapter-15-wgpu --bin 15-wgpu -- --headless --size 3840x2160", Skip::Always("sized for a GPU")),
 ];
 // ANCHOR_END: skipped
 

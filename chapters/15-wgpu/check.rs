@@ -1,30 +1,37 @@
 //! Chapter 15's checks, made on the last frame while GL holds the images: GL's view of the shared
 //! memory against wgpu's readback (the same bytes), GL's picture against wgpu's (the same
-//! pixels), wgpu's triangle against chapter 02's colours, and the line against wgpu's depth.
+//! pixels), wgpu's triangle against chapter 02's colours, the line against wgpu's depth; then the
+//! other way, wgpu's view of GL's picture against GL's, and its outline against the CPU's.
 
+use crate::outline::EDGE;
+use crate::shared::SharedImage;
 use crate::show::{LINE_COLOUR, LINE_Y, Show};
 use common::frame::shows_colour;
 use common::instruments::output;
 use glow::HasContext;
 
-/// wgpu's readbacks of the last frame, top row first: the picture's RGBA8 and the depths.
+/// wgpu's readbacks of its picture and its depths on the last frame (memory order).
 pub struct WgpuSaw {
     pub picture: Vec<u8>,
     pub depth: Vec<u8>,
 }
 
-/// The checks, and GL's picture with the line (top row first), for the PNG.
-pub fn last_frame(
+pub type Checks = Vec<(&'static str, bool)>;
+
+/// wgpu draws, GL shows: the checks, and GL's picture with the line (top row first), for the PNG.
+pub fn wgpu_to_gl(
     gl: &glow::Context,
     show: &Show,
-    [picture, depth]: [glow::Texture; 2],
+    [picture, depth]: [&SharedImage; 2],
     wgpu: &WgpuSaw,
     (w, h): (u32, u32),
-) -> (Vec<(&'static str, bool)>, Vec<u8>) {
+) -> (Checks, Vec<u8>) {
     // GL reads the imported textures: memory order, which is wgpu's order (top row first).
-    let gl_picture = output::read_texture_rgba8(gl, picture, w, h);
-    let gl_depth: Vec<u8> =
-        output::read_texture_f32(gl, depth, w, h, 1).iter().flat_map(|d| d.to_ne_bytes()).collect();
+    let gl_picture = output::read_texture_rgba8(gl, *picture.gl.texture, w, h);
+    let gl_depth: Vec<u8> = output::read_texture_f32(gl, *depth.gl.texture, w, h, 1)
+        .iter()
+        .flat_map(|d| d.to_ne_bytes())
+        .collect();
     let mut checks = vec![
         ("gl_reads_wgpus_picture", gl_picture == wgpu.picture),
         ("gl_reads_wgpus_depth", gl_depth == wgpu.depth),
@@ -56,7 +63,7 @@ pub fn last_frame(
     // GL's picture without the line: wgpu's, pixel for pixel.
     show.draw(gl, [picture, depth], false);
     let shown = unsafe {
-        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.target.framebuffer));
+        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.framebuffer));
         output::read_gl_rgba8(gl, w, h)
     };
     checks.push(("gl_shows_wgpus_picture", shown == wgpu.picture));
@@ -64,7 +71,7 @@ pub fn last_frame(
     // in the open (a pixel either side of the probe: the line may fall on either row).
     show.draw(gl, [picture, depth], true);
     let with_line = unsafe {
-        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.target.framebuffer));
+        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.framebuffer));
         output::read_gl_rgba8(gl, w, h)
     };
     let probe = |x: f32| {
@@ -76,4 +83,51 @@ pub fn last_frame(
     checks.push(("line_shown_in_front_of_the_triangle", shows_colour(&with_line, w as usize, probe(0.35))));
     checks.push(("line_shown_in_the_open", shows_colour(&with_line, w as usize, probe(-0.85))));
     (checks, with_line)
+}
+
+/// GL draws, wgpu reads: wgpu's readbacks of GL's picture and of its outline (memory order)
+/// against GL's own reads, and the outline against the CPU's. Returns the checks and the outline
+/// as GL reads it, top row first, for the PNG.
+pub fn gl_to_wgpu(
+    gl: &glow::Context,
+    [drawn, outlined]: [&SharedImage; 2],
+    [wgpu_drawn, wgpu_outlined]: [&[u8]; 2],
+    (w, h): (u32, u32),
+) -> (Checks, Vec<u8>) {
+    let gl_drawn = output::read_texture_rgba8(gl, *drawn.gl.texture, w, h);
+    let gl_outlined = output::read_texture_rgba8(gl, *outlined.gl.texture, w, h);
+    let expected = outline(wgpu_drawn, w as usize);
+    let checks = vec![
+        ("wgpu_reads_gls_picture", wgpu_drawn == gl_drawn),
+        // Exactly the CPU's outline, and an outline: some pixel changed.
+        ("wgpu_outlined_gls_picture", wgpu_outlined == expected && expected != wgpu_drawn),
+        ("gl_reads_wgpus_outline", gl_outlined == wgpu_outlined),
+    ];
+    // GL's first row is the bottom of its picture: the PNG's is the top.
+    let rows: Vec<&[u8]> = gl_outlined.chunks(w as usize * 4).rev().collect();
+    (checks, rows.concat())
+}
+
+/// outline.wgsl's answer, on the CPU: RGBA8 `pixels` of `width`, each pixel that differs from a
+/// neighbour by more than [`EDGE`] white.
+fn outline(pixels: &[u8], width: usize) -> Vec<u8> {
+    let height = pixels.len() / 4 / width;
+    let at = |x: usize, y: usize| &pixels[(y * width + x) * 4..][..4];
+    let mut out = pixels.to_vec();
+    for y in 0..height {
+        for x in 0..width {
+            let neighbours = [
+                ((x + 1).min(width - 1), y),
+                (x.saturating_sub(1), y),
+                (x, (y + 1).min(height - 1)),
+                (x, y.saturating_sub(1)),
+            ];
+            let differs =
+                |(u, v)| (0..3).map(|c| at(x, y)[c].abs_diff(at(u, v)[c]) as u32).sum::<u32>() > EDGE;
+            if neighbours.into_iter().any(differs) {
+                out[(y * width + x) * 4..][..4].fill(255);
+            }
+        }
+    }
+    out
 }

@@ -1,9 +1,10 @@
-//! Chapter 15: wgpu and GL.
+//! Chapter 15: wgpu and GL, both ways.
 //!
 //! wgpu, the graphics library most Rust programs draw with, renders chapter 02's triangle into
 //! two images whose memory this chapter allocated and exported: the picture, and its depth as a
-//! colour image. GL imports both, shows the picture and draws a line over it that wgpu's depth
-//! hides where the triangle is nearer. wgpu makes its own device, allocates its own memory and
+//! colour image. GL imports both and draws the picture with a line over it, which wgpu's depth
+//! hides where the triangle is nearer, into a third shared image. A wgpu compute pass outlines
+//! that one into a fourth, which GL shows. wgpu makes its own device, allocates its own memory and
 //! records its own barriers; what it does not do for sharing (export memory, enable the
 //! extensions, hand images to and from another API) is done here, in wgpu-hal calls.
 //!
@@ -12,20 +13,24 @@
 mod check;
 mod device;
 mod draw;
+mod outline;
 mod shared;
 mod show;
+mod turns;
 
 use anyhow::{Context as _, Result};
 use ash::vk;
 use common::base::cli::{Largest, Size, Smallest};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, uuids_match};
 use common::base::window::{self, Key, NamedKey, Window};
+use common::clocks::timestamps::median_p95;
 use common::instruments::output;
 use common::{Flags, Report, open_fd_count};
 use glow::HasContext;
 use shared::{DESTROYED_IN_USE, RELEASED, SharedImage, WRAPPED, share_image};
 use std::process::ExitCode;
 use std::sync::atomic::Ordering;
+use turns::Turns;
 
 const CHAPTER: &str = "15-wgpu";
 /// The smallest picture this chapter can check, and why (the largest is the device's).
@@ -84,24 +89,28 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // Made before the images: dropped after them, once their drop has waited for wgpu's queue.
     let semaphores = shared::share_semaphores(&wgpu.device, &gl_context, wgpu.semaphores)?;
     report.sync = Some(if semaphores.is_some() { "semaphores" } else { "host" });
-    let raw_semaphores = semaphores.as_ref().map(|[a, b]| [*a.vk, *b.vk]);
+    let mut turns = Turns::new(semaphores);
 
-    // 4. Share the two images: memory this chapter allocates, wgpu draws into, GL imports
+    // 4. Share the four images: memory this chapter allocates, wgpu and GL both use
     // ANCHOR: images
-    let share = |size: Size| -> Result<[SharedImage; 2]> {
+    // wgpu's picture and depths, GL's picture of them, and wgpu's outline of GL's.
+    let kinds = [&draw::PICTURE, &draw::DEPTH, &outline::GL_PICTURE, &outline::OUTLINE];
+    let share = |size: Size| -> Result<[SharedImage; 4]> {
         let extent = vk::Extent2D { width: size.width, height: size.height };
-        let picture = share_image(&wgpu.device, &gl_context, draw::PICTURE, extent)?;
-        Ok([picture, share_image(&wgpu.device, &gl_context, draw::DEPTH, extent)?])
+        let [a, b, c, d] = kinds.map(|kind| share_image(&wgpu.device, &gl_context, kind, extent));
+        Ok([a?, b?, c?, d?])
     };
     let mut images = share(size)?;
     // ANCHOR_END: images
 
-    // 5. wgpu's pipeline, and GL's programs and target
-    let pipeline = draw::pipeline(&wgpu.device)?;
-    let mut show = show::Show::new(gl, (size.width, size.height))?;
+    // 5. wgpu's pipelines, and GL's programs and framebuffers
+    let render_pipeline = draw::pipeline(&wgpu.device)?;
+    let outline_pipeline = outline::pipeline(&wgpu.device)?;
+    let mut show = show::Show::new(gl, [&images[2], &images[3]], (size.width, size.height))?;
 
-    let (mut frame, mut resizes, mut last) = (0, 0, None);
-    let (mut gl_had_them, mut gl_signalled) = (false, false);
+    let (mut frame, mut resizes) = (0, 0);
+    // The last frame's checks, and its pictures for the PNGs (top row first).
+    let (mut checks, mut pictures) = (Vec::new(), Vec::new());
     while frames == 0 || frame < frames {
         // 6. A new size: from the window, or every K frames headless
         let wanted = match window.as_mut() {
@@ -120,80 +129,90 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         };
         // ANCHOR: resize
         if let Some(new) = wanted {
-            // Both sides done with the old images; then wgpu lets go of them (its drop callbacks),
-            // GL deletes its side, and the chapter destroys the images and frees their memory.
+            // Both sides done with the old images; GL's framebuffers move to the new ones; then
+            // wgpu lets go of the old (its drop callbacks), GL deletes its side, and the chapter
+            // destroys the images and frees their memory.
             unsafe { gl.finish() };
             let fresh = share(new)?;
-            drop(std::mem::replace(&mut images, fresh)); // as in step 10
-            show.resize(gl, (new.width, new.height))?;
-            (size, gl_had_them, resizes) = (new, false, resizes + 1);
+            show.resize(gl, [&fresh[2], &fresh[3]], (new.width, new.height))?;
+            drop(std::mem::replace(&mut images, fresh)); // as in step 12
+            (size, turns.gl_had_them, resizes) = (new, false, resizes + 1);
         }
         // ANCHOR_END: resize
         let is_last = frame + 1 == frames; // a window's last frame too, with --frames
+        let [picture, depth, drawn, outlined] = &images;
+        let pixels = (size.width, size.height);
 
-        // 7. wgpu draws, and releases the images to GL
-        let wgpu_frame = draw::Frame {
-            images: [&images[0], &images[1]],
-            gl_had_them,
-            read_back: is_last,
-            semaphores: raw_semaphores,
-            gl_signalled,
-        };
-        let readbacks = draw::frame(&wgpu.device, &wgpu.queue, &pipeline, wgpu_frame)?;
+        // 7. wgpu draws the triangle and its depths, and hands every image to GL
+        // ANCHOR: wgpu_draws
+        let (commands, readbacks) = draw::render(&wgpu.device, &render_pipeline, [picture, depth], is_last);
+        turns.wgpu(&wgpu, &images, commands)?;
+        // ANCHOR_END: wgpu_draws
 
-        // 8. GL acquires them, shows them, draws the line, and releases them to wgpu
-        // ANCHOR: gl_turn
-        let textures = shared::gl_textures(&images);
-        match &semaphores {
-            Some([wgpu_done, _]) => shared::gl_semaphore(&gl_context, wgpu_done, textures, false)?,
-            // The host path: the CPU waits until wgpu's submission is done.
-            None => {
-                wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?;
-            }
-        }
-        show.draw(gl, textures, true);
-        // ANCHOR_END: gl_turn
+        // 8. GL draws wgpu's picture and the line into `drawn`, and hands every image back
+        // ANCHOR: gl_draws
+        turns.gl_acquire(&wgpu, &gl_context, &images)?;
+        show.draw(gl, [picture, depth], true);
         if is_last {
-            let [picture, depth] = [&readbacks[0], &readbacks[1]].map(|r| r.bytes(&wgpu.device));
-            let saw = check::WgpuSaw { picture: picture?, depth: depth? };
-            last = Some((check::last_frame(gl, &show, textures, &saw, (size.width, size.height)), saw));
+            let seen = [readbacks[0].bytes(&wgpu.device)?, readbacks[1].bytes(&wgpu.device)?];
+            let [picture_seen, depth_seen] = seen;
+            let saw = check::WgpuSaw { picture: picture_seen, depth: depth_seen };
+            let (made, with_line) = check::wgpu_to_gl(gl, &show, [picture, depth], &saw, pixels);
+            checks.extend(made);
+            pictures.extend([(CHAPTER.to_owned(), with_line), (format!("{CHAPTER}-wgpu"), saw.picture)]);
         }
-        // ANCHOR: gl_release
-        match &semaphores {
-            Some([_, gl_done]) => shared::gl_semaphore(&gl_context, gl_done, textures, true)?,
-            None => unsafe { gl.finish() },
-        }
-        // ANCHOR_END: gl_release
-        (gl_had_them, gl_signalled) = (true, true);
         gl_context.check_error("GL's turn")?;
+        turns.gl_release(&gl_context, &images)?;
+        // ANCHOR_END: gl_draws
+
+        // 9. wgpu's compute pass outlines GL's picture, and hands every image to GL
+        // ANCHOR: wgpu_reads
+        let (commands, readbacks) =
+            outline::record(&wgpu.device, &outline_pipeline, [drawn, outlined], is_last);
+        turns.wgpu(&wgpu, &images, commands)?;
+        // ANCHOR_END: wgpu_reads
+
+        // 10. GL shows the outline, and hands every image back
+        turns.gl_acquire(&wgpu, &gl_context, &images)?;
+        if is_last {
+            let seen = [readbacks[0].bytes(&wgpu.device)?, readbacks[1].bytes(&wgpu.device)?];
+            let (made, outline) = check::gl_to_wgpu(gl, [drawn, outlined], [&seen[0], &seen[1]], pixels);
+            checks.extend(made);
+            pictures.push((format!("{CHAPTER}-outline"), outline));
+        }
         if let Some(window) = &window {
             show.blit(gl, window.size());
+        }
+        gl_context.check_error("GL's turn")?;
+        turns.gl_release(&gl_context, &images)?;
+        if let Some(window) = &window {
             window.swap_buffers(&gl_context)?;
         }
+        turns.times.frame_done();
         frame += 1;
     }
 
-    // 9. The checks, made on the last frame while GL held the images
-    if let Some(((checks, with_line), saw)) = last {
-        for (name, ok) in checks {
-            report.check(name, ok);
-        }
-        let out_dir = args.common.out_dir(CHAPTER);
-        output::save_rgba8(report, &out_dir, CHAPTER, (size.width, size.height), &with_line)?;
-        output::save_rgba8(
-            report,
-            &out_dir,
-            &format!("{CHAPTER}-wgpu"),
-            (size.width, size.height),
-            &saw.picture,
-        )?;
+    // 11. The checks, made on the last frame while GL held the images; its pictures
+    for (name, ok) in checks {
+        report.check(name, ok);
+    }
+    let out_dir = args.common.out_dir(CHAPTER);
+    for (name, pixels) in pictures {
+        output::save_rgba8(report, &out_dir, &name, (size.width, size.height), &pixels)?;
+    }
+    // What a round trip (GL to wgpu and back) costs the CPU, as chapter 03 measures its own.
+    turns.times.record(report);
+    if frame > 0 {
+        let (median, _) = median_p95(turns.times.samples("handshake_cpu"));
+        let sync = report.sync.unwrap_or("host");
+        eprintln!("{sync} handshake: the CPU spends {median:.3} ms a round trip in it (median, two a frame)");
     }
     report.set("frames", frame);
     if resizes > 0 {
         report.set("resizes", resizes);
     }
 
-    // 10. Clean up: wgpu lets go first, then GL, then what the chapter allocated
+    // 12. Clean up: wgpu lets go first, then GL, then what the chapter allocated
     // ANCHOR: cleanup
     unsafe { gl.finish() };
     wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?;
@@ -201,7 +220,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     drop(images); // each: wgpu's texture destroyed and polled for, GL's side, the image, its memory
     let (wrapped, released) = (WRAPPED.load(Ordering::SeqCst), RELEASED.load(Ordering::SeqCst));
     let in_use = DESTROYED_IN_USE.load(Ordering::SeqCst); // destroyed before wgpu let go
-    drop(semaphores); // GL's side, then Vulkan's: no submission uses them now
+    drop(turns); // the semaphores, GL's side then Vulkan's: no submission uses them now
     // ANCHOR_END: cleanup
     report.set("wgpu_released", format!("{released} of {wrapped} images"));
     report.check("wgpu_let_go_of_every_image", released == wrapped && in_use == 0);

@@ -1,17 +1,16 @@
-//! Chapter 15, steps 3 and 4: images wgpu draws into and GL reads, in memory this chapter
+//! Chapter 15, steps 3 and 4: images both APIs draw into and read, in memory this chapter
 //! allocated and exported (wgpu allocates through gpu-allocator, which cannot export); and the
 //! two semaphores, where both drivers share them.
 
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
-use common::base::gl::{self, GlContext};
+use common::base::gl::GlContext;
 use common::base::image::image_info;
 use common::base::owned::{Owned, create};
 use common::instruments::fail;
 use common::interop::exportable::{self, HANDLE_TYPE, MemoryTerms};
 use common::interop::handoff::{SharedSemaphore, import_semaphore};
 use common::interop::{SharedTexture, import_texture_2d};
-use glow::HasContext;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use wgpu::hal::api::Vulkan;
@@ -53,24 +52,43 @@ pub static WRAPPED: AtomicU32 = AtomicU32::new(0);
 pub static RELEASED: AtomicU32 = AtomicU32::new(0);
 pub static DESTROYED_IN_USE: AtomicU32 = AtomicU32::new(0);
 
+/// What a shared image is for: its format in wgpu's, Vulkan's and GL's names, and what wgpu does
+/// with it (GL may draw into or read any of them).
+pub struct Kind {
+    pub format: wgpu::TextureFormat,
+    pub vk_format: vk::Format,
+    pub gl_format: u32,
+    pub usage: wgpu::TextureUsages,
+}
+
 // ANCHOR: share_image
-/// A `format` image of `extent` that wgpu renders to and GL samples (`gl_format`, its twin).
+/// An image of `kind` and `extent` that wgpu and GL both use.
 pub fn share_image(
     wgpu: &wgpu::Device,
     gl_context: &GlContext,
-    (format, vk_format, gl_format): (wgpu::TextureFormat, vk::Format, u32),
+    kind: &Kind,
     extent: vk::Extent2D,
 ) -> Result<SharedImage> {
+    let Kind { format, vk_format, gl_format, usage } = *kind;
     // SAFETY: the guard is dropped before this function returns; nothing here destroys the device.
     let hal = unsafe { wgpu.as_hal::<Vulkan>() }.context("wgpu's device is not a Vulkan one")?;
     let (device, instance) = (hal.raw_device(), hal.shared_instance().raw_instance());
-    let usage = vk::ImageUsageFlags::COLOR_ATTACHMENT
+    // Every usage either API has for it: GL may draw into it (COLOR_ATTACHMENT) or sample it.
+    let mut vk_usage = vk::ImageUsageFlags::COLOR_ATTACHMENT
         | vk::ImageUsageFlags::SAMPLED
         | vk::ImageUsageFlags::TRANSFER_SRC;
+    let mut uses = wgpu::TextureUses::RESOURCE | wgpu::TextureUses::COPY_SRC; // wgpu-hal's names
+    if usage.contains(wgpu::TextureUsages::RENDER_ATTACHMENT) {
+        uses |= wgpu::TextureUses::COLOR_TARGET;
+    }
+    if usage.contains(wgpu::TextureUsages::STORAGE_BINDING) {
+        vk_usage |= vk::ImageUsageFlags::STORAGE;
+        uses |= wgpu::TextureUses::STORAGE_WRITE_ONLY;
+    }
 
     // The image: chapter 01's, made exportable before its memory exists.
     let mut external = vk::ExternalMemoryImageCreateInfo::default().handle_types(HANDLE_TYPE);
-    let info = image_info(vk_format, usage, extent)
+    let info = image_info(vk_format, vk_usage, extent)
         .flags(vk::ImageCreateFlags::MUTABLE_FORMAT)
         .push_next(&mut external);
     let what = format!("vkCreateImage (exportable, {vk_format:?}, for wgpu)");
@@ -116,9 +134,7 @@ pub fn share_image(
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
         format,
-        usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-            | wgpu::TextureUsages::TEXTURE_BINDING
-            | wgpu::TextureUsages::COPY_SRC,
+        usage: usage | wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_SRC,
         view_formats: &[],
     };
     let released = Arc::new(AtomicBool::new(false));
@@ -140,9 +156,7 @@ pub fn share_image(
                 sample_count: 1,
                 dimension: descriptor.dimension,
                 format,
-                usage: wgpu::TextureUses::COLOR_TARGET
-                    | wgpu::TextureUses::RESOURCE
-                    | wgpu::TextureUses::COPY_SRC,
+                usage: uses,
                 memory_flags: wgpu::hal::MemoryFlags::empty(),
                 view_formats: vec![],
             },
@@ -152,7 +166,9 @@ pub fn share_image(
     };
     WRAPPED.fetch_add(1, Ordering::SeqCst);
     drop(hal);
-    // UNINITIALIZED: the first render pass clears it, so wgpu's first barrier may discard.
+    // UNINITIALIZED: nothing is in it yet, and wgpu's first barrier, in its first turn, may
+    // discard. (wgpu takes what a wrapped texture holds as written, and never clears it itself:
+    // what GL draws into one stays.)
     let texture = unsafe {
         wgpu.create_texture_from_hal::<Vulkan>(hal_texture, &descriptor, wgpu::TextureUses::UNINITIALIZED)
     };
@@ -198,34 +214,3 @@ pub fn share_semaphores(
     Ok(Some([wgpu_done, gl_done]))
 }
 // ANCHOR_END: semaphores
-
-/// GL's texture names of `images`, for its semaphore calls and reads.
-pub fn gl_textures(images: &[SharedImage; 2]) -> [glow::Texture; 2] {
-    [0, 1].map(|i| *images[i].gl.texture)
-}
-
-// ANCHOR: gl_semaphores
-/// The layout wgpu leaves the images in for GL, and GL leaves them in for wgpu (GL's name).
-pub const GL_LAYOUT: u32 = gl::layout::SHADER_READ_ONLY;
-
-/// GL waits for wgpu (`wait`) or signals that it is done (`signal`), on `semaphore`, for
-/// `textures`, each named with the layout it is in: GL_EXT_semaphore's two calls.
-pub fn gl_semaphore(
-    gl: &GlContext,
-    semaphore: &SharedSemaphore,
-    textures: [glow::Texture; 2],
-    signal: bool,
-) -> Result<()> {
-    let ext = gl.semaphores.as_ref().context("GL has no GL_EXT_semaphore_fd")?;
-    let call = if signal { ext.SignalSemaphoreEXT } else { ext.WaitSemaphoreEXT };
-    let names = textures.map(|t| t.0.get());
-    let layouts = [GL_LAYOUT; 2];
-    // No buffers, two textures; GL reads one layout per texture.
-    unsafe { call(semaphore.gl.0, 0, std::ptr::null(), 2, names.as_ptr(), layouts.as_ptr()) };
-    if signal {
-        // The signal sits in GL's queue until flushed: without this wgpu could wait forever.
-        unsafe { gl.gl.flush() };
-    }
-    Ok(())
-}
-// ANCHOR_END: gl_semaphores

@@ -1,8 +1,10 @@
-//! Chapter 15, step 6: GL shows wgpu's picture, then draws a line over it that wgpu's depth
-//! hides where the triangle is nearer (chapter 08's overlays, with depth that crossed from wgpu).
+//! Chapter 15, step 8: GL draws wgpu's picture, then a line over it that wgpu's depth hides where
+//! the triangle is nearer (chapter 08's overlays, with depth that crossed from wgpu), into the
+//! shared image that wgpu reads next; and copies wgpu's outline of it into a window.
 
+use crate::shared::SharedImage;
 use anyhow::{Result, bail};
-use common::base::gl::{Owned, RenderTarget, create, program, renderbuffer};
+use common::base::gl::{Owned, create, program, renderbuffer};
 use common::frame::{LineBuffer, LineVertex};
 use glow::HasContext;
 use std::rc::Rc;
@@ -24,10 +26,13 @@ const WGPU_TO_GL_DEPTH: [f32; 16] =
     [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, -1.0, 1.0];
 // ANCHOR_END: line
 
-/// GL's programs, the line, and a colour + depth target of the images' size.
+/// GL's programs and line, its framebuffer over the shared image it draws into, and one over
+/// wgpu's outline of it (to copy into a window).
 pub struct Show {
-    pub target: RenderTarget,
+    pub framebuffer: Owned<glow::Framebuffer>,
     depth: Owned<glow::Renderbuffer>,
+    outline: Owned<glow::Framebuffer>,
+    size: (u32, u32),
     picture: Owned<glow::Program>,
     lines_program: Owned<glow::Program>,
     line: LineBuffer,
@@ -35,7 +40,8 @@ pub struct Show {
 }
 
 impl Show {
-    pub fn new(gl: &Rc<glow::Context>, (width, height): (u32, u32)) -> Result<Self> {
+    /// `into` is the shared image GL draws into, `outline` the one wgpu writes its outline to.
+    pub fn new(gl: &Rc<glow::Context>, [into, outline]: [&SharedImage; 2], size: (u32, u32)) -> Result<Self> {
         let picture = program(gl, FULLSCREEN, PICTURE)?;
         let lines_program = program(gl, LINES_VERTEX, LINES_FRAGMENT)?;
         let colour = LINE_COLOUR.map(|c| c as f32 / 255.0);
@@ -43,52 +49,70 @@ impl Show {
         let line = LineBuffer::new(gl, &[vertex(-0.95), vertex(0.95)])?;
         let empty =
             create(gl, "glCreateVertexArrays (none)", |gl| unsafe { gl.create_named_vertex_array() })?;
-        let (target, depth) = Self::target(gl, (width, height))?;
-        Ok(Show { target, depth, picture, lines_program, line, empty })
+        let (framebuffer, depth, outline) = Self::framebuffers(gl, [into, outline], size)?;
+        Ok(Show { framebuffer, depth, outline, size, picture, lines_program, line, empty })
     }
 
-    /// A framebuffer of the images' size, with a depth buffer that wgpu's depth is written into.
-    pub fn target(
+    /// GL's framebuffers over the shared images: colour and a depth buffer of GL's own that wgpu's
+    /// depth is written into; and wgpu's outline alone.
+    #[allow(clippy::type_complexity)]
+    fn framebuffers(
         gl: &Rc<glow::Context>,
+        [into, outline]: [&SharedImage; 2],
         (w, h): (u32, u32),
-    ) -> Result<(RenderTarget, Owned<glow::Renderbuffer>)> {
-        let target = RenderTarget::new(gl, w, h)?;
+    ) -> Result<(Owned<glow::Framebuffer>, Owned<glow::Renderbuffer>, Owned<glow::Framebuffer>)> {
         let what = "glCreateRenderbuffers for GL's depth";
         let depth = renderbuffer(gl, what, (glow::DEPTH_COMPONENT32F, "DEPTH_COMPONENT32F", 4), (w, h))?;
+        let framebuffer = |what| create(gl, what, |gl| unsafe { gl.create_named_framebuffer() });
+        let (drawn, outlined) = (
+            framebuffer("glCreateFramebuffers (GL's picture)")?,
+            framebuffer("glCreateFramebuffers (the outline)")?,
+        );
         unsafe {
-            let framebuffer = Some(*target.framebuffer);
+            let colour = glow::COLOR_ATTACHMENT0;
+            gl.named_framebuffer_texture(Some(*drawn), colour, Some(*into.gl.texture), 0);
             gl.named_framebuffer_renderbuffer(
-                framebuffer,
+                Some(*drawn),
                 glow::DEPTH_ATTACHMENT,
                 glow::RENDERBUFFER,
                 Some(*depth),
             );
-            let status = gl.check_named_framebuffer_status(framebuffer, glow::FRAMEBUFFER);
-            if status != glow::FRAMEBUFFER_COMPLETE {
-                bail!("GL's colour + depth framebuffer is incomplete: {status:#x}");
+            gl.named_framebuffer_texture(Some(*outlined), colour, Some(*outline.gl.texture), 0);
+            for (framebuffer, name) in [(*drawn, "GL's picture + depth"), (*outlined, "the outline")] {
+                let status = gl.check_named_framebuffer_status(Some(framebuffer), glow::FRAMEBUFFER);
+                if status != glow::FRAMEBUFFER_COMPLETE {
+                    bail!("GL's framebuffer over {name} is incomplete: {status:#x}");
+                }
             }
         }
-        Ok((target, depth))
+        Ok((drawn, depth, outlined))
     }
 
-    /// After a resize: a target of the new size (the old one deleted).
-    pub fn resize(&mut self, gl: &Rc<glow::Context>, size: (u32, u32)) -> Result<()> {
-        let (target, depth) = Self::target(gl, size)?;
-        (self.target, self.depth) = (target, depth);
+    /// New shared images: framebuffers over them. The old ones go first, before their images
+    /// are dropped: a framebuffer would keep a deleted texture, and so its memory, alive.
+    pub fn resize(
+        &mut self,
+        gl: &Rc<glow::Context>,
+        images: [&SharedImage; 2],
+        size: (u32, u32),
+    ) -> Result<()> {
+        (self.framebuffer, self.depth, self.outline) = Self::framebuffers(gl, images, size)?;
+        self.size = size;
         Ok(())
     }
 
     // ANCHOR: draw
-    /// wgpu's picture and depth into GL's target, then (with `lines`) the line, depth-tested.
-    pub fn draw(&self, gl: &glow::Context, [picture, depth]: [glow::Texture; 2], lines: bool) {
+    /// wgpu's picture and depth into GL's framebuffer, then (with `lines`) the line, depth-tested.
+    pub fn draw(&self, gl: &glow::Context, [picture, depth]: [&SharedImage; 2], lines: bool) {
         unsafe {
-            self.target.bind(gl);
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*self.framebuffer));
+            gl.viewport(0, 0, self.size.0 as i32, self.size.1 as i32);
             gl.enable(glow::DEPTH_TEST);
             // Every pixel written, colour and depth: the picture covers the target.
             gl.depth_func(glow::ALWAYS);
             gl.use_program(Some(*self.picture));
-            gl.bind_texture_unit(0, Some(picture));
-            gl.bind_texture_unit(1, Some(depth));
+            gl.bind_texture_unit(0, Some(*picture.gl.texture));
+            gl.bind_texture_unit(1, Some(*depth.gl.texture));
             gl.bind_vertex_array(Some(*self.empty));
             gl.draw_arrays(glow::TRIANGLES, 0, 3);
             if lines {
@@ -108,11 +132,12 @@ impl Show {
     }
     // ANCHOR_END: draw
 
-    /// Into a window: GL's target, scaled to the window's back buffer.
+    /// Into a window: wgpu's outline, scaled to the window's back buffer. GL drew the picture it
+    /// outlines with its first row at the bottom, as a window counts them: no flip.
     pub fn blit(&self, gl: &glow::Context, (w, h): (u32, u32)) {
-        let (tw, th) = (self.target.width as i32, self.target.height as i32);
+        let (tw, th) = (self.size.0 as i32, self.size.1 as i32);
         unsafe {
-            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*self.target.framebuffer));
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*self.outline));
             gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, None);
             let (to, colour) = ([0, 0, w as i32, h as i32], glow::COLOR_BUFFER_BIT);
             gl.blit_framebuffer(0, 0, tw, th, to[0], to[1], to[2], to[3], colour, glow::NEAREST);

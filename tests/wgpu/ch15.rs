@@ -30,7 +30,7 @@ fn ch15_resizes_every_shared_image() {
     let run = run_chapter(BIN, &["--size", "64x48", "--frames", "7", "--resize-every", "2"], &[]);
     let report = run.succeeded();
     assert_eq!(report["resizes"], 3);
-    assert_eq!(report["wgpu_released"], "8 of 8 images");
+    assert_eq!(report["wgpu_released"], "16 of 16 images");
 }
 
 #[test]
