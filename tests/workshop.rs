@@ -143,7 +143,23 @@ const SOLUTIONS: &[Solution] = &[
         args: &["--headless", "--size", "64x48", "--frames", "8"],
         proof: Proof::Check("viewer_frames_follow_one_another"),
     },
+    Solution {
+        // A package of its own (wgpu): built with `-p chapter-15-wgpu`.
+        patch: "15-edge-count.diff",
+        chapter: "15-wgpu",
+        args: &["--headless", "--size", "64x48", "--frames", "2"],
+        proof: Proof::Check("wgpu_counted_the_edges"),
+    },
 ];
+
+/// The chapters that are packages of their own, with the package's name: the rest are the root
+/// package's binaries.
+const OWN_PACKAGES: &[(&str, &str)] = &[("15-wgpu", "chapter-15-wgpu")];
+
+/// The package whose binary `chapter` is.
+fn package_of(chapter: &str) -> &'static str {
+    OWN_PACKAGES.iter().find(|(c, _)| *c == chapter).map_or("vkgl-interop", |(_, package)| package)
+}
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -450,8 +466,11 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
                 String::from_utf8_lossy(&applied.stderr)
             );
         }
-        let manifest = stage.path().join("Cargo.toml");
-        std::fs::write(&manifest, rename_bins(&std::fs::read_to_string(&manifest).unwrap())).unwrap();
+        let own = OWN_PACKAGES.iter().map(|(chapter, _)| format!("chapters/{chapter}/Cargo.toml"));
+        for manifest in std::iter::once("Cargo.toml".to_owned()).chain(own) {
+            let manifest = stage.path().join(manifest);
+            std::fs::write(&manifest, rename_bins(&std::fs::read_to_string(&manifest).unwrap())).unwrap();
+        }
         // One path for every group: cargo names a workspace crate's artifacts by its place in its
         // workspace, the same in every copy, and records the sources it read by their paths. A
         // second path would find the first one's artifacts, judged by the first one's files.
@@ -472,10 +491,14 @@ fn every_workshop_solution_builds_and_passes_its_chapters_checks() {
             // tests' own, reused as built. It also keeps the copy's `common` apart from the tests'
             // own, which has the same name and place in its workspace (so, with the same profile,
             // the same artifacts).
-            for package in ["vkgl-interop", "common"] {
+            let packages: BTreeSet<&str> = chapters.iter().map(|c| package_of(c)).collect();
+            for package in packages.iter().chain(&["common"]) {
                 build.arg("--config").arg(format!("profile.{profile}.package.{package}.debug=false"));
             }
-            build.arg("--config").arg(format!("profile.{profile}.package.vkgl-interop.strip=\"debuginfo\""));
+            for package in &packages {
+                build.arg("--config").arg(format!("profile.{profile}.package.{package}.strip=\"debuginfo\""));
+                build.args(["-p", package]);
+            }
             for chapter in chapters {
                 build.args(["--bin", &format!("workshop-{chapter}")]);
             }
