@@ -154,8 +154,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         turns.gl_acquire(&wgpu, &gl_context, &images)?;
         show.draw(gl, [picture, depth], true);
         if is_last {
-            let seen = [readbacks[0].bytes(&wgpu.device)?, readbacks[1].bytes(&wgpu.device)?];
-            let [picture_seen, depth_seen] = seen;
+            let (picture_seen, depth_seen) =
+                (readbacks[0].bytes(&wgpu.device)?, readbacks[1].bytes(&wgpu.device)?);
             let saw = check::WgpuSaw { picture: picture_seen, depth: depth_seen };
             let (made, with_line) = check::wgpu_to_gl(gl, &show, [picture, depth], &saw, pixels);
             checks.extend(made);
