@@ -182,6 +182,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         }
         if let Some(window) = &window {
             show.blit(gl, window.size());
+            if let (true, Some((_, outline))) = (is_last, pictures.last()) {
+                checks.extend(check::window_shows(gl, outline, pixels, window.size()));
+            }
         }
         gl_context.check_error("GL's turn")?;
         turns.gl_release(&gl_context, &images)?;

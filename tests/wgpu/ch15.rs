@@ -118,4 +118,6 @@ fn ch15_shows_its_picture_in_a_window_under_xvfb() {
     let report = run.succeeded();
     assert_eq!(report["window"], true, "{}", run.stderr);
     assert_eq!(report["frames"], 3);
+    // What the window showed is the outline wgpu wrote, read back from its back buffer.
+    assert_eq!(report["checks"]["the_window_shows_the_outline"], true, "{}", run.stderr);
 }
