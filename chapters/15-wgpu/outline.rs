@@ -34,7 +34,11 @@ pub fn pipeline(device: &wgpu::Device) -> Result<wgpu::ComputePipeline> {
         layout: None, // wgpu derives the bind group's layout from the shader
         module: &module,
         entry_point: None,
-        compilation_options: Default::default(),
+        // The shader's `override` constants, from here: one value on both sides.
+        compilation_options: wgpu::PipelineCompilationOptions {
+            constants: &[("EDGE", EDGE as f64), ("GROUP", GROUP as f64)],
+            ..Default::default()
+        },
         cache: None,
     }))
 }
