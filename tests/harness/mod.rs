@@ -10,6 +10,8 @@
 
 #![allow(dead_code)] // each test crate uses part of the harness
 
+pub mod flags;
+
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};

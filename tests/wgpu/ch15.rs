@@ -43,14 +43,18 @@ fn ch15_missing_memory_extension_is_named() {
     assert!(!run.stderr.contains("panicked"), "{}", run.stderr);
 }
 
+/// Every numeric flag chapter 15 takes, its own and those every chapter shares, offered what no
+/// flag means, as `tests/errors.rs` offers every other program's (`harness::flags`).
 #[test]
-fn ch15_resize_every_refuses_what_it_cannot_mean() {
-    for value in ["nan", "inf", "-inf", "-1", "0", "1e300", "0.5", "18446744073709551616"] {
-        let output = std::process::Command::new(BIN).arg(format!("--resize-every={value}")).output().unwrap();
-        let stderr = String::from_utf8_lossy(&output.stderr);
-        assert_eq!(output.status.code(), Some(2), "--resize-every={value}:\n{stderr}");
-        assert!(stderr.contains("'--resize-every ") && stderr.contains("expected a number"), "{stderr}");
-    }
+fn ch15_every_numeric_flag_refuses_what_it_cannot_mean() {
+    let table = harness::flags::numeric_flags_refuse_what_they_cannot_mean(&[BIN]);
+    insta::with_settings!({
+        snapshot_path => "../snapshots/flags",
+        prepend_module_to_snapshot => false,
+        omit_expression => true,
+    }, {
+        insta::assert_snapshot!("numeric-flags-15", table);
+    });
 }
 
 /// Each fallible step, failed the first and the last time a run reaches it: exit 2 naming the
