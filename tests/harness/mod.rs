@@ -11,6 +11,7 @@
 #![allow(dead_code)] // each test crate uses part of the harness
 
 pub mod flags;
+pub mod sizes;
 
 use serde_json::Value;
 use std::io::{BufRead, BufReader};

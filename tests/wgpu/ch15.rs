@@ -57,6 +57,13 @@ fn ch15_every_numeric_flag_refuses_what_it_cannot_mean() {
     });
 }
 
+/// Chapter 15 at every size `tests/sizes.rs` walks the other chapters through: tiny, odd, one
+/// past the largest (refused naming wgpu's limit), and the largest side (`harness::sizes`).
+#[test]
+fn sizes_15() {
+    harness::sizes::walk_sizes("15-wgpu", BIN, &["--frames", "2"], "max_texture_dimension_2d 16384");
+}
+
 /// Each fallible step, failed the first and the last time a run reaches it: exit 2 naming the
 /// step, no panic, no validation message, nothing left alive, no fd left open beyond those a
 /// run that fails nothing leaves (the driver's).
