@@ -24,6 +24,7 @@ use common::base::cli::{Largest, Size, Smallest};
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, ensure_same_device, uuids_match};
 use common::base::window::{self, Key, NamedKey, Window};
 use common::clocks::timestamps::median_p95;
+use common::instruments::census::ResizeCensus;
 use common::instruments::output;
 use common::{Flags, Report, open_fd_count};
 use glow::HasContext;
@@ -108,7 +109,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let outline_pipeline = outline::pipeline(&wgpu.device)?;
     let mut show = show::Show::new(gl, [&images[2], &images[3]], (size.width, size.height))?;
 
-    let (mut frame, mut resizes) = (0, 0);
+    let (mut frame, mut resizes, mut census) = (0, 0, ResizeCensus::default());
     // The last frame's checks, and its pictures for the PNGs (top row first).
     let (mut checks, mut pictures) = (Vec::new(), Vec::new());
     while frames == 0 || frame < frames {
@@ -137,6 +138,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             show.resize(gl, [&fresh[2], &fresh[3]], (new.width, new.height))?;
             drop(std::mem::replace(&mut images, fresh)); // as in step 12
             (size, turns.gl_had_them, resizes) = (new, false, resizes + 1);
+            census.count(&gl_context)?; // what exists after one resize must exist after every later one
         }
         // ANCHOR_END: resize
         let is_last = frame + 1 == frames; // a window's last frame too, with --frames
@@ -214,6 +216,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     if resizes > 0 {
         report.set("resizes", resizes);
     }
+    census.check(&gl_context, report)?;
 
     // 12. Clean up: wgpu lets go first, then GL, then what the chapter allocated
     // ANCHOR: cleanup

@@ -31,6 +31,7 @@ fn ch15_resizes_every_shared_image() {
     let report = run.succeeded();
     assert_eq!(report["resizes"], 3);
     assert_eq!(report["wgpu_released"], "16 of 16 images");
+    assert_eq!(report["checks"]["nothing_grows_across_resizes"], true);
 }
 
 #[test]
