@@ -17,7 +17,7 @@ use std::time::Instant;
 use wgpu::hal::api::Vulkan;
 
 /// The layout every shared image is in when it changes hands, both ways (GL's name for it).
-pub const GL_LAYOUT: u32 = gl::layout::SHADER_READ_ONLY;
+const GL_LAYOUT: u32 = gl::layout::SHADER_READ_ONLY;
 const LAYOUT: vk::ImageLayout = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL; // wgpu's TextureUses::RESOURCE
 
 /// Who holds the images, and how the two sides take turns.
@@ -49,8 +49,8 @@ impl Turns {
     }
 
     // ANCHOR: wgpu_turn
-    /// wgpu's turn: acquire every image from GL, run `commands` (wgpu's own, which leave the
-    /// images where GL's semaphore calls say they are), release them all to GL, and submit.
+    /// wgpu's turn: acquire every image from GL, run `commands` (wgpu's own), move every image
+    /// into the layout GL's semaphore calls name, release them all to GL, and submit.
     pub fn wgpu(
         &mut self,
         wgpu: &WgpuDevice,
