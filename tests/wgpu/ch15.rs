@@ -34,6 +34,18 @@ fn ch15_resizes_every_shared_image() {
     assert_eq!(report["checks"]["nothing_grows_across_resizes"], true);
 }
 
+/// The soak, as chapter 08's: 1,000 resizes at small sizes (seconds), every one making the four
+/// shared images anew, and nothing alive at the end that was not alive after the first.
+#[test]
+fn ch15_soak_1000_resizes() {
+    let args = ["--size", "32x24", "--frames", "1001", "--resize-every", "1"];
+    let run = run_chapter(BIN, &args, &[]);
+    let report = run.succeeded();
+    assert_eq!(report["resizes"], 1000);
+    assert_eq!(report["checks"]["nothing_grows_across_resizes"], true);
+    assert_eq!(report["wgpu_released"], "4004 of 4004 images");
+}
+
 #[test]
 fn ch15_missing_memory_extension_is_named() {
     let hide = [("VKGL_HIDE_EXTENSIONS", "VK_KHR_external_memory_fd")];
