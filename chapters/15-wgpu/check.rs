@@ -63,7 +63,7 @@ pub fn wgpu_to_gl(
     // GL's picture without the line: wgpu's, pixel for pixel.
     show.draw(gl, [picture, depth], false);
     let shown = unsafe {
-        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.framebuffer));
+        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.framebuffers.drawn));
         output::read_gl_rgba8(gl, w, h)
     };
     checks.push(("gl_shows_wgpus_picture", shown == wgpu.picture));
@@ -71,7 +71,7 @@ pub fn wgpu_to_gl(
     // in the open (a pixel either side of the probe: the line may fall on either row).
     show.draw(gl, [picture, depth], true);
     let with_line = unsafe {
-        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.framebuffer));
+        gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*show.framebuffers.drawn));
         output::read_gl_rgba8(gl, w, h)
     };
     let probe = |x: f32| {

@@ -26,12 +26,18 @@ const WGPU_TO_GL_DEPTH: [f32; 16] =
     [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, -1.0, 1.0];
 // ANCHOR_END: line
 
-/// GL's programs and line, its framebuffer over the shared image it draws into, and one over
-/// wgpu's outline of it (to copy into a window).
-pub struct Show {
-    pub framebuffer: Owned<glow::Framebuffer>,
+/// GL's framebuffers over the shared images: the one GL draws into, with a depth buffer of GL's
+/// own that wgpu's depth is written into, and wgpu's outline alone (to copy into a window).
+pub struct Framebuffers {
+    pub drawn: Owned<glow::Framebuffer>,
+    #[allow(dead_code)] // never read: held as long as the framebuffer it is attached to
     depth: Owned<glow::Renderbuffer>,
     outline: Owned<glow::Framebuffer>,
+}
+
+/// GL's programs and line, and its framebuffers over the shared images.
+pub struct Show {
+    pub framebuffers: Framebuffers,
     size: (u32, u32),
     picture: Owned<glow::Program>,
     lines_program: Owned<glow::Program>,
@@ -49,18 +55,15 @@ impl Show {
         let line = LineBuffer::new(gl, &[vertex(-0.95), vertex(0.95)])?;
         let empty =
             create(gl, "glCreateVertexArrays (none)", |gl| unsafe { gl.create_named_vertex_array() })?;
-        let (framebuffer, depth, outline) = Self::framebuffers(gl, [into, outline], size)?;
-        Ok(Show { framebuffer, depth, outline, size, picture, lines_program, line, empty })
+        let framebuffers = Self::framebuffers(gl, [into, outline], size)?;
+        Ok(Show { framebuffers, size, picture, lines_program, line, empty })
     }
 
-    /// GL's framebuffers over the shared images: colour and a depth buffer of GL's own that wgpu's
-    /// depth is written into; and wgpu's outline alone.
-    #[allow(clippy::type_complexity)]
     fn framebuffers(
         gl: &Rc<glow::Context>,
         [into, outline]: [&SharedImage; 2],
         (w, h): (u32, u32),
-    ) -> Result<(Owned<glow::Framebuffer>, Owned<glow::Renderbuffer>, Owned<glow::Framebuffer>)> {
+    ) -> Result<Framebuffers> {
         let what = "glCreateRenderbuffers for GL's depth";
         let depth = renderbuffer(gl, what, (glow::DEPTH_COMPONENT32F, "DEPTH_COMPONENT32F", 4), (w, h))?;
         let framebuffer = |what| create(gl, what, |gl| unsafe { gl.create_named_framebuffer() });
@@ -85,7 +88,7 @@ impl Show {
                 }
             }
         }
-        Ok((drawn, depth, outlined))
+        Ok(Framebuffers { drawn, depth, outline: outlined })
     }
 
     /// New shared images: framebuffers over them. The old ones go first, before their images
@@ -96,7 +99,7 @@ impl Show {
         images: [&SharedImage; 2],
         size: (u32, u32),
     ) -> Result<()> {
-        (self.framebuffer, self.depth, self.outline) = Self::framebuffers(gl, images, size)?;
+        self.framebuffers = Self::framebuffers(gl, images, size)?;
         self.size = size;
         Ok(())
     }
@@ -105,7 +108,7 @@ impl Show {
     /// wgpu's picture and depth into GL's framebuffer, then (with `lines`) the line, depth-tested.
     pub fn draw(&self, gl: &glow::Context, [picture, depth]: [&SharedImage; 2], lines: bool) {
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*self.framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(*self.framebuffers.drawn));
             gl.viewport(0, 0, self.size.0 as i32, self.size.1 as i32);
             gl.enable(glow::DEPTH_TEST);
             // Every pixel written, colour and depth: the picture covers the target.
@@ -137,7 +140,7 @@ impl Show {
     pub fn blit(&self, gl: &glow::Context, (w, h): (u32, u32)) {
         let (tw, th) = (self.size.0 as i32, self.size.1 as i32);
         unsafe {
-            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*self.outline));
+            gl.bind_framebuffer(glow::READ_FRAMEBUFFER, Some(*self.framebuffers.outline));
             gl.bind_framebuffer(glow::DRAW_FRAMEBUFFER, None);
             let (to, colour) = ([0, 0, w as i32, h as i32], glow::COLOR_BUFFER_BIT);
             gl.blit_framebuffer(0, 0, tw, th, to[0], to[1], to[2], to[3], colour, glow::NEAREST);
