@@ -73,14 +73,13 @@ pub fn render(
     read_back: bool,
 ) -> (wgpu::CommandEncoder, Vec<Readback>) {
     let mut encoder = device.create_command_encoder(&Default::default());
-    let views = [picture, depth].map(|image| image.wgpu.create_view(&Default::default()));
     let clears = [
         wgpu::Color { r: CLEAR[0], g: CLEAR[1], b: CLEAR[2], a: CLEAR[3] },
         wgpu::Color { r: FAR, g: 0.0, b: 0.0, a: 0.0 },
     ];
     let attachments = [0, 1].map(|i| {
         Some(wgpu::RenderPassColorAttachment {
-            view: &views[i],
+            view: &[picture, depth][i].view,
             depth_slice: None,
             resolve_target: None,
             ops: wgpu::Operations { load: wgpu::LoadOp::Clear(clears[i]), store: wgpu::StoreOp::Store },

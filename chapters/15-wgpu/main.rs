@@ -108,6 +108,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let render_pipeline = draw::pipeline(&wgpu.device)?;
     let outline_pipeline = outline::pipeline(&wgpu.device)?;
     let mut show = show::Show::new(gl, [&images[2], &images[3]], (size.width, size.height))?;
+    // The compute pass's bind group: after the images (dropped before them), made anew with them.
+    let mut outline_inputs = outline::bind(&wgpu.device, &outline_pipeline, [&images[2], &images[3]]);
 
     let (mut frame, mut resizes, mut census) = (0, 0, ResizeCensus::default());
     // The last frame's checks, and its pictures for the PNGs (top row first).
@@ -130,12 +132,13 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         };
         // ANCHOR: resize
         if let Some(new) = wanted {
-            // Both sides done with the old images; GL's framebuffers move to the new ones; then
-            // wgpu lets go of the old (its drop callbacks), GL deletes its side, and the chapter
-            // destroys the images and frees their memory.
+            // Both sides done with the old images; GL's framebuffers and the compute pass's bind
+            // group move to the new ones; then wgpu lets go of the old (its drop callbacks), GL
+            // deletes its side, and the chapter destroys the images and frees their memory.
             unsafe { gl.finish() };
             let fresh = share(new)?;
             show.resize(gl, [&fresh[2], &fresh[3]], (new.width, new.height))?;
+            outline_inputs = outline::bind(&wgpu.device, &outline_pipeline, [&fresh[2], &fresh[3]]);
             drop(std::mem::replace(&mut images, fresh)); // as in step 12
             (size, turns.gl_had_them, resizes) = (new, false, resizes + 1);
             census.count(&gl_context)?; // what exists after one resize must exist after every later one
@@ -170,7 +173,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         // 9. wgpu's compute pass outlines GL's picture, and hands every image to GL
         // ANCHOR: wgpu_reads
         let (commands, readbacks) =
-            outline::record(&wgpu.device, &outline_pipeline, [drawn, outlined], is_last);
+            outline::record(&wgpu.device, &outline_pipeline, &outline_inputs, [drawn, outlined], is_last);
         turns.wgpu(&wgpu, &images, commands)?;
         // ANCHOR_END: wgpu_reads
 
@@ -223,6 +226,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     unsafe { gl.finish() };
     wgpu.device.poll(wgpu::PollType::wait_indefinitely()).context("wgpu: Device::poll")?;
     drop(show);
+    drop(outline_inputs);
     drop(images); // each: wgpu's texture destroyed and polled for, GL's side, the image, its memory
     let (wrapped, released) = (WRAPPED.load(Ordering::SeqCst), RELEASED.load(Ordering::SeqCst));
     let in_use = DESTROYED_IN_USE.load(Ordering::SeqCst); // destroyed before wgpu let go

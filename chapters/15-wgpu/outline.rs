@@ -44,28 +44,39 @@ pub fn pipeline(device: &wgpu::Device) -> Result<wgpu::ComputePipeline> {
 }
 // ANCHOR_END: pipeline
 
-// ANCHOR: outline
-/// The compute pass: `picture` (GL's) in, `outlined` out, with their readbacks when asked for.
-pub fn record(
+// ANCHOR: bind
+/// What the compute pass reads and writes: `picture` (GL's) and `outlined`. Made once for each
+/// pair of images, at the start and after a resize, not every frame.
+pub fn bind(
     device: &wgpu::Device,
     pipeline: &wgpu::ComputePipeline,
     [picture, outlined]: [&SharedImage; 2],
-    read_back: bool,
-) -> (wgpu::CommandEncoder, Vec<Readback>) {
-    let views = [picture, outlined].map(|image| image.wgpu.create_view(&Default::default()));
-    let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+) -> wgpu::BindGroup {
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("outline"),
         layout: &pipeline.get_bind_group_layout(0),
         entries: &[
-            wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&views[0]) },
-            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&views[1]) },
+            wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&picture.view) },
+            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&outlined.view) },
         ],
-    });
+    })
+}
+// ANCHOR_END: bind
+
+// ANCHOR: outline
+/// The compute pass over the images `bind_group` holds, with their readbacks when asked for.
+pub fn record(
+    device: &wgpu::Device,
+    pipeline: &wgpu::ComputePipeline,
+    bind_group: &wgpu::BindGroup,
+    [picture, outlined]: [&SharedImage; 2],
+    read_back: bool,
+) -> (wgpu::CommandEncoder, Vec<Readback>) {
     let mut encoder = device.create_command_encoder(&Default::default());
     {
         let mut pass = encoder.begin_compute_pass(&Default::default());
         pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, &bind_group, &[]);
+        pass.set_bind_group(0, bind_group, &[]);
         let size = picture.wgpu.size();
         pass.dispatch_workgroups(size.width.div_ceil(GROUP), size.height.div_ceil(GROUP), 1);
     }

@@ -22,6 +22,8 @@ use wgpu::hal::api::Vulkan;
 /// first to last.
 pub struct SharedImage {
     pub wgpu: wgpu::Texture,
+    /// wgpu's view of the whole image, made once: every pass that uses the image uses it.
+    pub view: wgpu::TextureView,
     device: wgpu::Device,
     /// Set by wgpu's drop callback: wgpu is done with the image.
     released: Arc<AtomicBool>,
@@ -173,7 +175,8 @@ pub fn share_image(
         wgpu.create_texture_from_hal::<Vulkan>(hal_texture, &descriptor, wgpu::TextureUses::UNINITIALIZED)
     };
     // ANCHOR_END: wrap
-    Ok(SharedImage { wgpu: texture, device: wgpu.clone(), released, gl: gl_texture, image, memory })
+    let view = texture.create_view(&Default::default());
+    Ok(SharedImage { wgpu: texture, view, device: wgpu.clone(), released, gl: gl_texture, image, memory })
 }
 
 // ANCHOR: semaphores
