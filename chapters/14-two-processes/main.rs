@@ -137,7 +137,10 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         // ANCHOR_END: frame_written
         let shared = Shared { vk: &vk, hello: &hello, ring: &ring, frame_written: &frame_written };
         let (socket, mut child) = match &listener {
-            Some(listener) => (session::accept(listener, timeout)?, None),
+            Some(listener) => {
+                eprintln!("renderer: waiting up to {timeout:?} for a viewer (--connect)");
+                (wire::accept(listener, timeout)?, None)
+            }
             None => session::spawn_viewer((width, height), windowed, timeout, &args.common.out_dir(CHAPTER))?,
         };
         socket.set_timeout(timeout)?;
@@ -184,7 +187,6 @@ fn render(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     };
 
     // 4. The viewer's report into ours, then our own counts
-    let summary: serde_json::Value = serde_json::from_str(&summary)?;
     report.merge("viewer", &summary);
     report.set("frames_shown_by_the_last_viewer", &summary["frames_shown"]);
     report.set("window", summary["window"] == true); // the viewer's: the renderer has none

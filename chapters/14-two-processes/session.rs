@@ -5,6 +5,7 @@ use anyhow::{Context as _, Result, bail, ensure};
 use ash::vk;
 use common::base::child::OwnedChild;
 use common::base::owned::Owned;
+use common::base::vulkan::DeviceInfo;
 use common::clocks::timing::PassTimes;
 use common::frame::ring::Ring;
 use common::instruments::fail;
@@ -18,8 +19,8 @@ use std::time::{Duration, Instant};
 
 /// How a viewer's session ended, if not with an error.
 pub enum Outcome {
-    /// Every frame shown; the viewer's summary (JSON).
-    Done(String),
+    /// Every frame shown; the viewer's summary (a JSON object).
+    Done(serde_json::Value),
     /// The viewer hung up or fell silent; `lost` frames were sent and not shown.
     Gone { why: &'static str, lost: u64 },
 }
@@ -42,14 +43,6 @@ pub struct Shared<'a> {
     pub frame_written: &'a [Owned<vk::Semaphore>],
 }
 
-impl Shared<'_> {
-    /// Frame `frame` into slot `slot`, signalling its semaphore if `signal`; waits for the fence.
-    fn draw(&self, frame: u64, slot: usize, signal: bool) -> Result<()> {
-        let frame_written = signal.then(|| *self.frame_written[slot]);
-        self.ring.draw(self.vk, frame, slot, frame_written)
-    }
-}
-
 /// What the renderer measures across viewers, for its report.
 pub struct Measured {
     /// `frame`, `handover` and `round_trip` (ms).
@@ -65,13 +58,13 @@ pub struct Measured {
 impl Session<'_> {
     pub fn serve(
         mut self,
-        ring: &Shared,
+        shared: &Shared,
         next_frame: &mut u64,
         frames: u64,
         measured: &mut Measured,
         report: &mut Report,
     ) -> Result<Outcome> {
-        let hello = ring.hello;
+        let hello = shared.hello;
         // ANCHOR: handshake
         // Only this user's processes are handed our memory: mode 0600 keeps others from
         // connecting to our socket, and the kernel's word on who connected holds where it cannot.
@@ -87,20 +80,12 @@ impl Session<'_> {
             Some(other) => bail!(Broken(format!("the viewer answered Hello with {}", other.name()))),
             None => return self.left_early("hung up or fell silent during the handshake"),
         };
-        let same = device_uuid == hello.device_uuid && driver_uuid == hello.driver_uuid;
+        // The viewer's GL must run on our device: our memory's fds mean something to our driver only.
+        let same = (device_uuid, driver_uuid) == (hello.device_uuid, hello.driver_uuid);
         report.uuids_match = Some(same);
-        let hex = common::instruments::report::uuid_hex;
-        ensure!(
-            same,
-            Broken(format!(
-                "the viewer's GL ({renderer}, device {} driver {}) is not our Vulkan ({}, device {} driver {})",
-                hex(&device_uuid),
-                hex(&driver_uuid),
-                hello.device,
-                hex(&hello.device_uuid),
-                hex(&hello.driver_uuid)
-            ))
-        );
+        let viewers = DeviceInfo { name: renderer, device_uuid, driver_uuid, ..hello.device() }.identity();
+        let ours = hello.device().identity();
+        ensure!(same, Broken(format!("the viewer's GL ({viewers}) is not our Vulkan ({ours})")));
         // Semaphores only where both sides have them: the viewer accepts only what we offered.
         ensure!(
             !semaphores || hello.semaphores,
@@ -110,12 +95,12 @@ impl Session<'_> {
         // The fds, one message per slot (and one per slot's semaphore). Each is ours until
         // sendmsg returns; then the kernel has given the viewer its own, and ours is closed.
         for slot in 0..hello.slots {
-            let fd = ring.ring.memory_fd(slot as usize)?;
+            let fd = shared.ring.memory_fd(slot as usize)?;
             let slot_message = Message::Slot { slot, memory_size: hello.memory_size };
             let mut sent = self.socket.send(&slot_message, &[fd.as_fd()])?;
             drop(fd); // sent or not, ours is closed: the viewer has its own, or is gone
             if sent && semaphores {
-                let fd = handoff::semaphore_fd(ring.vk, *ring.frame_written[slot as usize])?;
+                let fd = handoff::semaphore_fd(shared.vk, *shared.frame_written[slot as usize])?;
                 sent = self.socket.send(&Message::SlotSemaphore { slot }, &[fd.as_fd()])?;
             }
             if !sent {
@@ -142,7 +127,7 @@ impl Session<'_> {
         }
         // Sent and not yet free, oldest first: (frame, slot, when its fence had signalled).
         let mut in_flight = VecDeque::new();
-        let shown = self.frames(ring, semaphores, (next_frame, frames), &mut in_flight, measured);
+        let shown = self.frames(shared, semaphores, (next_frame, frames), &mut in_flight, measured);
         // However the viewer went, refused included, the frames it did not free are drawn again.
         *next_frame = in_flight.front().map_or(*next_frame, |&(frame, _, _)| frame);
         if let Some(gone) = shown? {
@@ -155,7 +140,7 @@ impl Session<'_> {
         match self.recv()? {
             // Read into the report: it must be a JSON object, as a viewer of ours sends.
             Some(Message::Summary { json }) => match serde_json::from_str::<serde_json::Value>(&json) {
-                Ok(summary) if summary.is_object() => Ok(Outcome::Done(json)),
+                Ok(summary) if summary.is_object() => Ok(Outcome::Done(summary)),
                 _ => bail!(Broken("the viewer's summary is not a JSON object".into())),
             },
             Some(other) => bail!(Broken(format!("the viewer answered Bye with {}", other.name()))),
@@ -167,13 +152,13 @@ impl Session<'_> {
     /// sent and not yet freed, which are drawn again for the next viewer, however this one goes.
     fn frames(
         &mut self,
-        ring: &Shared,
+        shared: &Shared,
         semaphores: bool,
         (next_frame, frames): (&mut u64, u64),
         in_flight: &mut VecDeque<(u64, u32, u64)>,
         measured: &mut Measured,
     ) -> Result<Option<Outcome>> {
-        let slots = ring.hello.slots;
+        let slots = shared.hello.slots;
         // ANCHOR: frames
         let mut sent = 0u32;
         while *next_frame < frames || !in_flight.is_empty() {
@@ -221,7 +206,8 @@ impl Session<'_> {
             // path the message is the synchronisation. With semaphores, the slot's semaphore is
             // signalled by then too: GL's wait on it is satisfied, and cannot be left hanging by
             // our death (a signal submitted, then cut short, would leave it waiting for ever).
-            ring.draw(*next_frame, slot as usize, semaphores)?;
+            let frame_written = semaphores.then(|| *shared.frame_written[slot as usize]);
+            shared.ring.draw(shared.vk, *next_frame, slot as usize, frame_written)?;
             let written_ns = wire::monotonic_ns();
             let ready = Message::FrameReady { frame: *next_frame, slot };
             if !self.socket.send(&ready, &[])? {
@@ -316,12 +302,6 @@ pub fn spawn_viewer(
     Ok((ours, Some(child)))
 }
 // ANCHOR_END: spawn
-
-/// The next viewer to connect to `listener` (`--listen`), within `timeout`.
-pub fn accept(listener: &std::os::fd::OwnedFd, timeout: Duration) -> Result<Socket> {
-    eprintln!("renderer: waiting up to {timeout:?} for a viewer (--connect)");
-    wire::accept(listener, timeout)
-}
 
 /// Closes our end of the socket, then reaps the viewer we started (None: we started none): a
 /// viewer that hung up or saw us hang up exits by itself, within `grace`; one that does not is

@@ -6,17 +6,16 @@
 //! outlives its renderer and waits for the next one.
 
 use anyhow::{Result, bail, ensure};
-use common::Report;
 use common::base::cli::Size;
-use common::base::gl::{GlContext, MEMORY_EXTENSIONS, create};
-use common::base::vulkan::DeviceInfo;
-use common::base::window::{self, Key, NamedKey, Window};
+use common::base::gl::{GlContext, framebuffer_over};
+use common::base::window::{Key, NamedKey, Window};
 use common::frame::ring::{is_picture_of, read_slot, wait_until_written, window_shows};
 use common::instruments::census::{self, Sample};
 use common::instruments::{fail, output, resources};
 use common::interop::handoff::import_semaphore;
 use common::interop::wire::{self, Broken, Message, Received, Socket};
 use common::interop::{self, exportable::MemoryTerms};
+use common::{Report, gl_in_window};
 use glow::HasContext;
 use std::os::fd::{AsFd as _, FromRawFd, OwnedFd};
 use std::path::PathBuf;
@@ -43,6 +42,7 @@ pub struct Settings {
 }
 
 /// What the viewer keeps from one renderer to the next (`--reconnect`).
+#[derive(Default)]
 struct Viewed {
     /// Made at the first Hello; every later renderer must run on the same device.
     gl: Option<GlContext>,
@@ -62,17 +62,7 @@ struct Viewed {
 }
 
 pub fn run(args: &Settings, report: &mut Report) -> Result<()> {
-    let mut viewed = Viewed {
-        gl: None,
-        window: None,
-        window_right: true,
-        shown: 0,
-        all_right: true,
-        no_fd_leaked: true,
-        last: None,
-        sessions: vec![],
-        refused: 0,
-    };
+    let mut viewed = Viewed { window_right: true, all_right: true, no_fd_leaked: true, ..Default::default() };
     loop {
         let socket = match &args.renderer {
             &Renderer::Inherited(fd) => {
@@ -169,30 +159,12 @@ fn view(args: &Settings, report: &mut Report, socket: &Socket, viewed: &mut View
 
     // 2. Open GL on the renderer's device, or refuse
     // ANCHOR: same_device
-    // The renderer's Vulkan device, as far as GL's choice of device and the UUID check need it.
-    let vulkan = DeviceInfo {
-        name: hello.device.clone(),
-        driver: String::new(),
-        api_version: 0,
-        device_type: ash::vk::PhysicalDeviceType::OTHER,
-        device_uuid: hello.device_uuid,
-        driver_uuid: hello.driver_uuid,
-    };
+    let vulkan = hello.device();
     if viewed.gl.is_none() {
-        // A window's GL where there is a display (the window system's choice of device, which
-        // the UUID check below then holds to the renderer's), else GL on the renderer's device.
-        let windowed = !args.headless && window::display_available();
-        if !args.headless && !windowed {
-            eprintln!("viewer: no display (DISPLAY and WAYLAND_DISPLAY are unset): running headless");
-        }
-        let (window, gl_context) = match windowed {
-            true => {
-                let title = format!("{} (viewer)", args.chapter);
-                Window::open(&title, Size { width, height }, &MEMORY_EXTENSIONS)
-                    .map(|(w, gl)| (Some(w), gl))?
-            }
-            false => (None, GlContext::headless(&vulkan, &MEMORY_EXTENSIONS)?),
-        };
+        // In a window where there is a display (the window system then picks GL's device, which
+        // the UUID check below holds to the renderer's), else headless GL on the renderer's device.
+        let title = format!("{} (viewer)", args.chapter);
+        let (window, gl_context) = gl_in_window(&title, Size { width, height }, &vulkan, args.headless)?;
         report.gl = Some(gl_context.report());
         viewed.gl = Some(gl_context);
         viewed.window = window;
@@ -252,23 +224,9 @@ fn view(args: &Settings, report: &mut Report, socket: &Socket, viewed: &mut View
         // does not, and `import_texture_2d` closes it.
         let texture = interop::import_texture_2d(gl_context, memory, fd, glow::RGBA8, (width, height))?;
         // In a window: a framebuffer on the slot's texture, to blit from (COLOR_ATTACHMENT usage).
-        let framebuffer = match viewed.window {
-            Some(_) => {
-                let made = create(gl, "glCreateFramebuffers (a slot, to show it)", |gl| unsafe {
-                    gl.create_named_framebuffer()
-                })?;
-                unsafe {
-                    gl.named_framebuffer_texture(
-                        Some(*made),
-                        glow::COLOR_ATTACHMENT0,
-                        Some(*texture.texture),
-                        0,
-                    )
-                };
-                Some(made)
-            }
-            None => None,
-        };
+        let what = "glCreateFramebuffers (a slot, to show it)";
+        let framebuffer =
+            viewed.window.as_ref().map(|_| framebuffer_over(gl, what, *texture.texture)).transpose()?;
         // The slot's "frame written" semaphore follows its memory, where both sides share them.
         let frame_written = match semaphores {
             false => None,
@@ -294,8 +252,10 @@ fn view(args: &Settings, report: &mut Report, socket: &Socket, viewed: &mut View
     // 4. Show each frame, then free its slot
     // ANCHOR: frames
     let mut previous = None; // this renderer's frames only: a new one counts from 0 again
+    let mut closed = false; // the window: the frames sent after it are not shown, nor freed
     let gone = loop {
         let (frame, slot) = match socket.recv()? {
+            Received::Message(Message::FrameReady { .. }, _) if closed => continue,
             Received::Message(Message::FrameReady { frame, slot }, _) => (frame, slot),
             Received::Message(Message::Ping { n }, _) => match socket.send(&Message::Pong { n }, &[])? {
                 true => continue,
@@ -345,7 +305,7 @@ fn view(args: &Settings, report: &mut Report, socket: &Socket, viewed: &mut View
             if escape || window.close_requested() {
                 eprintln!("viewer: the window was closed after frame {frame}");
                 ensure!(socket.send(&Message::Closed, &[])?, "the renderer hung up as the window closed");
-                break until_bye(socket)?;
+                closed = true; // until the renderer's Bye, or its hang-up
             }
         }
     };
@@ -380,20 +340,4 @@ fn view(args: &Settings, report: &mut Report, socket: &Socket, viewed: &mut View
         ensure!(socket.send(&summary, &[])?, "the renderer hung up before the summary");
     }
     Ok(gone.is_some())
-}
-
-/// After `Closed`: the frames the renderer sent meanwhile are not shown, nor freed (it let go
-/// of them), until its Bye (`None`) or its hang-up.
-fn until_bye(socket: &Socket) -> Result<Option<&'static str>> {
-    loop {
-        match socket.recv()? {
-            Received::Message(Message::FrameReady { .. }, _) => continue,
-            Received::Message(Message::Bye, _) => return Ok(None),
-            Received::Message(other, _) => {
-                bail!(Broken(format!("the renderer sent {} after Closed", other.name())))
-            }
-            Received::HungUp => return Ok(Some("hung up")),
-            Received::TimedOut => return Ok(Some("fell silent")),
-        }
-    }
 }

@@ -3,8 +3,8 @@
 //! shared image that wgpu reads next; and copies wgpu's outline of it into a window.
 
 use crate::shared::SharedImage;
-use anyhow::{Result, bail};
-use common::base::gl::{Owned, create, program, renderbuffer};
+use anyhow::Result;
+use common::base::gl::{Owned, create, framebuffer_over, program, renderbuffer};
 use common::frame::{LineBuffer, LineVertex};
 use glow::HasContext;
 use std::rc::Rc;
@@ -66,28 +66,13 @@ impl Show {
     ) -> Result<Framebuffers> {
         let what = "glCreateRenderbuffers for GL's depth";
         let depth = renderbuffer(gl, what, (glow::DEPTH_COMPONENT32F, "DEPTH_COMPONENT32F", 4), (w, h))?;
-        let framebuffer = |what| create(gl, what, |gl| unsafe { gl.create_named_framebuffer() });
-        let (drawn, outlined) = (
-            framebuffer("glCreateFramebuffers (GL's picture)")?,
-            framebuffer("glCreateFramebuffers (the outline)")?,
-        );
+        let drawn = framebuffer_over(gl, "glCreateFramebuffers (GL's picture)", *into.gl.texture)?;
+        let outlined = framebuffer_over(gl, "glCreateFramebuffers (the outline)", *outline.gl.texture)?;
+        // GL's picture is depth-tested: its framebuffer has the depth renderbuffer too.
+        let (depth_attachment, renderbuffer) = (glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER);
         unsafe {
-            let colour = glow::COLOR_ATTACHMENT0;
-            gl.named_framebuffer_texture(Some(*drawn), colour, Some(*into.gl.texture), 0);
-            gl.named_framebuffer_renderbuffer(
-                Some(*drawn),
-                glow::DEPTH_ATTACHMENT,
-                glow::RENDERBUFFER,
-                Some(*depth),
-            );
-            gl.named_framebuffer_texture(Some(*outlined), colour, Some(*outline.gl.texture), 0);
-            for (framebuffer, name) in [(*drawn, "GL's picture + depth"), (*outlined, "the outline")] {
-                let status = gl.check_named_framebuffer_status(Some(framebuffer), glow::FRAMEBUFFER);
-                if status != glow::FRAMEBUFFER_COMPLETE {
-                    bail!("GL's framebuffer over {name} is incomplete: {status:#x}");
-                }
-            }
-        }
+            gl.named_framebuffer_renderbuffer(Some(*drawn), depth_attachment, renderbuffer, Some(*depth))
+        };
         Ok(Framebuffers { drawn, depth, outline: outlined })
     }
 

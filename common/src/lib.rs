@@ -54,7 +54,7 @@ pub mod rt;
 pub mod scene;
 
 pub use base::chapter::{
-    Flags, connect, contexts, contexts_in_window, finish, largest_size, ms_since, run_chapter,
+    Flags, connect, contexts, contexts_in_window, finish, gl_in_window, largest_size, ms_since, run_chapter,
 };
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;

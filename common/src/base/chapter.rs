@@ -171,21 +171,31 @@ pub fn contexts_in_window(
     common: &CommonArgs,
 ) -> anyhow::Result<(VulkanContext, Option<Window>, GlContext)> {
     let vk = VulkanContext::new(requirements)?;
-    let headless = common.headless || !window::display_available();
-    if !common.headless && headless {
-        eprintln!("window: {}: running headless", window::no_display_reason());
-    }
-    let (window, gl) = if headless {
-        (None, GlContext::headless(&vk.info, &MEMORY_EXTENSIONS)?)
-    } else {
-        let title = chapter.replacen('-', " · ", 1).replace('-', " ");
-        let (window, gl) = Window::open(&title, common.size, &MEMORY_EXTENSIONS)?;
-        (Some(window), gl)
-    };
+    let title = chapter.replacen('-', " · ", 1).replace('-', " ");
+    let (window, gl) = gl_in_window(&title, common.size, &vk.info, common.headless)?;
     connect(report, &vk, &gl)?;
     largest_size(&vk, &gl).check(chapter, common.size)?;
     report.set("window", window.is_some());
     Ok((vk, window, gl))
+}
+
+/// GL with [`MEMORY_EXTENSIONS`] in a window titled `title`, unless `headless` or there is no
+/// display (said on stderr); else headless GL on `vulkan`'s device. In a window the window
+/// system picks GL's device: the UUID check must follow.
+pub fn gl_in_window(
+    title: &str,
+    size: Size,
+    vulkan: &vulkan::DeviceInfo,
+    headless: bool,
+) -> anyhow::Result<(Option<Window>, GlContext)> {
+    if !headless && !window::display_available() {
+        eprintln!("window: {}: running headless", window::no_display_reason());
+    }
+    if headless || !window::display_available() {
+        return Ok((None, GlContext::headless(vulkan, &MEMORY_EXTENSIONS)?));
+    }
+    let (window, gl) = Window::open(title, size, &MEMORY_EXTENSIONS)?;
+    Ok((Some(window), gl))
 }
 
 // ANCHOR: largest_size

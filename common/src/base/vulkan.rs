@@ -84,6 +84,16 @@ impl DeviceInfo {
             extensions,
         }
     }
+
+    /// "NAME, device UUID driver UUID": what a refusal names, for either side.
+    pub fn identity(&self) -> String {
+        format!(
+            "{}, device {} driver {}",
+            self.name,
+            uuid_hex(&self.device_uuid),
+            uuid_hex(&self.driver_uuid)
+        )
+    }
 }
 
 pub struct VulkanContext {

@@ -275,6 +275,25 @@ pub fn renderbuffer(
     Ok(renderbuffer)
 }
 
+/// A framebuffer whose colour is `texture`, made as the step `what`: to draw into the texture,
+/// or to blit or read from it. Checked complete. Delete it before the texture: a framebuffer
+/// keeps a deleted texture, and so its memory, alive.
+pub fn framebuffer_over(
+    gl: &Rc<glow::Context>,
+    what: &str,
+    texture: glow::Texture,
+) -> Result<Owned<glow::Framebuffer>> {
+    let framebuffer = create(gl, what, |gl| unsafe { gl.create_named_framebuffer() })?;
+    unsafe {
+        gl.named_framebuffer_texture(Some(*framebuffer), glow::COLOR_ATTACHMENT0, Some(texture), 0);
+        let status = gl.check_named_framebuffer_status(Some(*framebuffer), glow::FRAMEBUFFER);
+        if status != glow::FRAMEBUFFER_COMPLETE {
+            bail!("{what}: the framebuffer is incomplete ({status:#x})"); // deleted on the way out
+        }
+    }
+    Ok(framebuffer)
+}
+
 /// An offscreen RGBA8 colour target for headless drawing, read back with [`crate::instruments::output`].
 /// Deleted when dropped: the framebuffer, then its renderbuffer (fields drop in order).
 pub struct RenderTarget {

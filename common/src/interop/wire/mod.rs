@@ -87,6 +87,20 @@ pub enum Message {
 }
 // ANCHOR_END: messages
 
+impl Hello {
+    /// The renderer's Vulkan device, as far as GL's choice of device and the UUID check need it.
+    pub fn device(&self) -> crate::base::vulkan::DeviceInfo {
+        crate::base::vulkan::DeviceInfo {
+            name: self.device.clone(),
+            driver: String::new(),
+            api_version: 0,
+            device_type: ash::vk::PhysicalDeviceType::OTHER,
+            device_uuid: self.device_uuid,
+            driver_uuid: self.driver_uuid,
+        }
+    }
+}
+
 impl Message {
     fn kind(&self) -> u16 {
         match self {
