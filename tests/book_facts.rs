@@ -2425,3 +2425,83 @@ fn the_workshop_has_a_slot_for_every_chapter() {
     }
     assert!(errors.is_empty(), "{}", errors.join("\n"));
 }
+
+/// The sizes `--resize-every K` goes through, in order, as `common::frame::input::resize_every`
+/// makes them: its `[2, 3, 4]` quarters, indexed by `frame / K`, starting at frame K (index 1).
+fn resize_every_order() -> Vec<&'static str> {
+    let source = std::fs::read_to_string(root().join("common/src/frame/input.rs")).unwrap();
+    let start = source.find("pub fn resize_every").expect("common::frame::input::resize_every");
+    let body = &source[start..];
+    let list = body.find("let quarters = [").map(|i| &body[i + "let quarters = [".len()..]).unwrap();
+    let quarters: Vec<u32> =
+        list[..list.find(']').unwrap()].split(',').map(|q| q.trim().parse().unwrap()).collect();
+    assert!(
+        body.contains("[(frame / every) as usize % 3]"),
+        "resize_every indexes its quarters otherwise now"
+    );
+    let word = |q: u32| match q {
+        2 => "half",
+        3 => "three quarters",
+        4 => "full",
+        other => panic!("a resize to {other} quarters has no word here"),
+    };
+    (1..=quarters.len()).map(|i| word(quarters[i % quarters.len()])).collect()
+}
+
+/// Sentences that name `--resize-every` and list its sizes ("three quarters, full, then half"):
+/// the sizes named must come in `order` (a rotation of it reads as another order, and is wrong).
+fn resize_order_errors(page: &Page, order: &[&str]) -> (Vec<String>, usize) {
+    let (mut errors, mut read) = (Vec::new(), 0);
+    // The prose as one string, and where each of its lines starts in it.
+    let (mut joined, mut starts) = (String::new(), Vec::new());
+    for (number, line) in &page.prose {
+        starts.push((joined.len(), *number));
+        joined.push_str(&line.replace("whole", "full"));
+        joined.push(' ');
+    }
+    let mut at = 0;
+    for sentence in joined.split(". ") {
+        let line = starts.iter().take_while(|(start, _)| *start <= at).last().map_or(0, |(_, n)| *n);
+        at += sentence.len() + 2;
+        if !sentence.contains("--resize-every") && !sentence.contains("resize_every") {
+            continue;
+        }
+        let mut named: Vec<(usize, &str)> =
+            order.iter().filter_map(|w| sentence.find(w).map(|at| (at, *w))).collect();
+        // "three quarters" holds no "half", and "full" none of the others: each is found once.
+        named.sort();
+        if named.len() < 2 {
+            continue;
+        }
+        read += 1;
+        let said: Vec<&str> = named.iter().map(|(_, w)| *w).collect();
+        let expected: Vec<&str> = order.iter().copied().filter(|w| said.contains(w)).collect();
+        if said != expected {
+            errors.push(format!(
+                "{}:{line}: names --resize-every's sizes as {} where the code makes {}",
+                page.name,
+                said.join(", "),
+                expected.join(", ")
+            ));
+        }
+    }
+    (errors, read)
+}
+
+#[test]
+fn resize_sizes_are_named_in_the_order_they_come() {
+    let order = resize_every_order();
+    let (mut errors, mut read) = (Vec::new(), 0);
+    for page in pages() {
+        let (page_errors, page_read) = resize_order_errors(&page, &order);
+        errors.extend(page_errors);
+        read += page_read;
+    }
+    assert!(errors.is_empty(), "pages that name the resizes out of order:\n{}", errors.join("\n"));
+    assert!(read > 0, "no page names --resize-every's sizes: the check read nothing");
+    // The check can fail: the sizes named the other way round.
+    let wrong =
+        format!("`--resize-every 2` makes them anew\n({}, {}, then {}).\n", order[2], order[1], order[0]);
+    let (caught, _) = resize_order_errors(&Page::parse("15-wgpu.md", &wrong), &order);
+    assert_eq!(caught.len(), 1, "the wrong order is caught: {caught:?}");
+}

@@ -46,8 +46,8 @@ const SMALLEST: Smallest = Smallest {
 /// Chapter 15: wgpu renders into memory GL imports; GL draws over it with wgpu's depth.
 #[derive(clap::Parser)]
 struct Args {
-    /// Every K frames, make both shared images anew at half, three quarters, then full size (a
-    /// leak test of who destroys what).
+    /// Every K frames, make all four shared images anew at three quarters, full, then half size
+    /// (a leak test of who destroys what).
     #[arg(long, value_name = "K", value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
     resize_every: Option<u32>,
 }
