@@ -2118,7 +2118,25 @@ fn facts_stated_for_a_set_of_chapters_name_every_chapter_they_apply_to() {
             sources.text.get(&format!("chapters/{slug}")).is_some_and(|t| t.contains("gbuffer"))
         })
         .collect();
+    // Chapters that draw in a window of their own: their sources open one (chapter 14's viewer
+    // opens its window with `gl_in_window`, and the pages name it apart).
+    let windowed: BTreeSet<u32> = chapters
+        .iter()
+        .copied()
+        .filter(|n| {
+            let slug = &chapter_slugs()[&format!("{n:02}")];
+            let text = sources.text.get(&format!("chapters/{slug}"));
+            text.is_some_and(|t| t.contains("contexts_in_window") || t.contains("Window::open"))
+        })
+        .collect();
     let claims = [
+        ("introduction.md", "draw in a window", &windowed, "their sources open a window"),
+        (
+            "running.md",
+            "[chapter 14](14-two-processes.md)'s viewer, and the picture",
+            &windowed,
+            "their sources open a window",
+        ),
         (
             "troubleshooting.md",
             "need only `VK_KHR_external_memory_fd`",
