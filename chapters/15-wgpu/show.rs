@@ -69,10 +69,8 @@ impl Show {
         let drawn = framebuffer_over(gl, "glCreateFramebuffers (GL's picture)", *into.gl.texture)?;
         let outlined = framebuffer_over(gl, "glCreateFramebuffers (the outline)", *outline.gl.texture)?;
         // GL's picture is depth-tested: its framebuffer has the depth renderbuffer too.
-        let (depth_attachment, renderbuffer) = (glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER);
-        unsafe {
-            gl.named_framebuffer_renderbuffer(Some(*drawn), depth_attachment, renderbuffer, Some(*depth))
-        };
+        let (attachment, target) = (glow::DEPTH_ATTACHMENT, glow::RENDERBUFFER);
+        unsafe { gl.named_framebuffer_renderbuffer(Some(*drawn), attachment, target, Some(*depth)) };
         Ok(Framebuffers { drawn, depth, outline: outlined })
     }
 

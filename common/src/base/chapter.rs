@@ -188,10 +188,11 @@ pub fn gl_in_window(
     vulkan: &vulkan::DeviceInfo,
     headless: bool,
 ) -> anyhow::Result<(Option<Window>, GlContext)> {
-    if !headless && !window::display_available() {
+    let display = window::display_available();
+    if !headless && !display {
         eprintln!("window: {}: running headless", window::no_display_reason());
     }
-    if headless || !window::display_available() {
+    if headless || !display {
         return Ok((None, GlContext::headless(vulkan, &MEMORY_EXTENSIONS)?));
     }
     let (window, gl) = Window::open(title, size, &MEMORY_EXTENSIONS)?;
