@@ -1092,6 +1092,30 @@ fn words_count_prose_not_code() {
     assert_eq!(words(&page), 2 + 2 + 2);
 }
 
+/// The README is a newcomer's first screen: what it is, the picture and the command that runs
+/// a chapter within [`README_FIRST_SCREEN`] words, and all of it in [`README_WORDS`]; the rest
+/// is the book's (running.md holds the timings, the requirements, the tests).
+#[test]
+fn readme_is_a_first_screen() {
+    let text = std::fs::read_to_string(root().join("README.md")).unwrap();
+    let readme = Page::parse("README.md", &text);
+    let run = readme.blocks.iter().find(|b| b.lines.iter().any(|(_, l)| l.contains("cargo run")));
+    let run_line = run.expect("the README's run command").fences.0;
+    let total = words(&readme);
+    let prose_before_run = readme.prose.iter().filter(|(n, _)| *n < run_line).cloned().collect();
+    let first = words(&Page { prose: prose_before_run, ..readme });
+    assert!(total <= README_WORDS, "README.md: {total} words, more than {README_WORDS}: move it to the book");
+    assert!(
+        first <= README_FIRST_SCREEN,
+        "README.md: {first} words before the run command, more than {README_FIRST_SCREEN}"
+    );
+}
+
+/// The most words in the README, outside code.
+const README_WORDS: usize = 800;
+/// The most words before the README's run command.
+const README_FIRST_SCREEN: usize = 200;
+
 /// What an `{{#include path[:anchor]}}` in `page` (a file under `book/src`) pulls in, as mdBook
 /// shows it (every ANCHOR line left out), or `None` when it names nothing (tests/book.rs fails
 /// on that).
