@@ -793,6 +793,21 @@ fn printed_commands_name_real_binaries_and_flags() {
     assert!(errors.is_empty(), "commands the book prints that cannot run as printed:\n{}", errors.join("\n"));
 }
 
+/// The crates running.md says the release profile leaves unoptimised (`Cargo.toml`'s table,
+/// included by anchor) are in the build: after an update that drops or renames one, cargo only
+/// warns that the name matches nothing, and the page would name a crate the build no longer has.
+#[test]
+fn unoptimised_crates_are_in_the_build() {
+    let manifest = std::fs::read_to_string(root().join("Cargo.toml")).unwrap();
+    let lock = std::fs::read_to_string(root().join("Cargo.lock")).unwrap();
+    let table = manifest.split("# ANCHOR: unoptimised").nth(1).and_then(|t| t.split("# ANCHOR_END").next());
+    let table = table.expect("Cargo.toml's table of unoptimised crates (anchor `unoptimised`)");
+    let names: Vec<&str> = table.lines().filter_map(|l| l.split_once(" = {")).map(|(name, _)| name).collect();
+    assert!(names.len() >= 8, "crates in the table: {names:?}");
+    let missing: Vec<_> = names.iter().filter(|n| !lock.contains(&format!("name = \"{n}\"\n"))).collect();
+    assert!(missing.is_empty(), "Cargo.toml leaves {missing:?} unoptimised, which Cargo.lock does not have");
+}
+
 /// "issue 10": the reader has no issue tracker; a page says what the goal or field is instead.
 fn issue_errors(page: &Page) -> Vec<String> {
     let mut errors = Vec::new();
