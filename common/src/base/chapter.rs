@@ -188,11 +188,10 @@ pub fn gl_in_window(
     vulkan: &vulkan::DeviceInfo,
     headless: bool,
 ) -> anyhow::Result<(Option<Window>, GlContext)> {
-    let display = window::display_available();
-    if !headless && !display {
-        eprintln!("window: {}: running headless", window::no_display_reason());
-    }
-    if headless || !display {
+    if headless || !window::display_available() {
+        if !headless {
+            eprintln!("window: {}: running headless", window::no_display_reason());
+        }
         return Ok((None, GlContext::headless(vulkan, &MEMORY_EXTENSIONS)?));
     }
     let (window, gl) = Window::open(title, size, &MEMORY_EXTENSIONS)?;
