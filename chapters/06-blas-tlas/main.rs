@@ -59,8 +59,12 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 
     // 2. Create both contexts, with ray tracing
     // ANCHOR: context
-    let requirements =
-        Requirements { extensions: &REQUIRED, optional_extensions: OPTIONAL, ray_tracing: true };
+    let requirements = Requirements {
+        extensions: &REQUIRED,
+        optional_extensions: OPTIONAL,
+        ray_tracing: true,
+        ..Default::default()
+    };
     // As in chapter 05: the G-buffers' size checked, and the hand-off between the two APIs.
     let (vk, gl_context, handoff) = gbuffer::contexts(CHAPTER, report, &requirements, args.common.size)?;
     // ANCHOR_END: context

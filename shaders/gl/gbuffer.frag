@@ -7,6 +7,15 @@ in vec3 world_normal;
 in float view_depth;
 flat in vec3 albedo;
 flat in vec3 face_normal; // the triangle's own normal, from gbuffer.geom (chapter 07)
+#ifdef TEXTURED
+// ANCHOR: textured_inputs
+// Chapter 16: the material's colour texture, a shared sRGB image: GL decodes each texel to linear
+// light before it filters, so levels and neighbours mix as light does.
+in vec2 uv;
+uniform sampler2D colour;
+uniform float cutoff; // alpha below this is a hole; 0 for a material without a cut-out
+// ANCHOR_END: textured_inputs
+#endif
 
 // RGBA32F. w = view depth: > 0 on every covered pixel, 0 where the clear left the background.
 layout(location = 0) out vec4 out_position;
@@ -20,6 +29,16 @@ layout(location = 2) out vec4 out_albedo;
 // include too; gbuffer.rs resolves the #include).
 #include "octahedral.glsl"
 
+#ifdef TEXTURED
+// The sRGB transfer function and its inverse, as GL_SRGB8_ALPHA8 applies them (per channel).
+vec3 to_linear(vec3 c) {
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
+}
+vec3 to_srgb(vec3 c) {
+    return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}
+#endif
+
 void main() {
     // Both normals face the camera: the ground plane is seen from both sides, and AO (chapter 07)
     // wants the side facing us.
@@ -32,6 +51,18 @@ void main() {
     }
     out_normal = vec4(n, float(pack_normal(face)));
     out_position = vec4(world_position, view_depth);
+#ifdef TEXTURED
+    // ANCHOR: textured
+    vec4 texel = texture(colour, uv); // trilinear: two levels, four texels each
+    if (texel.a < cutoff) {
+        discard; // a hole: no G-buffer, no depth, and the ray tracer sees through it too
+    }
+    // The G-buffer keeps chapter 08's albedo, a colour as displayed (sRGB-encoded, 8 bits): the
+    // texel, filtered in linear light, times the material's colour, encoded once on the way out.
+    out_albedo = vec4(to_srgb(to_linear(albedo) * texel.rgb), 1.0);
+    // ANCHOR_END: textured
+#else
     out_albedo = vec4(albedo, 1.0);
+#endif
 }
 // ANCHOR_END: all

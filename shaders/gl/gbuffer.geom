@@ -15,6 +15,10 @@ in vec3 world_position_[];
 in vec3 world_normal_[];
 in float view_depth_[];
 flat in vec3 albedo_[];
+#ifdef TEXTURED
+in vec2 uv_[]; // chapter 16
+out vec2 uv;
+#endif
 
 out vec3 world_position;
 out vec3 world_normal;
@@ -43,6 +47,9 @@ void main() {
         view_depth = view_depth_[i];
         albedo = albedo_[i];
         face_normal = n;
+#ifdef TEXTURED
+        uv = uv_[i];
+#endif
         EmitVertex();
     }
 }

@@ -12,6 +12,12 @@ layout(location = 3) in vec4 row1;
 layout(location = 4) in vec4 row2;
 // instanceCustomIndex (low 24 bits) holds the albedo as 0xBBGGRR; the mask is in the high 8.
 layout(location = 5) in uint custom_index_and_mask;
+#ifdef TEXTURED
+// Chapter 16: the vertex's texture coordinate (buffer binding 2, 8-byte stride), in a buffer of
+// its own that only textured meshes have.
+layout(location = 6) in vec2 uv;
+out vec2 uv_;
+#endif
 
 uniform mat4 view;
 uniform mat4 projection;
@@ -34,4 +40,7 @@ void main() {
     uint c = custom_index_and_mask;
     albedo_ = vec3(c & 0xFFu, (c >> 8) & 0xFFu, (c >> 16) & 0xFFu) / 255.0;
     gl_Position = projection * in_view;
+#ifdef TEXTURED
+    uv_ = uv;
+#endif
 }

@@ -379,3 +379,62 @@ pub fn fds_listed(stderr: &str) -> Option<Vec<String>> {
     targets.sort();
     Some(targets)
 }
+
+/// A package's own failure injection (chapters 15 and 16, whose binaries `tests/errors.rs` cannot
+/// name): each fallible step `bin` reaches with `args`, failed the first and the last time a run
+/// reaches it, must exit 2 naming the step, with no panic, no validation message, nothing left
+/// alive and no fd left open beyond those a run that fails nothing leaves (the driver's).
+/// `expect`: a step the listing must include (the package's own lesson).
+pub fn every_fallible_step_fails_cleanly(bin: &str, args: &[&str], expect: Option<&str>) {
+    let listing = run_chapter(bin, args, &[("VKGL_FAIL_AT", "list")]);
+    listing.succeeded();
+    let steps: Vec<(u32, String)> = listing
+        .stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix("fail step ")?.split_once(": "))
+        .map(|(n, what)| (n.parse().unwrap(), what.to_owned()))
+        .collect();
+    assert!(steps.len() > 10, "too few steps: {steps:?}");
+    if let Some(expect) = expect {
+        assert!(steps.iter().any(|(_, what)| what.contains(expect)), "no step of {expect:?}: {steps:?}");
+    }
+    let mut first_and_last = std::collections::BTreeMap::new();
+    for (n, what) in &steps {
+        first_and_last.entry(what.clone()).and_modify(|(_, last)| *last = *n).or_insert((*n, *n));
+    }
+    let fds = |stderr: &str| -> Vec<String> {
+        fds_listed(stderr).unwrap_or_else(|| panic!("no list of the fds left:\n{stderr}"))
+    };
+    let kept_by_driver = fds(&listing.stderr);
+    let mut problems = Vec::new();
+    for (what, (first, last)) in first_and_last {
+        for n in if first == last { vec![first] } else { vec![first, last] } {
+            let run = run_chapter(bin, args, &[("VKGL_FAIL_AT", &n.to_string())]);
+            let named = format!("injected failure at step {n}: {what} (VKGL_FAIL_AT={n})");
+            let mut wrong = Vec::new();
+            if run.output.status.code() != Some(2) {
+                wrong.push(format!("exit {:?}", run.output.status.code()));
+            }
+            if !run.stderr.lines().any(|l| l.starts_with("error: ") && l.contains(&named)) {
+                wrong.push("no error naming the step".into());
+            }
+            for bad in ["panicked", "has not been destroyed", "validation error"] {
+                if run.stderr.contains(bad) {
+                    wrong.push(format!("stderr contains {bad:?}"));
+                }
+            }
+            if !run.stderr.contains("resources: alive after the chapter ran: []") {
+                wrong.push("resources left alive".into());
+            }
+            let left: Vec<String> =
+                fds(&run.stderr).into_iter().filter(|fd| !kept_by_driver.contains(fd)).collect();
+            if !left.is_empty() {
+                wrong.push(format!("fds left open: {left:?}"));
+            }
+            if !wrong.is_empty() {
+                problems.push(format!("step {n} ({what}): {}\n{}", wrong.join(", "), run.stderr));
+            }
+        }
+    }
+    assert!(problems.is_empty(), "{}", problems.join("\n\n"));
+}

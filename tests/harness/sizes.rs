@@ -141,12 +141,15 @@ pub fn walk_sizes(name: &str, bin: &str, flags: &[&str], limit: &str) {
     }
 
     // A single row and a single column through the middle: the framed scene covers none of their
-    // pixels, so a program that draws it refuses them (too small, or once drawn); one that does
-    // not may draw them.
+    // pixels, or few, so a program that draws it refuses them (too small, or once drawn) or
+    // passes with a mean over the pixels it covered; one that draws no scene may draw them.
     for (w, h) in [(16384, 1), (1, 16384)] {
         let size = format!("{w}x{h}");
         let run = run_at(bin, flags, &size);
         match walk(name, &size, &run, &usual) {
+            // Passed with its mean AO, which a program reports only over covered pixels (and
+            // refuses the size without one): its scene reaches the middle (chapter 16's fence).
+            Outcome::Passed if run.report.as_ref().is_some_and(|r| r["ao_mean"].is_number()) => {}
             Outcome::Passed => assert!(
                 !draws_a_scene(name),
                 "{name} {size}: passed, though the scene covers no pixel of it\n{}",

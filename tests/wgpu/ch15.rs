@@ -82,55 +82,7 @@ fn sizes_15() {
 /// run that fails nothing leaves (the driver's).
 #[test]
 fn ch15_every_fallible_step_fails_cleanly() {
-    let args = ["--size", "32x24", "--frames", "3"];
-    let listing = run_chapter(BIN, &args, &[("VKGL_FAIL_AT", "list")]);
-    listing.succeeded();
-    let steps: Vec<(u32, String)> = listing
-        .stderr
-        .lines()
-        .filter_map(|l| l.strip_prefix("fail step ")?.split_once(": "))
-        .map(|(n, what)| (n.parse().unwrap(), what.to_owned()))
-        .collect();
-    assert!(steps.len() > 10, "too few steps: {steps:?}");
-    let mut first_and_last = std::collections::BTreeMap::new();
-    for (n, what) in &steps {
-        first_and_last.entry(what.clone()).and_modify(|(_, last)| *last = *n).or_insert((*n, *n));
-    }
-    let fds = |stderr: &str| -> Vec<String> {
-        harness::fds_listed(stderr).unwrap_or_else(|| panic!("no list of the fds left:\n{stderr}"))
-    };
-    let kept_by_driver = fds(&listing.stderr);
-    let mut problems = Vec::new();
-    for (what, (first, last)) in first_and_last {
-        for n in if first == last { vec![first] } else { vec![first, last] } {
-            let run = run_chapter(BIN, &args, &[("VKGL_FAIL_AT", &n.to_string())]);
-            let named = format!("injected failure at step {n}: {what} (VKGL_FAIL_AT={n})");
-            let mut wrong = Vec::new();
-            if run.output.status.code() != Some(2) {
-                wrong.push(format!("exit {:?}", run.output.status.code()));
-            }
-            if !run.stderr.lines().any(|l| l.starts_with("error: ") && l.contains(&named)) {
-                wrong.push("no error naming the step".into());
-            }
-            for bad in ["panicked", "has not been destroyed", "validation error"] {
-                if run.stderr.contains(bad) {
-                    wrong.push(format!("stderr contains {bad:?}"));
-                }
-            }
-            if !run.stderr.contains("resources: alive after the chapter ran: []") {
-                wrong.push("resources left alive".into());
-            }
-            let left: Vec<String> =
-                fds(&run.stderr).into_iter().filter(|fd| !kept_by_driver.contains(fd)).collect();
-            if !left.is_empty() {
-                wrong.push(format!("fds left open: {left:?}"));
-            }
-            if !wrong.is_empty() {
-                problems.push(format!("step {n} ({what}): {}\n{}", wrong.join(", "), run.stderr));
-            }
-        }
-    }
-    assert!(problems.is_empty(), "{}", problems.join("\n\n"));
+    harness::every_fallible_step_fails_cleanly(BIN, &["--size", "32x24", "--frames", "3"], None);
 }
 
 #[test]

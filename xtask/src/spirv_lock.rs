@@ -13,7 +13,7 @@ use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 
 /// Extensions glslc compiles for Vulkan; other files (`gl/`, `#include`d helpers) are not shaders.
-pub const VULKAN_STAGES: &[&str] = &["comp", "rgen", "rmiss", "rchit", "vert", "frag"];
+pub const VULKAN_STAGES: &[&str] = &["comp", "rgen", "rmiss", "rchit", "rahit", "vert", "frag"];
 pub const LOCK_FILE: &str = "spirv.lock";
 pub const EDITED: &str = "source (or an include) changed since its SPIR-V was built";
 

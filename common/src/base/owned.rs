@@ -103,6 +103,7 @@ destroyed_by_device! {
     PipelineLayout => destroy_pipeline_layout,
     Pipeline => destroy_pipeline,
     QueryPool => destroy_query_pool,
+    Sampler => destroy_sampler,
 }
 
 impl Destroy for vk::AccelerationStructureKHR {

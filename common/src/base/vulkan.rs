@@ -28,6 +28,11 @@ pub struct Requirements<'a> {
     /// Enable the features ray tracing needs: buffer device addresses, acceleration structures
     /// and ray tracing pipelines. `extensions` must then list [`RAY_TRACING_EXTENSIONS`].
     pub ray_tracing: bool,
+    /// Enable what an array of textures indexed in a shader needs (chapter 16's cut-outs):
+    /// Vulkan 1.2's `runtimeDescriptorArray` (an array whose size the shader does not fix) and
+    /// `shaderSampledImageArrayNonUniformIndexing` (neighbouring rays may read different
+    /// textures). A device without both is skipped, and the skip says which it lacks.
+    pub texture_arrays: bool,
 }
 
 /// What chapters 04 and 05 need (taught in 03): memory shared as fds, and semaphores where the
@@ -36,6 +41,7 @@ pub const INTEROP: Requirements<'static> = Requirements {
     extensions: &[ash::khr::external_memory_fd::NAME],
     optional_extensions: &[ash::khr::external_semaphore_fd::NAME],
     ray_tracing: false,
+    texture_arrays: false,
 };
 
 /// What chapters 07 and 08 need (taught in 03 and 06): memory shared as fds, semaphores where
@@ -49,6 +55,7 @@ pub const RAY_TRACED_INTEROP: Requirements<'static> = Requirements {
     ],
     optional_extensions: &[ash::khr::external_semaphore_fd::NAME],
     ray_tracing: true,
+    texture_arrays: false,
 };
 
 /// The device extensions for building acceleration structures and tracing rays through them.
@@ -163,7 +170,11 @@ impl VulkanContext {
         let extension_names: Vec<std::ffi::CString> =
             enabled_extensions.iter().map(|e| std::ffi::CString::new(e.as_str()).unwrap()).collect();
         let extension_names: Vec<*const c_char> = extension_names.iter().map(|e| e.as_ptr()).collect();
-        let mut vulkan12 = vk::PhysicalDeviceVulkan12Features::default().buffer_device_address(true);
+        let arrays = requirements.texture_arrays;
+        let mut vulkan12 = vk::PhysicalDeviceVulkan12Features::default()
+            .buffer_device_address(requirements.ray_tracing)
+            .runtime_descriptor_array(arrays)
+            .shader_sampled_image_array_non_uniform_indexing(arrays);
         let mut acceleration =
             vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
         let mut pipelines =
@@ -175,9 +186,11 @@ impl VulkanContext {
             .queue_create_infos(&queue_infos)
             .enabled_extension_names(&extension_names)
             .push_next(&mut vulkan13);
+        if requirements.ray_tracing || arrays {
+            device_info = device_info.push_next(&mut vulkan12);
+        }
         if requirements.ray_tracing {
-            device_info =
-                device_info.push_next(&mut vulkan12).push_next(&mut acceleration).push_next(&mut pipelines);
+            device_info = device_info.push_next(&mut acceleration).push_next(&mut pipelines);
         }
         let device = fail::call(&format!("vkCreateDevice on {}", info.name), || unsafe {
             instance.create_device(physical_device, &device_info, None)
@@ -387,6 +400,15 @@ fn pick_physical_device(
             }
             continue;
         }
+        if requirements.texture_arrays {
+            let lacking = lacking_texture_array_features(instance, physical_device);
+            if !lacking.is_empty() {
+                let reason =
+                    format!("lacks the Vulkan 1.2 feature {} (an array of textures)", lacking.join(" and "));
+                skipped.push((label, reason));
+                continue;
+            }
+        }
         let families = unsafe { instance.get_physical_device_queue_family_properties(physical_device) };
         let wanted = vk::QueueFlags::GRAPHICS | vk::QueueFlags::COMPUTE;
         let Some(family) = families.iter().position(|q| q.queue_flags.contains(wanted)) else {
@@ -415,6 +437,26 @@ fn pick_physical_device(
     };
     suitable.sort_by_key(|(_, info, _, _)| rank(info.device_type));
     suitable.into_iter().next().ok_or_else(|| NoSuitableDevice { skipped, missing: missing_any }.into())
+}
+
+/// Which of the features [`Requirements::texture_arrays`] asks for the device lacks, by name.
+fn lacking_texture_array_features(instance: &ash::Instance, device: vk::PhysicalDevice) -> Vec<&'static str> {
+    let mut vulkan12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut features = vk::PhysicalDeviceFeatures2::default().push_next(&mut vulkan12);
+    unsafe { instance.get_physical_device_features2(device, &mut features) };
+    let hidden = std::env::var("VKGL_HIDE_FEATURES").unwrap_or_default();
+    let has = |name: &str, on: u32| on == vk::TRUE && !hidden.split(',').any(|h| h.trim() == name);
+    let mut lacking = Vec::new();
+    if !has("runtimeDescriptorArray", vulkan12.runtime_descriptor_array) {
+        lacking.push("runtimeDescriptorArray");
+    }
+    if !has(
+        "shaderSampledImageArrayNonUniformIndexing",
+        vulkan12.shader_sampled_image_array_non_uniform_indexing,
+    ) {
+        lacking.push("shaderSampledImageArrayNonUniformIndexing");
+    }
+    lacking
 }
 
 fn device_info(instance: &ash::Instance, physical_device: vk::PhysicalDevice) -> DeviceInfo {

@@ -1,7 +1,7 @@
 //! Ray-traced ambient occlusion from GL's G-buffers, accumulated over frames (taught in chapter
 //! 07; chapter 08 composites with it).
 
-use crate::base::commands::first_use;
+use crate::base::commands::{first_use, image_barrier};
 use crate::base::gl::GlContext;
 use crate::base::vulkan::VulkanContext;
 use crate::clocks::timestamps::{Timestamps, timed};
@@ -17,6 +17,8 @@ use glow::HasContext;
 
 const RAYGEN: &[u8] = include_bytes!("../../../shaders/ao.rgen.spv");
 const MISS: &[u8] = include_bytes!("../../../shaders/miss.rmiss.spv");
+/// The AO pipeline's two shaders (chapter 16 adds an any-hit shader to them).
+pub const AO_SHADERS: RayShaders<'static> = RayShaders { raygen: RAYGEN, miss: MISS };
 
 /// The ambient-occlusion flags (chapters 07 and 08).
 #[derive(clap::Args, Debug, Clone)]
@@ -114,6 +116,8 @@ pub struct AoTracer {
     gl_has_image: bool,
     /// Filled with 1 by GL instead of traced (`fill_unoccluded`).
     unoccluded: bool,
+    /// Images the rays sample (chapter 16's textures), handed over with every trace.
+    pub sampled: Vec<Sampled>,
 }
 
 impl AoTracer {
@@ -129,12 +133,29 @@ impl AoTracer {
         let image = vk::DescriptorType::STORAGE_IMAGE;
         let bindings =
             raygen_bindings(&[vk::DescriptorType::ACCELERATION_STRUCTURE_KHR, image, image, image]);
-        let shaders = RayShaders { raygen: RAYGEN, miss: MISS };
-        let pipeline = RayPipeline::new(vk, allocator, shaders, &bindings, size_of::<AoRays>() as u32)?;
+        let pipeline = RayPipeline::new(vk, allocator, AO_SHADERS, &bindings, size_of::<AoRays>() as u32)?;
         pipeline.write_tlas(vk, 0, tlas);
         // ANCHOR_END: pipeline
+        Self::with_pipeline(vk, gl, pipeline, gbuffers)
+    }
+
+    /// The bindings [`AoTracer::new`]'s pipeline has (0-3), for a pipeline that adds to them.
+    pub fn bindings() -> Vec<vk::DescriptorSetLayoutBinding<'static>> {
+        let image = vk::DescriptorType::STORAGE_IMAGE;
+        raygen_bindings(&[vk::DescriptorType::ACCELERATION_STRUCTURE_KHR, image, image, image])
+    }
+
+    /// A tracer on a pipeline made elsewhere (chapter 16's, with an any-hit shader), whose
+    /// bindings 0-3 are [`AoTracer::bindings`], its TLAS already written.
+    pub fn with_pipeline(
+        vk: &VulkanContext,
+        gl: &GlContext,
+        pipeline: RayPipeline,
+        gbuffers: &GBuffers,
+    ) -> Result<Self> {
         let image = Self::image(vk, gl, &pipeline, gbuffers)?; // on failure `pipeline` is dropped
-        Ok(AoTracer { image, pipeline, accumulated: 0, gl_has_image: false, unoccluded: false })
+        let (accumulated, gl_has_image, unoccluded, sampled) = (0, false, false, Vec::new());
+        Ok(AoTracer { image, pipeline, accumulated, gl_has_image, unoccluded, sampled })
     }
 
     // ANCHOR: image
@@ -265,6 +286,7 @@ impl AoTracer {
             inputs: &[&gbuffers.images[0], &gbuffers.images[1]],
             output: &self.image,
             gl_has_output: self.gl_has_image,
+            sampled: &self.sampled,
         };
         let (vk, pipeline, extent) = (apis.vk, &self.pipeline, gbuffers.extent);
         hand_over_around(
@@ -290,6 +312,23 @@ pub struct Traced<'a> {
     pub output: &'a SharedImage,
     /// Has GL had `output` yet? A new one starts undefined, never handed over.
     pub gl_has_output: bool,
+    /// Images both sides only sample, every level (chapter 16's textures): they travel with the
+    /// rest so that Vulkan owns them while its rays read them, and GL while it draws.
+    pub sampled: &'a [Sampled],
+}
+
+/// A shared image with a mip chain that both APIs only read (chapter 16's textures).
+#[derive(Clone, Copy, Debug)]
+pub struct Sampled {
+    pub image: vk::Image,
+    pub texture: glow::Texture,
+}
+
+/// The layouts a [`Sampled`] image travels in: read-only both ways (GENERAL on the host path, as
+/// every hand-over there). Its upload leaves it in `.to_gl`; Vulkan's descriptors name `.to_vulkan`.
+pub fn sampled_layouts(handoff: &Handoff) -> HandOver {
+    let read_only = vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL;
+    handoff.hand_over(read_only, read_only)
 }
 
 /// One frame of Vulkan work between GL's passes: GL hands over the inputs it just drew (and the
@@ -317,26 +356,33 @@ fn layouts(handoff: &Handoff) -> (HandOver, HandOver) {
     (handoff.hand_over(vk::ImageLayout::GENERAL, attachment), handoff.hand_over(read_only, read_only))
 }
 
-/// GL's textures of `images`, the inputs first, and each one's layout as GL names it: the
-/// first for Vulkan, the second for GL.
-fn textures(images: &Traced, (inputs, output): (HandOver, HandOver)) -> (Vec<glow::Texture>, [Vec<u32>; 2]) {
-    let ((input_to_vulkan, input_to_gl), (output_to_vulkan, output_to_gl)) = (inputs.gl(), output.gl());
+/// GL's textures of `images`, the inputs first, then the output (when `with_output`), then the
+/// sampled ones, and each one's layout as GL names it: the first for Vulkan, the second for GL.
+fn textures(
+    images: &Traced,
+    (inputs, output): (HandOver, HandOver),
+    sampled: HandOver,
+    with_output: bool,
+) -> (Vec<glow::Texture>, [Vec<u32>; 2]) {
     let mut textures: Vec<glow::Texture> = images.inputs.iter().map(|i| *i.texture.texture).collect();
-    textures.push(*images.output.texture.texture);
-    let mut to_vulkan = vec![input_to_vulkan; images.inputs.len()];
-    to_vulkan.push(output_to_vulkan);
-    let mut to_gl = vec![input_to_gl; images.inputs.len()];
-    to_gl.push(output_to_gl);
+    let mut layouts = vec![inputs.gl(); images.inputs.len()];
+    if with_output {
+        textures.push(*images.output.texture.texture);
+        layouts.push(output.gl());
+    }
+    textures.extend(images.sampled.iter().map(|s| s.texture));
+    layouts.extend(images.sampled.iter().map(|_| sampled.gl()));
+    let (to_vulkan, to_gl) = layouts.into_iter().unzip();
     (textures, [to_vulkan, to_gl])
 }
 
 /// GL's half of the hand-over alone: the inputs it just drew (and the output, once it has had
 /// it) released to Vulkan, whose work may be recorded later, by [`hand_over_released`].
 pub fn release_to_vulkan(apis: Apis, images: &Traced) {
-    let (textures, [to_vulkan, _]) = textures(images, layouts(apis.handoff));
+    let sampled = sampled_layouts(apis.handoff);
     // The output only once GL has had it.
-    let handed = if images.gl_has_output { textures.len() } else { images.inputs.len() };
-    apis.handoff.gl_release(apis.gl, &textures[..handed], &to_vulkan[..handed]);
+    let (textures, [to_vulkan, _]) = textures(images, layouts(apis.handoff), sampled, images.gl_has_output);
+    apis.handoff.gl_release(apis.gl, &textures, &to_vulkan);
 }
 
 /// The rest of [`hand_over_around`], once GL has released the images ([`release_to_vulkan`]).
@@ -348,10 +394,10 @@ pub fn hand_over_released(
     work: impl FnOnce(vk::CommandBuffer),
 ) -> Result<()> {
     let Apis { vk, gl, handoff, commands } = apis;
-    let layouts = layouts(handoff);
-    let (textures, [_, to_gl]) = textures(images, layouts);
+    let (layouts, sampled) = (layouts(handoff), sampled_layouts(handoff));
+    let (textures, [_, to_gl]) = textures(images, layouts, sampled, true);
     let cb = commands.begin(vk)?;
-    unsafe { record(vk, cb, images, layouts, timestamps, work) };
+    unsafe { record(vk, cb, images, (layouts, sampled), timestamps, work) };
     let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
     commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, stage)), handoff.vulkan_signals())?;
     between();
@@ -363,7 +409,7 @@ unsafe fn record(
     vk: &VulkanContext,
     cb: vk::CommandBuffer,
     images: &Traced,
-    (input_layouts, output_layouts): (HandOver, HandOver),
+    ((input_layouts, output_layouts), sampled): ((HandOver, HandOver), HandOver),
     timestamps: Option<&Timestamps>,
     work: impl FnOnce(vk::CommandBuffer),
 ) {
@@ -380,12 +426,27 @@ unsafe fn record(
     let mut acquire: Vec<_> =
         inputs.clone().map(|i| acquire_from_gl(vk, i, input_layouts.to_vulkan, general, read)).collect();
     acquire.push(output);
+    // Every level of each sampled image, read by the rays; no layout changes hands.
+    let families = (vk::QUEUE_FAMILY_EXTERNAL, vk.queue_family_index);
+    let all_levels = |mut barrier: vk::ImageMemoryBarrier<'static>| {
+        barrier.subresource_range.level_count = vk::REMAINING_MIP_LEVELS;
+        barrier
+    };
+    let (to_vulkan, to_gl) = (sampled.to_vulkan, sampled.to_gl);
+    for s in images.sampled {
+        let barrier = image_barrier(s.image, (to_vulkan, to_vulkan), (vk::AccessFlags::NONE, read), families);
+        acquire.push(all_levels(barrier));
+    }
     // Back to GL: the inputs for the next frame's draw (nothing written here), the output to
     // sample, its writes made available.
     let none = vk::AccessFlags::NONE;
     let mut release: Vec<_> =
         inputs.map(|i| release_to_gl(vk, i, general, input_layouts.to_gl, none)).collect();
     release.push(release_to_gl(vk, images.output, general, output_layouts.to_gl, write));
+    let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
+    for s in images.sampled {
+        release.push(all_levels(image_barrier(s.image, (to_vulkan, to_gl), (none, none), families)));
+    }
     let stage = vk::PipelineStageFlags::RAY_TRACING_SHADER_KHR;
     let none = vk::DependencyFlags::empty();
     unsafe {

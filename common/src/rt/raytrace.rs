@@ -1,4 +1,5 @@
-//! A ray tracing pipeline with a ray generation and a miss shader and no hit group at all, its
+//! A ray tracing pipeline with a ray generation and a miss shader and no hit group at all (or,
+//! from chapter 16, one hit group of an any-hit shader), its
 //! shader binding table, and a storage image for results (taught in chapter 06; chapter 07
 //! traces its ambient occlusion rays through the same kind of pipeline).
 
@@ -53,6 +54,32 @@ impl RayPipeline {
         bindings: &[vk::DescriptorSetLayoutBinding],
         push_bytes: u32,
     ) -> Result<Self> {
+        Self::build(vk, allocator, shaders, None, bindings, push_bytes)
+    }
+
+    /// [`RayPipeline::new`] with one hit group of `any_hit` alone (chapter 16's cut-outs): it
+    /// runs for every candidate hit on geometry that is not opaque, and may ignore the hit.
+    /// The ray generation shader's specialization constant 0 (`CUT_OUTS` in `ao.rgen`) is set to
+    /// true, so that its rays stop forcing every hit opaque.
+    pub fn with_any_hit(
+        vk: &VulkanContext,
+        allocator: &GpuAllocator,
+        shaders: RayShaders,
+        any_hit: &[u8],
+        bindings: &[vk::DescriptorSetLayoutBinding],
+        push_bytes: u32,
+    ) -> Result<Self> {
+        Self::build(vk, allocator, shaders, Some(any_hit), bindings, push_bytes)
+    }
+
+    fn build(
+        vk: &VulkanContext,
+        allocator: &GpuAllocator,
+        shaders: RayShaders,
+        any_hit: Option<&[u8]>,
+        bindings: &[vk::DescriptorSetLayoutBinding],
+        push_bytes: u32,
+    ) -> Result<Self> {
         let loader = ash::khr::ray_tracing_pipeline::Device::new(&vk.instance, &vk.device);
         let stages = vk::ShaderStageFlags::RAYGEN_KHR | vk::ShaderStageFlags::MISS_KHR;
         let push = vk::PushConstantRange::default().stage_flags(stages).size(push_bytes);
@@ -62,15 +89,24 @@ impl RayPipeline {
         // ANCHOR: pipeline
         let raygen = shader_module(vk, shaders.raygen, "ray generation")?;
         let miss = shader_module(vk, shaders.miss, "miss")?;
-        let modules = [*raygen, *miss];
-        let stages = [
-            vk::PipelineShaderStageCreateInfo::default()
-                .stage(vk::ShaderStageFlags::RAYGEN_KHR)
-                .module(modules[0])
-                .name(c"main"),
+        let any_hit = any_hit.map(|code| shader_module(vk, code, "any-hit")).transpose()?;
+        // With an any-hit shader, the ray generation shader's constant 0 is true (4 bytes at 0).
+        let cut_outs = [1u32];
+        let entries = [vk::SpecializationMapEntry { constant_id: 0, offset: 0, size: 4 }];
+        let specialization =
+            vk::SpecializationInfo::default().map_entries(&entries).data(bytemuck::bytes_of(&cut_outs));
+        let mut raygen_stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::RAYGEN_KHR)
+            .module(*raygen)
+            .name(c"main");
+        if any_hit.is_some() {
+            raygen_stage = raygen_stage.specialization_info(&specialization);
+        }
+        let mut stages = vec![
+            raygen_stage,
             vk::PipelineShaderStageCreateInfo::default()
                 .stage(vk::ShaderStageFlags::MISS_KHR)
-                .module(modules[1])
+                .module(*miss)
                 .name(c"main"),
         ];
         // Two "general" groups, one shader each. No hit group: with SkipClosestHitShader and
@@ -83,7 +119,25 @@ impl RayPipeline {
                 .any_hit_shader(vk::SHADER_UNUSED_KHR)
                 .intersection_shader(vk::SHADER_UNUSED_KHR)
         };
-        let groups = [general(0), general(1)];
+        let mut groups = vec![general(0), general(1)];
+        if let Some(module) = &any_hit {
+            stages.push(
+                vk::PipelineShaderStageCreateInfo::default()
+                    .stage(vk::ShaderStageFlags::ANY_HIT_KHR)
+                    .module(**module)
+                    .name(c"main"),
+            );
+            // A triangle hit group of the any-hit shader alone (stage 2): no closest-hit shader,
+            // as before, and no intersection shader (the geometry is triangles).
+            groups.push(
+                vk::RayTracingShaderGroupCreateInfoKHR::default()
+                    .ty(vk::RayTracingShaderGroupTypeKHR::TRIANGLES_HIT_GROUP)
+                    .general_shader(vk::SHADER_UNUSED_KHR)
+                    .closest_hit_shader(vk::SHADER_UNUSED_KHR)
+                    .any_hit_shader(2)
+                    .intersection_shader(vk::SHADER_UNUSED_KHR),
+            );
+        }
         let info = vk::RayTracingPipelineCreateInfoKHR::default()
             .stages(&stages)
             .groups(&groups)
@@ -101,7 +155,7 @@ impl RayPipeline {
                 .map(|pipelines| pipelines[0])
                 .map_err(|(_, e)| e)
         })?;
-        drop((raygen, miss)); // the pipeline keeps what it needs of them
+        drop((raygen, miss, any_hit)); // the pipeline keeps what it needs of them
         crate::instruments::resources::created("vk_pipeline: ray tracing", 0);
         // ANCHOR_END: pipeline
         let (sbt, regions) = shader_binding_table(vk, &loader, allocator, *pipeline, groups.len() as u32)?;
@@ -143,8 +197,9 @@ impl RayPipeline {
 
 // ANCHOR: sbt
 /// The shader binding table: the pipeline's group handles copied into a buffer, each region
-/// starting at the device's base alignment. Group 0 is ray generation, group 1 miss; the hit and
-/// callable regions stay empty (address 0, size 0).
+/// starting at the device's base alignment. Group 0 is ray generation, group 1 miss, group 2 (if
+/// there are three) the hit group; the callable region stays empty (address 0, size 0), and so
+/// does the hit region without a hit group.
 fn shader_binding_table(
     vk: &VulkanContext,
     loader: &ash::khr::ray_tracing_pipeline::Device,
@@ -187,7 +242,13 @@ fn shader_binding_table(
         // Ray generation: exactly one record, so size == stride.
         vk::StridedDeviceAddressRegionKHR { device_address: address(0), stride: record, size: record },
         vk::StridedDeviceAddressRegionKHR { device_address: address(1), stride: record, size: record },
-        vk::StridedDeviceAddressRegionKHR::default(), // no hit groups
+        match groups {
+            // One hit group: every instance's and geometry's offset is 0, so one record serves all.
+            3 => {
+                vk::StridedDeviceAddressRegionKHR { device_address: address(2), stride: record, size: record }
+            }
+            _ => vk::StridedDeviceAddressRegionKHR::default(), // no hit groups
+        },
         vk::StridedDeviceAddressRegionKHR::default(), // no callable shaders
     ];
     Ok((buffer, regions))

@@ -31,9 +31,10 @@ pub const GBUFFERS: [GBuffer; 3] = [
 ];
 // ANCHOR_END: gbuffers
 
-const VERTEX_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.vert");
-const GEOMETRY_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.geom");
-const FRAGMENT_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.frag");
+/// The G-buffer pass's three stages (chapter 16 compiles them with `#define TEXTURED`).
+pub const VERTEX_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.vert");
+pub const GEOMETRY_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.geom");
+pub const FRAGMENT_SHADER: &str = include_str!("../../../shaders/gl/gbuffer.frag");
 /// What `gbuffer.frag` includes: the normal's packing, which Vulkan's shaders include too.
 pub const OCTAHEDRAL: (&str, &str) = ("octahedral.glsl", include_str!("../../../shaders/octahedral.glsl"));
 
@@ -134,6 +135,12 @@ impl GBuffers {
             .map(|[v, i]| unsafe { vertex_array(gl_, &v.gl, &i.gl, instances) })
             .collect::<Result<_>>()?;
         Ok(GBuffers { vertex_arrays, program, framebuffer, depth, images, extent })
+    }
+
+    /// GL's framebuffer over the G-buffers and their depth, for a pass that draws into them with
+    /// a program of its own (chapter 16's textured one).
+    pub fn framebuffer(&self) -> glow::Framebuffer {
+        *self.framebuffer
     }
 
     /// GL's textures, in `GBUFFERS` order, for the hand-overs.

@@ -14,7 +14,8 @@ pub fn default_asset(name: &str, flag: &str) -> Result<PathBuf> {
     let path = assets.unwrap_or_default().join(name);
     if !path.is_file() {
         bail!(
-            "{}: the default for {flag} is not there (binaries look for it in the checkout they              were built from); name a file with {flag} PATH",
+            "{}: the default for {flag} is not there (binaries look for it in the checkout they were \
+             built from); name a file with {flag} PATH",
             path.display()
         );
     }
@@ -72,7 +73,7 @@ pub fn load_obj(path: &Path, normals: Normals) -> Result<Scene> {
 }
 
 /// The centre of the bounds of every finite vertex used by a face, in f64.
-fn file_centre(models: &[tobj::Model]) -> [f64; 3] {
+pub fn file_centre(models: &[tobj::Model]) -> [f64; 3] {
     let (mut low, mut high) = ([f64::MAX; 3], [f64::MIN; 3]);
     for m in models {
         for &i in &m.mesh.indices {
@@ -89,8 +90,8 @@ fn file_centre(models: &[tobj::Model]) -> [f64; 3] {
 }
 
 /// Each object of a parsed OBJ file with faces, as a mesh and its albedo; `shown` names the file
-/// in errors.
-pub(super) fn meshes_from_obj(
+/// in errors. (Chapter 16 calls it one object at a time, to keep each object's material.)
+pub fn meshes_from_obj(
     models: Vec<tobj::Model>,
     materials: &[tobj::Material],
     shown: &str,

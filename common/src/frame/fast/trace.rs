@@ -254,6 +254,7 @@ fn traced<R>(targets: &Targets, hand_over: impl FnOnce(&Traced) -> R) -> R {
         inputs: &inputs,
         output: &targets.surface,
         gl_has_output: targets.gl_has_surface.get(),
+        sampled: &[],
     })
 }
 // ANCHOR_END: hand_over
