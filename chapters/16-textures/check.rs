@@ -1,14 +1,16 @@
 //! Chapter 16's checks and pictures: every level GL reads against Vulkan's own copy, byte for
 //! byte; the composite against the CPU; the occlusion's range; the textures in the report.
 
-use crate::textures::{Uploaded, gl_levels};
+use crate::textures::{Uploaded, gl_levels, level_size};
 use anyhow::Result;
 use common::Report;
 use common::base::cli::{Size, check_covered};
+use common::base::gl::{compute_program, create};
 use common::frame::{Composite, Pixels, Uniforms, View, matches_reference};
 use common::instruments::output;
 use common::rt::ao::{AoTracer, check_occlusion};
 use common::scene::gbuffer::GBuffers;
+use glow::HasContext;
 use std::path::Path;
 
 /// The textures: how many, each one's size and levels, their bytes, and how the levels were made.
@@ -46,6 +48,102 @@ pub fn levels(report: &mut Report, gl: &glow::Context, uploaded: &Uploaded) {
     report.check("texture_levels_match_vulkan", differing.is_empty());
 }
 // ANCHOR_END: levels
+
+const PROBE: &str = include_str!("../../shaders/gl/trilinear_probe.comp");
+/// How far GL's trilinear sample may be from the CPU's, per channel in linear light: the GPU
+/// blends with weights of 8 fractional bits (1/256 of the largest step between two texels).
+pub const TRILINEAR_TOLERANCE: f32 = 2.0 / 255.0;
+
+// ANCHOR: trilinear
+/// GL's `textureLod` of every texture at 256 points (inside and past its edges, at levels of
+/// detail from 0 to past the last level) equals a CPU model of trilinear filtering built from
+/// Vulkan's own levels, within [`TRILINEAR_TOLERANCE`]: the levels are where GL looks for them,
+/// and sRGB is decoded once, before filtering.
+pub fn trilinear(report: &mut Report, gl: &std::rc::Rc<glow::Context>, uploaded: &Uploaded) -> Result<()> {
+    if uploaded.textures.is_empty() {
+        return Ok(());
+    }
+    let program = compute_program(gl, PROBE)?;
+    let mut worst = 0.0f32;
+    for (texture, levels) in uploaded.textures.iter().zip(&uploaded.vulkan_levels) {
+        let points: Vec<[f32; 4]> = (0..256)
+            .map(|i| {
+                let f = i as f32;
+                let lod = (i % 16) as f32 / 15.0 * (texture.levels as f32 + 0.5);
+                [(f * 0.618_034).fract() * 2.0 - 0.5, (f * 0.414_213_57).fract() * 2.0 - 0.5, lod, 0.0]
+            })
+            .collect();
+        let mut samples = vec![[0f32; 4]; points.len()];
+        unsafe {
+            let input = create(gl, "glCreateBuffers for the probe's points", |gl| gl.create_named_buffer())?;
+            let output =
+                create(gl, "glCreateBuffers for the probe's samples", |gl| gl.create_named_buffer())?;
+            gl.named_buffer_data_u8_slice(*input, bytemuck::cast_slice(&points), glow::STATIC_DRAW);
+            gl.named_buffer_data_u8_slice(*output, bytemuck::cast_slice(&samples), glow::STREAM_READ);
+            gl.use_program(Some(*program));
+            gl.bind_texture_unit(0, Some(*texture.gl.texture));
+            gl.bind_buffer_base(glow::SHADER_STORAGE_BUFFER, 0, Some(*input));
+            gl.bind_buffer_base(glow::SHADER_STORAGE_BUFFER, 1, Some(*output));
+            gl.dispatch_compute(points.len().div_ceil(64) as u32, 1, 1);
+            gl.memory_barrier(glow::BUFFER_UPDATE_BARRIER_BIT);
+            gl.bind_buffer(glow::SHADER_STORAGE_BUFFER, Some(*output));
+            gl.get_buffer_sub_data(glow::SHADER_STORAGE_BUFFER, 0, bytemuck::cast_slice_mut(&mut samples));
+            gl.bind_buffer(glow::SHADER_STORAGE_BUFFER, None);
+            gl.bind_texture_unit(0, None);
+            gl.use_program(None);
+        }
+        for (point, sample) in points.iter().zip(&samples) {
+            let expected = cpu_trilinear(levels, (texture.width, texture.height), point);
+            for c in 0..4 {
+                worst = worst.max((expected[c] - sample[c]).abs());
+            }
+        }
+    }
+    report.set("trilinear_worst_error", (worst as f64 * 255.0 * 100.0).round() / 100.0); // in 1/255ths
+    report.check("gl_samples_as_the_cpu_filters", worst <= TRILINEAR_TOLERANCE);
+    Ok(())
+}
+
+/// GL's trilinear filtering (LINEAR_MIPMAP_LINEAR, REPEAT) of sRGB levels, on the CPU: the level
+/// of detail clamped to the chain, the two levels around it each sampled bilinearly (texels
+/// decoded to linear light first), and the two mixed by the fraction between them.
+fn cpu_trilinear(levels: &[Vec<u8>], (width, height): (u32, u32), point: &[f32; 4]) -> [f32; 4] {
+    let last = (levels.len() - 1) as f32;
+    let lod = point[2].clamp(0.0, last);
+    let (low, fraction) = (lod.floor(), lod.fract());
+    let at = |level: usize| {
+        bilinear(&levels[level], level_size(width, height, level as u32), (point[0], point[1]))
+    };
+    let a = at(low as usize);
+    if fraction == 0.0 || low >= last {
+        return a;
+    }
+    let b = at(low as usize + 1);
+    std::array::from_fn(|c| a[c] * (1.0 - fraction) + b[c] * fraction)
+}
+
+fn bilinear(texels: &[u8], (w, h): (u32, u32), (u, v): (f32, f32)) -> [f32; 4] {
+    let (x, y) = (u * w as f32 - 0.5, v * h as f32 - 0.5);
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let texel = |i: f32, j: f32| -> [f32; 4] {
+        let (i, j) = ((i as i64).rem_euclid(w as i64) as u32, (j as i64).rem_euclid(h as i64) as u32);
+        let p = &texels[4 * (j * w + i) as usize..][..4];
+        let linear = |c: u8| {
+            let c = c as f32 / 255.0;
+            if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+        };
+        [linear(p[0]), linear(p[1]), linear(p[2]), p[3] as f32 / 255.0]
+    };
+    let (t00, t10, t01, t11) =
+        (texel(x0, y0), texel(x0 + 1.0, y0), texel(x0, y0 + 1.0), texel(x0 + 1.0, y0 + 1.0));
+    std::array::from_fn(|c| {
+        let top = t00[c] * (1.0 - fx) + t10[c] * fx;
+        let bottom = t01[c] * (1.0 - fx) + t11[c] * fx;
+        top * (1.0 - fy) + bottom * fy
+    })
+}
+// ANCHOR_END: trilinear
 
 /// The last frame: the occlusion in [0, 1] (1 on the background), and the composite against the
 /// same formula computed on the CPU from the G-buffers.

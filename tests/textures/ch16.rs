@@ -385,6 +385,29 @@ fn ch16_resizes_leave_nothing_behind() {
     assert_eq!(report["resizes"], 4);
 }
 
+/// A thousand resizes: what exists after the first exists after every later one (fds, counted
+/// resources, GL's objects: `ResizeCensus`), so nothing grows.
+#[test]
+fn ch16_soak_1000_resizes() {
+    let args = ["--size", "16x12", "--frames", "1001", "--samples", "1", "--resize-every", "1"];
+    let report = run_chapter(BIN, &args, &[]).succeeded().clone();
+    assert_eq!(report["resizes"], 1000);
+    assert_eq!(report["checks"]["nothing_grows_across_resizes"], true, "{report}");
+}
+
+/// In a window (Xvfb): the frames drawn live, the same checks passing.
+#[test]
+fn ch16_draws_in_a_window_under_xvfb() {
+    let Some(xvfb) = harness::Xvfb::start("ch16_draws_in_a_window_under_xvfb") else { return };
+    let args = ["--size", "160x120", "--frames", "3", "--samples", "2"];
+    let run = harness::run_chapter_with(BIN, &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["frames"], 3);
+    assert_eq!(report["checks"]["texture_levels_match_vulkan"], true);
+}
+
 /// Chapter 16 at every size the other chapters are walked through (`harness::sizes`).
 #[test]
 fn sizes_16() {
