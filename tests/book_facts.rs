@@ -217,9 +217,9 @@ fn is_check_name(s: &str) -> bool {
 
 /// `six` -> 6: the counts pages spell out.
 fn count_of(word: &str) -> Option<usize> {
-    const WORDS: [&str; 16] = [
+    const WORDS: [&str; 17] = [
         "zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven",
-        "twelve", "thirteen", "fourteen", "fifteen",
+        "twelve", "thirteen", "fourteen", "fifteen", "sixteen",
     ];
     word.parse().ok().or_else(|| WORDS.iter().position(|w| w.eq_ignore_ascii_case(word)))
 }
@@ -779,9 +779,11 @@ fn sources_of<'a>(bin: &str, sources: &'a Sources) -> Vec<&'a str> {
 
 #[test]
 fn printed_commands_name_real_binaries_and_flags() {
-    // The root package's binaries, and chapter 15's (a package of its own: it builds wgpu).
+    // The root package's binaries, and chapter 15's and 16's (packages of their own: they build
+    // wgpu and the picture decoders).
     let mut manifest = std::fs::read_to_string(root().join("Cargo.toml")).unwrap();
     manifest += &std::fs::read_to_string(root().join("chapters/15-wgpu/Cargo.toml")).unwrap();
+    manifest += &std::fs::read_to_string(root().join("chapters/16-textures/Cargo.toml")).unwrap();
     let bins: BTreeSet<String> = manifest
         .split("[[bin]]")
         .skip(1)

@@ -72,8 +72,10 @@ struct Args {
     resize_every: Option<u32>,
 }
 
+// ANCHOR: requirements
 /// Chapter 08's needs, and an array of textures for the any-hit shader.
 const TEXTURED: Requirements<'static> = Requirements { texture_arrays: true, ..RAY_TRACED_INTEROP };
+// ANCHOR_END: requirements
 
 fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let mut size = args.common.size;
@@ -99,7 +101,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     };
 
     // 2. Vulkan, then GL (as chapter 08); the texture array only for a scene with cut-outs
+    // ANCHOR: choose
     let requirements = if textured.has_cut_outs() { &TEXTURED } else { &RAY_TRACED_INTEROP };
+    // ANCHOR_END: choose
     let (vk, mut window, gl_context, handoff) =
         gbuffer::contexts_in_window(CHAPTER, report, requirements, &args.common)?;
     let gl = &gl_context.gl;
