@@ -150,11 +150,19 @@ const SOLUTIONS: &[Solution] = &[
         args: &["--headless", "--size", "64x48", "--frames", "2"],
         proof: Proof::Check("wgpu_counted_the_edges"),
     },
+    Solution {
+        // A package of its own (the picture decoders): built with `-p chapter-16-textures`.
+        patch: "16-cutoff.diff",
+        chapter: "16-textures",
+        args: &["--headless", "--size", "64x48", "--frames", "2", "--samples", "2", "--cutoff", "0.9"],
+        proof: Proof::Flag("--cutoff"),
+    },
 ];
 
 /// The chapters that are packages of their own, with the package's name: the rest are the root
 /// package's binaries.
-const OWN_PACKAGES: &[(&str, &str)] = &[("15-wgpu", "chapter-15-wgpu")];
+const OWN_PACKAGES: &[(&str, &str)] =
+    &[("15-wgpu", "chapter-15-wgpu"), ("16-textures", "chapter-16-textures")];
 
 /// The package whose binary `chapter` is.
 fn package_of(chapter: &str) -> &'static str {
