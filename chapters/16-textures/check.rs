@@ -160,12 +160,13 @@ pub fn frame(
     report.check("composite_matches_cpu_reference", matches_reference(&pixels, &composite.read(gl), &plain));
 }
 
-/// Headless: the mean AO over the covered pixels, and a PNG of each of `views`.
+/// Headless: the mean AO over the covered pixels, and a PNG of each of `views`. `chapter` names
+/// the chapter in the error for a size that covers no pixel.
 pub fn write_pictures(
     report: &mut Report,
     (gl, gbuffers, tracer, composite): (&glow::Context, &GBuffers, &AoTracer, &Composite),
     uniforms: &Uniforms,
-    (out_dir, prefix): (&Path, &str),
+    (chapter, out_dir, prefix): (&str, &Path, &str),
     views: &[View],
 ) -> Result<()> {
     let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
@@ -173,7 +174,7 @@ pub fn write_pictures(
     let ao = composite.read(gl);
     let positions = output::read_texture_f32(gl, gbuffers.textures()[0], w, h, 4);
     let covered: Vec<usize> = (0..(w * h) as usize).filter(|&i| positions[i * 4 + 3] > 0.0).collect();
-    check_covered("--size", crate::CHAPTER, Size { width: w, height: h }, covered.len() as u64)?;
+    check_covered("--size", chapter, Size { width: w, height: h }, covered.len() as u64)?;
     let mean = covered.iter().map(|&i| ao[i * 4] as f64 / 255.0).sum::<f64>() / covered.len() as f64;
     report.set("ao_mean", (mean * 1e3).round() / 1e3);
     for &view in views {

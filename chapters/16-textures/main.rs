@@ -253,7 +253,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 report,
                 (gl, &gbuffers, &tracer, &composite),
                 &uniforms,
-                (&out_dir, &prefix),
+                (CHAPTER, &out_dir, &prefix),
                 &views,
             )?;
         }

@@ -59,8 +59,8 @@ impl RayPipeline {
 
     /// [`RayPipeline::new`] with one hit group of `any_hit` alone (chapter 16's cut-outs): it
     /// runs for every candidate hit on geometry that is not opaque, and may ignore the hit.
-    /// The ray generation shader's specialization constant 0 (`CUT_OUTS` in `ao.rgen`) is set to
-    /// true, so that its rays stop forcing every hit opaque.
+    /// The ray generation shader's specialization constant 0 (`RAY_OPACITY` in `ao.rgen`) is set
+    /// to `gl_RayFlagsNoneEXT`, so that its rays stop forcing every hit opaque.
     pub fn with_any_hit(
         vk: &VulkanContext,
         allocator: &GpuAllocator,
@@ -90,11 +90,12 @@ impl RayPipeline {
         let raygen = shader_module(vk, shaders.raygen, "ray generation")?;
         let miss = shader_module(vk, shaders.miss, "miss")?;
         let any_hit = any_hit.map(|code| shader_module(vk, code, "any-hit")).transpose()?;
-        // With an any-hit shader, the ray generation shader's constant 0 is true (4 bytes at 0).
-        let cut_outs = [1u32];
+        // With an any-hit shader, the ray generation shader's constant 0, the opacity its rays ask
+        // for, is gl_RayFlagsNoneEXT (a uint of 4 bytes at 0).
+        let ray_opacity = [0u32];
         let entries = [vk::SpecializationMapEntry { constant_id: 0, offset: 0, size: 4 }];
         let specialization =
-            vk::SpecializationInfo::default().map_entries(&entries).data(bytemuck::bytes_of(&cut_outs));
+            vk::SpecializationInfo::default().map_entries(&entries).data(bytemuck::bytes_of(&ray_opacity));
         let mut raygen_stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::RAYGEN_KHR)
             .module(*raygen)
