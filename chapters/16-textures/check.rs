@@ -1,7 +1,7 @@
 //! Chapter 16's checks and pictures: every level GL reads against Vulkan's own copy, byte for
 //! byte; the composite against the CPU; the occlusion's range; the textures in the report.
 
-use crate::textures::{Uploaded, gl_levels, level_size};
+use crate::textures::{Uploaded, chain_bytes, gl_levels, level_size};
 use anyhow::Result;
 use common::Report;
 use common::base::cli::{Size, check_covered};
@@ -25,6 +25,16 @@ pub fn report_textures(report: &mut Report, uploaded: &Uploaded) {
     report.set("texture_sizes", sizes);
     report.set("texture_bytes", textures.iter().map(|t| t.memory.size).sum::<u64>());
     report.set("texture_levels_made_by", if uploaded.blitted { "vkCmdBlitImage" } else { "the CPU" });
+    // The GPU's time to make every level, against its time to copy the same texels back to
+    // host memory: the rate of the upload beside a plain copy's, in one submission.
+    if let Some((levels_ms, copy_back_ms)) = uploaded.gpu_ms {
+        report.time_ms("texture_levels", levels_ms);
+        report.time_ms("texture_copy_back", copy_back_ms);
+        let texels: u64 = textures.iter().map(|t| chain_bytes(t.width, t.height, t.levels)).sum();
+        let rate = |ms: f64| (texels as f64 / (ms / 1e3) / 1e6 * 10.0).round() / 10.0;
+        let rates = [("levels", rate(levels_ms)), ("copy_back", rate(copy_back_ms))];
+        report.set("texture_mb_per_s", std::collections::BTreeMap::from(rates));
+    }
 }
 
 // ANCHOR: levels

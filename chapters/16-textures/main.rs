@@ -14,6 +14,8 @@ use anyhow::Result;
 use ash::vk;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
 use common::frame::input::{Settings, resize_every, window_input};
 use common::frame::{Composite, View};
 use common::instruments::census::ResizeCensus;
@@ -70,6 +72,14 @@ struct Args {
     /// resize does (the leak test uses it).
     #[arg(long, value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
     resize_every: Option<u32>,
+    /// Draw the scene without its pictures: every material its plain colour, as chapter 08 does
+    /// (to time the textures against).
+    #[arg(long)]
+    untextured: bool,
+    /// Rays treat every surface as opaque, so cut-outs shadow as solid quads (to time the any-hit
+    /// shader against).
+    #[arg(long)]
+    opaque_rays: bool,
 }
 
 // ANCHOR: requirements
@@ -85,7 +95,12 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         Some(path) => scene::load(path, args.normals)?,
         None => scene::default_scene(args.instances)?,
     };
-    cut_outs::mark_cut_outs(&mut textured);
+    if args.untextured {
+        textured.drop_pictures();
+    }
+    if !args.opaque_rays {
+        cut_outs::mark_cut_outs(&mut textured);
+    }
     report.set("cut_outs", textured.surfaces.iter().flatten().filter(|s| s.cut_out).count());
     let scene = &textured.scene;
     let mut camera = Camera::framing(scene.bounds, size.aspect());
@@ -157,6 +172,11 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let frame_limit =
         if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
     let (mut frame, mut resizes, mut census) = (0, 0, ResizeCensus::default());
+    // Each pass's GPU time, as chapter 08 takes it: GL's queries read when they arrive, the
+    // trace's timestamps after the fence wait the next trace makes anyway.
+    let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
+    let timestamps = Timestamps::new(&vk)?;
+    let mut trace_pending = false;
     // Made after everything the traces use: an early return drops it first, and its Drop waits.
     let commands = Commands::new(&vk)?;
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
@@ -200,10 +220,10 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             census.count(&gl_context)?;
         }
         // ANCHOR: frame
-        match &pass {
+        gl_timer.time(gl, "gbuffer", || match &pass {
             Some(pass) => pass.draw(gl, &gbuffers, (&textured, textures, white), &camera),
             None => gbuffers.draw(gl, scene, &camera), // no pictures: chapter 08's pass
-        }
+        })?;
         if let Some(reason) = common::rt::ao::nothing_to_trace(settings.samples, settings.radius) {
             if skipped.replace(reason).is_none() {
                 eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
@@ -214,16 +234,28 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             let samples = rays_this_frame(settings.samples, tracer.accumulated, args.ao.max_samples, refine);
             let rays =
                 AoRays { samples, accumulated: 0, radius: settings.radius, scene_scale: scene.size() / 2.0 };
-            tracer.trace(apis, &gbuffers, rays, None)?; // the textures travel with the G-buffers
+            if std::mem::take(&mut trace_pending) {
+                read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+            }
+            tracer.trace(apis, &gbuffers, rays, timestamps.as_ref())?; // textures travel with the G-buffers
+            trace_pending = timestamps.is_some();
         }
-        composite.draw(gl, &gbuffers, &tracer, &settings.uniforms(camera.far));
+        let uniforms = settings.uniforms(camera.far);
+        gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
+        gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
         if let Some(window) = &mut window {
             composite.show(gl, window.size());
             window.swap_buffers(&gl_context)?;
         }
+        times.frame_done();
         frame += 1;
     }
+    if trace_pending {
+        read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
+    }
+    gl_timer.finish(gl, &mut times);
+    times.record(report);
     if resizes > 0 {
         report.set("resizes", resizes);
     }
@@ -264,6 +296,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     unsafe { gl.finish() };
     vk.wait_idle()?;
     drop(commands);
+    drop(timestamps);
+    drop(gl_timer);
     drop(composite); // GL only
     drop(tracer); // the AO image, then the pipeline (its descriptors name the table and sampler)
     drop(cut_out_objects); // the cut-out table and the sampler

@@ -41,6 +41,12 @@ impl TexturedScene {
     pub fn has_cut_outs(&self) -> bool {
         self.surfaces.iter().flatten().any(|s| s.cut_out)
     }
+
+    /// Forgets every picture: each material keeps its plain colour, as chapter 08 draws it.
+    pub fn drop_pictures(&mut self) {
+        self.surfaces.iter_mut().for_each(|s| *s = None);
+        self.pictures.clear();
+    }
 }
 
 // ANCHOR: load

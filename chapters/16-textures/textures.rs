@@ -9,6 +9,7 @@ use common::VulkanContext;
 use common::base::commands::{Commands, HostBuffer, image_barrier};
 use common::base::gl::{self, GlContext, OPTIMAL_TILING_EXT, TEXTURE_TILING_EXT};
 use common::base::owned::{Owned, create};
+use common::clocks::timestamps::Timestamps;
 use common::instruments::fail;
 use common::interop::exportable::{self, Dedicated, HANDLE_TYPE};
 use common::interop::handoff::Handoff;
@@ -63,6 +64,9 @@ pub struct Uploaded {
     pub textures: Vec<Texture>,
     pub vulkan_levels: Vec<Vec<Vec<u8>>>,
     pub blitted: bool,
+    /// GPU milliseconds to make every level (the copies from staging and the blits), and to
+    /// copy every level back: the same bytes written each time. `None` without timestamps.
+    pub gpu_ms: Option<(f64, f64)>,
 }
 
 /// Every picture as a [`Texture`], uploaded in one submission and handed to GL. A picture larger
@@ -104,18 +108,36 @@ pub fn upload(
         at += level.2.len();
     }
     // ANCHOR_END: staging
+    let stamps = Timestamps::with_count(vk, 3)?;
     let commands = Commands::new(vk)?;
     // The semaphores' round trip, as for any image GL has not had yet: GL signals first (it has
     // used none of these), Vulkan's submission waits for that and signals back.
     handoff.gl_release(gl, &[], &[]);
     let cb = commands.begin(vk)?;
     let final_layout = sampled_layouts(handoff).to_gl;
-    let (mut from, mut back) = (0, upload);
+    // Timestamps before, between and after the two halves: the levels made, then copied back.
+    let stamp = |index| {
+        if let Some(t) = &stamps {
+            t.write(vk, cb, vk::PipelineStageFlags::BOTTOM_OF_PIPE, index);
+        }
+    };
+    if let Some(t) = &stamps {
+        t.reset(vk, cb);
+    }
+    stamp(0);
+    let mut from = 0;
     for (texture, chain) in textures.iter().zip(&chains) {
-        unsafe { record_upload(vk, cb, texture, *staging.buffer, (from, chain), back, final_layout) };
+        unsafe { record_levels(vk, cb, texture, *staging.buffer, (from, chain)) };
         from += bytes(chain);
+    }
+    stamp(1);
+    let mut back = upload;
+    for (texture, chain) in textures.iter().zip(&chains) {
+        let made = chain.len() as u32;
+        unsafe { record_copy_back(vk, cb, texture, (*staging.buffer, back), made, final_layout) };
         back += chain_bytes(texture.width, texture.height, texture.levels);
     }
+    stamp(2);
     let all = vk::PipelineStageFlags::ALL_COMMANDS;
     commands.submit(vk, handoff.vulkan_waits_on().map(|s| (s, all)), handoff.vulkan_signals())?;
     commands.wait(vk, "vkWaitForFences after uploading the textures")?;
@@ -134,7 +156,11 @@ pub fn upload(
         }
         vulkan_levels.push(levels);
     }
-    Ok(Uploaded { textures, vulkan_levels, blitted: blit })
+    let gpu_ms = match &stamps {
+        Some(t) => Some((t.between_ms(vk, 0, 1)?, t.between_ms(vk, 1, 2)?)),
+        None => None,
+    };
+    Ok(Uploaded { textures, vulkan_levels, blitted: blit, gpu_ms })
 }
 
 impl Texture {
@@ -223,27 +249,20 @@ fn sampling(gl: &GlContext, texture: glow::Texture) {
 // ANCHOR_END: sampling
 
 // ANCHOR: record_upload
-/// Records one texture's upload: level 0 (or every level) from `staging`, each further level
-/// blitted from the one above it, every level copied back to `back` for the check, then the
-/// whole image released to GL in `final_layout`.
-unsafe fn record_upload(
+/// Records one texture's levels: level 0 (or every level) from `staging`, each further level
+/// blitted from the one above it. Every level is left TRANSFER_DST_OPTIMAL but those a blit
+/// read, which are TRANSFER_SRC_OPTIMAL.
+unsafe fn record_levels(
     vk: &VulkanContext,
     cb: vk::CommandBuffer,
     texture: &Texture,
     staging: vk::Buffer,
     (from, chain): (u64, &[Level]),
-    back: u64,
-    final_layout: vk::ImageLayout,
 ) {
     use vk::AccessFlags as A;
     use vk::ImageLayout as L;
     let (device, image, levels) = (&vk.device, *texture.image, texture.levels);
-    let same = (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED);
-    let barrier = |range, layouts, access, families| {
-        let mut b = image_barrier(image, layouts, access, families);
-        b.subresource_range = range;
-        b
-    };
+    let barrier = |range, layouts, access| level_barrier(image, range, layouts, access);
     let transfer = vk::PipelineStageFlags::TRANSFER;
     let no = vk::DependencyFlags::empty();
     unsafe {
@@ -252,7 +271,6 @@ unsafe fn record_upload(
             levels_range(0, levels),
             (L::UNDEFINED, L::TRANSFER_DST_OPTIMAL),
             (A::NONE, A::TRANSFER_WRITE),
-            same,
         );
         device.cmd_pipeline_barrier(
             cb,
@@ -278,7 +296,6 @@ unsafe fn record_upload(
                 levels_range(level - 1, 1),
                 (L::TRANSFER_DST_OPTIMAL, L::TRANSFER_SRC_OPTIMAL),
                 (A::TRANSFER_WRITE, A::TRANSFER_READ),
-                same,
             );
             device.cmd_pipeline_barrier(cb, transfer, transfer, no, &[], &[], &[above]);
             let (sw, sh) = level_size(texture.width, texture.height, level - 1);
@@ -295,18 +312,38 @@ unsafe fn record_upload(
             let (src, dst) = (L::TRANSFER_SRC_OPTIMAL, L::TRANSFER_DST_OPTIMAL);
             device.cmd_blit_image(cb, image, src, image, dst, &[blit], vk::Filter::LINEAR);
         }
+    }
+}
+
+/// Records one texture's copy of every level back to `back`, for the check, then the whole
+/// image released to GL in `final_layout`. `made` is how many levels came from `staging` (the
+/// rest were blitted).
+unsafe fn record_copy_back(
+    vk: &VulkanContext,
+    cb: vk::CommandBuffer,
+    texture: &Texture,
+    (staging, back): (vk::Buffer, u64),
+    made: u32,
+    final_layout: vk::ImageLayout,
+) {
+    use vk::AccessFlags as A;
+    use vk::ImageLayout as L;
+    let (device, image, levels) = (&vk.device, *texture.image, texture.levels);
+    let transfer = vk::PipelineStageFlags::TRANSFER;
+    let no = vk::DependencyFlags::empty();
+    unsafe {
         // Every level a copy's source now: the last one written by a blit or copy, the others
         // already (when blitted) or from the copies.
         let mut to_src = Vec::new();
-        let blitted_from = if chain.len() as u32 == levels { 0 } else { levels - 1 };
+        let blitted_from = if made == levels { 0 } else { levels - 1 };
         for level in 0..levels {
             let old = if level < blitted_from { L::TRANSFER_SRC_OPTIMAL } else { L::TRANSFER_DST_OPTIMAL };
             let access = if level < blitted_from { A::TRANSFER_READ } else { A::TRANSFER_WRITE };
-            to_src.push(barrier(
+            to_src.push(level_barrier(
+                image,
                 levels_range(level, 1),
                 (old, L::TRANSFER_SRC_OPTIMAL),
                 (access, A::TRANSFER_READ),
-                same,
             ));
         }
         device.cmd_pipeline_barrier(cb, transfer, transfer, no, &[], &[], &to_src);
@@ -324,12 +361,13 @@ unsafe fn record_upload(
         // Released to GL (VK_QUEUE_FAMILY_EXTERNAL) in the layout GL's wait will name, the
         // writes made available. To BOTTOM_OF_PIPE: nothing after it here uses the image.
         let families = (vk.queue_family_index, vk::QUEUE_FAMILY_EXTERNAL);
-        let release = barrier(
-            levels_range(0, levels),
+        let mut release = image_barrier(
+            image,
             (L::TRANSFER_SRC_OPTIMAL, final_layout),
             (A::TRANSFER_WRITE, A::NONE),
             families,
         );
+        release.subresource_range = levels_range(0, levels);
         // The copy back must see the blits: host reads are made visible by the fence wait.
         let host = vk::BufferMemoryBarrier::default()
             .buffer(staging)
@@ -343,6 +381,17 @@ unsafe fn record_upload(
     }
 }
 // ANCHOR_END: record_upload
+
+/// A barrier on `range` of `image`'s levels, in one queue family.
+fn level_barrier(
+    image: vk::Image,
+    range: vk::ImageSubresourceRange,
+    layouts: (vk::ImageLayout, vk::ImageLayout),
+    access: (vk::AccessFlags, vk::AccessFlags),
+) -> vk::ImageMemoryBarrier<'static> {
+    let same = (vk::QUEUE_FAMILY_IGNORED, vk::QUEUE_FAMILY_IGNORED);
+    vk::ImageMemoryBarrier { subresource_range: range, ..image_barrier(image, layouts, access, same) }
+}
 
 /// `count` levels from `first`, the one layer.
 fn levels_range(first: u32, count: u32) -> vk::ImageSubresourceRange {
@@ -365,7 +414,7 @@ fn level_layers(level: u32) -> vk::ImageSubresourceLayers {
 }
 
 /// Bytes of a whole chain.
-fn chain_bytes(width: u32, height: u32, levels: u32) -> u64 {
+pub fn chain_bytes(width: u32, height: u32, levels: u32) -> u64 {
     (0..levels).map(|l| level_size(width, height, l)).map(|(w, h)| w as u64 * h as u64 * 4).sum()
 }
 

@@ -134,6 +134,7 @@ pub fn assert_report_snapshot(name: &str, report: &Value) {
             // Rates come from GPU timestamps, like timings_ms.
             ".mrays_per_s" => "[rate]",
             ".mrays_per_s_launched" => "[rate]",
+            ".texture_mb_per_s" => insta::dynamic_redaction(redact_values("[rate]")),
             ".timings_ms" => insta::dynamic_redaction(redact_values("[ms]")),
             ".fds" => insta::dynamic_redaction(redact_values("[fd]")),
         });

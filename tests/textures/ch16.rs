@@ -170,9 +170,8 @@ fn ch16_cut_outs_are_seen_through_by_gl_and_the_rays_alike() {
     );
 }
 
-/// The rays see the cut-outs only through the any-hit shader: the same checker plane with every
-/// instance forced opaque would occlude like the solid one. The pictures of a textured scene
-/// without cut-outs carry no any-hit group at all (nothing marked, the plain tracer).
+/// A textured scene without cut-outs marks nothing and traces with the plain tracer; one with a
+/// cut-out marks it.
 #[test]
 fn ch16_only_cut_outs_pay_for_the_any_hit_shader() {
     let files = Files::new();
@@ -186,6 +185,54 @@ fn ch16_only_cut_outs_pay_for_the_any_hit_shader() {
     );
     let checker = run_scene(&plane_scene(&files, "checker", Some("checker"), MATERIALS), &[]);
     assert_eq!(checker.succeeded()["cut_outs"], 1);
+}
+
+/// The rays see the cut-outs only through the any-hit shader. With `--opaque-rays` a checker
+/// plane occludes like a solid one: wherever both runs see the same point (the position views
+/// agree), its occlusion is the solid plane's, byte for byte. With the any-hit shader the same
+/// checker lets rays through, and the ground beside it is less occluded.
+#[test]
+fn ch16_opaque_rays_shadow_cut_outs_as_solid_planes() {
+    let files = Files::new();
+    files.picture("solid.png", (16, 16), |_, _| [255, 255, 255, 255]);
+    files.picture(
+        "checker.png",
+        (16, 16),
+        |x, y| if (x / 4 + y / 4) % 2 == 0 { [255; 4] } else { [0, 0, 0, 255] },
+    );
+    let raw = ["--power", "1", "--blur", "0", "--samples", "16"]; // the AO view is the visibility
+    let solid = pictures(&run_scene(&plane_scene(&files, "solid", Some("solid"), MATERIALS), &raw), "solid");
+    let checker_scene = plane_scene(&files, "checker", Some("checker"), MATERIALS);
+    let through = pictures(&run_scene(&checker_scene, &raw), "checker");
+    let opaque = pictures(&run_scene(&checker_scene, &[&raw[..], &["--opaque-rays"]].concat()), "checker");
+    let view = |pictures: &[(String, Vec<u8>)], name: &str| {
+        pictures.iter().find(|(view, _)| view == name).map(|(_, bytes)| bytes.clone()).unwrap()
+    };
+    let (position, ao_solid) = (view(&solid, "position"), view(&solid, "ao"));
+    let (ao_opaque, ao_through) = (view(&opaque, "ao"), view(&through, "ao"));
+    assert!(view(&opaque, "position") == view(&through, "position"), "GL drew the checker otherwise");
+    let same: Vec<usize> = (0..position.len() / 4)
+        .filter(|&i| position[4 * i..4 * i + 4] == view(&opaque, "position")[4 * i..4 * i + 4])
+        .collect();
+    let differing = same.iter().filter(|&&i| ao_opaque[4 * i] != ao_solid[4 * i]).count();
+    assert_eq!(differing, 0, "of {} points both runs see, {differing} are occluded otherwise", same.len());
+    let lighter = same.iter().filter(|&&i| ao_through[4 * i] > ao_solid[4 * i]).count();
+    let darker = same.iter().filter(|&&i| ao_through[4 * i] < ao_solid[4 * i]).count();
+    assert!(lighter > 10 && darker == 0, "through the cut-out: {lighter} points lighter, {darker} darker");
+}
+
+/// `--untextured` forgets the pictures: no texture made, no cut-out marked, the albedo each
+/// material's plain colour; and every check still passes.
+#[test]
+fn ch16_untextured_draws_the_plain_colours() {
+    let args = ["--size", "96x72", "--frames", "2", "--samples", "4", "--all-views"];
+    let textured = run_chapter(BIN, &args, &[]);
+    let plain = run_chapter(BIN, &[&args[..], &["--untextured"]].concat(), &[]);
+    let report = plain.succeeded();
+    assert_eq!((report["textures"].as_u64(), report["cut_outs"].as_u64()), (Some(0), Some(0)), "{report}");
+    assert!(report.get("texture_mb_per_s").is_none(), "{report}");
+    let albedo = |run: &Run| pictures(run, "").into_iter().find(|(v, _)| v.ends_with("albedo")).unwrap().1;
+    assert!(albedo(&plain) != albedo(&textured), "the albedo view kept its pictures");
 }
 
 /// A scene with no picture draws what chapter 08 draws, view for view (08's final picture adds
