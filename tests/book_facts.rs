@@ -1,8 +1,9 @@
 //! The facts a page quotes from the code stay true: the checks a transcript or a "Checks" table
 //! names and the counts it states agree with the chapters' reports (`tests/snapshots/*.snap`,
 //! written by the chapter tests from real runs); the report keys, Rust names and command-line
-//! flags a page quotes exist; no page runs a `./bin/` that does not exist or cites a tracker's
-//! "issue N" that the reader cannot see. Pure text: no GPU, no chapter run, a fraction of a second.
+//! flags a page quotes exist, with the defaults and ranges their programs' `--help` and value
+//! parsers give; no page runs a `./bin/` that does not exist or cites a tracker's "issue N" that
+//! the reader cannot see. Text, and `--help` alone: no GPU, no chapter run, a few seconds.
 
 mod harness;
 
@@ -2563,4 +2564,243 @@ fn resize_sizes_are_named_in_the_order_they_come() {
         format!("`--resize-every 2` makes them anew\n({}, {}, then {}).\n", order[2], order[1], order[0]);
     let (caught, _) = resize_order_errors(&Page::parse("15-wgpu.md", &wrong), &order);
     assert_eq!(caught.len(), 1, "the wrong order is caught: {caught:?}");
+}
+
+/// What a page says of a flag: "`--blur`, 0–8 pixels, default 2", "`--slots` images (2 by
+/// default ...)", "`--samples` (rays per pixel per frame, 0–256, default 16)".
+#[derive(Debug, PartialEq)]
+struct FlagClaim {
+    line: usize,
+    flag: String,
+    default: Option<f64>,
+    range: Option<(f64, f64)>,
+}
+
+/// A number as pages write it ("10,000", "4096", "0.5"), and where it ends.
+fn page_number(text: &[char]) -> Option<(f64, usize)> {
+    let end = text.iter().position(|c| !(c.is_ascii_digit() || *c == ',' || *c == '.')).unwrap_or(text.len());
+    let digits: String = text[..end].iter().filter(|c| **c != ',').collect();
+    let digits = digits.trim_end_matches('.');
+    let end = end - (text[..end].iter().rev().take_while(|c| matches!(c, '.' | ',')).count());
+    digits.parse().ok().filter(|_| text.first().is_some_and(char::is_ascii_digit)).map(|n| (n, end))
+}
+
+/// The claims a paragraph makes: after each `` `--flag` `` (or `` `--flag N` ``), up to the next
+/// flag, `;`, `|`, the end of a sentence or of the parenthesis, a default ("default 2", "2 by
+/// default") and a range ("0–8").
+fn flag_claims(line: usize, paragraph: &str) -> Vec<FlagClaim> {
+    let chars: Vec<char> = paragraph.chars().collect();
+    let mut claims = Vec::new();
+    let mut at = 0;
+    while let Some(start) =
+        (at..chars.len()).find(|&i| chars[i] == '`' && chars[i + 1..].starts_with(&['-', '-']))
+    {
+        let Some(close) = (start + 1..chars.len()).find(|&i| chars[i] == '`') else { break };
+        let span: String = chars[start + 1..close].iter().collect();
+        at = close + 1;
+        let mut words = span.split_whitespace();
+        let Some(flag) = words.next().filter(|f| f.len() > 2 && !f.contains('=')) else { continue };
+        // `--step 0.1` is a run's choice, not the flag's description; `--instances N` is one.
+        if words.next().is_some_and(|value| !value.chars().all(|c| c.is_ascii_uppercase())) {
+            continue;
+        }
+        let mut depth = 0i32;
+        let mut end = at;
+        while end < chars.len() {
+            let c = chars[end];
+            let sentence_end = c == '.' && chars.get(end + 1).is_none_or(|n| *n == ' ');
+            if c == '(' {
+                depth += 1;
+            } else if c == ')' {
+                depth -= 1;
+            }
+            if c == ';' || c == '|' || c == '`' || sentence_end || depth < 0 || (c == ')' && depth == 0) {
+                break;
+            }
+            end += 1;
+        }
+        let window = &chars[at..end];
+        let (mut default, mut range) = (None, None);
+        for i in 0..window.len() {
+            // Only what opens a clause of the flag's own: "(default 2", ", 0–8 pixels", not
+            // "the default 65,026 triangles" or "keys 1–6".
+            let before = window[..i].iter().rev().find(|c| **c != ' ');
+            let opens = before.is_none_or(|c| matches!(c, '(' | ',' | ':'))
+                && (i == 0 || window[i - 1] == ' ' || window[i - 1] == '(');
+            if !opens {
+                continue;
+            }
+            if window[i..].starts_with(&"default ".chars().collect::<Vec<_>>()) {
+                default = default.or(page_number(&window[i + 8..]).map(|(n, _)| n));
+            } else if let Some((n, len)) = page_number(&window[i..]) {
+                let rest: String = window[i + len..].iter().collect();
+                if rest.starts_with(" by default") {
+                    default = default.or(Some(n));
+                } else if let Some(after) = rest.strip_prefix('–')
+                    && let Some((hi, _)) = page_number(&after.chars().collect::<Vec<_>>())
+                {
+                    range = range.or(Some((n, hi)));
+                }
+            }
+        }
+        if default.is_some() || range.is_some() {
+            claims.push(FlagClaim { line, flag: flag.to_owned(), default, range });
+        }
+    }
+    claims
+}
+
+/// Every claim of every page, by page: paragraphs are the prose's consecutive lines joined.
+fn page_flag_claims() -> Vec<(Page, Vec<FlagClaim>)> {
+    pages()
+        .into_iter()
+        .map(|page| {
+            let mut claims = Vec::new();
+            let mut paragraph: Option<(usize, usize, String)> = None;
+            let lines = page.prose.iter().map(|(n, l)| (*n, l.as_str())).chain([(usize::MAX, "")]);
+            for (number, line) in lines {
+                let continues = paragraph.as_ref().is_some_and(|(_, last, _)| *last + 1 == number);
+                let row = line.trim_start().starts_with('|');
+                if !continues || line.trim().is_empty() || row {
+                    if let Some((first, _, text)) = paragraph.take() {
+                        claims.extend(flag_claims(first, &text));
+                    }
+                }
+                if row {
+                    claims.extend(flag_claims(number, line));
+                } else if !line.trim().is_empty() {
+                    let (first, _, mut text) = paragraph.take().unwrap_or((number, number, String::new()));
+                    text.push(' ');
+                    text.push_str(line.trim());
+                    paragraph = Some((first, number, text));
+                }
+            }
+            (page, claims)
+        })
+        .collect()
+}
+
+#[test]
+fn the_flag_claim_reader_reads_the_pages_ways() {
+    let read = |text: &str| flag_claims(1, text);
+    let claim = |flag: &str, default, range| vec![FlagClaim { line: 1, flag: flag.into(), default, range }];
+    assert_eq!(
+        read("(`--blur`, 0–8 pixels, default 2; 0 turns it off)"),
+        claim("--blur", Some(2.0), Some((0.0, 8.0)))
+    );
+    assert_eq!(
+        read("`--instances N` (default 10,000) tetrahedra."),
+        claim("--instances", Some(10_000.0), None)
+    );
+    assert_eq!(read("`--slots` images (2 by default: one being drawn)"), claim("--slots", Some(2.0), None));
+    assert_eq!(read("`--samples` (per frame, 0–256, default 16), `--power` (1–3, default 2)").len(), 2);
+    assert_eq!(read("`--radius` (default relative to the scene), and 5 by default elsewhere"), vec![]);
+    assert_eq!(read("`--frames 4` draws 4. Then 3 by default"), vec![]);
+    assert_eq!(read("`--step 0.1`, the default 65,026 triangles"), vec![]);
+    assert_eq!(read("(`--view`, `--all-views` headless, keys 1–6 in a window)"), vec![]);
+    assert_eq!(
+        read("`--max-samples` rays (4096 by default, 256 frames of 16)"),
+        claim("--max-samples", Some(4096.0), None)
+    );
+}
+
+/// The programs whose flags a page can mean: its chapter's, where it is a chapter's page and the
+/// chapter has the flag; else every program that has it (the tools, the other chapters).
+fn programs_for<'a>(
+    page: &Page,
+    flag: &str,
+    helps: &'a [(String, Vec<(String, String)>)],
+) -> Vec<&'a (String, Vec<(String, String)>)> {
+    let has = |(_, flags): &&(String, Vec<(String, String)>)| flags.iter().any(|(f, _)| f == flag);
+    let own: Vec<_> =
+        helps.iter().filter(|(name, _)| Some(name.as_str()) == page.chapter()).filter(has).collect();
+    if own.is_empty() { helps.iter().filter(has).collect() } else { own }
+}
+
+/// `[default: X]` of a flag's help, as a number, if it starts with one.
+fn help_default(text: &str) -> Option<Option<f64>> {
+    let value = text.split("[default: ").nth(1)?;
+    let chars: Vec<char> = value.chars().collect();
+    Some(page_number(&chars).map(|(n, _)| n))
+}
+
+/// A page that gives a flag a default or a range gives the program's own: the default its
+/// `--help` prints, a range its value parser accepts at both ends and refuses past them. The
+/// one test here that runs the programs (`--help` alone, no GPU).
+#[test]
+fn flag_defaults_and_ranges_the_pages_give_are_the_programs() {
+    let bins = Path::new(env!("CARGO_BIN_EXE_01-exportable-memory")).parent().unwrap();
+    let mut names: Vec<String> = chapter_slugs().into_values().collect();
+    names.extend(["bench".to_owned(), "convergence".to_owned()]);
+    let paths: Vec<(String, String)> = names
+        .iter()
+        .map(|name| {
+            let bin = bins.join(name);
+            assert!(
+                bin.exists(),
+                "{} is not built: `cargo test --workspace` builds every program",
+                bin.display()
+            );
+            (name.clone(), bin.to_string_lossy().into_owned())
+        })
+        .collect();
+    let mut helps = Vec::new();
+    for (name, bin) in &paths {
+        for program in harness::flags::programs(bin) {
+            let label =
+                [name.clone()].into_iter().chain(program.1.iter().cloned()).collect::<Vec<_>>().join(" ");
+            let chapter = if program.1.is_empty() { name.clone() } else { label };
+            helps.push((chapter, program.clone(), harness::flags::flags_with_values(&program)));
+        }
+    }
+    let by_flags: Vec<(String, Vec<(String, String)>)> =
+        helps.iter().map(|(name, _, flags)| (name.clone(), flags.clone())).collect();
+    let (mut errors, mut claims_seen) = (Vec::new(), 0);
+    for (page, claims) in page_flag_claims() {
+        for claim in claims {
+            claims_seen += 1;
+            let at = format!("{}:{}: {}", page.name, claim.line, claim.flag);
+            let programs = programs_for(&page, &claim.flag, &by_flags);
+            // The workshop's solutions add flags of their own (their patches are tested apart).
+            if programs.is_empty() && page.name != "workshop.md" {
+                errors.push(format!("{at}: no program's --help lists it"));
+            }
+            for (name, flags) in programs {
+                let text = &flags.iter().find(|(f, _)| *f == claim.flag).unwrap().1;
+                if let Some(default) = claim.default {
+                    match help_default(text) {
+                        Some(Some(d)) if d == default => {}
+                        given => errors.push(format!(
+                            "{at}: the page says default {default}, {name} --help gives {given:?}"
+                        )),
+                    }
+                }
+                if let Some((lo, hi)) = claim.range {
+                    let program = &helps.iter().find(|(n, _, _)| n == name).unwrap().1;
+                    let code = |v: f64| harness::flags::offer(program, &claim.flag, &v.to_string()).0;
+                    let (inside, outside) = ([lo, hi], [lo - 1.0, hi + 1.0]);
+                    let wrong: Vec<String> = inside
+                        .iter()
+                        .filter(|v| code(**v) != Some(0))
+                        .map(|v| format!("{v} refused"))
+                        .chain(
+                            outside.iter().filter(|v| code(**v) == Some(0)).map(|v| format!("{v} accepted")),
+                        )
+                        .collect();
+                    if !wrong.is_empty() {
+                        errors.push(format!("{at}: the page gives {lo}–{hi}, {name}: {}", wrong.join(", ")));
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        claims_seen >= 8,
+        "only {claims_seen} flag defaults or ranges found in the pages: is the reader broken?"
+    );
+    assert!(
+        errors.is_empty(),
+        "pages that give a flag another default or range than the program:\n{}",
+        errors.join("\n")
+    );
 }

@@ -772,6 +772,30 @@ fn ch13_pan_keeps_what_a_new_trace_finds() {
     assert!(kept * 4 > covered * 3, "most of the view is kept: {kept} of {covered} pixels");
 }
 
+/// The headless default of `--frames` that `--help` states, as a number: "[default: 120 headless".
+fn frames_default_in_help(bin: &str) -> u64 {
+    let flags = harness::flags::flags_with_values(&(bin, Vec::new()));
+    let (_, text) = flags.iter().find(|(flag, _)| flag == "--frames").expect("--frames in --help");
+    let stated = text.split("[default: ").nth(1).and_then(|rest| rest.split(' ').next());
+    stated
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{bin}: no number in --frames' help: {text}"))
+}
+
+/// With no `--frames`, a headless run draws what `--help` says it does: chapter 13 the whole
+/// path (120 frames), chapter 08, as most chapters, one.
+#[test]
+fn headless_runs_draw_the_frames_their_help_gives_by_default() {
+    for (bin, args) in [
+        (env!("CARGO_BIN_EXE_13-temporal-reuse"), ["--size", "32x24", "--instances", "100"]),
+        (env!("CARGO_BIN_EXE_08-composite"), ["--size", "32x24", "--instances", "100"]),
+    ] {
+        let stated = frames_default_in_help(bin);
+        let run = run_chapter(bin, &args, &[]);
+        assert_eq!(run.succeeded()["frames"], stated, "{bin}: --help gives {stated} frames");
+    }
+}
+
 #[test]
 fn ch13_in_a_window_under_xvfb() {
     let Some(xvfb) = harness::Xvfb::start("ch13_in_a_window_under_xvfb") else { return };

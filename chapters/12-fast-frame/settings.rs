@@ -34,8 +34,9 @@ pub struct Args {
     /// Start this many times closer to the scene's centre than the framing puts the camera.
     #[arg(long, default_value_t = 1.0, value_parser = common::scene::parse_zoom, allow_negative_numbers = true)]
     pub zoom: f32,
-    /// After the frames: trace this many rays per pixel more, and report how far the last
-    /// frame's occlusion was from that converged one, before and after the blur (0: don't).
+    /// After the frames: trace one fresh frame of --samples rays per pixel, then a converged one
+    /// of this many, and report how far the fresh frame's occlusion is from the converged one,
+    /// before and after the blur (0: don't).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1 << 20))]
     pub error_against: u32,
     /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into

@@ -13,7 +13,10 @@ use anyhow::Result;
 use common::base::cli::{Size, Smallest};
 use common::base::window::{Key, NamedKey, Window};
 use common::frame::fast::composite::{Uniforms, View};
-use common::frame::temporal::{Budget, Checks, Clock, Drawn, Objects, Passes, Sized, TemporalArgs, check};
+use common::frame::temporal::{
+    Budget, Checks, Clock, Drawn, Objects, PATH_FRAMES, Passes, Sized, TemporalArgs,
+};
+use common::frame::temporal::{check, frames_help};
 use common::scene::gbuffer::contexts_in_window;
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
@@ -32,11 +35,9 @@ const SMALLEST: Smallest = Smallest {
         "framed taller, the gizmo's axes leave the picture; wider, the overlay checks find no pixel to probe",
     )),
 };
-/// The frames a headless run draws unless `--frames` says otherwise: the whole path.
-const PATH_FRAMES: u32 = 120;
-
 /// Chapter 13: chapter 12's frame, its ambient occlusion reused from frame to frame.
 #[derive(clap::Parser)]
+#[command(mut_arg("frames", frames_help))]
 struct Args {
     #[command(flatten)]
     temporal: TemporalArgs,
@@ -132,7 +133,7 @@ fn headless(
     clock.times.record(report);
     report.set("frames_with_ids_drawn_ahead", clock.frames_drawn_ahead);
     report.set("frames", frames);
-    eprintln!("walk: {} done ({frames} frames)", drawn.name());
+    eprintln!("walk: {frames} frames done ({})", drawn.described());
     Ok(())
 }
 // ANCHOR_END: headless
@@ -159,7 +160,7 @@ fn in_window(
         if keys.iter().any(|k| matches!(k.as_ref(), Key::Character("h" | "H"))) {
             drawn = if drawn == ours { chapter_12 } else { ours };
             sized.temporal.forget();
-            eprintln!("window: {}", drawn.name());
+            eprintln!("window: {}", drawn.described());
         }
         let (width, height) = window.size();
         if (width, height) != (sized.targets.extent.width, sized.targets.extent.height)

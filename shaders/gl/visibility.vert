@@ -14,11 +14,13 @@ layout(location = 4) in vec4 row2;
 
 uniform mat4 view;
 uniform mat4 projection;
-// This draw's mesh: the id of its instance 0's triangle 0, and its triangles per instance.
+// This draw's mesh: the id of its instance 0's triangle 0 less one, and its triangles per
+// instance.
 uniform uint first_id;
 uniform uint triangles;
 
-// The id of this instance's triangle 0 (gl_InstanceID counts from 0 in every draw).
+// The id of this instance's triangle 0, less one (gl_InstanceID counts from 0 in every draw;
+// visibility.frag adds gl_PrimitiveID + 1, so that 0 stays the background).
 flat out uint instance_first_id;
 out vec3 view_position;
 

@@ -13,14 +13,15 @@ use anyhow::Result;
 use common::base::cli::Smallest;
 use common::frame::fast::composite::{Uniforms, View};
 use common::frame::temporal::tracer::accept_bits;
-use common::frame::temporal::{Accept, Drawn, FreshPass, Objects, TemporalArgs};
+use common::frame::temporal::{Accept, Drawn, FreshPass, Objects, PATH_FRAMES, TemporalArgs};
 use common::scene::gbuffer::contexts_in_window;
 use common::{CommonArgs, Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
 
-/// The name the tool's report, its output folder and its pictures take.
-const NAME: &str = "13-temporal-reuse";
+/// The name the tool's report, its output folder and its pictures take: its own, so that a walk
+/// never writes over the chapter's pictures in `out/13-temporal-reuse/`.
+const NAME: &str = "convergence-temporal";
 /// Chapter 13's smallest picture (its checks run here too).
 const SMALLEST: Smallest = Smallest {
     width: 24,
@@ -33,6 +34,9 @@ const SMALLEST: Smallest = Smallest {
 /// `convergence temporal`: chapter 13's frame along its path, its choices varied, its error and
 /// times measured. Headless always.
 #[derive(clap::Parser)]
+#[command(mut_arg("frames", |arg| arg.help(format!(
+    "How many frames to walk, 0 to 10000000 (0 walks one) [default: {PATH_FRAMES}, the whole path]"
+))))]
 struct Args {
     /// Chapter 13's own flags, as the chapter takes them.
     #[command(flatten)]
@@ -143,7 +147,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let out = args.common.out_dir(NAME);
     let walking = walk::Walking {
         name: NAME,
-        frames: args.common.frames.unwrap_or(120).max(1),
+        frames: args.common.frames.unwrap_or(PATH_FRAMES).max(1),
         compare: args.compare,
         error_against: args.error_against,
         error_every: args.error_every,

@@ -130,10 +130,10 @@ pub fn headless(
         let walk = Walk::new(drawn.name(), records, p.path.cut(), args.error_every);
         match (walk.error_mean, walk.error_worst) {
             (Some(mean), Some(worst)) => eprintln!(
-                "walk: {} done ({frames} frames): error after the blur {mean:.4} on average, {worst:.4} at worst",
-                drawn.name()
+                "walk: {frames} frames done ({}): error after the blur {mean:.4} on average, {worst:.4} at worst",
+                drawn.described()
             ),
-            _ => eprintln!("walk: {} done ({frames} frames)", drawn.name()),
+            _ => eprintln!("walk: {frames} frames done ({})", drawn.described()),
         }
         walks.push(walk);
     }

@@ -30,8 +30,9 @@ pub struct Checks {
 }
 
 impl Checks {
-    /// Whether the checks read frame `frame` back (so that the frame before it may not draw its
-    /// ids early): the frames either side of the cut, and the last.
+    /// Whether the checks read frame `frame` back: the frames either side of the cut, and the
+    /// last. Such a frame does not draw the next frame's ids at its end, since the checks read
+    /// its own ids after it.
     pub fn reads_back(&self, path: &Path, frame: u32) -> bool {
         path.cut().is_some_and(|c| frame + 1 == c || frame == c) || frame + 1 == self.frames
     }

@@ -33,11 +33,22 @@ pub enum Drawn {
 }
 
 impl Drawn {
+    /// The method's short name, as the measured tables' rows give it: "chapter 13, 2 rays".
     pub fn name(self) -> String {
         let rays = |n: u32| if n == 1 { "1 ray".to_owned() } else { format!("{n} rays") };
         match self {
             Drawn::Temporal(b) => format!("chapter 13, {}", rays(b.samples)),
             Drawn::Fresh(n) => format!("chapter 12, {}", rays(n)),
+        }
+    }
+
+    /// What the method traces, in words a line of output can stand on.
+    pub fn described(self) -> String {
+        match self {
+            Drawn::Temporal(b) => {
+                format!("chapter 13's reuse, {} new rays a pixel while its history fills", b.samples)
+            }
+            Drawn::Fresh(n) => format!("chapter 12's fresh frames, {n} rays a pixel"),
         }
     }
 }

@@ -13,6 +13,6 @@ pub mod tracer;
 
 pub use check::Checks;
 pub use frame::{Clock, Drawn, Motion, Passes, Sized};
-pub use path::{Mover, Path, PathArgs, PathKind};
+pub use path::{Mover, PATH_FRAMES, Path, PathArgs, PathKind, frames_help};
 pub use setup::{Objects, Stage, TemporalArgs};
 pub use tracer::{Accept, Budget, FreshPass, RayArgs, TemporalTracer, Texel};

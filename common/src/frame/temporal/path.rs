@@ -118,6 +118,19 @@ impl Path {
     }
 }
 
+/// The frames a headless walk along the path draws unless `--frames` says otherwise: the whole
+/// path, cut included.
+pub const PATH_FRAMES: u32 = 120;
+
+/// `--frames`'s help where a walk of the path is the headless run (chapter 13, `convergence
+/// temporal`): every chapter's help, with this default.
+pub fn frames_help(arg: clap::Arg) -> clap::Arg {
+    arg.help(format!(
+        "How many frames to run, 0 to 10000000 [default: {PATH_FRAMES} headless, the whole path; a window \
+         runs until it is closed, as with 0]"
+    ))
+}
+
 impl Moving {
     /// The instance nearest the scene's centre, other than the ground (instance 0) where there
     /// are others; grown four times where there are, so that it and its shadow cover pixels
