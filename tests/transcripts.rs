@@ -464,6 +464,7 @@ const SKIPPED: &[(&str, Skip)] = &[
     ("cargo run --release --bin convergence -- temporal --size 3840x2160", Skip::Always("sized for a GPU")),
     ("VKGL_VALIDATION=0 cargo run --release --bin 03-semaphores -- --headless --size 3840x2160", Skip::Always("sized for a GPU")),
     ("VKGL_VALIDATION=0 cargo run --release -p chapter-15-wgpu --bin 15-wgpu -- --headless --size 3840x2160", Skip::Always("sized for a GPU")),
+    ("VKGL_VALIDATION=0 cargo run --release -p chapter-16-textures --bin 16-textures -- --headless --size 3840x2160", Skip::Always("sized for a GPU: 300 frames at 4K")),
 ];
 // ANCHOR_END: skipped
 

@@ -266,7 +266,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     if frame > 0 {
         let uniforms = settings.uniforms(camera.far);
         check::levels(report, gl, &uploaded);
-        check::trilinear(report, gl, &uploaded)?;
+        check::trilinear(report, gl, &uploaded, &check::Precision::of(&vk))?;
         check::frame(report, gl, (&gbuffers, &tracer, &composite), &uniforms);
         report.set("samples_per_pixel", tracer.accumulated);
         report.set("radius", settings.radius);
