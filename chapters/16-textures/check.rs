@@ -66,7 +66,7 @@ const PROBE: &str = include_str!("../../shaders/gl/trilinear_probe.comp");
 /// between levels): each weight may be off by one step of them, times the difference between
 /// the texels it weighs. So the bound is the sample's own: 2 steps of the first across the four
 /// texels of each level, one of the second across the two levels, and half a 1/255 for the sRGB
-/// decode. A sharp checker of 0 and 1 allows 3/255 with 8 bits each; a smooth picture far less.
+/// decode. With 8 bits each, a checker of 0 and 1 allows up to 3.5/255; texels alike, 0.5/255.
 pub struct Precision {
     between_texels: f32,
     between_levels: f32,
