@@ -13,10 +13,12 @@ use anyhow::Result;
 use common::base::cli::{Size, Smallest};
 use common::base::window::{Key, NamedKey, Window};
 use common::frame::fast::composite::{Uniforms, View};
+use common::frame::input::resize_every;
 use common::frame::temporal::{
     Budget, Checks, Clock, Drawn, Objects, PATH_FRAMES, Passes, Sized, TemporalArgs,
 };
 use common::frame::temporal::{check, frames_help};
+use common::instruments::census::ResizeCensus;
 use common::scene::gbuffer::contexts_in_window;
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glow::HasContext;
@@ -106,27 +108,23 @@ fn headless(
     let mut checks = Checks { chapter: CHAPTER, frames, out, prefix, before_cut: None };
     let mut clock = Clock::new(&p.apis.gl.gl, None)?;
     let drawn = Drawn::Temporal(budget);
-    let resized_at = |frame: u32| args.resize_every.filter(|k| frame > 0 && frame % k == 0);
-    let (mut resizes, mut after_first_resize) = (0, None);
+    // Three quarters, whole, half, as chapter 08's `--resize-every`.
+    let new_size = |frame| resize_every(args.resize_every, frame, args.common.size, SMALLEST.width);
+    let (mut resizes, mut census) = (0, ResizeCensus::default());
     for frame in 0..frames {
-        if let Some(every) = resized_at(frame) {
-            // Three quarters, whole, half, as chapter 12's `--resize-every`.
-            let scale = |side: u32| (side * [2, 3, 4][(frame / every) as usize % 3] / 4).max(SMALLEST.width);
-            let (w, h) = (args.common.size.width, args.common.size.height);
-            p.resize(sized, Size { width: scale(w), height: scale(h) })?;
+        if let Some(size) = new_size(frame) {
+            p.resize(sized, size)?;
             resizes += 1;
-            if after_first_resize.is_none() {
-                after_first_resize = Some(check::alive(p)?);
-            }
+            census.count(p.apis.gl)?; // what exists after one resize must exist after every later one
         }
         // The next frame's ids are drawn at the end of this one, before the CPU waits for its
         // trace, unless the checks read this frame back or the next has images of another size.
-        let next = frame + 1 < frames && resized_at(frame + 1).is_none() && !checks.reads_back(p.path, frame);
+        let next = frame + 1 < frames && new_size(frame + 1).is_none() && !checks.reads_back(p.path, frame);
         let camera = p.draw(sized, drawn, frame, &mut clock, next)?;
         checks.after(p, sized, (drawn, &camera, frame), report)?;
     }
-    if let Some(first) = after_first_resize {
-        report.check("nothing_grows_across_resizes", check::alive(p)? == first);
+    census.check(p.apis.gl, report)?;
+    if resizes > 0 {
         report.set("resizes", resizes);
     }
     clock.finish(p)?;
@@ -151,7 +149,7 @@ fn in_window(
     let mut clock = Clock::new(&p.apis.gl.gl, None)?;
     let (ours, chapter_12) = (Drawn::Temporal(budget), Drawn::Fresh(16));
     let mut drawn = ours;
-    let (mut frame, mut camera, mut resizes, mut after_first_resize) = (0, None, 0, None);
+    let (mut frame, mut camera, mut resizes, mut census) = (0, None, 0, ResizeCensus::default());
     while frames == 0 || frame < frames {
         let keys: Vec<Key> = window.poll(p.apis.gl).collect();
         if keys.contains(&Key::Named(NamedKey::Escape)) || window.close_requested() {
@@ -169,9 +167,7 @@ fn in_window(
         {
             p.resize(sized, Size { width, height })?;
             resizes += 1;
-            if after_first_resize.is_none() {
-                after_first_resize = Some(check::alive(p)?);
-            }
+            census.count(p.apis.gl)?;
         }
         // A window may change size before any frame: each frame draws its own ids.
         camera = Some(p.draw(sized, drawn, frame, &mut clock, false)?);
@@ -184,9 +180,7 @@ fn in_window(
     clock.times.record(report);
     report.set("frames", frame);
     report.set("resizes", resizes);
-    if let Some(first) = after_first_resize {
-        report.check("nothing_grows_across_resizes", check::alive(p)? == first);
-    }
+    census.check(p.apis.gl, report)?;
     if let Some(camera) = camera {
         check::chapter_12_checks(p, sized, &camera, CHAPTER, report)?;
     }

@@ -196,19 +196,6 @@ fn last_frame<'a>(p: &'a Passes, sized: &'a Sized, camera: &'a Camera) -> Option
     })
 }
 
-/// What exists that a resize could leak: open fds, counted resources (a kind none of which is
-/// alive, such as the buffer the history is read back through, counts as none), GL objects. GL's
-/// own count leaves queries out: a name `glGenQueries` made is a query to `glIsQuery` only once
-/// it has been begun, and a timeline's begin in the last frames (the counted resources hold
-/// every query made). Compare the first resize's with the last's: `nothing_grows_across_resizes`.
-pub fn alive(p: &Passes) -> Result<impl PartialEq + use<>> {
-    let counted: std::collections::BTreeMap<String, i64> =
-        crate::instruments::resources::live().into_iter().filter(|(_, n)| *n != 0).collect();
-    let mut gl = p.apis.gl.live_objects();
-    gl.remove("gl_queries");
-    Ok((crate::instruments::resources::open_fd_count()?, counted, gl))
-}
-
 /// One frame as read back: its surface (view depth and normal per pixel), its ids, its camera.
 pub struct Seen {
     pub surface: Surface,
