@@ -1615,17 +1615,17 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
             before: "| [chapter 08](08-composite.md) (zero-copy) | 26.90 | 8.99 | ",
             after: " |",
         },
-        &[Quoted { page: "12-fast-frame.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" }],
+        &[Quoted { page: "12-fast-frame-deeper.md", before: "9.0 ms of G-buffers, ", after: " ms of rays" }],
     ),
     (
         "chapter 08's frame, 4K, 16 rays (bench on the H200, 2026-11-28)",
         Quoted {
-            page: "12-fast-frame.md",
+            page: "12-fast-frame-deeper.md",
             before: "| [chapter 08](08-composite.md), zero-copy | ",
             after: " ms |",
         },
         &[
-            Quoted { page: "12-fast-frame.md", before: "frame takes ", after: " ms: " },
+            Quoted { page: "12-fast-frame-deeper.md", before: "frame takes ", after: " ms: " },
             Quoted {
                 page: "12-fast-frame-deeper.md",
                 before: "| [chapter 08](08-composite.md) (zero-copy) | ",
@@ -1640,13 +1640,13 @@ const SAME_MEASUREMENT: &[(&str, Quoted, &[Quoted])] = &[
             before: "| [chapter 08](08-composite.md) (zero-copy) | 26.90 | ",
             after: " |",
         },
-        &[Quoted { page: "12-fast-frame.md", before: "26.9 ms: ", after: " ms of G-buffers" }],
+        &[Quoted { page: "12-fast-frame-deeper.md", before: "26.9 ms: ", after: " ms of G-buffers" }],
     ),
     (
         "chapter 12's frame, 4K, 16 rays (bench on the H200, 2026-11-28)",
-        Quoted { page: "12-fast-frame.md", before: "| chapter 12 | ", after: " ms |" },
+        Quoted { page: "12-fast-frame-deeper.md", before: "| chapter 12 | ", after: " ms |" },
         &[
-            Quoted { page: "12-fast-frame.md", before: "Chapter 12's takes ", after: " ms, " },
+            Quoted { page: "12-fast-frame-deeper.md", before: "Chapter 12's takes ", after: " ms, " },
             Quoted {
                 page: "12-fast-frame-deeper.md",
                 before: "| + 4x4 blocks of one run (chapter 12) | ",
