@@ -145,9 +145,9 @@ pub fn trilinear(
 
 /// GL's trilinear filtering (LINEAR_MIPMAP_LINEAR, REPEAT) of sRGB levels, on the CPU: the level
 /// of detail clamped to the chain, the two levels around it each sampled bilinearly (texels
-/// decoded to linear light first), and the two mixed by the fraction between them.
-/// The exact trilinear sample at `point` (u, v, level of detail), and how far a GPU of
-/// `precision` may be from it, per channel.
+/// decoded to linear light first), and the two mixed by the fraction between them. Returns the
+/// exact sample at `point` (u, v, level of detail) and, per channel, how far a GPU of
+/// `precision` may be from it.
 fn cpu_trilinear(
     levels: &[Vec<u8>],
     (width, height): (u32, u32),
