@@ -764,7 +764,7 @@ fn declares_field(text: &str, name: &str) -> bool {
 }
 
 /// The sources a binary is built from: its folder, the files of other chapters it includes with
-/// `#[path = "../NN-slug/..."]`, and `common`.
+/// `#[path = "../NN-slug/..."]`, the chapters' libraries it uses (and theirs), and `common`.
 fn sources_of<'a>(bin: &str, sources: &'a Sources) -> Vec<&'a str> {
     let own = sources.text.get(&format!("chapters/{bin}")).map_or("", String::as_str);
     let mut found = vec![own, sources.text.get("common").map_or("", String::as_str)];
@@ -775,7 +775,44 @@ fn sources_of<'a>(bin: &str, sources: &'a Sources) -> Vec<&'a str> {
             found.push(text);
         }
     }
+    let mut folders: Vec<&str> = Vec::new();
+    let mut uses: Vec<&str> = vec![own];
+    while let Some(text) = uses.pop() {
+        for (library, folder) in chapter_libraries() {
+            if text.contains(&format!("{library}::")) && !folders.contains(&folder) {
+                folders.push(folder);
+                if let Some(library_text) = sources.text.get(&format!("chapters/{folder}")) {
+                    found.push(library_text);
+                    uses.push(library_text);
+                }
+            }
+        }
+    }
     found
+}
+
+/// The chapters that are libraries too, as the top-level Cargo.toml depends on them:
+/// (`fast_frame`, `12-fast-frame`) for `fast_frame = { package = "...", path = "chapters/12-fast-frame" }`.
+fn chapter_libraries() -> Vec<(&'static str, &'static str)> {
+    static LIBRARIES: std::sync::OnceLock<Vec<(&'static str, &'static str)>> = std::sync::OnceLock::new();
+    LIBRARIES
+        .get_or_init(|| {
+            let manifest = std::fs::read_to_string(root().join("Cargo.toml")).unwrap();
+            let found: Vec<(&'static str, &'static str)> = manifest
+                .lines()
+                .filter_map(|line| {
+                    let (name, rest) = line.split_once(" = {")?;
+                    let folder = rest.split("path = \"chapters/").nth(1)?.split('"').next()?;
+                    Some((&*name.trim().to_owned().leak(), &*folder.to_owned().leak()))
+                })
+                .collect();
+            assert!(
+                found.iter().any(|(name, _)| *name == "fast_frame"),
+                "chapter libraries in Cargo.toml: {found:?}"
+            );
+            found
+        })
+        .clone()
 }
 
 #[test]

@@ -197,9 +197,21 @@ fn chapter_of(files: &BTreeSet<String>) -> Option<String> {
     }
 }
 
+/// Is `file` part of a chapter's library (chapters 12 and 13: a module its `lib.rs` declares), which
+/// other chapters and the tools build on?
+fn in_a_chapter_library(file: &str) -> bool {
+    let path = Path::new(file);
+    let (Some(folder), Some(stem)) = (path.parent(), path.file_stem().and_then(|s| s.to_str())) else {
+        return false;
+    };
+    let Ok(lib) = std::fs::read_to_string(root().join(folder).join("lib.rs")) else { return false };
+    stem == "lib" || lib.lines().any(|l| l.trim().trim_start_matches("pub ") == format!("mod {stem};"))
+}
+
 /// Groups patches (by index) into copies of the repository: none in a group touches a file
 /// another in it touches, and a patch that changes anything outside one chapter's folder
-/// (`common/`, `shaders/`) gets a copy of its own, since it would change the others' chapters.
+/// (`common/`, `shaders/`) or a chapter's library gets a copy of its own, since it would change
+/// the others' chapters.
 fn batches(touched: &[BTreeSet<String>]) -> Vec<Vec<usize>> {
     struct Batch {
         members: Vec<usize>,
@@ -208,7 +220,7 @@ fn batches(touched: &[BTreeSet<String>]) -> Vec<Vec<usize>> {
     }
     let mut batches: Vec<Batch> = Vec::new();
     for (i, files) in touched.iter().enumerate() {
-        let alone = chapter_of(files).is_none();
+        let alone = chapter_of(files).is_none() || files.iter().any(|f| in_a_chapter_library(f));
         match batches.iter_mut().find(|b| !alone && !b.alone && b.files.is_disjoint(files)) {
             Some(batch) => {
                 batch.members.push(i);
@@ -234,6 +246,14 @@ fn patches_that_touch_the_same_file_or_common_code_get_copies_of_their_own() {
     let diff = "diff --git a/chapters/09-x/ring.rs b/chapters/09-x/ring.rs\n--- a/chapters/09-x/ring.rs\n+++ b/chapters/09-x/ring.rs\n@@ -1 +1 @@\n-a\n+b\n";
     assert_eq!(touched_files(diff), set(&["chapters/09-x/ring.rs"]));
     assert_eq!(chapter_of(&touched_files(diff)).as_deref(), Some("09-x"));
+    // Chapter 12's library, which chapter 13 and the tools build on, gets a copy of its own; a
+    // module only its program declares (a workshop's new file) does not.
+    let library = [
+        set(&["chapters/12-fast-frame/trace.rs"]),
+        set(&["chapters/12-fast-frame/main.rs", "chapters/12-fast-frame/decode.rs"]),
+        set(&["chapters/13-temporal-reuse/main.rs"]),
+    ];
+    assert_eq!(batches(&library), [vec![0], vec![1, 2]]);
 }
 
 /// The repository's files as they are on disk (tracked, and untracked but not ignored), copied to

@@ -17,9 +17,6 @@ use common::clocks::timeline::{self, Timeline};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::Overlays;
-use common::frame::fast::composite::ComputeComposite;
-use common::frame::fast::trace::SurfaceTracer;
-use common::frame::fast::visibility::{self, Targets, VisibilityPass};
 use common::frame::input::{Settings as Keys, resize_every, window_input};
 use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
@@ -29,10 +26,13 @@ use common::rt::ao::rays_this_frame;
 use common::scene::Camera;
 use common::scene::gbuffer::contexts_in_window;
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
+use fast_frame::check;
+use fast_frame::composite::ComputeComposite;
+use fast_frame::trace::SurfaceTracer;
+use fast_frame::visibility::{self, Targets, VisibilityPass};
 use glow::HasContext;
 use std::process::ExitCode;
 
-mod checks;
 mod settings;
 use settings::{Args, Settings};
 
@@ -214,7 +214,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (accumulated, scene_scale) = (tracer.accumulated, scene.size() / 2.0);
     let rays = settings.rays(if skipped.is_some() { 0 } else { settings.samples }, scene_scale);
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
-    let drawn = checks::Drawn {
+    let drawn = check::Drawn {
         scene: &scene,
         shared: &shared,
         targets: &targets,
@@ -227,8 +227,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         frames: frame,
     };
     let pictures = window.is_none().then(|| (args.common.out_dir(CHAPTER), args.scene.picture_name(CHAPTER)));
-    let asked = checks::Asked { chapter: CHAPTER, pictures, error_against: args.error_against };
-    checks::after_the_frames(apis, drawn, &mut tracer, asked, report)?;
+    let asked = check::Asked { chapter: CHAPTER, pictures, error_against: args.error_against };
+    check::after_the_frames(apis, drawn, &mut tracer, asked, report)?;
     // ANCHOR_END: checks
     report.set("samples_per_pixel", accumulated);
     report.set("triangle_ids", ids.iter().map(|m| m.triangles as u64 * m.instances as u64).sum::<u64>());

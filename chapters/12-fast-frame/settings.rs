@@ -2,12 +2,12 @@
 //! follows from them (the rays a frame traces).
 
 use common::base::window::Key;
-use common::frame::fast::composite::View;
-use common::frame::fast::trace::{Pattern, Rays};
 use common::frame::input;
 use common::rt::accel::BlasLayout;
 use common::rt::ao::AoArgs;
 use common::scene::SceneArgs;
+use fast_frame::composite::View;
+use fast_frame::trace::{Pattern, Rays};
 
 /// Chapter 12: chapter 08's frame from a visibility buffer, with a compute composite.
 #[derive(clap::Parser)]

@@ -5,24 +5,22 @@
 //! instance's previous transform), keeps that frame's occlusion if it saw the same surface, and
 //! adds one or two new rays to it; a pixel just uncovered traces more, and a pixel whose history
 //! is full traces less. The camera orbits, cuts to another view once, and one instance runs in a
-//! circle. The frame is `common::frame::temporal`; `convergence temporal` measures it.
+//! circle. The frame is this folder's library (lib.rs); `convergence temporal` measures it.
 //!
 //! Run: `cargo run --release --bin 13-temporal-reuse` (keys: H chapter 12's frame and back, Esc quits).
 
 use anyhow::Result;
 use common::base::cli::{Size, Smallest};
 use common::base::window::{Key, NamedKey, Window};
-use common::frame::fast::composite::{Uniforms, View};
 use common::frame::input::resize_every;
-use common::frame::temporal::{
-    Budget, Checks, Clock, Drawn, Objects, PATH_FRAMES, Passes, Sized, TemporalArgs,
-};
-use common::frame::temporal::{check, frames_help};
 use common::instruments::census::ResizeCensus;
 use common::scene::gbuffer::contexts_in_window;
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
+use fast_frame::composite::{Uniforms, View};
 use glow::HasContext;
 use std::process::ExitCode;
+use temporal_reuse::{Budget, Checks, Clock, Drawn, Objects, PATH_FRAMES, Passes, Sized, TemporalArgs};
+use temporal_reuse::{check, frames_help};
 
 const CHAPTER: &str = "13-temporal-reuse";
 /// The smallest picture this chapter can check, and why (the largest is the device's).

@@ -38,8 +38,8 @@ mod outputs;
 mod probes;
 mod round_trip;
 
-use common::frame::fast::trace::Pattern;
 use common::scene::builtin::{Ground, SceneKind};
+use fast_frame::trace::Pattern;
 use frame::{Frame, Samples, Setting};
 
 /// Chapter 08's frame, zero-copy against host-synchronised against a CPU round trip.

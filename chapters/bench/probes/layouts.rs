@@ -14,8 +14,8 @@ use ash::vk;
 use common::GlContext;
 use common::base::gl::{Owned, create};
 use common::clocks::timing::{GlPassTimer, PassTimes};
-use common::frame::fast::visibility::VisibilityPass;
 use common::scene::gbuffer::SceneBuffers;
+use fast_frame::visibility::VisibilityPass;
 use glow::HasContext;
 use std::rc::Rc;
 

@@ -1,5 +1,5 @@
 //! `bench --probe NAME`: the questions chapter 12's design answered, each measured on the
-//! chapter's frame (`common::frame::fast`) drawn here as the chapter draws it, at every scene,
+//! chapter's frame (its library, `fast_frame`) drawn here as the chapter draws it, at every scene,
 //! size, ray count and blur radius asked for, after `--frames` frames:
 //!
 //! - `layouts`: which lean buffer is cheaper to rasterise, the ids or a packed normal and depth
@@ -22,15 +22,15 @@ use common::base::cli::Size;
 use common::base::commands::Commands;
 use common::clocks::timestamps::{Timestamps, median_p95};
 use common::clocks::timing::{GlPassTimer, PassTimes};
-use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
-use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
-use common::frame::fast::visibility::{self, MeshIds, Targets, VisibilityPass};
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, TlasFlags};
 use common::scene::builtin::{Ground, SceneKind};
 use common::scene::{Camera, Scene};
 use common::{GlContext, Report, VulkanContext};
+use fast_frame::composite::{ComputeComposite, Uniforms, View};
+use fast_frame::trace::{Pattern, Rays, SurfaceTracer};
+use fast_frame::visibility::{self, MeshIds, Targets, VisibilityPass};
 use std::fmt::Write as _;
 use std::path::Path;
 

@@ -12,8 +12,8 @@
 use super::Frame;
 use anyhow::Result;
 use common::clocks::timestamps::median_p95;
-use common::frame::fast::visibility::Targets;
 use common::interop::handoff::Apis;
+use fast_frame::visibility::Targets;
 use glow::HasContext;
 use std::time::Instant;
 

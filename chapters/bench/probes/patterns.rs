@@ -1,15 +1,15 @@
 //! Which rays: coherence against error (`bench --probe patterns`). Each sample pattern at each
 //! ray count: the trace's median GPU time over the frames, and one frame's error against a
-//! converged trace, before and after the blur (`common::frame::fast::check::ErrorAgainst`, as
+//! converged trace, before and after the blur (`fast_frame::check::ErrorAgainst`, as
 //! chapter 12's `--error-against` measures it).
 
 use super::Frame;
 use anyhow::{Context as _, Result};
 use common::clocks::timestamps::{Timestamps, median_p95};
 use common::frame::Overlays;
-use common::frame::fast::check::{ErrorAgainst, LastFrame};
-use common::frame::fast::composite::Uniforms;
 use common::interop::handoff::Apis;
+use fast_frame::check::{ErrorAgainst, LastFrame};
+use fast_frame::composite::Uniforms;
 
 /// One pattern at one ray count.
 pub struct Measured {

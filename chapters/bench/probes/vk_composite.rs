@@ -11,12 +11,12 @@ use ash::vk;
 use common::base::commands::{Commands, HostBuffer, copy_image_to_buffer, first_use, transfers_to_host};
 use common::base::compute::ComputePipeline;
 use common::clocks::timestamps::Timestamps;
-use common::frame::fast::composite::Uniforms;
-use common::frame::fast::visibility::Targets;
 use common::interop::handoff::Apis;
 use common::interop::{acquire_from_gl, release_to_gl};
 use common::rt::accel::GpuAllocator;
 use common::rt::raytrace::StorageImage;
+use fast_frame::composite::Uniforms;
+use fast_frame::visibility::Targets;
 
 const SPIRV: &[u8] = include_bytes!("../../../shaders/fast_composite.comp.spv");
 
@@ -147,7 +147,7 @@ pub fn compare(
     let measured = measure(apis, allocator, &frame.targets, u, rounds)?;
     let gl = &apis.gl.gl;
     frame.composite.draw(gl, &frame.targets, u);
-    let drawn = common::frame::fast::check::read_picture(gl, &frame.targets);
+    let drawn = fast_frame::check::read_picture(gl, &frame.targets);
     let largest = measured.picture.iter().zip(&drawn).map(|(a, b)| a.abs_diff(*b)).max().unwrap_or(0);
     Ok((measured.median_ms, largest))
 }

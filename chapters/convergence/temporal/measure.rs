@@ -3,13 +3,13 @@
 //! table, a CSV and two plots.
 
 use anyhow::{Context as _, Result, ensure};
-use common::frame::fast::check::read_picture;
-use common::frame::fast::composite::{ComputeComposite, Uniforms, View};
-use common::frame::fast::trace::{Pattern, Rays, SurfaceTracer};
-use common::frame::fast::visibility::Targets;
 use common::instruments::{fail, output};
 use common::interop::handoff::Apis;
 use common::scene::Camera;
+use fast_frame::check::read_picture;
+use fast_frame::composite::{ComputeComposite, Uniforms, View};
+use fast_frame::trace::{Pattern, Rays, SurfaceTracer};
+use fast_frame::visibility::Targets;
 use plotters::prelude::*;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -178,8 +178,7 @@ impl ErrorProbe<'_> {
                 salt: 1,
             };
             tracer.retrace(apis, targets, camera, rays, self.reference)?;
-            let covered =
-                common::frame::fast::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
+            let covered = fast_frame::check::read_ids(gl, targets).iter().map(|&id| id != 0).collect();
             let (occlusion, picture) = (shown(View::Ao), shown(View::Final));
             slot.insert(Converged { occlusion, covered, picture });
         }

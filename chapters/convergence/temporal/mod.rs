@@ -1,4 +1,4 @@
-//! `convergence temporal`: chapter 13's frame (`common::frame::temporal`) walked along its path
+//! `convergence temporal`: chapter 13's frame (its library, `temporal_reuse`) walked along its path
 //! headless, with the choices the chapter makes undone one at a time, and measured: each frame's
 //! error after the blur against a converged trace of that frame, its GPU and wall-clock times,
 //! and with `--compare` the methods side by side (compare.md, compare.csv and two plots).
@@ -11,13 +11,13 @@ mod walk;
 
 use anyhow::Result;
 use common::base::cli::Smallest;
-use common::frame::fast::composite::{Uniforms, View};
-use common::frame::temporal::tracer::accept_bits;
-use common::frame::temporal::{Accept, Drawn, FreshPass, Objects, PATH_FRAMES, TemporalArgs};
 use common::scene::gbuffer::contexts_in_window;
 use common::{CommonArgs, Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
+use fast_frame::composite::{Uniforms, View};
 use glow::HasContext;
 use std::process::ExitCode;
+use temporal_reuse::tracer::accept_bits;
+use temporal_reuse::{Accept, Drawn, FreshPass, Objects, PATH_FRAMES, TemporalArgs};
 
 /// The name the tool's report, its output folder and its pictures take: its own, so that a walk
 /// never writes over the chapter's pictures in `out/13-temporal-reuse/`.

@@ -5,8 +5,8 @@ use super::measure::{ErrorProbe, Flips, FrameRecord, References, Walk, measured}
 use anyhow::Result;
 use common::Report;
 use common::clocks::timeline::Timeline;
-use common::frame::temporal::{Budget, Checks, Clock, Drawn, Passes, Sized};
 use std::path::PathBuf;
+use temporal_reuse::{Budget, Checks, Clock, Drawn, Passes, Sized};
 
 /// What the walks do: how many frames, which methods, what they measure, where they write.
 pub struct Walking {

@@ -38,7 +38,7 @@ impl View {
 }
 
 /// The composite shaders' uniforms: chapter 08's fragment shader's (`V` = [`View`]) and chapter
-/// 12's compute shader's (`V` = `fast::composite::View`, which shows no positions).
+/// 12's compute shader's (`V` = chapter 12's `fast_frame::composite::View`, which shows no positions).
 #[derive(Clone, Copy)]
 pub struct Uniforms<V = View> {
     pub blur_radius: i32,

@@ -2,19 +2,19 @@
 //! size (the visibility buffer GL draws and Vulkan reads, the surface Vulkan writes and GL reads,
 //! GL's depth and picture), and the pass that draws the ids.
 
-use crate::base::gl::GlContext;
-use crate::base::gl::{Owned, create, renderbuffer};
-use crate::base::vulkan::VulkanContext;
-use crate::interop::handoff::Handoff;
-use crate::interop::{SharedFormat, SharedImage};
-use crate::scene::gbuffer::SceneBuffers;
-use crate::scene::{Camera, Scene};
 use anyhow::{Context as _, Result, ensure};
 use ash::vk;
+use common::base::gl::GlContext;
+use common::base::gl::{Owned, create, renderbuffer};
+use common::base::vulkan::VulkanContext;
+use common::interop::handoff::Handoff;
+use common::interop::{SharedFormat, SharedImage};
+use common::scene::gbuffer::SceneBuffers;
+use common::scene::{Camera, Scene};
 use glow::HasContext;
 
-const VERTEX_SHADER: &str = include_str!("../../../../shaders/gl/visibility.vert");
-const FRAGMENT_SHADER: &str = include_str!("../../../../shaders/gl/visibility.frag");
+const VERTEX_SHADER: &str = include_str!("../../shaders/gl/visibility.vert");
+const FRAGMENT_SHADER: &str = include_str!("../../shaders/gl/visibility.frag");
 
 // ANCHOR: mesh_ids
 /// One mesh's share of the ids, and where its triangles are (`MeshIds` in visibility_ao.rgen).
@@ -87,7 +87,7 @@ pub struct Targets {
 
 impl Targets {
     pub fn new(vk: &VulkanContext, gl: &GlContext, handoff: &Handoff, extent: vk::Extent2D) -> Result<Self> {
-        crate::scene::gbuffer::check_size(vk, gl, extent)?;
+        common::scene::gbuffer::check_size(vk, gl, extent)?;
         // ANCHOR: images
         // GL draws the ids (COLOR_ATTACHMENT), Vulkan reads them (STORAGE); Vulkan writes the
         // surface (STORAGE), GL samples it (SAMPLED).
@@ -97,7 +97,7 @@ impl Targets {
         let surface = SharedImage::new(vk, gl, SharedFormat::RGBA32F, sampled, extent)?;
         // GL draws the ids first: Vulkan hands the image over, in GENERAL, before it does.
         let new = [(*visibility.image, *visibility.texture.texture)];
-        crate::interop::hand_new_images_to_gl(vk, gl, handoff, &new)?;
+        common::interop::hand_new_images_to_gl(vk, gl, handoff, &new)?;
         // ANCHOR_END: images
         let g = &gl.gl;
         let (w, h) = (extent.width as i32, extent.height as i32);
@@ -149,8 +149,8 @@ impl Targets {
         Ok(targets)
     }
 
-    pub fn overlay_target(&self) -> crate::frame::Target {
-        crate::frame::Target {
+    pub fn overlay_target(&self) -> common::frame::Target {
+        common::frame::Target {
             framebuffer: *self.picture_framebuffer,
             width: self.extent.width,
             height: self.extent.height,
@@ -199,12 +199,12 @@ impl VisibilityPass {
     ) -> Result<Self> {
         let g = &gl.gl;
         let program =
-            crate::base::gl::program(g, VERTEX_SHADER, fragment_shader).context("the visibility program")?;
+            common::base::gl::program(g, VERTEX_SHADER, fragment_shader).context("the visibility program")?;
         let mut pass = VisibilityPass { vertex_arrays: Vec::new(), program };
         // Chapter 05's vertex arrays: the same buffers, read the same way.
         for [vertices, indices] in &buffers.meshes {
             let vao = unsafe {
-                crate::scene::gbuffer::vertex_array(g, &vertices.gl, &indices.gl, &buffers.instances.gl)
+                common::scene::gbuffer::vertex_array(g, &vertices.gl, &indices.gl, &buffers.instances.gl)
             }?;
             pass.vertex_arrays.push(vao);
         }

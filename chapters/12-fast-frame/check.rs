@@ -1,19 +1,104 @@
 //! Chapter 12's checks: the composite against its formula on the CPU, the overlays' depth test,
 //! and the lean frame against chapter 08's fat one on the same scene, camera and rays: the same
-//! pixels covered, the same hit points, the same occlusion.
+//! pixels covered, the same hit points, the same occlusion. `after_the_frames` runs them all, once
+//! the frames are drawn; the rest of the file is what each compares.
 
 use super::composite::{ComputeComposite, Uniforms, View};
+use super::trace::{Pattern, Rays, SurfaceTracer};
 use super::visibility::Targets;
-use crate::base::cli::{Size, check_covered};
-use crate::frame::{Overlays, shows_colour};
-use crate::instruments::output;
-use crate::instruments::report::Report;
-use crate::interop::handoff::Apis;
-use crate::scene::Camera;
 use anyhow::Result;
+use common::base::cli::{Size, check_covered};
+use common::frame::{Overlays, shows_colour};
+use common::instruments::output;
+use common::instruments::report::Report;
+use common::interop::handoff::Apis;
+use common::rt::RayTracedScene;
+use common::scene::{Camera, Scene};
 use glam::Vec3;
 use glow::HasContext;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// What the frames drew with, and what they left.
+pub struct Drawn<'a> {
+    pub scene: &'a Scene,
+    pub shared: &'a RayTracedScene,
+    pub targets: &'a Targets,
+    pub composite: &'a ComputeComposite,
+    pub overlays: &'a Overlays,
+    pub camera: &'a Camera,
+    pub uniforms: Uniforms,
+    /// The rays of one frame (0 where there was nothing to trace), and how many the surface holds.
+    pub rays: Rays,
+    pub accumulated: u32,
+    pub frames: u32,
+}
+
+/// What the checks write and measure beside the checks themselves.
+pub struct Asked {
+    /// The chapter's name, for an error that names it.
+    pub chapter: &'static str,
+    /// Headless: the pictures' folder and name.
+    pub pictures: Option<(PathBuf, String)>,
+    /// `--error-against`: rays per pixel of the converged trace (0: not measured).
+    pub error_against: u32,
+}
+
+/// Every check of the frame, into the report. The tracer traces again: the error's rays,
+/// chapter 08's sample pattern.
+pub fn after_the_frames(
+    apis: Apis,
+    d: Drawn,
+    tracer: &mut SurfaceTracer,
+    asked: Asked,
+    report: &mut Report,
+) -> Result<()> {
+    let gl = &apis.gl.gl;
+    let surface = Surface::read(gl, d.targets);
+    surface.require_covered(asked.chapter)?;
+    if d.frames > 0 {
+        let last = LastFrame {
+            gl,
+            targets: d.targets,
+            composite: d.composite,
+            overlays: d.overlays,
+            camera: d.camera,
+            uniforms: d.uniforms,
+        };
+        for (name, ok) in last.check(&surface) {
+            report.check(name, ok);
+        }
+        if let Some((out, prefix)) = &asked.pictures {
+            last.write_pictures(report, &surface, out, prefix)?;
+        }
+        if asked.error_against > 0 && d.rays.samples > 0 {
+            let against = ErrorAgainst { last: &last, tracer, rays: d.rays, reference: asked.error_against };
+            let (raw, blurred) = against.measure(apis)?;
+            let error = serde_json::json!({ "rays": asked.error_against, "raw": raw, "blurred": blurred });
+            report.set("ao_rms_error", error);
+        }
+    }
+    surface.check_values(report);
+    // Chapter 08 traces with its own pattern: where this frame used another, the same rays are
+    // traced again per pixel, so that every pixel can be compared, not only the means.
+    let (rays, camera, targets) = (d.rays, d.camera, d.targets);
+    let per_pixel = if rays.pattern == Pattern::PerPixel || rays.samples == 0 {
+        None
+    } else {
+        tracer.retrace(apis, targets, camera, Rays { pattern: Pattern::PerPixel, ..rays }, d.accumulated)?;
+        Some(Surface::read(gl, targets))
+    };
+    let run = Chapter08Run {
+        scene: d.scene,
+        shared: d.shared,
+        camera,
+        per_frame: rays.samples,
+        total: d.accumulated,
+        radius: rays.radius,
+    };
+    let chapter_08 = trace_chapter_08(apis, targets, run)?;
+    chapter_08.compare(&surface, per_pixel.as_ref(), report);
+    Ok(())
+}
 
 /// The surface Vulkan wrote, as GL holds it (memory order: GL's bottom row first).
 pub struct Surface {
@@ -284,8 +369,8 @@ impl Chapter08 {
 /// What chapter 08 is asked to trace, to be compared with this chapter's frames: the same scene
 /// and camera, and the same rays, `per_frame` at a time up to `total` per pixel.
 pub struct Chapter08Run<'a> {
-    pub scene: &'a crate::scene::Scene,
-    pub shared: &'a crate::rt::RayTracedScene,
+    pub scene: &'a common::scene::Scene,
+    pub shared: &'a common::rt::RayTracedScene,
     pub camera: &'a Camera,
     pub per_frame: u32,
     pub total: u32,
@@ -298,15 +383,15 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     let (allocator, buffers, tlas) = (&shared.allocator, &shared.buffers, *shared.structures.tlas.handle);
     let (vk, gl) = (apis.vk, apis.gl);
     let extent = targets.extent;
-    use crate::rt::ao::AoTracer;
-    use crate::scene::gbuffer::GBuffers;
+    use common::rt::ao::AoTracer;
+    use common::scene::gbuffer::GBuffers;
     let storage = ash::vk::ImageUsageFlags::STORAGE;
     let gbuffers = GBuffers::new(vk, gl, apis.handoff, buffers, extent, storage)?;
     gbuffers.draw(&gl.gl, scene, camera);
     let mut tracer = AoTracer::new(vk, gl, allocator, tlas, &gbuffers)?;
     // Its own command buffer, made after what it traces with: dropped first on an early return,
     // it waits for its last trace before `tracer` and `gbuffers` go.
-    let commands = crate::base::commands::Commands::new(vk)?;
+    let commands = common::base::commands::Commands::new(vk)?;
     let apis = Apis { commands: &commands, ..apis };
     let scene_scale = scene.size() / 2.0;
     if per_frame == 0 || total == 0 || radius == 0.0 {
@@ -314,7 +399,7 @@ pub fn trace_chapter_08(apis: Apis, targets: &Targets, run: Chapter08Run) -> Res
     }
     while tracer.accumulated < total && per_frame > 0 && radius > 0.0 {
         let samples = per_frame.min(total - tracer.accumulated);
-        let rays = crate::rt::ao::AoRays { samples, accumulated: 0, radius, scene_scale };
+        let rays = common::rt::ao::AoRays { samples, accumulated: 0, radius, scene_scale };
         tracer.trace(apis, &gbuffers, rays, None)?;
     }
     let (w, h) = (extent.width, extent.height);

@@ -2,20 +2,20 @@
 //! and traces the occlusion, the table of mesh ids it reads, and one frame's hand-overs.
 
 use super::visibility::{MeshIds, Targets};
-use crate::base::vulkan::VulkanContext;
-use crate::clocks::timestamps::Timestamps;
-use crate::interop::handoff::Apis;
-use crate::rt::RayTracedScene;
-use crate::rt::accel::{BufferDesc, DeviceBuffer};
-use crate::rt::ao::Traced;
-use crate::rt::raytrace::{RayPipeline, RayShaders, raygen_bindings};
-use crate::scene::Camera;
 use anyhow::Result;
 use ash::vk;
+use common::base::vulkan::VulkanContext;
+use common::clocks::timestamps::Timestamps;
+use common::interop::handoff::Apis;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BufferDesc, DeviceBuffer};
+use common::rt::ao::Traced;
+use common::rt::raytrace::{RayPipeline, RayShaders, raygen_bindings};
+use common::scene::Camera;
 use gpu_allocator::MemoryLocation;
 
-const RAYGEN: &[u8] = include_bytes!("../../../../shaders/visibility_ao.rgen.spv");
-const MISS: &[u8] = include_bytes!("../../../../shaders/miss.rmiss.spv");
+const RAYGEN: &[u8] = include_bytes!("../../shaders/visibility_ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 
 // ANCHOR: surface_rays
 /// The push constants of `shaders/visibility_ao.rgen` (std430, 128 bytes: the most every
@@ -240,7 +240,7 @@ pub fn hand_over_around(
     between: impl FnOnce(),
     work: impl FnOnce(vk::CommandBuffer),
 ) -> Result<()> {
-    traced(targets, |images| crate::rt::ao::hand_over_around(apis, images, timestamps, between, work))?;
+    traced(targets, |images| common::rt::ao::hand_over_around(apis, images, timestamps, between, work))?;
     targets.gl_has_surface.set(true);
     Ok(())
 }
@@ -262,7 +262,7 @@ fn traced<R>(targets: &Targets, hand_over: impl FnOnce(&Traced) -> R) -> R {
 /// had it, released to Vulkan, whose work comes later, through [`hand_over_released`] (chapter
 /// 13 draws the next frame's ids before it waits for this frame's trace).
 pub fn release_to_vulkan(apis: Apis, targets: &Targets) {
-    traced(targets, |images| crate::rt::ao::release_to_vulkan(apis, images));
+    traced(targets, |images| common::rt::ao::release_to_vulkan(apis, images));
 }
 
 /// The rest of [`hand_over_around`], once GL has released the images ([`release_to_vulkan`]).
@@ -272,7 +272,7 @@ pub fn hand_over_released(
     timestamps: Option<&Timestamps>,
     work: impl FnOnce(vk::CommandBuffer),
 ) -> Result<()> {
-    traced(targets, |images| crate::rt::ao::hand_over_released(apis, images, timestamps, || {}, work))?;
+    traced(targets, |images| common::rt::ao::hand_over_released(apis, images, timestamps, || {}, work))?;
     targets.gl_has_surface.set(true);
     Ok(())
 }
@@ -280,7 +280,7 @@ pub fn hand_over_released(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::base::shader_block::{assert_matches_spirv, rust_block};
+    use common::base::shader_block::{assert_matches_spirv, rust_block};
 
     #[test]
     fn surface_rays_match_the_glsl_block() {

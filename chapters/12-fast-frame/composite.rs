@@ -8,11 +8,11 @@ use std::rc::Rc;
 
 /// GL's declarations (the surface sampled, the settings as uniforms), then, through `#include`
 /// (resolved by `with_includes`), the tile and blur that Vulkan's compute shader includes too.
-const COMPUTE_SHADER: &str = include_str!("../../../../shaders/gl/fast_composite.comp");
+const COMPUTE_SHADER: &str = include_str!("../../shaders/gl/fast_composite.comp");
 const INCLUDES: [(&str, &str); 3] = [
-    ("composite_tile.glsl", include_str!("../../../../shaders/composite_tile.glsl")),
-    ("sampling.glsl", include_str!("../../../../shaders/sampling.glsl")),
-    crate::scene::gbuffer::OCTAHEDRAL,
+    ("composite_tile.glsl", include_str!("../../shaders/composite_tile.glsl")),
+    ("sampling.glsl", include_str!("../../shaders/sampling.glsl")),
+    common::scene::gbuffer::OCTAHEDRAL,
 ];
 
 /// What the composite shows (its `view` uniform, in this order).
@@ -31,18 +31,20 @@ impl View {
 }
 
 /// The composite shader's uniforms: chapter 08's, over these views.
-pub type Uniforms = crate::frame::composite::Uniforms<View>;
+pub type Uniforms = common::frame::composite::Uniforms<View>;
 
 /// Deleted when dropped (its program).
 pub struct ComputeComposite {
-    program: crate::base::gl::Owned<glow::Program>,
+    program: common::base::gl::Owned<glow::Program>,
 }
 
 impl ComputeComposite {
     pub fn new(gl: &Rc<glow::Context>) -> Result<Self> {
-        let program =
-            crate::base::gl::compute_program(gl, &crate::base::gl::with_includes(COMPUTE_SHADER, &INCLUDES)?)
-                .context("the composite's compute shader")?;
+        let program = common::base::gl::compute_program(
+            gl,
+            &common::base::gl::with_includes(COMPUTE_SHADER, &INCLUDES)?,
+        )
+        .context("the composite's compute shader")?;
         Ok(ComputeComposite { program })
     }
 

@@ -1,9 +1,9 @@
-//! Chapter 13's frame: chapter 12's passes, with the occlusion each pixel traced kept from frame
-//! to frame. The path the camera and one instance follow (`path`), the tracer that reprojects
+//! Chapter 13's lesson: chapter 12's passes (the `fast_frame` library), with the occlusion each
+//! pixel traced kept from frame to frame. The path the camera and one instance follow (`path`), the tracer that reprojects
 //! and reuses its history (`tracer`), one frame between GL's ids and its composite (`frame`),
 //! the chapter's checks (`check`), and the flags and setup both programs share (`setup`).
-//! Chapter 13 draws it as its lesson; `convergence temporal` walks it again with its choices
-//! varied, measuring error against time.
+//! `main.rs` draws it; `convergence temporal` depends on this library to walk the same frame with
+//! its choices varied, measuring error against time.
 
 pub mod check;
 pub mod frame;

@@ -2,22 +2,22 @@
 //! occlusion, the two history images it reads and writes in turn, the cameras and previous
 //! transforms it reprojects with, and one frame's work between chapter 12's hand-overs.
 
-use crate::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
-use crate::base::vulkan::VulkanContext;
-use crate::clocks::timestamps::Timestamps;
-use crate::frame::fast::trace::{hand_over_around, hand_over_released};
-use crate::frame::fast::visibility::Targets;
-use crate::interop::handoff::Apis;
-use crate::rt::RayTracedScene;
-use crate::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
-use crate::rt::raytrace::{RayPipeline, RayShaders, StorageImage};
-use crate::scene::Camera;
 use anyhow::{Context as _, Result};
 use ash::vk;
+use common::base::commands::{HostBuffer, copy_image_to_buffer, first_use, image_barrier, transfers_to_host};
+use common::base::vulkan::VulkanContext;
+use common::clocks::timestamps::Timestamps;
+use common::interop::handoff::Apis;
+use common::rt::RayTracedScene;
+use common::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
+use common::rt::raytrace::{RayPipeline, RayShaders, StorageImage};
+use common::scene::Camera;
+use fast_frame::trace::{hand_over_around, hand_over_released};
+use fast_frame::visibility::Targets;
 use gpu_allocator::MemoryLocation;
 
-const RAYGEN: &[u8] = include_bytes!("../../../../shaders/temporal_ao.rgen.spv");
-const MISS: &[u8] = include_bytes!("../../../../shaders/miss.rmiss.spv");
+const RAYGEN: &[u8] = include_bytes!("../../shaders/temporal_ao.rgen.spv");
+const MISS: &[u8] = include_bytes!("../../shaders/miss.rmiss.spv");
 const HISTORY_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
 
 // ANCHOR: push
@@ -89,22 +89,22 @@ pub fn accept_bits(accept: &[Accept]) -> u32 {
 #[derive(clap::Args, Clone, Debug)]
 pub struct RayArgs {
     /// Rays per pixel per frame where the history is still filling (1-64).
-    #[arg(long, default_value_t = 2, value_parser = crate::base::cli::number::<u32>(1..=64))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(1..=64))]
     pub samples: u32,
     /// Rays for a pixel with no history: a surface just uncovered, every pixel after a cut (1-256).
-    #[arg(long, default_value_t = 32, value_parser = crate::base::cli::number::<u32>(1..=256))]
+    #[arg(long, default_value_t = 32, value_parser = common::base::cli::number::<u32>(1..=256))]
     pub fresh: u32,
     /// The most rays a pixel's mean weighs (1-4096): new rays always count at least
     /// samples / (cap + samples), so a change around the pixel fades in within about cap rays.
-    #[arg(long, default_value_t = 128, value_parser = crate::base::cli::number::<u32>(1..=4096))]
+    #[arg(long, default_value_t = 128, value_parser = common::base::cli::number::<u32>(1..=4096))]
     pub cap: u32,
     /// A pixel whose history holds `cap` rays traces one frame in this many (0: never again).
-    #[arg(long, default_value_t = 2, value_parser = crate::base::cli::number::<u32>(0..=64))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=64))]
     pub settled_every: u32,
     /// The most rays a pixel remembers where something moved within the radius of it since the
     /// previous frame (its occlusion changed there, by how much no test can tell from a few new
     /// rays); 0: no limit, the cap alone.
-    #[arg(long, default_value_t = 16, value_parser = crate::base::cli::number::<u32>(0..=4096))]
+    #[arg(long, default_value_t = 16, value_parser = common::base::cli::number::<u32>(0..=4096))]
     pub near_motion_cap: u32,
 }
 
@@ -473,7 +473,7 @@ impl TemporalTracer {
     pub fn read_history(
         &self,
         vk: &VulkanContext,
-        commands: &crate::base::commands::Commands,
+        commands: &common::base::commands::Commands,
     ) -> Result<Vec<Texel>> {
         let last = &self.history[1 - self.written];
         let extent = last.extent;
@@ -522,7 +522,7 @@ pub struct Texel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::base::shader_block::{assert_matches_spirv, rust_block};
+    use common::base::shader_block::{assert_matches_spirv, rust_block};
 
     #[test]
     fn temporal_rays_match_the_glsl_block() {

@@ -6,22 +6,22 @@
 use super::frame::{Motion, Passes, Sized};
 use super::path::{Path, PathArgs};
 use super::tracer::{Budget, RayArgs, TemporalTracer};
-use crate::base::commands::Commands;
-use crate::base::gl::GlContext;
-use crate::base::vulkan::VulkanContext;
-use crate::clocks::timestamps::Timestamps;
-use crate::frame::fast::composite::{ComputeComposite, Uniforms};
-use crate::frame::fast::trace::SurfaceTracer;
-use crate::frame::fast::visibility::{self, MeshIds, Targets, VisibilityPass};
-use crate::frame::overlay::Overlays;
-use crate::instruments::report::Report;
-use crate::interop::handoff::{Apis, Handoff};
-use crate::rt::RayTracedScene;
-use crate::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
-use crate::rt::ao::AoArgs;
-use crate::scene::{Camera, Instance, Scene, SceneArgs};
 use anyhow::{Result, ensure};
 use ash::vk;
+use common::base::commands::Commands;
+use common::base::gl::GlContext;
+use common::base::vulkan::VulkanContext;
+use common::clocks::timestamps::Timestamps;
+use common::frame::overlay::Overlays;
+use common::instruments::report::Report;
+use common::interop::handoff::{Apis, Handoff};
+use common::rt::RayTracedScene;
+use common::rt::accel::{BlasLayout, BuildInputs, InPlace, TlasFlags, instances_geometry};
+use common::rt::ao::AoArgs;
+use common::scene::{Camera, Instance, Scene, SceneArgs};
+use fast_frame::composite::{ComputeComposite, Uniforms};
+use fast_frame::trace::SurfaceTracer;
+use fast_frame::visibility::{self, MeshIds, Targets, VisibilityPass};
 
 /// Chapter 13's flags, the ones its reader turns. `convergence temporal` flattens them as well,
 /// beside the flags it measures with.
@@ -34,13 +34,13 @@ pub struct TemporalArgs {
     #[command(flatten)]
     pub path: PathArgs,
     /// How far an occluder counts, in world units [default: 5% of the scene's diagonal].
-    #[arg(long, value_parser = crate::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
+    #[arg(long, value_parser = common::base::cli::number::<f32>(0.0..=1e6), allow_negative_numbers = true)]
     pub radius: Option<f32>,
     /// Contrast: the picture shows visibility to this power (1-3).
-    #[arg(long, default_value_t = 2.0, value_parser = crate::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
+    #[arg(long, default_value_t = 2.0, value_parser = common::base::cli::number::<f32>(1.0..=3.0), allow_negative_numbers = true)]
     pub power: f32,
     /// Blur radius in pixels (0 skips the blur), as chapter 12's.
-    #[arg(long, default_value_t = 2, value_parser = crate::base::cli::number::<u32>(0..=8))]
+    #[arg(long, default_value_t = 2, value_parser = common::base::cli::number::<u32>(0..=8))]
     pub blur: u32,
     /// As chapter 12's `--blas`; only the per-mesh layout lets an instance move.
     #[arg(long, value_enum, default_value = "per-mesh")]
@@ -76,7 +76,7 @@ impl TemporalArgs {
             AoArgs { samples: self.rays.samples, radius: self.radius, power: self.power, max_samples: 1 };
         let radius = ao.radius(&scene)?;
         let budget = Budget::new(&self.rays, radius, scene.size() / 2.0);
-        if let Some(reason) = crate::rt::ao::nothing_to_trace(budget.fresh, radius) {
+        if let Some(reason) = common::rt::ao::nothing_to_trace(budget.fresh, radius) {
             eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
         }
         report.set("path", self.path.path);

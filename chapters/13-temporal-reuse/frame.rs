@@ -4,23 +4,23 @@
 
 use super::path::Path;
 use super::tracer::{Budget, TemporalTracer};
-use crate::base::cli::Size;
-use crate::base::commands::Commands;
-use crate::base::gl::{Owned, create};
-use crate::clocks::timeline::{Timeline, stamp_into as stamp};
-use crate::clocks::timestamps::Timestamps;
-use crate::clocks::timing::{GlPassTimer, PassTimes, read_after};
-use crate::frame::fast::composite::{ComputeComposite, Uniforms, View};
-use crate::frame::fast::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
-use crate::frame::fast::visibility::{MeshIds, Targets, VisibilityPass};
-use crate::frame::overlay::Overlays;
-use crate::instruments::fail;
-use crate::interop::exportable::ExportedBuffer;
-use crate::interop::handoff::Apis;
-use crate::rt::RayTracedScene;
-use crate::rt::accel::{InPlace, Refresh};
-use crate::scene::{Camera, Scene};
 use anyhow::Result;
+use common::base::cli::Size;
+use common::base::commands::Commands;
+use common::base::gl::{Owned, create};
+use common::clocks::timeline::{Timeline, stamp_into as stamp};
+use common::clocks::timestamps::Timestamps;
+use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
+use common::frame::overlay::Overlays;
+use common::instruments::fail;
+use common::interop::exportable::ExportedBuffer;
+use common::interop::handoff::Apis;
+use common::rt::RayTracedScene;
+use common::rt::accel::{InPlace, Refresh};
+use common::scene::{Camera, Scene};
+use fast_frame::composite::{ComputeComposite, Uniforms, View};
+use fast_frame::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
+use fast_frame::visibility::{MeshIds, Targets, VisibilityPass};
 use glow::HasContext;
 
 /// How a frame's occlusion is made.

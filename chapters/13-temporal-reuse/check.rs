@@ -8,13 +8,13 @@
 use super::frame::{Drawn, Passes, Sized};
 use super::path::{Path, PathKind};
 use super::tracer::{Budget, Texel};
-use crate::frame::fast::check::{self, LastFrame, Surface, unpack_normal};
-use crate::frame::fast::composite::View;
-use crate::frame::fast::trace::{Pattern, Rays};
-use crate::frame::fast::visibility::MeshIds;
-use crate::instruments::report::Report;
-use crate::scene::Camera;
 use anyhow::Result;
+use common::instruments::report::Report;
+use common::scene::Camera;
+use fast_frame::check::{self, LastFrame, Surface, unpack_normal};
+use fast_frame::composite::View;
+use fast_frame::trace::{Pattern, Rays};
+use fast_frame::visibility::MeshIds;
 use glam::{Vec2, Vec3, Vec4Swizzles as _};
 use std::path::PathBuf;
 

@@ -1,8 +1,8 @@
 //! Chapter 13's path: where the camera and the one moving instance are at every frame. The
 //! same on every run and for every method, so that errors and times along it compare.
 
-use crate::interop::exportable::ExportedBuffer;
-use crate::scene::{Camera, Instance, Scene};
+use common::interop::exportable::ExportedBuffer;
+use common::scene::{Camera, Instance, Scene};
 use glam::{Mat4, Vec3, Vec4};
 use std::f32::consts::TAU;
 
@@ -35,10 +35,10 @@ pub struct PathArgs {
     #[arg(long, value_enum, default_value = "orbit")]
     pub path: PathKind,
     /// The orbit's speed, in degrees per frame (0-30).
-    #[arg(long, default_value_t = 0.5, value_parser = crate::base::cli::number::<f32>(0.0..=30.0))]
+    #[arg(long, default_value_t = 0.5, value_parser = common::base::cli::number::<f32>(0.0..=30.0))]
     pub orbit_speed: f32,
     /// The frame at which the orbiting camera jumps to another view (0: no cut).
-    #[arg(long, default_value_t = 60, value_parser = crate::base::cli::number::<u32>(0..=1_000_000))]
+    #[arg(long, default_value_t = 60, value_parser = common::base::cli::number::<u32>(0..=1_000_000))]
     pub cut_at: u32,
     /// Whether one instance moves while the camera does (`circle`) or not (`none`).
     #[arg(long, value_enum, default_value = "circle")]
