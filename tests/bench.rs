@@ -130,8 +130,9 @@ fn quick_bench_reports_every_mode_scene_size_and_ray_count() {
     assert_report_snapshot("bench-quick", &snapshot);
 }
 
-/// `--timeline N` puts the last N frames of chapter 08's frame and of chapter 12's, each on one
-/// clock: both gaps of a hand-over reported, both pictures written.
+/// `--timeline N` puts the last N frames of chapter 08's frame and of chapter 12's (drawn by the
+/// bench from the chapter's library), each on one clock: both gaps of a hand-over reported, every
+/// pass's span in order, both pictures written.
 #[test]
 fn bench_timeline_draws_chapter_08_and_chapter_12() {
     let args = ["--quick", "--scenes", "default", "--sizes", "64x48", "--spp", "4", "--timeline", "2"];
@@ -149,15 +150,20 @@ fn bench_timeline_draws_chapter_08_and_chapter_12() {
         }
     }
     let out = run.out_dir.path();
-    let spans: Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("timeline-08.json")).unwrap()).unwrap();
-    let passes: Vec<&str> = spans.as_array().unwrap().iter().map(|s| s["pass"].as_str().unwrap()).collect();
-    assert_eq!(passes.len(), 6, "G-buffers, trace and composite of two frames: {passes:?}");
-    for pass in ["gbuffer", "ao_trace", "composite"] {
-        assert_eq!(passes.iter().filter(|p| **p == pass).count(), 2, "{pass} in {passes:?}");
-    }
-    for picture in ["timeline-08.svg", "fast-frame/timeline.svg"] {
-        assert!(std::fs::metadata(out.join(picture)).is_ok_and(|m| m.len() > 0), "{picture}");
+    for (name, raster) in [("timeline-08", "gbuffer"), ("timeline-12", "ids")] {
+        let json = std::fs::read_to_string(out.join(format!("{name}.json"))).unwrap();
+        let spans: Value = serde_json::from_str(&json).unwrap();
+        let spans = spans.as_array().unwrap();
+        let passes: Vec<&str> = spans.iter().map(|s| s["pass"].as_str().unwrap()).collect();
+        assert_eq!(passes.len(), 6, "{name}: the raster pass, trace and composite of two frames: {passes:?}");
+        for pass in [raster, "ao_trace", "composite"] {
+            assert_eq!(passes.iter().filter(|p| **p == pass).count(), 2, "{name}: {pass} in {passes:?}");
+        }
+        for span in spans {
+            assert!(span["end_ms"].as_f64() >= span["start_ms"].as_f64(), "{name}: {span}");
+        }
+        let picture = format!("{name}.svg");
+        assert!(std::fs::metadata(out.join(&picture)).is_ok_and(|m| m.len() > 0), "{picture}");
     }
 }
 

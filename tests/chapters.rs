@@ -359,30 +359,6 @@ fn ch12_error_falls_with_rays_and_with_the_blur() {
     assert!(few.1 < few.0 && many.1 < many.0, "the blur lowers the error: {few:?} {many:?}");
 }
 
-/// `--timeline` writes the last frames' passes on one clock, and the gaps between them.
-#[test]
-fn ch12_timeline_puts_both_apis_on_one_clock() {
-    let args = ["--size", "64x48", "--frames", "4", "--samples", "2", "--timeline", "2"];
-    let run = run_chapter(env!("CARGO_BIN_EXE_12-fast-frame"), &args, &[]);
-    let report = run.succeeded();
-    let timeline = &report["timeline"];
-    assert_eq!(timeline["frames"], 2);
-    for key in
-        ["clock_offset_uncertainty_us", "gap_ids_to_trace_ms_median", "gap_trace_to_composite_ms_median"]
-    {
-        assert!(timeline[key].as_f64().is_some_and(f64::is_finite), "{key}: {timeline}");
-    }
-    let spans: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.out_dir.path().join("timeline.json")).unwrap())
-            .unwrap();
-    let spans = spans.as_array().unwrap();
-    assert_eq!(spans.len(), 6, "ids, trace and composite of two frames: {spans:?}");
-    for span in spans {
-        assert!(span["end_ms"].as_f64() >= span["start_ms"].as_f64(), "{span}");
-    }
-    assert!(std::fs::metadata(run.out_dir.path().join("timeline.svg")).is_ok_and(|m| m.len() > 0));
-}
-
 #[test]
 fn ch12_refuses_what_it_cannot_draw() {
     for size in ["1x1", "23x64", "64x23"] {

@@ -13,9 +13,8 @@ use anyhow::Result;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
 use common::base::window::Key;
-use common::clocks::timeline::{self, Timeline};
 use common::clocks::timestamps::Timestamps;
-use common::clocks::timing::{GlPassTimer, PassTimes};
+use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
 use common::frame::Overlays;
 use common::frame::input::{Settings as Keys, resize_every, window_input};
 use common::instruments::census::ResizeCensus;
@@ -95,12 +94,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (mut frame, mut resizes, mut census) = (0, 0, ResizeCensus::default());
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let timestamps = Timestamps::new(&vk)?;
-    let mut trace_pending = None; // the traced frame's timeline slot, if any, once submitted
-    let mut timeline = match (args.timeline, &timestamps) {
-        (0, _) => None,
-        (_, Some(_)) => Some(Timeline::new(gl, args.timeline.min(frame_limit), ["ids", "composite"])?),
-        (_, None) => anyhow::bail!("--timeline: {} writes no timestamps on this queue", vk.info.name),
-    };
+    let mut trace_pending = false; // a trace submitted, its GPU time not read yet
     // Made after everything the frames use: an early return drops it first, and its Drop waits
     // for the last frame's Vulkan work before any of that is destroyed.
     let commands = Commands::new(&vk)?;
@@ -149,10 +143,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         }
         // ANCHOR_END: resize
         // ANCHOR: frame
-        let slot = timeline.as_ref().and_then(|t| t.slot(frame, frame_limit));
-        timeline::stamp(&timeline, slot, 0);
-        gl_timer.time(gl, "visibility", || visibility.draw(gl, &targets, &scene, &ids, &camera))?;
-        timeline::stamp(&timeline, slot, 1);
+        gl_timer
+            .time(gl, "visibility", || visibility.draw(gl, &targets.ids_target(), &scene, &ids, &camera))?;
         if tracer.accumulated < args.ao.max_samples || skipped.is_some() {
             let samples = if skipped.is_some() {
                 0
@@ -162,26 +154,21 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 rays_this_frame(settings.samples, tracer.accumulated, args.ao.max_samples, refine)
             };
             let rays = settings.rays(samples, scene.size() / 2.0);
-            if let Some(traced) = trace_pending.take() {
-                let stamps = timestamps.as_ref();
-                common::clocks::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
-                if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
-                    t.trace_done(&vk, slot, stamps)?;
-                }
+            if std::mem::take(&mut trace_pending) {
+                // The last trace's time: `trace` waits for its fence anyway (one command buffer).
+                read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
             }
             let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
             tracer.trace(apis, &targets, &camera, rays, timestamps.as_ref())?;
-            trace_pending = timestamps.is_some().then_some(slot);
+            trace_pending = true;
         }
         let uniforms = settings.uniforms(camera.far);
-        timeline::stamp(&timeline, slot, 2);
         gl_timer.time(gl, "composite", || composite.draw(gl, &targets, &uniforms))?;
         if settings.overlays {
             let view_projection = camera.view_projection(size.aspect());
             gl_timer
                 .time(gl, "overlays", || overlays.draw(gl, &targets.overlay_target(), view_projection))?;
         }
-        timeline::stamp(&timeline, slot, 3);
         gl_timer.end_frame(gl, &mut times);
         // ANCHOR_END: frame
         if let Some(window) = &mut window {
@@ -192,19 +179,10 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         times.frame_done();
         frame += 1;
     }
-    if let Some(traced) = trace_pending {
-        let stamps = timestamps.as_ref();
-        common::clocks::timing::read_after(&vk, *commands.fence, stamps, "ao_trace", &mut times)?;
-        if let (Some(t), Some(slot), Some(stamps)) = (timeline.as_mut(), traced, stamps) {
-            t.trace_done(&vk, slot, stamps)?;
-        }
+    if trace_pending {
+        read_after(&vk, *commands.fence, timestamps.as_ref(), "ao_trace", &mut times)?;
     }
     gl_timer.finish(gl, &mut times);
-    if let (Some(t), Some(stamps)) = (timeline.take(), &timestamps) {
-        unsafe { gl.finish() };
-        let out = args.common.out_dir(CHAPTER).join("timeline");
-        report.set("timeline", t.finish(&vk, &commands, stamps, &out)?);
-    }
     times.record(report);
     gl_context.check_error("the frame loop")?;
     census.check(&gl_context, report)?;
@@ -242,7 +220,6 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     unsafe { gl.finish() };
     vk.wait_idle()?; // once, as the book's "Waiting before teardown" says
     drop(commands);
-    drop(timeline);
     drop(timestamps);
     drop(gl_timer);
     drop(overlays);

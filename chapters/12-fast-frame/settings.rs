@@ -39,10 +39,6 @@ pub struct Args {
     /// before and after the blur (0: don't).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=1 << 20))]
     pub error_against: u32,
-    /// Headless: the last N frames' passes, GL's and Vulkan's on one clock, into
-    /// timeline.json and timeline.svg in --out (0: none).
-    #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
-    pub timeline: u32,
     /// Headless: make the images of one size anew every K frames, as a window's resize does.
     #[arg(long, value_parser = common::base::cli::number::<u32>(1..=1_000_000))]
     pub resize_every: Option<u32>,

@@ -172,23 +172,19 @@ impl SurfaceTracer {
         rays: Rays,
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
-        self.trace_around(apis, targets, camera, rays, timestamps, || {})
+        let push = self.push_constants(targets, camera, rays);
+        let (vk, pipeline) = (apis.vk, &self.pipeline);
+        let trace = |cb| pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
+        hand_over_around(apis, targets, timestamps, trace)?;
+        self.accumulated += rays.samples;
+        Ok(())
     }
     // ANCHOR_END: frame
 
-    /// [`SurfaceTracer::trace`], with `between` run once Vulkan's work is submitted and before GL
-    /// is told to wait for it: GL work there does not depend on Vulkan's (`bench --probe overlap`).
-    pub fn trace_around(
-        &mut self,
-        apis: Apis,
-        targets: &Targets,
-        camera: &Camera,
-        rays: Rays,
-        timestamps: Option<&Timestamps>,
-        between: impl FnOnce(),
-    ) -> Result<()> {
+    /// What the ray generation shader is told about this frame.
+    fn push_constants(&self, targets: &Targets, camera: &Camera, rays: Rays) -> SurfaceRays {
         let aspect = targets.extent.width as f32 / targets.extent.height as f32;
-        let push = SurfaceRays {
+        SurfaceRays {
             inverse_view_projection: camera.view_projection(aspect).inverse().to_cols_array(),
             eye: camera.eye.into(),
             radius: rays.radius,
@@ -200,12 +196,22 @@ impl SurfaceTracer {
             pattern: rays.pattern.side() | rays.salt << 8,
             meshes: self.meshes.address,
             instances: self.instances,
-        };
-        let (vk, pipeline) = (apis.vk, &self.pipeline);
-        let trace = |cb| pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
-        hand_over_around(apis, targets, timestamps, between, trace)?;
+        }
+    }
+
+    /// Records the trace of `rays` into `cb`, for a caller that hands the images over itself
+    /// (`bench --probe overlap` slips other GL work in between); the running mean counts them.
+    pub fn record(
+        &mut self,
+        vk: &VulkanContext,
+        cb: vk::CommandBuffer,
+        targets: &Targets,
+        camera: &Camera,
+        rays: Rays,
+    ) {
+        let push = self.push_constants(targets, camera, rays);
+        self.pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
         self.accumulated += rays.samples;
-        Ok(())
     }
 
     /// `total` rays per pixel from scratch, `rays.samples` at a time, as that many frames would
@@ -231,23 +237,22 @@ impl SurfaceTracer {
 /// One frame of Vulkan work between GL's passes, through chapter 07's hand-over: GL hands over
 /// the ids it just drew (and the surface, once it has had it), Vulkan records `work` between the
 /// barriers that take both from GL and give them back, and GL is told to wait for that before it
-/// composites. `between` runs once Vulkan's work is submitted and before GL is told to wait
-/// (`bench --probe overlap`). Chapter 13's tracer hands the same two images over around its own work.
+/// composites. Chapter 13's tracer hands the same two images over around its own work.
 pub fn hand_over_around(
     apis: Apis,
     targets: &Targets,
     timestamps: Option<&Timestamps>,
-    between: impl FnOnce(),
     work: impl FnOnce(vk::CommandBuffer),
 ) -> Result<()> {
-    traced(targets, |images| common::rt::ao::hand_over_around(apis, images, timestamps, between, work))?;
+    traced(targets, |images| common::rt::ao::hand_over_around(apis, images, timestamps, || {}, work))?;
     targets.gl_has_surface.set(true);
     Ok(())
 }
 
 /// Two images, where chapter 08 hands over three and reads 32 bytes a pixel: the ids in, the
-/// surface (the running mean, and all the composite reads) out.
-fn traced<R>(targets: &Targets, hand_over: impl FnOnce(&Traced) -> R) -> R {
+/// surface (the running mean, and all the composite reads) out. (Public for the callers that
+/// hand them over in halves: chapter 13, `bench --probe overlap`.)
+pub fn traced<R>(targets: &Targets, hand_over: impl FnOnce(&Traced) -> R) -> R {
     let inputs = [&targets.visibility];
     hand_over(&Traced {
         inputs: &inputs,
@@ -257,25 +262,6 @@ fn traced<R>(targets: &Targets, hand_over: impl FnOnce(&Traced) -> R) -> R {
     })
 }
 // ANCHOR_END: hand_over
-
-/// GL's half of [`hand_over_around`] alone: the ids it just drew, and the surface once it has
-/// had it, released to Vulkan, whose work comes later, through [`hand_over_released`] (chapter
-/// 13 draws the next frame's ids before it waits for this frame's trace).
-pub fn release_to_vulkan(apis: Apis, targets: &Targets) {
-    traced(targets, |images| common::rt::ao::release_to_vulkan(apis, images));
-}
-
-/// The rest of [`hand_over_around`], once GL has released the images ([`release_to_vulkan`]).
-pub fn hand_over_released(
-    apis: Apis,
-    targets: &Targets,
-    timestamps: Option<&Timestamps>,
-    work: impl FnOnce(vk::CommandBuffer),
-) -> Result<()> {
-    traced(targets, |images| common::rt::ao::hand_over_released(apis, images, timestamps, || {}, work))?;
-    targets.gl_has_surface.set(true);
-    Ok(())
-}
 
 #[cfg(test)]
 mod tests {

@@ -7,6 +7,7 @@ use ash::vk;
 use common::base::gl::GlContext;
 use common::base::gl::{Owned, create, renderbuffer};
 use common::base::vulkan::VulkanContext;
+use common::frame::Target;
 use common::interop::handoff::Handoff;
 use common::interop::{SharedFormat, SharedImage};
 use common::scene::gbuffer::SceneBuffers;
@@ -149,8 +150,18 @@ impl Targets {
         Ok(targets)
     }
 
-    pub fn overlay_target(&self) -> common::frame::Target {
-        common::frame::Target {
+    /// Where the ids are drawn: their image and GL's depth.
+    pub fn ids_target(&self) -> Target {
+        Target {
+            framebuffer: *self.visibility_framebuffer,
+            width: self.extent.width,
+            height: self.extent.height,
+        }
+    }
+
+    /// Where the overlays are drawn: the picture, tested against the ids' depth.
+    pub fn overlay_target(&self) -> Target {
+        Target {
             framebuffer: *self.picture_framebuffer,
             width: self.extent.width,
             height: self.extent.height,
@@ -188,55 +199,21 @@ pub struct VisibilityPass {
 
 impl VisibilityPass {
     pub fn new(gl: &GlContext, buffers: &SceneBuffers) -> Result<Self> {
-        Self::with_fragment_shader(gl, buffers, FRAGMENT_SHADER)
-    }
-
-    /// The same pass, writing what `fragment_shader` writes (`bench --probe layouts` measures another).
-    pub fn with_fragment_shader(
-        gl: &GlContext,
-        buffers: &SceneBuffers,
-        fragment_shader: &str,
-    ) -> Result<Self> {
         let g = &gl.gl;
         let program =
-            common::base::gl::program(g, VERTEX_SHADER, fragment_shader).context("the visibility program")?;
-        let mut pass = VisibilityPass { vertex_arrays: Vec::new(), program };
+            common::base::gl::program(g, VERTEX_SHADER, FRAGMENT_SHADER).context("the visibility program")?;
         // Chapter 05's vertex arrays: the same buffers, read the same way.
-        for [vertices, indices] in &buffers.meshes {
-            let vao = unsafe {
-                common::scene::gbuffer::vertex_array(g, &vertices.gl, &indices.gl, &buffers.instances.gl)
-            }?;
-            pass.vertex_arrays.push(vao);
-        }
-        Ok(pass)
+        let vertex_arrays = common::scene::gbuffer::vertex_arrays(g, buffers)?;
+        Ok(VisibilityPass { vertex_arrays, program })
     }
 
     // ANCHOR: draw
     /// Clears the ids to 0 (background) and the depth to 1, then one instanced draw per mesh,
-    /// each told where its ids start.
-    pub fn draw(
-        &self,
-        gl: &glow::Context,
-        targets: &Targets,
-        scene: &Scene,
-        ids: &[MeshIds],
-        camera: &Camera,
-    ) {
-        self.draw_into(gl, (*targets.visibility_framebuffer, targets.extent), scene, ids, camera);
-    }
-
-    /// [`VisibilityPass::draw`], into any framebuffer of an unsigned integer colour and a depth.
-    pub fn draw_into(
-        &self,
-        gl: &glow::Context,
-        (framebuffer, extent): (glow::Framebuffer, vk::Extent2D),
-        scene: &Scene,
-        ids: &[MeshIds],
-        camera: &Camera,
-    ) {
-        let (width, height) = (extent.width, extent.height);
+    /// each told where its ids start. `target`: the ids' framebuffer (`Targets::ids_target`).
+    pub fn draw(&self, gl: &glow::Context, target: &Target, scene: &Scene, ids: &[MeshIds], camera: &Camera) {
+        let (width, height) = (target.width, target.height);
         unsafe {
-            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(framebuffer));
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(target.framebuffer));
             gl.viewport(0, 0, width as i32, height as i32);
             gl.enable(glow::DEPTH_TEST);
             gl.clear_buffer_u32_slice(glow::COLOR, 0, &[0; 4]);

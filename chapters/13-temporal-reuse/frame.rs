@@ -3,7 +3,7 @@
 //! where nothing is read back before the next frame, that frame's ids, drawn early.
 
 use super::path::Path;
-use super::tracer::{Budget, TemporalTracer};
+use super::tracer::{Budget, TemporalTracer, release_to_vulkan};
 use anyhow::Result;
 use common::base::cli::Size;
 use common::base::commands::Commands;
@@ -19,7 +19,7 @@ use common::rt::RayTracedScene;
 use common::rt::accel::{InPlace, Refresh};
 use common::scene::{Camera, Scene};
 use fast_frame::composite::{ComputeComposite, Uniforms, View};
-use fast_frame::trace::{Pattern, Rays, SurfaceTracer, release_to_vulkan};
+use fast_frame::trace::{Pattern, Rays, SurfaceTracer};
 use fast_frame::visibility::{MeshIds, Targets, VisibilityPass};
 use glow::HasContext;
 
@@ -275,7 +275,9 @@ impl Passes<'_> {
         let slot = clock.timeline.as_ref().and_then(|(t, frames)| t.slot(frame, *frames));
         let targets = &sized.targets;
         stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 0);
-        clock.gl.time(g, "visibility", || self.visibility.draw(g, targets, self.scene, self.ids, camera))?;
+        clock.gl.time(g, "visibility", || {
+            self.visibility.draw(g, &targets.ids_target(), self.scene, self.ids, camera)
+        })?;
         stamp(clock.timeline.as_ref().map(|(t, _)| t), slot, 1);
         if self.ids_ahead {
             let fence = create(g, "glFenceSync after GL's ids", |g| unsafe {

@@ -12,7 +12,7 @@ use common::rt::RayTracedScene;
 use common::rt::accel::{BufferDesc, DeviceBuffer, GpuAllocator};
 use common::rt::raytrace::{RayPipeline, RayShaders, StorageImage};
 use common::scene::Camera;
-use fast_frame::trace::{hand_over_around, hand_over_released};
+use fast_frame::trace::{hand_over_around, traced};
 use fast_frame::visibility::Targets;
 use gpu_allocator::MemoryLocation;
 
@@ -446,7 +446,7 @@ impl TemporalTracer {
         // previous frame (`Passes::draw`).
         match released {
             true => hand_over_released(apis, targets, timestamps, work)?,
-            false => hand_over_around(apis, targets, timestamps, || {}, work)?,
+            false => hand_over_around(apis, targets, timestamps, work)?,
         }
         self.images_used = true;
         self.previous_camera = Some(*camera);
@@ -510,6 +510,28 @@ impl TemporalTracer {
             .collect())
     }
 }
+
+// ANCHOR: halves
+/// GL's half of chapter 12's hand-over alone (`fast_frame::trace::hand_over_around`): the ids it
+/// just drew, and the surface once it has had it, released to Vulkan, whose work comes later,
+/// through [`hand_over_released`]: this chapter draws the next frame's ids before it waits for
+/// this frame's trace.
+pub fn release_to_vulkan(apis: Apis, targets: &Targets) {
+    traced(targets, |images| common::rt::ao::release_to_vulkan(apis, images));
+}
+
+/// The rest of chapter 12's hand-over, once GL has released the images ([`release_to_vulkan`]).
+fn hand_over_released(
+    apis: Apis,
+    targets: &Targets,
+    timestamps: Option<&Timestamps>,
+    work: impl FnOnce(vk::CommandBuffer),
+) -> Result<()> {
+    traced(targets, |images| common::rt::ao::hand_over_released(apis, images, timestamps, || {}, work))?;
+    targets.gl_has_surface.set(true);
+    Ok(())
+}
+// ANCHOR_END: halves
 
 /// One pixel of the history, as [`TemporalTracer::read_history`] reads it.
 #[derive(Clone, Copy, Debug)]

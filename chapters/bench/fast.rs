@@ -205,14 +205,6 @@ fn row_of(report: &Value, mode: Mode, (scene, size, spp): (SceneKind, Size, u32)
     }
 }
 
-/// Chapter 12's `--timeline last` of `frames` frames at one setting of the default scene: the
-/// gaps between its passes, from its report (its picture is in its own output folder, `out`).
-pub fn timeline(size: Size, spp: u32, (frames, last): (u32, u32), out: &Path) -> Result<Value> {
-    let mut args = setting(SceneKind::Default, size, spp, frames);
-    args.extend(["--timeline".into(), last.to_string()]);
-    Ok(run(&args, out)?["timeline"].clone())
-}
-
 // ANCHOR: ablation
 /// Chapter 12's choices, undone one at a time (the flags that undo them).
 pub const STEPS: [(&str, &[&str]); 4] = [

@@ -82,7 +82,7 @@ struct Args {
     #[arg(long, value_parser = common::base::cli::number::<u32>(1..=100_000))]
     frames: Option<u32>,
     /// Also draw the last N frames' passes of chapter 08's frame and of chapter 12's, each on one
-    /// clock, into timeline-08.svg and fast-frame/timeline.svg (0: none).
+    /// clock, into timeline-08.svg and timeline-12.svg (0: none).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
     timeline: u32,
     /// The converged reference of the ablation, of `--probe patterns` and of chapter 13's error, in
@@ -344,7 +344,16 @@ fn run(args: &Args, report: &mut Report) -> Result<()> {
         drop(commands);
         drop(frame);
         drop(shared);
-        let fast = fast::timeline(size, spp, (frames, args.timeline), &args.out.join("fast-frame"))?;
+        // Chapter 12's frame, from its library, drawn as its program draws it.
+        let setting = (extent, spp);
+        let out = args.out.join("timeline-12");
+        let fast = probes::timeline(
+            (&vk, &gl, &zero_copy, &stamps),
+            &scene,
+            setting,
+            (frames, args.timeline),
+            &out,
+        )?;
         report.set("timeline_12", fast);
     }
     drop(stamps);

@@ -1,9 +1,9 @@
 #version 450 core
-// Chapter 12's other lean buffer, measured against the ids (`--layout-rounds`) and not used by
-// the frame: what a trace needs of a hit without the scene's buffers, 8 bytes a pixel. x: the
-// triangle's geometric normal, facing the camera, packed as gbuffer.frag packs it; y: the view
-// depth's bits. The hit point would come back from the depth and the pixel's ray, and albedo
-// would need 4 bytes more.
+// Chapter 12's other lean buffer, measured against the ids (`bench --probe layouts`, after
+// normal_depth.vert) and not used by the frame: what a trace needs of a hit without the scene's
+// buffers, 8 bytes a pixel. x: the triangle's geometric normal, facing the camera, packed as
+// gbuffer.frag packs it; y: the view depth's bits. The hit point would come back from the depth
+// and the pixel's ray, and albedo would need 4 bytes more.
 
 in vec3 view_position;
 

@@ -6,7 +6,8 @@
 //! - a packed normal and the view depth (RG32UI, 8 bytes, `normal_depth.frag`): the hit would
 //!   come back from the depth alone, and the albedo would need 4 bytes more.
 //!
-//! Both come from the same vertex stage, so they must cover the same pixels: that is checked.
+//! The second layout's vertex stage (`normal_depth.vert`) transforms positions as the ids' does,
+//! so the two must cover the same pixels: that is checked.
 
 use super::Frame;
 use anyhow::{Context as _, Result, ensure};
@@ -14,12 +15,50 @@ use ash::vk;
 use common::GlContext;
 use common::base::gl::{Owned, create};
 use common::clocks::timing::{GlPassTimer, PassTimes};
+use common::frame::Target;
 use common::scene::gbuffer::SceneBuffers;
-use fast_frame::visibility::VisibilityPass;
+use common::scene::{Camera, Scene};
 use glow::HasContext;
 use std::rc::Rc;
 
+const NORMAL_DEPTH_VERTEX: &str = include_str!("../../../shaders/gl/normal_depth.vert");
 const NORMAL_DEPTH: &str = include_str!("../../../shaders/gl/normal_depth.frag");
+
+/// The second layout's pass: its program over chapter 05's vertex arrays of the shared buffers,
+/// one instanced draw per mesh, as chapter 12's ids are drawn. Deleted when dropped.
+struct NormalDepthPass {
+    vertex_arrays: Vec<Owned<glow::VertexArray>>,
+    program: Owned<glow::Program>,
+}
+
+impl NormalDepthPass {
+    fn new(gl: &GlContext, buffers: &SceneBuffers) -> Result<Self> {
+        let g = &gl.gl;
+        let fragment = common::base::gl::with_includes(NORMAL_DEPTH, &[common::scene::gbuffer::OCTAHEDRAL])?;
+        let program = common::base::gl::program(g, NORMAL_DEPTH_VERTEX, &fragment)
+            .context("the normal and depth program")?;
+        let vertex_arrays = common::scene::gbuffer::vertex_arrays(g, buffers)?;
+        Ok(NormalDepthPass { vertex_arrays, program })
+    }
+
+    /// Clears the layout to 0 and the depth to 1, then draws every mesh's instances.
+    fn draw(&self, gl: &glow::Context, target: &Target, scene: &Scene, camera: &Camera) {
+        unsafe {
+            gl.bind_framebuffer(glow::FRAMEBUFFER, Some(target.framebuffer));
+            gl.viewport(0, 0, target.width as i32, target.height as i32);
+            gl.enable(glow::DEPTH_TEST);
+            gl.clear_buffer_u32_slice(glow::COLOR, 0, &[0; 4]);
+            gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
+            gl.use_program(Some(*self.program));
+            let uniform = |name| gl.get_uniform_location(*self.program, name);
+            let projection = camera.projection(target.width as f32 / target.height as f32);
+            gl.uniform_matrix_4_f32_slice(uniform("view").as_ref(), false, &camera.view().to_cols_array());
+            gl.uniform_matrix_4_f32_slice(uniform("projection").as_ref(), false, &projection.to_cols_array());
+            common::scene::gbuffer::draw_meshes(gl, scene, &self.vertex_arrays);
+            gl.bind_framebuffer(glow::FRAMEBUFFER, None);
+        }
+    }
+}
 
 /// An unsigned integer colour texture of `format` and a depth buffer, as one framebuffer.
 /// Deleted when dropped (the framebuffer first).
@@ -80,17 +119,15 @@ impl Layout {
 /// their median GPU milliseconds, and whether they cover the same pixels.
 pub fn measure(gl: &GlContext, f: &Frame, buffers: &SceneBuffers, rounds: u32) -> Result<(f64, f64, bool)> {
     let (g, extent) = (&gl.gl, f.targets.extent);
-    let source = common::base::gl::with_includes(NORMAL_DEPTH, &[common::scene::gbuffer::OCTAHEDRAL])?;
-    let normal_depth = VisibilityPass::with_fragment_shader(gl, buffers, &source)?;
+    let normal_depth = NormalDepthPass::new(gl, buffers)?;
     let targets = [Layout::new(g, glow::R32UI, extent)?, Layout::new(g, glow::RG32UI, extent)?];
     let mut timer = GlPassTimer::new(g)?;
     let mut times = PassTimes::new();
     for _ in 0..rounds {
-        let at = |t: &Layout| (*t.framebuffer, extent);
-        timer.time(g, "ids", || f.visibility.draw_into(g, at(&targets[0]), f.scene, &f.ids, &f.camera))?;
-        timer.time(g, "normal_depth", || {
-            normal_depth.draw_into(g, at(&targets[1]), f.scene, &f.ids, &f.camera)
-        })?;
+        let at =
+            |t: &Layout| Target { framebuffer: *t.framebuffer, width: extent.width, height: extent.height };
+        timer.time(g, "ids", || f.visibility.draw(g, &at(&targets[0]), f.scene, &f.ids, &f.camera))?;
+        timer.time(g, "normal_depth", || normal_depth.draw(g, &at(&targets[1]), f.scene, &f.camera))?;
         timer.end_frame(g, &mut times);
     }
     timer.finish(g, &mut times);

@@ -20,8 +20,10 @@ use anyhow::{Result, ensure};
 use ash::vk;
 use common::base::cli::Size;
 use common::base::commands::Commands;
+use common::clocks::timeline::{Timeline, stamp_into};
 use common::clocks::timestamps::{Timestamps, median_p95};
 use common::clocks::timing::{GlPassTimer, PassTimes};
+use common::frame::Overlays;
 use common::interop::handoff::{Apis, Handoff};
 use common::rt::RayTracedScene;
 use common::rt::accel::{BlasLayout, TlasFlags};
@@ -31,6 +33,7 @@ use common::{GlContext, Report, VulkanContext};
 use fast_frame::composite::{ComputeComposite, Uniforms, View};
 use fast_frame::trace::{Pattern, Rays, SurfaceTracer};
 use fast_frame::visibility::{self, MeshIds, Targets, VisibilityPass};
+use glow::HasContext as _;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -111,12 +114,67 @@ impl<'s> Frame<'s> {
     /// [`Frame::draw`], the trace between two timestamps if `stamps` is given.
     fn draw_timed(&mut self, apis: Apis, uniforms: &Uniforms, stamps: Option<&Timestamps>) -> Result<()> {
         let gl = &apis.gl.gl;
-        self.visibility.draw(gl, &self.targets, self.scene, &self.ids, &self.camera);
+        self.visibility.draw(gl, &self.targets.ids_target(), self.scene, &self.ids, &self.camera);
         self.tracer.accumulated = 0;
         self.tracer.trace(apis, &self.targets, &self.camera, self.rays, stamps)?;
         self.composite.draw(gl, &self.targets, uniforms);
         Ok(())
     }
+}
+
+/// Chapter 12's frame on one clock (`bench --timeline N`): `frames` frames drawn as its program
+/// draws them (ids, trace, composite and overlays), the last `last` of them stamped, into
+/// `<out>.json` and `<out>.svg`. A frame's trace is read once the next frame's ids are queued,
+/// where the chapter's loop reads it; the gaps between the passes go in the report.
+pub fn timeline(
+    (vk, gl, handoff, stamps): (&VulkanContext, &GlContext, &Handoff, &Timestamps),
+    scene: &Scene,
+    (extent, spp): (vk::Extent2D, u32),
+    (frames, last): (u32, u32),
+    out: &Path,
+) -> Result<serde_json::Map<String, serde_json::Value>> {
+    let shared = RayTracedScene::with_layout(vk, gl, scene, TlasFlags::STATIC, BlasLayout::Flat)?;
+    let mut frame = Frame::new((vk, gl, handoff), &shared, scene, extent, (spp, Pattern::Tile4x4))?;
+    let g = &gl.gl;
+    let overlays = Overlays::new(g, scene, if scene.instances.len() > 1 { 1 } else { 0 })?;
+    let uniforms = Uniforms::new(2, 2.0, View::Final, frame.camera.far);
+    let mut timeline = Timeline::new(g, last.min(frames), ["ids", "composite"])?;
+    let commands = Commands::new(vk)?; // made last: dropped first, it waits for its work
+    let apis = Apis { vk, gl, handoff, commands: &commands };
+    let view_projection = frame.camera.view_projection(extent.width as f32 / extent.height as f32);
+    let mut traced = None; // the slot of the frame whose trace is still to be read
+    for f in 0..frames {
+        let slot = timeline.slot(f, frames);
+        stamp_into(Some(&timeline), slot, 0);
+        frame.visibility.draw(g, &frame.targets.ids_target(), scene, &frame.ids, &frame.camera);
+        stamp_into(Some(&timeline), slot, 1);
+        if let Some(previous) = traced.take() {
+            unsafe { g.flush() };
+            commands.wait(vk, "vkWaitForFences for the previous frame")?;
+            if let Some(previous) = previous {
+                timeline.trace_done(vk, previous, stamps)?;
+            }
+        }
+        frame.tracer.accumulated = 0;
+        frame.tracer.trace(apis, &frame.targets, &frame.camera, frame.rays, Some(stamps))?;
+        traced = Some(slot);
+        stamp_into(Some(&timeline), slot, 2);
+        frame.composite.draw(g, &frame.targets, &uniforms);
+        overlays.draw(g, &frame.targets.overlay_target(), view_projection);
+        stamp_into(Some(&timeline), slot, 3);
+    }
+    unsafe { g.finish() };
+    commands.wait(vk, "vkWaitForFences after the last frame")?;
+    if let Some(Some(last)) = traced {
+        timeline.trace_done(vk, last, stamps)?;
+    }
+    let gaps = timeline.finish(vk, &commands, stamps, out)?;
+    vk.wait_idle()?; // once: no owner below waits
+    drop(commands);
+    drop(overlays);
+    drop(frame);
+    drop(shared);
+    Ok(gaps)
 }
 
 /// GL's compute composite, `rounds` dispatches over the surface the frames left: its median

@@ -13,6 +13,7 @@ use super::Frame;
 use anyhow::Result;
 use common::clocks::timestamps::median_p95;
 use common::interop::handoff::Apis;
+use fast_frame::trace::traced;
 use fast_frame::visibility::Targets;
 use glow::HasContext;
 use std::time::Instant;
@@ -23,7 +24,7 @@ pub fn measure(apis: Apis, p: &mut Frame, rounds: u32) -> Result<(f64, f64, f64)
     let spare = Targets::new(vk, gl, apis.handoff, p.targets.extent)?;
     let g = &gl.gl;
     let Frame { scene, ids, camera, rays, tracer, visibility, targets, .. } = p;
-    let draw_spare = || visibility.draw(g, &spare, scene, ids, camera);
+    let draw_spare = || visibility.draw(g, &spare.ids_target(), scene, ids, camera);
     let done = || -> Result<()> {
         unsafe { g.finish() };
         commands.wait(vk, "vkWaitForFences for an overlap sample")?;
@@ -34,7 +35,7 @@ pub fn measure(apis: Apis, p: &mut Frame, rounds: u32) -> Result<(f64, f64, f64)
     for round in 0..2 * rounds + 2 {
         let gl_during = round % 2 == 0;
         let start = Instant::now();
-        visibility.draw(g, targets, scene, ids, camera);
+        visibility.draw(g, &targets.ids_target(), scene, ids, camera);
         tracer.accumulated = 0;
         // ANCHOR: orders
         let between = || {
@@ -42,7 +43,11 @@ pub fn measure(apis: Apis, p: &mut Frame, rounds: u32) -> Result<(f64, f64, f64)
                 draw_spare()
             }
         };
-        tracer.trace_around(apis, targets, camera, *rays, None, between)?;
+        // Chapter 12's hand-over, with `between` run once Vulkan's trace is submitted and before
+        // GL is told to wait for it.
+        let record = |cb| tracer.record(vk, cb, targets, camera, *rays);
+        traced(targets, |images| common::rt::ao::hand_over_around(apis, images, None, between, record))?;
+        targets.gl_has_surface.set(true);
         if !gl_during {
             draw_spare();
         }

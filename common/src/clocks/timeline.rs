@@ -1,5 +1,5 @@
-//! A frame's passes, GL's and Vulkan's, on one clock, as JSON and SVG: chapter 12's
-//! `--timeline N` and the bench's (chapter 08's frame). A frame is GL's raster pass, Vulkan's
+//! A frame's passes, GL's and Vulkan's, on one clock, as JSON and SVG: `bench --timeline N`
+//! (chapter 08's frame and chapter 12's) and `convergence temporal --timeline N` (chapter 13's). A frame is GL's raster pass, Vulkan's
 //! trace, then GL's composite (with the overlays).
 //!
 //! GL's passes are stamped with `glQueryCounter(GL_TIMESTAMP)` before and after; Vulkan's trace

@@ -128,12 +128,7 @@ impl GBuffers {
         let (framebuffer, depth) = unsafe { framebuffer(gl_, &images, extent)? };
         let fragment = crate::base::gl::with_includes(FRAGMENT_SHADER, &[OCTAHEDRAL])?;
         let program = crate::base::gl::program_with_geometry(gl_, VERTEX_SHADER, GEOMETRY_SHADER, &fragment)?;
-        let instances = &buffers.instances.gl;
-        let vertex_arrays = buffers
-            .meshes
-            .iter()
-            .map(|[v, i]| unsafe { vertex_array(gl_, &v.gl, &i.gl, instances) })
-            .collect::<Result<_>>()?;
+        let vertex_arrays = vertex_arrays(gl_, buffers)?;
         Ok(GBuffers { vertex_arrays, program, framebuffer, depth, images, extent })
     }
 
@@ -157,7 +152,7 @@ impl GBuffers {
                 gl.clear_buffer_f32_slice(glow::COLOR, attachment, &[0.0; 4]);
             }
             gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
-            self.draw_meshes(gl, scene);
+            draw_meshes(gl, scene, &self.vertex_arrays);
             gl.bind_framebuffer(glow::FRAMEBUFFER, None);
         }
     }
@@ -177,29 +172,6 @@ impl GBuffers {
         }
     }
 
-    /// One instanced draw per mesh.
-    unsafe fn draw_meshes(&self, gl: &glow::Context, scene: &Scene) {
-        unsafe {
-            for ((mesh, instances), vao) in
-                scene.meshes.iter().zip(&scene.mesh_instances).zip(&self.vertex_arrays)
-            {
-                gl.bind_vertex_array(Some(**vao));
-                let (indices, count) = (mesh.indices.len() as i32, instances.len() as i32);
-                // base_instance: this mesh's instances start this many entries into the buffer.
-                let first = instances.start;
-                gl.draw_elements_instanced_base_vertex_base_instance(
-                    glow::TRIANGLES,
-                    indices,
-                    glow::UNSIGNED_INT,
-                    0,
-                    count,
-                    0,
-                    first,
-                );
-            }
-            gl.bind_vertex_array(None);
-        }
-    }
     // ANCHOR_END: draw
 
     // ANCHOR: depth_first
@@ -213,14 +185,14 @@ impl GBuffers {
             self.bind(gl, camera);
             gl.clear_buffer_f32_slice(glow::DEPTH, 0, &[1.0]);
             gl.color_mask(false, false, false, false);
-            self.draw_meshes(gl, scene);
+            draw_meshes(gl, scene, &self.vertex_arrays);
             gl.color_mask(true, true, true, true);
             for attachment in 0..GBUFFERS.len() as u32 {
                 gl.clear_buffer_f32_slice(glow::COLOR, attachment, &[0.0; 4]);
             }
             gl.depth_func(glow::EQUAL);
             gl.depth_mask(false);
-            self.draw_meshes(gl, scene);
+            draw_meshes(gl, scene, &self.vertex_arrays);
             gl.depth_func(glow::LESS);
             gl.depth_mask(true);
             gl.bind_framebuffer(glow::FRAMEBUFFER, None);
@@ -304,6 +276,34 @@ pub fn check_size(vk: &VulkanContext, gl: &GlContext, extent: vk::Extent2D) -> R
     Ok(())
 }
 
+// ANCHOR: draw_meshes
+/// One instanced draw per mesh, each through its vertex array, into the framebuffer bound with
+/// the program bound (`bench --probe layouts` draws another lean buffer with it too).
+///
+/// # Safety
+/// GL's context must be current, and `vertex_arrays` the scene's, one per mesh.
+pub unsafe fn draw_meshes(gl: &glow::Context, scene: &Scene, vertex_arrays: &[Owned<glow::VertexArray>]) {
+    unsafe {
+        for ((mesh, instances), vao) in scene.meshes.iter().zip(&scene.mesh_instances).zip(vertex_arrays) {
+            gl.bind_vertex_array(Some(**vao));
+            let (indices, count) = (mesh.indices.len() as i32, instances.len() as i32);
+            // base_instance: this mesh's instances start this many entries into the buffer.
+            let first = instances.start;
+            gl.draw_elements_instanced_base_vertex_base_instance(
+                glow::TRIANGLES,
+                indices,
+                glow::UNSIGNED_INT,
+                0,
+                count,
+                0,
+                first,
+            );
+        }
+        gl.bind_vertex_array(None);
+    }
+}
+// ANCHOR_END: draw_meshes
+
 // ANCHOR: vertex_array
 /// How GL reads a mesh: per-vertex attributes from its vertex buffer (binding 0) and
 /// per-instance ones from the shared instance buffer (binding 1, advancing once per instance).
@@ -343,6 +343,15 @@ pub unsafe fn vertex_array(
     Ok(owned)
 }
 // ANCHOR_END: vertex_array
+
+/// One [`vertex_array`] per mesh of the shared scene, in the scene's order (GL's context current).
+pub fn vertex_arrays(
+    gl: &std::rc::Rc<glow::Context>,
+    buffers: &SceneBuffers,
+) -> Result<Vec<Owned<glow::VertexArray>>> {
+    let instances = &buffers.instances.gl;
+    buffers.meshes.iter().map(|[v, i]| unsafe { vertex_array(gl, &v.gl, &i.gl, instances) }).collect()
+}
 
 // ANCHOR: framebuffer
 /// One FBO over the three imported textures, plus a depth buffer only GL needs.
