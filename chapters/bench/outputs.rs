@@ -35,7 +35,8 @@ pub fn write(
 }
 
 /// One markdown line per row; each scene's Grays/s also as a fraction of the ceiling scene's
-/// at the same mode, size and rays (the best the traversal does).
+/// at the same mode, size and rays (the best the traversal does). A row that gives no ray rate
+/// (chapter 13's, whose pixels trace as many rays as their history asks) shows "–" in both.
 pub fn table(rows: &[Row]) -> String {
     let mut table = String::from(
         "| mode | scene | size | spp | frame ms | p95 ms | raster ms | hand-over ms | AO ms | composite ms | Grays/s | of ceiling |\n\
@@ -46,8 +47,9 @@ pub fn table(rows: &[Row]) -> String {
             c.scene == "ceiling" && (c.mode, c.width, c.height, c.spp) == (r.mode, r.width, r.height, r.spp)
         });
         let fraction = ceiling
-            .filter(|c| c.grays_per_s > 0.0)
-            .map_or(String::new(), |c| format!("{:.0}%", 100.0 * r.grays_per_s / c.grays_per_s));
+            .filter(|c| c.grays_per_s > 0.0 && r.grays_per_s > 0.0)
+            .map_or("–".to_owned(), |c| format!("{:.0}%", 100.0 * r.grays_per_s / c.grays_per_s));
+        let rate = if r.grays_per_s > 0.0 { three_figures(r.grays_per_s) } else { "–".to_owned() };
         let _ = writeln!(
             table,
             "| {} | {} | {}x{} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {} | {fraction} |",
@@ -62,7 +64,7 @@ pub fn table(rows: &[Row]) -> String {
             r.handoff_ms,
             r.ao_ms,
             r.composite_ms,
-            three_figures(r.grays_per_s)
+            rate
         );
     }
     table
@@ -148,4 +150,47 @@ fn plot(path: &Path, rows: &[Row], device: &str) -> Result<()> {
     }
     root.present()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(mode: Mode, scene: &'static str, grays_per_s: f64) -> Row {
+        let (width, height, spp) = (64, 48, 4);
+        let (frame_ms, p95_ms, raster_ms, handoff_ms, ao_ms, composite_ms) = (1.0, 1.0, 0.2, 0.1, 0.5, 0.2);
+        Row {
+            mode,
+            scene,
+            width,
+            height,
+            spp,
+            frame_ms,
+            p95_ms,
+            raster_ms,
+            handoff_ms,
+            ao_ms,
+            composite_ms,
+            grays_per_s,
+        }
+    }
+
+    /// A row with a ray rate gives it and its share of the ceiling's; a row without one (chapter
+    /// 13's) shows "–" in both, never a rate of 0.
+    #[test]
+    fn rows_without_a_ray_rate_say_so() {
+        let rows = [
+            row(Mode::FastFrame, "ceiling", 20.0),
+            row(Mode::FastFrame, "default", 5.0),
+            row(Mode::TemporalReuse, "ceiling", 0.0),
+            row(Mode::TemporalReuse, "default", 0.0),
+        ];
+        let table = table(&rows);
+        let lines: Vec<&str> = table.lines().skip(2).collect();
+        assert!(lines[0].ends_with("| 20.0 | 100% |"), "{}", lines[0]);
+        assert!(lines[1].ends_with("| 5.00 | 25% |"), "{}", lines[1]);
+        for line in &lines[2..] {
+            assert!(line.ends_with("| – | – |"), "{line}");
+        }
+    }
 }
