@@ -34,9 +34,6 @@ pub struct PathArgs {
     /// sideways), `still`.
     #[arg(long, value_enum, default_value = "orbit")]
     pub path: PathKind,
-    /// The orbit's speed, in degrees per frame (0-30).
-    #[arg(long, default_value_t = 0.5, value_parser = common::base::cli::number::<f32>(0.0..=30.0))]
-    pub orbit_speed: f32,
     /// The frame at which the orbiting camera jumps to another view (0: no cut).
     #[arg(long, default_value_t = 60, value_parser = common::base::cli::number::<u32>(0..=1_000_000))]
     pub cut_at: u32,
@@ -45,6 +42,8 @@ pub struct PathArgs {
     pub mover: Mover,
 }
 
+/// How far the orbiting camera turns, or the panning one slides, each frame: 720 frames a lap.
+const DEGREES_PER_FRAME: f32 = 0.5;
 /// Frames per lap of the moving instance.
 const LAP_FRAMES: f32 = 240.0;
 /// The cut: how far round the camera jumps, how much it tilts and how much closer it comes.
@@ -74,7 +73,7 @@ impl Path {
     pub fn new(scene: &Scene, start: Camera, args: &PathArgs) -> Path {
         let moving = (args.mover == Mover::Circle).then(|| Moving::choose(scene));
         let (kind, cut_at) = (args.path, if args.path == PathKind::Orbit { args.cut_at } else { 0 });
-        Path { kind, start, bounds: scene.bounds, speed: args.orbit_speed.to_radians(), cut_at, moving }
+        Path { kind, start, bounds: scene.bounds, speed: DEGREES_PER_FRAME.to_radians(), cut_at, moving }
     }
 
     // ANCHOR: camera
