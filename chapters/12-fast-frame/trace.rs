@@ -172,19 +172,22 @@ impl SurfaceTracer {
         rays: Rays,
         timestamps: Option<&Timestamps>,
     ) -> Result<()> {
-        let push = self.push_constants(targets, camera, rays);
-        let (vk, pipeline) = (apis.vk, &self.pipeline);
-        let trace = |cb| pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
-        hand_over_around(apis, targets, timestamps, trace)?;
-        self.accumulated += rays.samples;
-        Ok(())
+        hand_over_around(apis, targets, timestamps, |cb| self.record(apis.vk, cb, targets, camera, rays))
     }
-    // ANCHOR_END: frame
 
-    /// What the ray generation shader is told about this frame.
-    fn push_constants(&self, targets: &Targets, camera: &Camera, rays: Rays) -> SurfaceRays {
+    /// The frame's Vulkan work, recorded into `cb`: the ray generation shader told about the
+    /// camera and the rays, launched once per pixel; the running mean counts the rays.
+    /// (`bench --probe overlap` records it between hand-overs of its own.)
+    pub fn record(
+        &mut self,
+        vk: &VulkanContext,
+        cb: vk::CommandBuffer,
+        targets: &Targets,
+        camera: &Camera,
+        rays: Rays,
+    ) {
         let aspect = targets.extent.width as f32 / targets.extent.height as f32;
-        SurfaceRays {
+        let push = SurfaceRays {
             inverse_view_projection: camera.view_projection(aspect).inverse().to_cols_array(),
             eye: camera.eye.into(),
             radius: rays.radius,
@@ -196,23 +199,11 @@ impl SurfaceTracer {
             pattern: rays.pattern.side() | rays.salt << 8,
             meshes: self.meshes.address,
             instances: self.instances,
-        }
-    }
-
-    /// Records the trace of `rays` into `cb`, for a caller that hands the images over itself
-    /// (`bench --probe overlap` slips other GL work in between); the running mean counts them.
-    pub fn record(
-        &mut self,
-        vk: &VulkanContext,
-        cb: vk::CommandBuffer,
-        targets: &Targets,
-        camera: &Camera,
-        rays: Rays,
-    ) {
-        let push = self.push_constants(targets, camera, rays);
+        };
         self.pipeline.trace(vk, cb, bytemuck::bytes_of(&push), targets.extent);
         self.accumulated += rays.samples;
     }
+    // ANCHOR_END: frame
 
     /// `total` rays per pixel from scratch, `rays.samples` at a time, as that many frames would
     /// trace them (for the checks, after the frames).
