@@ -88,7 +88,7 @@ pub struct Sized {
 }
 
 /// The GPU times of one walk, whether the last frame's trace time is still to be read, and the
-/// last frames' passes on one clock (chapter 12's `--timeline`), with the walk's length.
+/// last frames' passes on one clock (`convergence temporal --timeline`), with the walk's length.
 pub struct Clock {
     pub gl: GlPassTimer,
     pub times: PassTimes,

@@ -74,7 +74,7 @@ struct Args {
     #[arg(long, default_value_t = 1, value_parser = common::base::cli::number::<u32>(1..=1000))]
     error_every: u32,
     /// The last N frames' passes, GL's and Vulkan's on one clock, into timeline.json and
-    /// timeline.svg in --out, as chapter 12's (0: none).
+    /// timeline.svg in --out, as `bench --timeline` draws chapter 12's (0: none).
     #[arg(long, default_value_t = 0, value_parser = common::base::cli::number::<u32>(0..=64))]
     timeline: u32,
     /// Draw the path again with chapter 12's frame at 16, 8 and 4 rays and chapter 13's at 1, 2
