@@ -122,10 +122,12 @@ impl<'s> Frame<'s> {
     }
 }
 
-/// Chapter 12's frame on one clock (`bench --timeline N`): `frames` frames drawn as its program
-/// draws them (ids, trace, composite and overlays), the last `last` of them stamped, into
-/// `<out>.json` and `<out>.svg`. A frame's trace is read once the next frame's ids are queued,
-/// where the chapter's loop reads it; the gaps between the passes go in the report.
+/// Chapter 12's frame on one clock (`bench --timeline N`): `frames` frames of its passes (ids,
+/// trace, composite and overlays), the last `last` of them stamped, into `<out>.json` and
+/// `<out>.svg`. Each frame traces `spp` fresh rays, as the bench's other rows do, where the
+/// chapter's loop adds them to a running mean (the same rays, one more read a pixel). A frame's
+/// trace is read once the next frame's ids are queued, where the chapter's loop reads it; the
+/// gaps between the passes go in the report.
 pub fn timeline(
     (vk, gl, handoff, stamps): (&VulkanContext, &GlContext, &Handoff, &Timestamps),
     scene: &Scene,
