@@ -430,6 +430,55 @@ fn ch08_in_a_window_under_xvfb() {
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
 
+/// The panel, as a user meets it: keys change what it shows and what the report gives, hidden
+/// or shown, and F10 hides it, which changes the window's pixels only where it was drawn.
+#[test]
+fn ch08_panel_under_xvfb() {
+    use harness::x11::Display;
+    use std::time::Duration;
+    let Some(xvfb) = harness::Xvfb::start("ch08_panel_under_xvfb") else { return };
+    const F10: u32 = 0xffc7;
+    const ESCAPE: u32 = 0xff1b;
+    const EQUALS: u32 = 0x3d; // "=": the "+" key without Shift, doubles the rays a frame
+    let (gap, within) = (Duration::from_millis(400), Duration::from_secs(60));
+    let mut shots = None;
+    // One ray a pixel, once: then the picture stays as it is.
+    let args = ["--size", "480x360", "--frames", "0", "--samples", "1", "--max-samples", "1"];
+    let bin = env!("CARGO_BIN_EXE_08-composite");
+    let run = harness::run_chapter_driven(bin, &args, &[("DISPLAY", &xvfb.display)], || {
+        let x = Display::connect(&xvfb.display);
+        let window = x.window("08 · composite", within).expect("the chapter's window");
+        let first = x.shot_until(window, (gap, within), "to draw", |shot| shot.drawn());
+        x.key(F10); // hidden: nothing in the window changes once the occlusion is done
+        x.shot_until(window, (gap, within), "to change after F10", |shot| shot != &first);
+        let hidden = x.settled(window, gap, within);
+        x.key(EQUALS); // 1 -> 2, while hidden
+        x.key(F10);
+        let shown = x.shot_until(window, (gap, within), "to show the panel", |shot| shot != &hidden);
+        x.key(EQUALS); // 2 -> 4, while shown
+        std::thread::sleep(gap);
+        x.key(ESCAPE);
+        shots = Some((hidden, shown));
+    });
+    drop(xvfb);
+    let report = run.succeeded();
+    let (hidden, shown) = shots.expect("the window was seen");
+    assert_eq!(report["samples"], 4, "both key presses count, the panel hidden or shown");
+    assert_eq!(report["panel_shown"], true);
+    let [left, top, width, height] = serde_json::from_value::<[u32; 4]>(report["panel_rect"].clone())
+        .expect("the panel's rectangle in the report");
+    let changed = hidden.differs_within(&shown).expect("F10 changes the window");
+    let inside = changed[0] >= left
+        && changed[1] >= top
+        && changed[0] + changed[2] <= left + width
+        && changed[1] + changed[3] <= top + height;
+    if !inside || std::env::var_os("VKGL_KEEP_SHOTS").is_some() {
+        hidden.save(&std::env::temp_dir().join("ch08-panel-hidden.png"));
+        shown.save(&std::env::temp_dir().join("ch08-panel-shown.png"));
+    }
+    assert!(inside, "F10 changed {changed:?}, outside the panel's {:?}", [left, top, width, height]);
+}
+
 #[test]
 fn ch12_resizing_leaks_nothing() {
     let args = ["--size", "96x72", "--frames", "8", "--samples", "2", "--resize-every", "2"];

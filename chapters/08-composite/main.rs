@@ -7,7 +7,7 @@
 //! mouse, and every change starts the occlusion's accumulation again.
 //!
 //! Run: `cargo run --release --bin 08-composite` (keys: 1-6 views, +/- rays, [/] radius,
-//! B blur, P power, O overlays, Esc quits; drag to orbit, wheel to zoom).
+//! B blur, P power, O overlays, F10 the panel, Esc quits; drag to orbit, wheel to zoom).
 
 use anyhow::{Result, ensure};
 use ash::vk;
@@ -17,7 +17,7 @@ use common::base::window::Key;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::input::{resize_every, window_input};
-use common::frame::{Composite, Overlays, View};
+use common::frame::{Composite, Overlays, View, panel};
 use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
@@ -103,6 +103,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     let (mut trace_pending, mut traced) = (false, 0u64);
     let mut skipped = None;
+    let views = View::ALL.map(|v| (v, v.name()));
     loop {
         // ANCHOR: input
         let new_size;
@@ -117,6 +118,13 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 break; // Esc, or the window closed
             };
             new_size = resized;
+            // The panel: the same settings as controls, then what the frame shows of itself
+            let accumulated = tracer.accumulated.to_string();
+            window.panel(|ui| {
+                panel::settings(ui, &mut settings, &views, radius / 8.0..=radius * 8.0, true);
+                panel::values(ui, &[("sync", handoff.name().into()), ("rays a pixel", accumulated.clone())]);
+                panel::pass_times(ui, &times);
+            });
             // The running mean describes what each pixel showed, with this radius: a moved camera or
             // a new radius makes it describe something else. Rays per frame, blur and power do not.
             if settings.radius != before.0.radius || camera.eye != before.1 {
@@ -225,6 +233,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         for (name, ok) in last_frame.check(&overlays)? {
             report.check(name, ok);
         }
+        report.set("samples", settings.samples); // rays a pixel a frame, as the keys and panel left it
         report.set("samples_per_pixel", tracer.accumulated);
         if let Some(reason) = skipped {
             report.set("ao_skipped", reason);
@@ -258,6 +267,9 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
+    if let Some(window) = &window {
+        window.report_panel(report);
+    }
     drop(window);
     Ok(())
 }

@@ -28,6 +28,11 @@ pub enum View {
 
 impl View {
     pub const ALL: [View; 5] = [View::Final, View::Ao, View::Depth, View::Normal, View::Albedo];
+
+    /// As `--view` spells it.
+    pub fn name(self) -> &'static str {
+        ["final", "ao", "depth", "normal", "albedo"][self as usize]
+    }
 }
 
 /// The composite shader's uniforms: chapter 08's, over these views.

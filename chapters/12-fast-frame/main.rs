@@ -15,8 +15,8 @@ use common::base::commands::Commands;
 use common::base::window::Key;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
-use common::frame::Overlays;
 use common::frame::input::{Settings as Keys, resize_every, window_input};
+use common::frame::{Overlays, panel};
 use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
@@ -26,7 +26,7 @@ use common::scene::Camera;
 use common::scene::gbuffer::contexts_in_window;
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use fast_frame::check;
-use fast_frame::composite::ComputeComposite;
+use fast_frame::composite::{ComputeComposite, View};
 use fast_frame::trace::SurfaceTracer;
 use fast_frame::visibility::{self, Targets, VisibilityPass};
 use glow::HasContext;
@@ -102,6 +102,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     if let Some(reason) = skipped {
         eprintln!("ao: {reason}: visibility is 1 everywhere; no rays traced");
     }
+    let views = View::ALL.map(|v| (v, v.name()));
     loop {
         let mut new_size = None;
         if let Some(window) = window.as_mut() {
@@ -117,6 +118,18 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 break; // Esc, or the window closed
             };
             new_size = resized;
+            let accumulated = tracer.accumulated.to_string();
+            window.panel(|ui| {
+                panel::settings(ui, &mut settings.keys, &views, radius / 8.0..=radius * 8.0, true);
+                let pattern = format!("{:?} (T)", settings.pattern).to_lowercase();
+                let values = [
+                    ("pattern", pattern),
+                    ("sync", handoff.name().into()),
+                    ("rays a pixel", accumulated.clone()),
+                ];
+                panel::values(ui, &values);
+                panel::pass_times(ui, &times);
+            });
             // A new camera, radius or sample pattern makes the running mean describe another thing.
             let changed = (settings.radius, settings.pattern) != (before.0.radius, before.0.pattern);
             if changed || camera.eye != before.1 {

@@ -193,7 +193,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         }
         gl_context.check_error("GL's turn")?;
         turns.gl_release(&gl_context, &images)?;
-        if let Some(window) = &window {
+        if let Some(window) = &mut window {
             window.swap_buffers(&gl_context)?;
         }
         turns.times.frame_done();

@@ -17,7 +17,7 @@ use common::base::commands::Commands;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes, read_after};
 use common::frame::input::{Settings, resize_every, window_input};
-use common::frame::{Composite, View};
+use common::frame::{Composite, View, panel};
 use common::instruments::census::ResizeCensus;
 use common::interop::handoff::Apis;
 use common::interop::{BufferPair, share_buffer};
@@ -181,6 +181,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let commands = Commands::new(&vk)?;
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
     let mut skipped = None;
+    let views = View::ALL.map(|v| (v, v.name()));
     loop {
         let new_size;
         if let Some(window) = window.as_mut() {
@@ -194,6 +195,12 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 break; // Esc, or the window closed
             };
             new_size = resized;
+            let accumulated = tracer.accumulated.to_string();
+            window.panel(|ui| {
+                panel::settings(ui, &mut settings, &views, radius / 8.0..=radius * 8.0, false);
+                panel::values(ui, &[("sync", handoff.name().into()), ("rays a pixel", accumulated.clone())]);
+                panel::pass_times(ui, &times);
+            });
             settings.overlays = false; // this chapter draws none
             if settings.radius != before.0.radius || camera.eye != before.1 {
                 tracer.reset();

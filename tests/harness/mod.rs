@@ -12,6 +12,7 @@
 
 pub mod flags;
 pub mod sizes;
+pub mod x11;
 
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
@@ -68,8 +69,41 @@ pub fn run_chapter_from(dir: &Path, bin: &str, args: &[&str]) -> Run {
     run_chapter_in(command, bin, &all, &[])
 }
 
-fn run_chapter_in(mut command: Command, bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
+/// Like [`run_chapter_with`], with `drive` run while the chapter runs (a user's keys to its
+/// window, say); `drive` must end the chapter (Esc). Should `drive` panic, the chapter is killed
+/// and its stderr shown.
+pub fn run_chapter_driven(bin: &str, args: &[&str], env: &[(&str, &str)], drive: impl FnOnce()) -> Run {
     let out_dir = tempfile::tempdir().expect("temporary directory");
+    let mut command = chapter_command(Command::new(bin), &out_dir, args, env);
+    let child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn();
+    let mut chapter = child.unwrap_or_else(|e| panic!("could not start {bin}: {e}"));
+    let driven = std::panic::catch_unwind(std::panic::AssertUnwindSafe(drive));
+    if driven.is_err() {
+        let _ = chapter.kill();
+    }
+    let output = chapter.wait_with_output().expect("the chapter's output");
+    let run = collect(output, out_dir);
+    if let Err(panic) = driven {
+        eprintln!("the chapter's stderr:\n{}", run.stderr);
+        std::panic::resume_unwind(panic);
+    }
+    run
+}
+
+fn run_chapter_in(command: Command, bin: &str, args: &[&str], env: &[(&str, &str)]) -> Run {
+    let out_dir = tempfile::tempdir().expect("temporary directory");
+    let mut command = chapter_command(command, &out_dir, args, env);
+    let output = command.output().unwrap_or_else(|e| panic!("could not start {bin}: {e}"));
+    collect(output, out_dir)
+}
+
+/// `command` with `--json --out <out_dir>` and `args`, on the software stack, with `env`.
+fn chapter_command(
+    mut command: Command,
+    out_dir: &tempfile::TempDir,
+    args: &[&str],
+    env: &[(&str, &str)],
+) -> Command {
     command.args(["--json", "--out"]).arg(out_dir.path()).args(args);
     pin_software_stack(&mut command);
     // The validation layer's synchronisation checks too (hazards between commands, barriers
@@ -79,7 +113,10 @@ fn run_chapter_in(mut command: Command, bin: &str, args: &[&str], env: &[(&str, 
     }
     command.env_remove("DISPLAY").env_remove("WAYLAND_DISPLAY");
     command.envs(env.iter().copied());
-    let output = command.output().unwrap_or_else(|e| panic!("could not start {bin}: {e}"));
+    command
+}
+
+fn collect(output: Output, out_dir: tempfile::TempDir) -> Run {
     let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
     let stdout = String::from_utf8_lossy(&output.stdout);
     let report = if stdout.trim().is_empty() {

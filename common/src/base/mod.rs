@@ -11,6 +11,7 @@ pub mod compute;
 pub mod gl;
 pub mod image;
 pub mod owned;
+mod panel;
 pub mod pipeline;
 pub mod shader_block;
 pub mod vulkan;

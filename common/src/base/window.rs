@@ -7,6 +7,7 @@
 //! `ApplicationHandler` that keeps only what is safe to handle later on Linux: key presses,
 //! resizes and the close request. Rendering stays in the chapter's loop.
 
+use super::panel::Panel;
 use crate::base::cli::Size;
 use crate::base::gl::{GlContext, create};
 use anyhow::{Context as _, Result, anyhow, bail};
@@ -26,6 +27,7 @@ use winit::platform::pump_events::{EventLoopExtPumpEvents as _, PumpStatus};
 use winit::raw_window_handle::HasWindowHandle as _;
 use winit::window::WindowId;
 
+pub use super::panel::TOGGLE as PANEL_KEY;
 pub use winit::keyboard::{Key, NamedKey};
 
 /// The variables that name a display this build can open a window on. Wayland's is among them
@@ -81,6 +83,8 @@ struct App {
     cursor: Option<winit::dpi::PhysicalPosition<f64>>,
     /// Wheel movement in lines since it was last taken.
     scroll: f32,
+    /// Made once the context is current; it sees every event first.
+    panel: Option<Panel>,
 }
 
 struct Opened {
@@ -121,6 +125,7 @@ impl Window {
         let gl = GlContext::new(context, &|name| display.get_proc_address(name), required)?;
         // ANCHOR_END: pump
         let opened = app.opened.as_ref().expect("checked above");
+        app.panel = Some(Panel::new(&opened.window, |name| display.get_proc_address(name))?);
         // Wait for one vertical blank per swap when the driver can; a window needs no more frames.
         let _ = opened.surface.set_swap_interval(gl.context(), SwapInterval::Wait(NonZeroU32::MIN));
         eprintln!(
@@ -176,10 +181,38 @@ impl Window {
         }
     }
 
-    /// Shows the back buffer.
-    pub fn swap_buffers(&self, gl: &GlContext) -> Result<()> {
+    // ANCHOR: panel
+    /// Lays out this frame's panel, titled with the window's title: `contents` adds the controls
+    /// (egui's; egui may run it twice in a frame), which change the values they hold at once, so
+    /// call it before the frame reads them. [`Window::swap_buffers`] draws it over the picture.
+    /// F10 hides and shows it.
+    pub fn panel(&mut self, contents: impl FnMut(&mut egui::Ui)) {
+        if let (Some(panel), Some(opened)) = (&mut self.app.panel, &self.app.opened) {
+            panel.layout(&opened.window, &self.app.title, contents);
+        }
+    }
+
+    /// Draws the panel (when shown) over what the chapter put in the back buffer, and shows it.
+    pub fn swap_buffers(&mut self, gl: &GlContext) -> Result<()> {
+        let size = self.size();
+        if let Some(panel) = &mut self.app.panel {
+            panel.draw(size);
+        }
+        gl.check_error("drawing the panel")?;
         let opened = self.app.opened.as_ref().expect("an open Window has a surface");
         opened.surface.swap_buffers(gl.context()).context("swapping the window's buffers")
+    }
+    // ANCHOR_END: panel
+
+    /// Writes the panel's state into the report: `panel_shown`, and `panel_rect` (left, top,
+    /// width, height in pixels, from the window's top left) where it was last drawn.
+    pub fn report_panel(&self, report: &mut crate::instruments::report::Report) {
+        if let Some(panel) = &self.app.panel {
+            report.set("panel_shown", panel.shown());
+            if let Some(rect) = panel.rect() {
+                report.set("panel_rect", rect.to_vec());
+            }
+        }
     }
 }
 
@@ -275,7 +308,16 @@ impl ApplicationHandler for App {
     }
 
     fn window_event(&mut self, _: &ActiveEventLoop, _: WindowId, event: WindowEvent) {
+        // What the panel takes (a click on a control, a slider's drag) the chapter does not see.
+        let taken = match (&mut self.panel, &self.opened) {
+            (Some(panel), Some(opened)) => panel.event(&opened.window, &event),
+            _ => false,
+        };
         match event {
+            // Taken or not: a drag that ends over the panel ends, and one after it starts here.
+            WindowEvent::CursorMoved { position, .. } if taken => self.cursor = Some(position),
+            WindowEvent::MouseInput { state: ElementState::Released, .. } if taken => self.dragging = false,
+            _ if taken => {}
             WindowEvent::CloseRequested => self.close_requested = true,
             WindowEvent::Resized(size) => self.resized = Some(size),
             WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {

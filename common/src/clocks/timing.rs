@@ -118,16 +118,24 @@ impl PassTimes {
     /// One line for a window's title bar or the terminal, the medians of the last 60 frames:
     /// "raster 1.20 · ao 3.10 ms (GPU)".
     pub fn line(&self) -> String {
-        let recent = |s: &[f64]| median_p95(&s[s.len().saturating_sub(60)..]).0;
         let parts: Vec<String> = self
-            .passes
-            .iter()
-            .map(|(name, samples)| match samples.is_empty() {
-                true => format!("{name} -"), // every answer rejected
-                false => format!("{name} {:.2}", recent(samples)),
+            .recent()
+            .into_iter()
+            .map(|(name, ms)| match ms {
+                None => format!("{name} -"), // every answer rejected
+                Some(ms) => format!("{name} {ms:.2}"),
             })
             .collect();
         if parts.is_empty() { "no GPU times yet".into() } else { format!("{} ms (GPU)", parts.join(" · ")) }
+    }
+}
+
+impl PassTimes {
+    /// Each pass's median over its last 60 frames, in ms, in the order the passes first ran:
+    /// `None` for a pass whose every answer was rejected.
+    pub fn recent(&self) -> Vec<(&'static str, Option<f64>)> {
+        let recent = |s: &[f64]| median_p95(&s[s.len().saturating_sub(60)..]).0;
+        self.passes.iter().map(|(name, s)| (*name, (!s.is_empty()).then(|| recent(s)))).collect()
     }
 }
 

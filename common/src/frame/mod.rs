@@ -6,6 +6,7 @@
 pub mod composite;
 pub mod input;
 pub mod overlay;
+pub mod panel;
 pub mod probe;
 pub mod ring;
 
