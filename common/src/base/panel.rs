@@ -16,7 +16,7 @@ use winit::event::{ElementState, WindowEvent};
 use winit::keyboard::{Key, NamedKey};
 
 /// The key that hides and shows the panel (the one the NVIDIA samples use).
-pub const TOGGLE: NamedKey = NamedKey::F10;
+const TOGGLE: NamedKey = NamedKey::F10;
 
 pub(super) struct Panel {
     context: egui::Context,
@@ -62,7 +62,6 @@ impl Panel {
         if let WindowEvent::KeyboardInput { event: key, .. } = event {
             if key.state == ElementState::Pressed && key.logical_key == Key::Named(TOGGLE) {
                 self.shown = !self.shown;
-                window.request_redraw();
             }
         }
         self.shown && self.input.on_window_event(window, event).consumed

@@ -27,7 +27,6 @@ use winit::platform::pump_events::{EventLoopExtPumpEvents as _, PumpStatus};
 use winit::raw_window_handle::HasWindowHandle as _;
 use winit::window::WindowId;
 
-pub use super::panel::TOGGLE as PANEL_KEY;
 pub use winit::keyboard::{Key, NamedKey};
 
 /// The variables that name a display this build can open a window on. Wayland's is among them
