@@ -521,6 +521,46 @@ fn ch09_animated_instances() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+/// Chapter 09 in a window: the ring runs on the wall clock until Space stops it; stopped, the
+/// occlusion accumulates to `--max-samples` and (the panel hidden) the window stops changing.
+#[test]
+fn ch09_in_a_window_runs_until_space_stops_it() {
+    use harness::x11::Display;
+    use std::time::Duration;
+    let Some(xvfb) = harness::Xvfb::start("ch09_in_a_window_runs_until_space_stops_it") else { return };
+    const SPACE: u32 = 0x20;
+    const F10: u32 = 0xffc7;
+    const ESCAPE: u32 = 0xff1b;
+    let (gap, within) = (Duration::from_millis(400), Duration::from_secs(60));
+    // A small ring, in frames of tens of milliseconds on llvmpipe: a frame well within `gap`.
+    let args = ["--size", "200x150", "--count", "3", "--frames", "0", "--samples", "2", "--max-samples", "4"];
+    let bin = env!("CARGO_BIN_EXE_09-animated-instances");
+    let run = harness::run_chapter_driven(bin, &args, &[("DISPLAY", &xvfb.display)], || {
+        let x = Display::connect(&xvfb.display);
+        let window = x.window("09 · animated instances", within).expect("the chapter's window");
+        let first = x.shot_until(window, (gap, within), "to draw", |shot| shot.drawn());
+        x.key(F10); // the panel's pass times change every frame: hidden, only the ring can
+        let hidden = x.shot_until(window, (gap, within), "to hide the panel", |shot| shot != &first);
+        x.shot_until(window, (gap, within), "to move on", |shot| shot != &hidden);
+        x.key(SPACE);
+        x.settled(window, gap, within); // stopped, and 1 + 1 + 2 rays later, nothing changes
+        x.key(ESCAPE);
+    });
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["panel_shown"], false);
+    // The mean restarts while the ring runs: these are the rays since it stopped.
+    assert_eq!(report["samples_per_pixel"], 4, "stopped, the mean accumulates to --max-samples");
+    assert!(
+        report["lengths_travelled"].as_f64().unwrap() > 0.0,
+        "the ring ran: {}",
+        report["lengths_travelled"]
+    );
+    assert!(report["not_judged"]["frames_differ_over_time"].is_string(), "{}", report["not_judged"]);
+    assert_eq!(report["checks"]["updated_tlas_traces_like_a_rebuilt_one"], true);
+}
+
 #[test]
 fn ch09_rebuilds_only_when_asked() {
     let args = ["--size", "64x48", "--frames", "5", "--samples", "2", "--rebuild-every", "2"];

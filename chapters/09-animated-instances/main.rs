@@ -3,28 +3,34 @@
 //! A ring of bunnies runs in a circle. Each frame the CPU writes their transforms into the
 //! instance buffer that GL draws from and the TLAS is built from; Vulkan updates the TLAS in
 //! place (no new tree, no allocation), traces ambient occlusion against it, and GL composites.
-//! The report measures what an update costs against a rebuild, and what it costs the rays.
+//! The report measures what an update costs against a rebuild, and what it costs the rays. In a
+//! window the ring runs on the wall clock; headless, at `--time` + frame x `--step`.
 //!
-//! Run: `cargo run --release --bin 09-animated-instances -- --frames 120`.
+//! Run: `cargo run --release --bin 09-animated-instances` (keys: Space stops and starts the ring,
+//! +/- rays, F10 the panel, Esc quits; drag to orbit, wheel to zoom).
 
 use anyhow::Result;
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
+use common::base::window::{Key, NamedKey};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
+use common::frame::input::window_input;
+use common::frame::panel::{self, Control};
 use common::frame::{Composite, Uniforms};
 use common::instruments::output;
 use common::interop::handoff::Apis;
 use common::rt::RayTracedScene;
 use common::rt::accel::{BuildInputs, InPlace, Refresh, TlasFlags, instances_geometry};
-use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::rt::ao::{AoArgs, AoRays, AoTracer, rays_this_frame};
 use common::scene::Camera;
 use common::scene::gbuffer::{self, GBuffers};
 use common::{Flags, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
+use std::time::Instant;
 
 mod ring;
 
@@ -67,14 +73,16 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         None => common::scene::default_asset("bunny.obj", "--model")?,
     };
     let (scene, ring) = ring::scene(&model, args.count, args.lap, args.animation.time)?;
-    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
+    let mut size = args.common.size;
+    let mut camera = Camera::framing(scene.bounds, size.aspect());
     let radius = args.ao.radius_to_trace(&scene)?;
     report.set("runners", ring.count);
     report.set("ring_radius", (ring.radius as f64 * 1e3).round() / 1e3);
 
-    // 2. Both contexts, the shared scene, and a TLAS that may be updated
-    let (vk, gl_context, handoff) =
-        gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    // 2. Both contexts (GL in a window when there is a display), the shared scene, and a TLAS
+    // that may be updated
+    let (vk, mut window, gl_context, handoff) =
+        gbuffer::contexts_in_window(CHAPTER, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
     let update_timer = Timestamps::new(&vk)?; // before `updates`, whose submissions write it
@@ -98,12 +106,11 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     report.set("build_scratch_bytes", tlas.build_scratch_bytes);
 
     // 3. G-buffers, the AO tracer and chapter 08's composite
-    let extent = args.common.size.extent();
     let storage = vk::ImageUsageFlags::STORAGE;
-    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, extent, storage)?;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, size.extent(), storage)?;
     let tlas_handle = *shared.structures.tlas.handle;
     let mut tracer = AoTracer::new(&vk, &gl_context, &shared.allocator, tlas_handle, &gbuffers)?;
-    let composite = Composite::new(gl, &gbuffers, scene.bounds)?;
+    let mut composite = Composite::new(gl, &gbuffers, scene.bounds)?;
     let uniforms = Uniforms::final_picture(args.ao.power, camera.far);
     let trace_timer = Timestamps::new(&vk)?;
     // Made after everything the traces use: an early return drops it first, and its Drop waits
@@ -111,80 +118,163 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let commands = Commands::new(&vk)?;
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
 
-    // 4. Every frame: move the runners, update the TLAS, draw, trace, composite
-    let frames = args.common.headless_frames();
-    let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+    // 4. Every frame: the window's input, move the runners, update the TLAS, draw, trace, composite
+    let frame_limit =
+        if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
+    let scene_scale = scene.size() / 2.0;
+    let (mut samples, mut rebuild_every) = (args.ao.samples, args.animation.rebuild_every);
     // Each pass's GPU time (common::clocks::timing): GL's read when they arrive, Vulkan's after the wait
     // at the top of the next frame, which the frame makes anyway.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
     let mut last_refresh = None;
     let (mut tlas_updates, mut tlas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
-    for frame in 0..frames {
+    // In a window the ring runs on the wall clock, unless Space (or `--step 0`) stopped it.
+    let (mut time, mut traced_at, mut running) = (args.animation.time, None, args.animation.step > 0.0);
+    let (mut last_instant, mut frame) = (Instant::now(), 0);
+    loop {
+        if let Some(window) = window.as_mut() {
+            let eye = camera.eye;
+            let apply_key = |key: &Key| match key.as_ref() {
+                Key::Named(NamedKey::Space) => running = !running,
+                Key::Character("+" | "=") => samples = (samples * 2).min(256),
+                Key::Character("-") => samples = (samples / 2).max(1),
+                _ => {}
+            };
+            let Some(resized) =
+                window_input(window, &gl_context, (&mut camera, scene.bounds), (size, 1), apply_key)
+            else {
+                break; // Esc, or the window closed
+            };
+            let values = [
+                ("sync", handoff.name().to_owned()),
+                ("runners", ring.count.to_string()),
+                ("time", format!("{time:.2} s")),
+                ("TLAS updates", tlas_updates.to_string()),
+                ("TLAS rebuilds", tlas_rebuilds.to_string()),
+                ("rays a pixel", tracer.accumulated.to_string()),
+            ];
+            window.panel(|ui| {
+                panel::controls(
+                    ui,
+                    &mut [
+                        ("running", Control::Toggle(&mut running), "Space"),
+                        ("rays a frame", Control::Count(&mut samples, 1..=256), "+ -"),
+                        ("rebuild every", Control::Count(&mut rebuild_every, 0..=60), "0: update"),
+                    ],
+                );
+                panel::values(ui, &values);
+                panel::pass_times(ui, &times);
+            });
+            if frame_limit > 0 && frame >= frame_limit {
+                break;
+            }
+            let now = Instant::now();
+            if running {
+                time += (now - last_instant).as_secs_f32();
+            }
+            last_instant = now;
+            if camera.eye != eye {
+                tracer.reset(); // the mean is of what the pixels showed from where the camera was
+            }
+            if let Some(new) = resized {
+                // As chapter 08 resizes: every image anew, once the GPU is done with the old.
+                unsafe { gl.finish() };
+                commands.wait(&vk, "vkWaitForFences before a resize")?;
+                size = new;
+                let fresh =
+                    GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, size.extent(), storage)?;
+                let old = std::mem::replace(&mut gbuffers, fresh);
+                tracer.resize(&vk, &gl_context, &gbuffers)?;
+                composite.resize(gl, &gbuffers)?;
+                drop(old);
+            }
+        } else if frame >= frame_limit {
+            break;
+        } else {
+            time = args.animation.at(frame);
+        }
         // ANCHOR: frame
-        let time = args.animation.at(frame);
         // The previous frame's Vulkan work is done: its trace, the TLAS update submitted before
         // it, and (the trace having waited for it) GL's draw. Nothing reads the instance
         // buffer now, so the CPU may write it. (The trace's own `begin` would wait here anyway.)
         commands.wait(&vk, "vkWaitForFences for the previous frame")?;
         read_times(&vk, last_refresh.take(), &update_timer, &trace_timer, &mut times)?;
         ring.write(instances, time);
-        let refresh = match args.animation.rebuild_every {
+        let refresh = match rebuild_every {
             k if k > 0 && frame > 0 && frame % k == 0 => Refresh::Rebuild,
             _ => Refresh::Update,
         };
         tlas.submit(&vk, &updates, &shared.structures.loader, refresh, update_timer.as_ref())?;
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
         // Anything that moved changes the occlusion around it: the running mean is of a
-        // picture that is gone. Start it again (with --step 0 it accumulates).
-        if args.animation.step > 0.0 {
+        // picture that is gone. Start it again (standing still, it accumulates).
+        if traced_at.replace(time).is_some_and(|before| before != time) {
             tracer.reset();
         }
-        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
+        // A window refines: one ray a pixel while the ring runs, more once it stands still (and
+        // none once a still ring has `--max-samples`).
+        let samples = rays_this_frame(samples, tracer.accumulated, args.ao.max_samples, window.is_some());
+        if samples > 0 {
+            let rays = AoRays { samples, accumulated: 0, radius, scene_scale };
+            tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
+        }
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
-        times.frame_done();
         // ANCHOR_END: frame
+        if let Some(window) = &mut window {
+            window.show_times(|| times.line());
+            composite.show(gl, window.size());
+            window.swap_buffers(&gl_context)?;
+        }
+        times.frame_done();
         match refresh {
             Refresh::Update => tlas_updates += 1,
             Refresh::Rebuild => tlas_rebuilds += 1,
         }
-        last_refresh = Some(refresh);
-        if frame == 0 || frame + 1 == frames || args.animation.every_frame {
-            let upright = output::flip_rows(&composite.read(gl), extent.width, extent.height);
+        last_refresh = Some((refresh, samples > 0));
+        if window.is_none() && (frame == 0 || frame + 1 == frame_limit || args.animation.every_frame) {
+            let upright = output::flip_rows(&composite.read(gl), size.width, size.height);
             pictures.push((frame, upright));
         }
+        frame += 1;
     }
     commands.wait(&vk, "vkWaitForFences after the last frame")?;
     read_times(&vk, last_refresh, &update_timer, &trace_timer, &mut times)?;
     gl_timer.finish(gl, &mut times);
     gl_context.check_error("the frame loop")?;
-    report.set("frames", frames);
+    // Headless, each frame stands for `--step` seconds; a window's, for the time it ran.
+    let seconds_run =
+        if window.is_some() { time - args.animation.time } else { args.animation.step * frame as f32 };
+    report.set("frames", frame);
     report.set("samples_per_pixel", tracer.accumulated);
     report.set("tlas_updates", tlas_updates);
     report.set("tlas_rebuilds", tlas_rebuilds);
     report.set(
         "rebuild_policy",
-        match args.animation.rebuild_every {
+        match rebuild_every {
             0 => "never: update every frame".to_owned(),
             k => format!("rebuild every {k} frames, update in between"),
         },
     );
-    report.set(
-        "lengths_travelled",
-        (ring.lengths_travelled(args.animation.step * frames as f32) as f64 * 100.0).round() / 100.0,
-    );
+    report.set("lengths_travelled", (ring.lengths_travelled(seconds_run) as f64 * 100.0).round() / 100.0);
 
-    // 5. Check the last frame's occlusion, the motion, and write the frames
-    let (w, h) = (extent.width, extent.height);
+    // 5. Check the last frame's occlusion, the motion, and write the frames (headless)
+    let (w, h) = (size.width, size.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
-    let moved = frames > 1 && args.animation.step > 0.0; // then the frames must show it
-    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
+    if window.is_some() {
+        let why = "a window's frames follow the wall clock; --headless checks the motion at --step";
+        report.not_judged("frames_differ_over_time", why);
+    } else {
+        let moved = frame > 1 && args.animation.step > 0.0; // then the frames must show it
+        output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
+    }
 
     // 6. Measure: the same rays through the updated TLAS, then through a rebuilt one
     // ANCHOR: measure
     // The AO shader's rays depend only on the pixel and the sample index: with the running mean
     // restarted, both traces cast exactly the same rays, and must find the same occluders.
+    let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale };
     gbuffers.draw(gl, &scene, &camera);
     let (after_updates, updated_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     tlas.submit(&vk, &updates, &shared.structures.loader, Refresh::Rebuild, update_timer.as_ref())?;
@@ -220,24 +310,31 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
+    if let Some(window) = &window {
+        window.report_panel(report);
+    }
+    drop(window);
     Ok(())
 }
 
-/// Adds the GPU times of the frame whose fence has signalled: its TLAS refresh and its trace.
+/// Adds the GPU times of the frame whose fence has signalled: its TLAS refresh and, if it traced
+/// (`.1`), its trace.
 fn read_times(
     vk: &VulkanContext,
-    refresh: Option<Refresh>,
+    last: Option<(Refresh, bool)>,
     update_timer: &Option<Timestamps>,
     trace_timer: &Option<Timestamps>,
     times: &mut PassTimes,
 ) -> Result<()> {
-    if let (Some(refresh), Some(u), Some(t)) = (refresh, update_timer, trace_timer) {
+    if let (Some((refresh, traced)), Some(u), Some(t)) = (last, update_timer, trace_timer) {
         times.add(if refresh == Refresh::Update { "tlas_update" } else { "tlas_rebuild" }, u.read_ms(vk)?);
-        times.add("ao_trace", t.read_ms(vk)?);
+        if traced {
+            times.add("ao_trace", t.read_ms(vk)?);
+        }
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, run)
+    common::run_chapter_in_window(CHAPTER, SMALLEST, run)
 }

@@ -55,6 +55,7 @@ pub mod scene;
 
 pub use base::chapter::{
     Flags, connect, contexts, contexts_in_window, finish, gl_in_window, largest_size, ms_since, run_chapter,
+    run_chapter_in_window,
 };
 pub use base::cli::CommonArgs;
 pub use base::gl::GlContext;

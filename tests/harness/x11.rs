@@ -65,11 +65,12 @@ impl Display {
         let (first, count) = (setup.min_keycode, setup.max_keycode - setup.min_keycode + 1);
         let map = self.connection.get_keyboard_mapping(first, count).unwrap().reply().unwrap();
         let per = map.keysyms_per_keycode as usize;
-        let at = map
-            .keysyms
-            .iter()
-            .position(|&k| k == keysym)
-            .unwrap_or_else(|| panic!("no key types {keysym:#x}"));
+        // The key whose first (unshifted) symbol it is: a keysym may also sit in another
+        // column of an earlier key, which typed without its modifier types something else.
+        let at = (0..map.keysyms.len())
+            .step_by(per)
+            .find(|&i| map.keysyms[i] == keysym)
+            .unwrap_or_else(|| panic!("no key types {keysym:#x} unshifted"));
         let keycode = first + (at / per) as u8;
         for event in [KEY_PRESS_EVENT, KEY_RELEASE_EVENT] {
             self.connection.xtest_fake_input(event, keycode, 0, self.root, 0, 0, 0).unwrap();
@@ -114,6 +115,7 @@ impl Display {
     /// The first shot equal to the one `gap` before it: what the window settles on.
     pub fn settled(&self, window: Window, gap: Duration, within: Duration) -> Shot {
         let last = std::cell::RefCell::new(self.shot(window));
+        std::thread::sleep(gap); // else the first comparison is of two shots taken back to back
         self.shot_until(window, (gap, within), "to settle", |now| now == &last.replace(now.clone()))
     }
 }

@@ -39,12 +39,36 @@ pub fn run_chapter<A: clap::Args + clap::FromArgMatches>(
     run_chapter_with_args(chapter, smallest, std::env::args_os(), run)
 }
 
+/// [`run_chapter`] for a chapter that draws live in a window where there is a display: a window
+/// is never refused for its size (the user may make it any size anyway). `smallest` is then the
+/// chapter's to apply: a check that cannot mean anything at the window's size is reported as not
+/// judged ([`Report::not_judged`], [`Smallest::fits`]). Headless, the size is refused as ever.
+pub fn run_chapter_in_window<A: clap::Args + clap::FromArgMatches>(
+    chapter: &'static str,
+    smallest: Smallest,
+    run: impl FnOnce(&Flags<A>, &mut Report) -> anyhow::Result<()>,
+) -> ExitCode {
+    run_flags(chapter, smallest, std::env::args_os(), true, run)
+}
+
 /// [`run_chapter`] on `args` (the program's name first) instead of the process's own: for a
 /// tool whose subcommand drives a chapter's frame (`convergence temporal`).
 pub fn run_chapter_with_args<A: clap::Args + clap::FromArgMatches>(
     chapter: &'static str,
     smallest: Smallest,
     args: impl IntoIterator<Item = std::ffi::OsString>,
+    run: impl FnOnce(&Flags<A>, &mut Report) -> anyhow::Result<()>,
+) -> ExitCode {
+    run_flags(chapter, smallest, args, false, run)
+}
+
+/// The contract, on `args`; `windowed`: the chapter opens a window where there is a display, and
+/// `smallest` refuses a size only when it will run headless.
+fn run_flags<A: clap::Args + clap::FromArgMatches>(
+    chapter: &'static str,
+    smallest: Smallest,
+    args: impl IntoIterator<Item = std::ffi::OsString>,
+    windowed: bool,
     run: impl FnOnce(&Flags<A>, &mut Report) -> anyhow::Result<()>,
 ) -> ExitCode {
     use clap::{Args as _, FromArgMatches as _};
@@ -58,7 +82,9 @@ pub fn run_chapter_with_args<A: clap::Args + clap::FromArgMatches>(
     let common = &args.common;
     let mut report = Report::new(chapter);
     let result = accounted(|| {
-        smallest.check(chapter, common.size)?;
+        if !windowed || common.headless || !window::display_available() {
+            smallest.check(chapter, common.size)?;
+        }
         run(&args, &mut report)
     });
     if let Err(error) = result {

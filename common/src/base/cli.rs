@@ -182,27 +182,48 @@ impl Smallest {
 
     /// [`Smallest::check`] for a size given by `flag` (the bench's `--sizes`).
     pub fn check_flag(&self, flag: &str, program: &str, size: Size) -> anyhow::Result<()> {
-        anyhow::ensure!(
-            size.width >= self.width && size.height >= self.height,
-            "{flag} {size} is too small for {program}: its checks need at least {}x{} pixels ({})",
-            self.width,
-            self.height,
-            self.why
-        );
-        if let Some((widest, tallest, why)) = self.shape {
-            let (width, height) = (size.width as f32, size.height as f32);
-            anyhow::ensure!(
-                width <= widest * height,
-                "{flag} {size} is too wide for {program}: its checks need a width of at most {widest} \
-                 times the height ({why})"
-            );
-            anyhow::ensure!(
-                height <= tallest * width,
-                "{flag} {size} is too tall for {program}: its checks need a height of at most {tallest} \
-                 times the width ({why})"
-            );
+        match self.unfit(size) {
+            Some((what, need)) => {
+                anyhow::bail!("{flag} {size} is {what} for {program}: its checks need {need}")
+            }
+            None => Ok(()),
         }
-        Ok(())
+    }
+
+    /// Why the checks cannot judge a picture of `size`, if they cannot: what it is ("too small",
+    /// "too wide", "too tall") and what they need. A window, never refused, reports its checks
+    /// as not judged with it.
+    pub fn unfit(&self, size: Size) -> Option<(&'static str, String)> {
+        if size.width < self.width || size.height < self.height {
+            return Some((
+                "too small",
+                format!("at least {}x{} pixels ({})", self.width, self.height, self.why),
+            ));
+        }
+        let (widest, tallest, why) = self.shape?;
+        let (width, height) = (size.width as f32, size.height as f32);
+        if width > widest * height {
+            return Some(("too wide", format!("a width of at most {widest} times the height ({why})")));
+        }
+        if height > tallest * width {
+            return Some(("too tall", format!("a height of at most {tallest} times the width ({why})")));
+        }
+        None
+    }
+
+    /// Each of `checks` that cannot be judged at `size`, reported so, with why; true if they can
+    /// (then the caller runs them).
+    pub fn judges(
+        &self,
+        size: Size,
+        checks: &[&str],
+        report: &mut crate::instruments::report::Report,
+    ) -> bool {
+        let Some((what, need)) = self.unfit(size) else { return true };
+        for check in checks {
+            report.not_judged(check, &format!("{size} is {what}: the check needs {need}"));
+        }
+        false
     }
 }
 // ANCHOR_END: smallest

@@ -108,3 +108,30 @@ pub fn pass_times(ui: &mut egui::Ui, times: &PassTimes) {
         }
     });
 }
+
+/// A control of [`controls`]: a checkbox, or a slider over whole numbers (logarithmic where the
+/// range spans more than 64 times its start).
+pub enum Control<'a> {
+    Toggle(&'a mut bool),
+    Count(&'a mut u32, RangeInclusive<u32>),
+}
+
+/// Controls one a row, each as (name, control, the key that changes it too: "" for none), for a
+/// chapter whose settings are not chapter 08's.
+pub fn controls(ui: &mut egui::Ui, rows: &mut [(&str, Control, &str)]) {
+    ui.spacing_mut().slider_width = 110.0;
+    egui::Grid::new("controls").show(ui, |ui| {
+        for (name, control, key) in rows {
+            ui.label(*name);
+            match control {
+                Control::Toggle(on) => ui.checkbox(on, ""),
+                Control::Count(value, range) => {
+                    let log = *range.start() >= 1 && *range.end() > 64 * *range.start();
+                    ui.add(egui::Slider::new(*value, range.clone()).logarithmic(log))
+                }
+            };
+            ui.weak(*key);
+            ui.end_row();
+        }
+    });
+}

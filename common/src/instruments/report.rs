@@ -20,6 +20,11 @@ pub struct Report {
     pub timings_ms: BTreeMap<String, f64>,
     /// The chapter's own verifications. Any `false` makes the chapter exit non-zero.
     pub checks: BTreeMap<String, bool>,
+    /// Checks that could not mean anything in this run, each with why (a window's frames follow
+    /// the wall clock, or its size is one the check cannot judge). They pass nothing and fail
+    /// nothing: only a headless run of the same chapter decides them.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub not_judged: BTreeMap<String, String>,
     pub validation: ValidationReport,
     /// Chapter-specific fields, printed after the common ones.
     #[serde(flatten)]
@@ -78,6 +83,7 @@ impl Report {
             images: Vec::new(),
             timings_ms: BTreeMap::new(),
             checks: BTreeMap::new(),
+            not_judged: BTreeMap::new(),
             validation: ValidationReport::default(),
             details: serde_json::Map::new(),
         }
@@ -89,6 +95,13 @@ impl Report {
         let previous = self.checks.insert(name.to_owned(), ok);
         assert!(previous.is_none(), "check {name:?} recorded twice");
         ok
+    }
+
+    /// Records that check `name` is not judged in this run, and why; logs it as `check` does.
+    pub fn not_judged(&mut self, name: &str, why: &str) {
+        eprintln!("  [ -- ] {name}: not judged ({why})");
+        assert!(!self.checks.contains_key(name), "check {name:?} both judged and not");
+        self.not_judged.insert(name.to_owned(), why.to_owned());
     }
 
     /// Adds a chapter-specific field.
@@ -161,7 +174,14 @@ impl Report {
             println!("{}", serde_json::to_string_pretty(&self).expect("report serialises"));
         }
         if ok {
-            eprintln!("{}: all {} checks passed", self.chapter, self.checks.len());
+            let unjudged = match self.not_judged.len() {
+                0 => String::new(),
+                n => format!(
+                    " ({n} not judged: {})",
+                    self.not_judged.keys().cloned().collect::<Vec<_>>().join(", ")
+                ),
+            };
+            eprintln!("{}: all {} checks passed{unjudged}", self.chapter, self.checks.len());
             ExitCode::SUCCESS
         } else {
             ExitCode::from(1)
