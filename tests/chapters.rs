@@ -634,6 +634,44 @@ fn ch10_vertex_animation() {
     assert_images_match(report, DEFAULT_TOLERANCE);
 }
 
+/// Chapter 10 in a window four times as wide as it is high (headless refuses any wider than 1.5
+/// times): the wave runs until Space stops it, `=` (the `+` key) doubles the rays a frame, and the
+/// motion check is reported as not judged instead of refusing the window.
+#[test]
+fn ch10_in_a_wide_window_runs_until_space_stops_it() {
+    use harness::x11::Display;
+    use std::time::Duration;
+    let Some(xvfb) = harness::Xvfb::start("ch10_in_a_wide_window_runs_until_space_stops_it") else { return };
+    const SPACE: u32 = 0x20;
+    const EQUAL: u32 = 0x3d;
+    const F10: u32 = 0xffc7;
+    const ESCAPE: u32 = 0xff1b;
+    let (gap, within) = (Duration::from_millis(400), Duration::from_secs(60));
+    let args = ["--size", "320x80", "--rings", "16", "--frames", "0", "--samples", "2", "--max-samples", "8"];
+    let bin = env!("CARGO_BIN_EXE_10-vertex-animation");
+    let run = harness::run_chapter_driven(bin, &args, &[("DISPLAY", &xvfb.display)], || {
+        let x = Display::connect(&xvfb.display);
+        let window = x.window("10 · vertex animation", within).expect("the chapter's window");
+        let first = x.shot_until(window, (gap, within), "to draw", |shot| shot.drawn());
+        x.key(F10); // hidden, only the wave changes the picture
+        let hidden = x.shot_until(window, (gap, within), "to hide the panel", |shot| shot != &first);
+        x.shot_until(window, (gap, within), "to move on", |shot| shot != &hidden);
+        x.key(SPACE);
+        x.key(EQUAL);
+        x.settled(window, gap, within); // stopped, and 1 + 1 + 2 + 4 rays later, nothing changes
+        x.key(ESCAPE);
+    });
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["rays_a_frame"], 4, "= doubled --samples 2");
+    assert_eq!(report["samples_per_pixel"], 8, "stopped, the mean accumulates to --max-samples");
+    assert!(report["not_judged"]["frames_differ_over_time"].is_string(), "{}", report["not_judged"]);
+    assert_eq!(report["checks"]["vertices_match_cpu_reference"], true);
+    assert_eq!(report["checks"]["refitted_blas_traces_like_a_rebuilt_one"], true);
+    assert!(report["blas_refits"].as_u64().unwrap() > 0, "the wave ran");
+}
+
 #[test]
 fn ch10_rebuilds_only_when_asked() {
     let args =

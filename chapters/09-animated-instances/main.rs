@@ -14,11 +14,12 @@ use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
-use common::base::window::{Key, NamedKey};
+use common::base::window::Key;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{GlPassTimer, PassTimes};
 use common::frame::input::window_input;
 use common::frame::panel::{self, Control};
+use common::frame::playback::{self, Playback};
 use common::frame::{Composite, Uniforms};
 use common::instruments::output;
 use common::interop::handoff::Apis;
@@ -30,7 +31,6 @@ use common::scene::gbuffer::{self, GBuffers};
 use common::{Flags, RAY_TRACED_INTEROP, Report, VulkanContext, open_fd_count};
 use glow::HasContext;
 use std::process::ExitCode;
-use std::time::Instant;
 
 mod ring;
 
@@ -122,7 +122,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let frame_limit =
         if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
     let scene_scale = scene.size() / 2.0;
-    let (mut samples, mut rebuild_every) = (args.ao.samples, args.animation.rebuild_every);
+    let mut rebuild_every = args.animation.rebuild_every;
     // Each pass's GPU time (common::clocks::timing): GL's read when they arrive, Vulkan's after the wait
     // at the top of the next frame, which the frame makes anyway.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
@@ -130,19 +130,14 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (mut tlas_updates, mut tlas_rebuilds) = (0u32, 0u32);
     let mut pictures = Vec::new();
     // In a window the ring runs on the wall clock, unless Space (or `--step 0`) stopped it.
-    let (mut time, mut traced_at, mut running) = (args.animation.time, None, args.animation.step > 0.0);
-    let (mut last_instant, mut frame) = (Instant::now(), 0);
+    let mut playback = Playback::new(args.animation.step, args.ao.samples);
+    let (mut time, mut traced_at, mut frame) = (args.animation.time, None, 0);
     loop {
         if let Some(window) = window.as_mut() {
             let eye = camera.eye;
-            let apply_key = |key: &Key| match key.as_ref() {
-                Key::Named(NamedKey::Space) => running = !running,
-                Key::Character("+" | "=") => samples = (samples * 2).min(256),
-                Key::Character("-") => samples = (samples / 2).max(1),
-                _ => {}
-            };
+            let keys = |key: &Key| playback.key(key);
             let Some(resized) =
-                window_input(window, &gl_context, (&mut camera, scene.bounds), (size, 1), apply_key)
+                window_input(window, &gl_context, (&mut camera, scene.bounds), (size, 1), keys)
             else {
                 break; // Esc, or the window closed
             };
@@ -155,39 +150,22 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
                 ("rays a pixel", tracer.accumulated.to_string()),
             ];
             window.panel(|ui| {
-                panel::controls(
-                    ui,
-                    &mut [
-                        ("running", Control::Toggle(&mut running), "Space"),
-                        ("rays a frame", Control::Count(&mut samples, 1..=256), "+ -"),
-                        ("rebuild every", Control::Count(&mut rebuild_every, 0..=60), "0: update"),
-                    ],
-                );
+                let rebuild = ("rebuild every", Control::Count(&mut rebuild_every, 0..=60), "0: update");
+                playback.controls(ui, [rebuild]);
                 panel::values(ui, &values);
                 panel::pass_times(ui, &times);
             });
             if frame_limit > 0 && frame >= frame_limit {
                 break;
             }
-            let now = Instant::now();
-            if running {
-                time += (now - last_instant).as_secs_f32();
-            }
-            last_instant = now;
+            playback.advance(&mut time);
             if camera.eye != eye {
                 tracer.reset(); // the mean is of what the pixels showed from where the camera was
             }
             if let Some(new) = resized {
-                // As chapter 08 resizes: every image anew, once the GPU is done with the old.
-                unsafe { gl.finish() };
-                commands.wait(&vk, "vkWaitForFences before a resize")?;
-                size = new;
-                let fresh =
-                    GBuffers::new(&vk, &gl_context, &handoff, &shared.buffers, size.extent(), storage)?;
-                let old = std::mem::replace(&mut gbuffers, fresh);
-                tracer.resize(&vk, &gl_context, &gbuffers)?;
-                composite.resize(gl, &gbuffers)?;
-                drop(old);
+                size = new; // every image anew, as chapter 08 resizes
+                let frame_parts = (&mut gbuffers, &mut tracer, &mut composite);
+                playback::resize(apis, (&shared.buffers, storage), frame_parts, size)?;
             }
         } else if frame >= frame_limit {
             break;
@@ -214,7 +192,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         }
         // A window refines: one ray a pixel while the ring runs, more once it stands still (and
         // none once a still ring has `--max-samples`).
-        let samples = rays_this_frame(samples, tracer.accumulated, args.ao.max_samples, window.is_some());
+        let samples =
+            rays_this_frame(playback.samples, tracer.accumulated, args.ao.max_samples, window.is_some());
         if samples > 0 {
             let rays = AoRays { samples, accumulated: 0, radius, scene_scale };
             tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
@@ -265,6 +244,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     if window.is_some() {
         let why = "a window's frames follow the wall clock; --headless checks the motion at --step";
         report.not_judged("frames_differ_over_time", why);
+        report.set("rays_a_frame", playback.samples); // as the keys or the panel left it
     } else {
         let moved = frame > 1 && args.animation.step > 0.0; // then the frames must show it
         output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;

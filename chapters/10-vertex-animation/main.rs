@@ -3,30 +3,33 @@
 //! A compute shader moves a finely tessellated sphere's vertices, and recomputes their normals,
 //! in place in the vertex buffer GL draws and the BLAS is built from. Vulkan then refits the BLAS
 //! around the moved triangles and updates the TLAS over it; GL rasterises the same buffer, and
-//! the AO rays see the same surface. The report measures what refitting costs the rays.
+//! the AO rays see the same surface. The report measures what refitting costs the rays. In a
+//! window the wave runs on the wall clock; headless, at `--time` + frame x `--step`.
 //!
-//! Run: `cargo run --release --bin 10-vertex-animation -- --frames 60`.
+//! Run: `cargo run --release --bin 10-vertex-animation` (keys: Space stops and starts the wave,
+//! +/- rays, F10 the panel, Esc quits; drag to orbit, wheel to zoom).
 
-use anyhow::{Result, ensure};
+use anyhow::Result;
 use ash::vk;
 use common::base::cli::AnimationArgs;
 use common::base::cli::Smallest;
 use common::base::commands::Commands;
+use common::base::window::Key;
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::{self, GlPassTimer, PassTimes};
+use common::frame::input::window_input;
+use common::frame::panel;
+use common::frame::playback::{self, Playback};
 use common::frame::{Composite, Uniforms};
 use common::instruments::output;
 use common::interop::handoff::Apis;
-use common::rt::accel::{
-    self, AccelerationStructure, BufferDesc, BuildInputs, DeviceBuffer, InPlace, Refresh,
-};
-use common::rt::ao::{AoArgs, AoRays, AoTracer};
+use common::rt::accel::{self, AccelerationStructure, BuildInputs, InPlace, Refresh};
+use common::rt::ao::{AoArgs, AoRays, AoTracer, rays_this_frame};
 use common::scene::gbuffer::{self, GBuffers, SceneBuffers};
 use common::scene::{Camera, Instance, Scene, ground_plane};
 use common::{Flags, RAY_TRACED_INTEROP, Report, open_fd_count};
 use glam::{Mat4, Vec3};
 use glow::HasContext;
-use gpu_allocator::MemoryLocation;
 use std::process::ExitCode;
 
 mod sphere;
@@ -62,12 +65,6 @@ struct Args {
 }
 
 fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
-    ensure!(
-        (0.0..=0.3).contains(&args.amplitude),
-        "--amplitude {}: choose between 0 and 0.3",
-        args.amplitude
-    );
-
     // 1. Make the sphere, hovering over the ground
     let mesh = sphere::uv_sphere(args.rings, 2 * args.rings);
     let directions: Vec<Vec3> = mesh.vertices.iter().map(|v| Vec3::from(v.normal)).collect();
@@ -76,14 +73,16 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let lift = Mat4::from_translation(Vec3::new(0.0, 1.0 + args.amplitude + 0.1, 0.0));
     let instances = vec![ground, Instance::new(lift, [90, 150, 230])];
     let scene = Scene::new(vec![ground_plane(), mesh], instances, vec![0..1, 1..2])?;
-    let camera = Camera::framing(scene.bounds, args.common.size.aspect());
+    let mut size = args.common.size;
+    let mut camera = Camera::framing(scene.bounds, size.aspect());
     let radius = args.ao.radius_to_trace(&scene)?;
     report.set("vertices", count);
     report.set("triangles", scene.triangles());
 
-    // 2. Both contexts; the scene shared with GL, and writable by compute
-    let (vk, gl_context, handoff) =
-        gbuffer::contexts(CHAPTER, report, &RAY_TRACED_INTEROP, args.common.size)?;
+    // 2. Both contexts (GL in a window when there is a display); the scene shared with GL, and
+    // writable by compute
+    let (vk, mut window, gl_context, handoff) =
+        gbuffer::contexts_in_window(CHAPTER, report, &RAY_TRACED_INTEROP, &args.common)?;
     let gl = &gl_context.gl;
     let open_fds_before = open_fd_count()?;
     // ANCHOR: share
@@ -129,23 +128,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 
     // 4. The compute pipeline, the rest directions, the G-buffers, the tracer, the composite
     let pipeline = WavePipeline::new(&vk)?;
-    // 16 bytes a direction (w unused), not 12: with a 12-byte stride, GPU-assisted validation on
-    // the NVIDIA GPU reported the last direction's read as out of bounds of the buffer.
-    let rest_directions: Vec<[f32; 4]> = directions.iter().map(|d| d.extend(0.0).to_array()).collect();
-    let rest_bytes = (rest_directions.len() * size_of::<[f32; 4]>()) as u64;
-    let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
-    let mut rest = DeviceBuffer::new(
-        &vk,
-        &allocator,
-        BufferDesc {
-            name: "rest directions",
-            size: rest_bytes,
-            usage: storage,
-            location: MemoryLocation::CpuToGpu,
-        },
-    )?;
-    let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
-    mapped[..rest_bytes as usize].copy_from_slice(bytemuck::cast_slice(&rest_directions));
+    let rest = sphere::rest_directions(&vk, &allocator, &directions)?;
     let mut wave = Wave {
         vertices: buffers.meshes[1][0].vk.device_address(&vk),
         directions: rest.address,
@@ -156,10 +139,10 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         frequency: 14.0,
         speed: 4.0,
     };
-    let extent = args.common.size.extent();
-    let gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, extent, vk::ImageUsageFlags::STORAGE)?;
+    let storage = vk::ImageUsageFlags::STORAGE;
+    let mut gbuffers = GBuffers::new(&vk, &gl_context, &handoff, &buffers, size.extent(), storage)?;
     let mut tracer = AoTracer::new(&vk, &gl_context, &allocator, *tlas.handle, &gbuffers)?;
-    let composite = Composite::new(gl, &gbuffers, scene.bounds)?;
+    let mut composite = Composite::new(gl, &gbuffers, scene.bounds)?;
     let uniforms = Uniforms::final_picture(args.ao.power, camera.far);
     let animation_timer = Timestamps::with_count(&vk, 4)?;
     let trace_timer = Timestamps::new(&vk)?;
@@ -168,8 +151,10 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (commands, animation) = (Commands::new(&vk)?, Commands::new(&vk)?);
     let apis = Apis { vk: &vk, gl: &gl_context, handoff: &handoff, commands: &commands };
 
-    // 5. Every frame: move the vertices, refit, update, draw, trace, composite
-    let frames = args.common.headless_frames();
+    // 5. Every frame: the window's input, move the vertices, refit, update, draw, trace, composite
+    let frame_limit =
+        if window.is_some() { args.common.window_frames() } else { args.common.headless_frames() };
+    let scene_scale = scene.size() / 2.0;
     // Each pass's GPU time (common::clocks::timing), read once its fence has signalled for the next
     // frame's submission on it, which waits anyway: timing adds no wait.
     let (mut gl_timer, mut times) = (GlPassTimer::new(gl)?, PassTimes::new());
@@ -187,9 +172,48 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         blases: &blases,
         tlas: &tlas_in_place,
     };
-    for frame in 0..frames {
+    // In a window the wave runs on the wall clock, unless Space (or `--step 0`) stopped it.
+    let mut playback = Playback::new(args.animation.step, args.ao.samples);
+    let (mut traced_at, mut frame) = (None, 0);
+    loop {
+        if let Some(window) = window.as_mut() {
+            let eye = camera.eye;
+            let keys = |key: &Key| playback.key(key);
+            let Some(resized) =
+                window_input(window, &gl_context, (&mut camera, scene.bounds), (size, 1), keys)
+            else {
+                break; // Esc, or the window closed
+            };
+            let values = [
+                ("sync", handoff.name().to_owned()),
+                ("vertices", count.to_string()),
+                ("time", format!("{:.2} s", wave.time)),
+                ("BLAS refits", blas_refits.to_string()),
+                ("rays a pixel", tracer.accumulated.to_string()),
+            ];
+            window.panel(|ui| {
+                playback.controls(ui, []);
+                panel::values(ui, &values);
+                panel::pass_times(ui, &times);
+            });
+            if frame_limit > 0 && frame >= frame_limit {
+                break;
+            }
+            playback.advance(&mut wave.time);
+            if camera.eye != eye {
+                tracer.reset(); // the mean is of what the pixels showed from where the camera was
+            }
+            if let Some(new) = resized {
+                size = new; // every image anew, as chapter 08 resizes
+                let frame_parts = (&mut gbuffers, &mut tracer, &mut composite);
+                playback::resize(apis, (&buffers, storage), frame_parts, size)?;
+            }
+        } else if frame >= frame_limit {
+            break;
+        } else {
+            wave.time = args.animation.at(frame);
+        }
         // ANCHOR: frame
-        wave.time = args.animation.at(frame);
         // The first frame builds everything; later ones refit (or rebuild, by the policy).
         let step = match (frame, args.animation.rebuild_every) {
             (0, _) => Step::First,
@@ -206,19 +230,29 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
         animation.submit(&vk, vertices.to_vulkan(&gl_context), vertices.vulkan_signals())?;
         vertices.to_gl(&vk, &gl_context, *animation.fence)?;
         gl_timer.time(gl, "gbuffer", || gbuffers.draw(gl, &scene, &camera))?;
-        if args.animation.step > 0.0 {
+        if traced_at.replace(wave.time).is_some_and(|before| before != wave.time) {
             tracer.reset(); // the surface moved: the running mean is of a picture that is gone
         }
-        let rays =
-            AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
         if std::mem::take(&mut traced) {
             timing::read_after(&vk, *commands.fence, trace_timer.as_ref(), "ao_trace", &mut times)?;
         }
-        tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
+        // A window refines: one ray a pixel while the wave runs, more once it stands still (and
+        // none once a still wave has `--max-samples`).
+        let samples =
+            rays_this_frame(playback.samples, tracer.accumulated, args.ao.max_samples, window.is_some());
+        if samples > 0 {
+            let rays = AoRays { samples, accumulated: 0, radius, scene_scale };
+            tracer.trace(apis, &gbuffers, rays, trace_timer.as_ref())?;
+        }
         gl_timer.time(gl, "composite", || composite.draw(gl, &gbuffers, &tracer, &uniforms))?;
         gl_timer.end_frame(gl, &mut times);
-        times.frame_done();
         // ANCHOR_END: frame
+        if let Some(window) = &mut window {
+            window.show_times(|| times.line());
+            composite.show(gl, window.size());
+            window.swap_buffers(&gl_context)?;
+        }
+        times.frame_done();
         // Frame 0 builds everything: its time is not a refresh.
         let refreshed = match step {
             Step::First => None,
@@ -229,10 +263,11 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             Some(Refresh::Rebuild) => blas_rebuilds += 1,
             None => {}
         }
-        (animated, traced) = (refreshed, true);
-        if frame == 0 || frame + 1 == frames || args.animation.every_frame {
-            pictures.push((frame, output::flip_rows(&composite.read(gl), extent.width, extent.height)));
+        (animated, traced) = (refreshed, samples > 0);
+        if window.is_none() && (frame == 0 || frame + 1 == frame_limit || args.animation.every_frame) {
+            pictures.push((frame, output::flip_rows(&composite.read(gl), size.width, size.height)));
         }
+        frame += 1;
     }
     animation.wait(&vk, "vkWaitForFences for the last animation")?;
     if let (Some(done), Some(timer)) = (animated, &animation_timer) {
@@ -243,10 +278,11 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     }
     gl_timer.finish(gl, &mut times);
     gl_context.check_error("the frame loop")?;
-    report.set("frames", frames);
+    report.set("frames", frame);
+    report.set("samples_per_pixel", tracer.accumulated);
     report.set("blas_refits", blas_refits);
     report.set("blas_rebuilds", blas_rebuilds);
-    report.set("tlas_updates", frames - 1);
+    report.set("tlas_updates", frame.saturating_sub(1));
     report.set("rebuild_policy", sphere::policy(args.animation.rebuild_every));
     report.set("workgroup_size", sphere::WORKGROUP);
 
@@ -258,14 +294,20 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let gpu: &[common::scene::Vertex] =
         bytemuck::cast_slice(unsafe { std::slice::from_raw_parts(moved.mapped, bytes) });
     report.check("vertices_match_cpu_reference", sphere::vertices_match(&wave, &directions, gpu));
-    let (w, h) = (extent.width, extent.height);
+    let (w, h) = (size.width, size.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
-    let moved = frames > 1 && args.animation.step > 0.0; // then the frames must show it
-    output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
+    if window.is_some() {
+        let why = "a window's frames follow the wall clock; --headless checks the motion at --step";
+        report.not_judged("frames_differ_over_time", why);
+        report.set("rays_a_frame", playback.samples); // as the keys or the panel left it
+    } else {
+        let moved = frame > 1 && args.animation.step > 0.0; // then the frames must show it
+        output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;
+    }
 
     // 7. Measure: the same rays through the refitted BLAS, then through a rebuilt one
     // ANCHOR: measure
-    let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale: scene.size() / 2.0 };
+    let rays = AoRays { samples: args.ao.samples, accumulated: 0, radius, scene_scale };
     gbuffers.draw(gl, &scene, &camera);
     let (after_refits, refitted_ms) = tracer.trace_once(apis, &gbuffers, rays, trace_timer.as_ref())?;
     // The same time again (the vertices do not move), with the BLAS rebuilt.
@@ -310,9 +352,13 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     // ANCHOR_END: cleanup
     gl_context.check_error("cleaning up")?;
     report.check("no_fd_leaked", common::settled_fd_count(open_fds_before)? == open_fds_before);
+    if let Some(window) = &window {
+        window.report_panel(report);
+    }
+    drop(window);
     Ok(())
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, run)
+    common::run_chapter_in_window(CHAPTER, SMALLEST, run)
 }

@@ -10,17 +10,36 @@ use common::base::owned::{Owned, create};
 use common::clocks::timestamps::Timestamps;
 use common::clocks::timing::PassTimes;
 use common::interop::handoff::{Handoff, SharedSemaphore};
-use common::rt::accel::{AccelerationStructure, InPlace, Refresh};
+use common::rt::accel::{AccelerationStructure, BufferDesc, DeviceBuffer, GpuAllocator, InPlace, Refresh};
 use common::scene::{Mesh, Vertex};
 use common::{GlContext, base::commands::buffer_barrier};
 use glam::Vec3;
 use glow::HasContext;
+use gpu_allocator::MemoryLocation;
 use std::cell::Cell;
 use std::f32::consts::PI;
 
 const SHADER: &[u8] = include_bytes!("../../shaders/sphere_wave.comp.spv");
 /// The shader's `local_size_x`.
 pub const WORKGROUP: u32 = 64;
+
+/// Each vertex's rest direction, for the compute shader to move it along from: 16 bytes a
+/// direction (w unused), not 12. With a 12-byte stride, GPU-assisted validation on the NVIDIA
+/// GPU reported the last direction's read as out of bounds of the buffer.
+pub fn rest_directions(
+    vk: &VulkanContext,
+    allocator: &GpuAllocator,
+    directions: &[Vec3],
+) -> Result<DeviceBuffer> {
+    let padded: Vec<[f32; 4]> = directions.iter().map(|d| d.extend(0.0).to_array()).collect();
+    let bytes = (padded.len() * size_of::<[f32; 4]>()) as u64;
+    let usage = vk::BufferUsageFlags::STORAGE_BUFFER;
+    let desc = BufferDesc { name: "rest directions", size: bytes, usage, location: MemoryLocation::CpuToGpu };
+    let mut rest = DeviceBuffer::new(vk, allocator, desc)?;
+    let mapped = rest.allocation.mapped_slice_mut().expect("CpuToGpu memory is mapped");
+    mapped[..bytes as usize].copy_from_slice(bytemuck::cast_slice(&padded));
+    Ok(rest)
+}
 
 /// A UV sphere of radius 1 with `rings` bands of latitude and `segments` of longitude. Each
 /// vertex's normal is its direction from the centre, which the wave also moves it along.
