@@ -430,6 +430,60 @@ fn ch08_in_a_window_under_xvfb() {
     assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
 }
 
+/// A window is never refused its size: at 4x4 no pixel of the gizmo has 2 pixels of room around
+/// it, and the overlay checks say they were not judged (headless, 4x4 is refused).
+#[test]
+fn ch08_tiny_window_reports_what_it_cannot_judge() {
+    let Some(xvfb) = harness::Xvfb::start("ch08_tiny_window_reports_what_it_cannot_judge") else { return };
+    let args = ["--size", "4x4", "--frames", "2", "--samples", "2"];
+    let run =
+        harness::run_chapter_with(env!("CARGO_BIN_EXE_08-composite"), &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    assert_eq!(report["checks"]["composite_matches_cpu_reference"], true);
+    for check in ["overlay_hidden_behind_a_surface", "overlay_shown_where_nothing_is_in_front"] {
+        assert!(report["checks"].get(check).is_none(), "{check} judged at 4x4");
+        let why = report["not_judged"][check].as_str().unwrap_or_default();
+        assert!(why.contains("4x4"), "{check}: {why}");
+    }
+    let headless = run_chapter(env!("CARGO_BIN_EXE_08-composite"), &["--headless", "--size", "4x4"], &[]);
+    assert_eq!(headless.output.status.code(), Some(2), "{}", headless.stderr);
+}
+
+/// Chapters 12 and 13 in a 4x4 window, which headless they refuse: the checks with no pixel to
+/// judge say so, the others pass.
+#[test]
+fn ch12_and_ch13_tiny_windows_report_what_they_cannot_judge() {
+    let Some(xvfb) = harness::Xvfb::start("ch12_and_ch13_tiny_windows_report_what_they_cannot_judge") else {
+        return;
+    };
+    let args = ["--size", "4x4", "--frames", "2", "--samples", "2"];
+    let display = [("DISPLAY", xvfb.display.as_str())];
+    for (bin, unjudged) in [
+        (
+            env!("CARGO_BIN_EXE_12-fast-frame"),
+            &["overlay_hidden_behind_a_surface", "rebuilt_hits_match_the_rasterised_positions"][..],
+        ),
+        (env!("CARGO_BIN_EXE_13-temporal-reuse"), &["overlay_shown_where_nothing_is_in_front"][..]),
+    ] {
+        let run = harness::run_chapter_with(bin, &args, &display);
+        let report = run.succeeded();
+        assert_eq!(report["window"], true, "{}", run.stderr);
+        assert_eq!(report["checks"]["composite_matches_cpu_reference"], true, "{bin}");
+        for check in unjudged {
+            assert!(report["checks"].get(check).is_none(), "{bin}: {check} judged at 4x4");
+            assert!(
+                report["not_judged"][check].as_str().unwrap_or_default().contains("4x4"),
+                "{bin}: {check}"
+            );
+        }
+        let headless = run_chapter(bin, &["--headless", "--size", "4x4"], &[]);
+        assert_eq!(headless.output.status.code(), Some(2), "{}", headless.stderr);
+    }
+    drop(xvfb);
+}
+
 /// The panel, as a user meets it: keys change what it shows and what the report gives, hidden
 /// or shown, and F10 hides it, which changes the window's pixels only where it was drawn.
 #[test]

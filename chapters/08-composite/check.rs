@@ -25,8 +25,10 @@ pub struct LastFrame<'a> {
 }
 
 impl LastFrame<'_> {
-    /// The checks, on the last frame's pixels as GL holds them (rows bottom-up, as in memory).
-    pub fn check(&self, overlays: &Overlays) -> Result<Vec<(&'static str, bool)>> {
+    /// The checks, on the last frame's pixels as GL holds them (rows bottom-up, as in memory): each
+    /// judged (`Ok`), or not, with why (`Err`): a view can leave no pixel of the gizmo, with 2
+    /// pixels of room, behind a surface or in the open (a small window, an orbit, another model).
+    pub fn check(&self, overlays: &Overlays) -> Result<Vec<(&'static str, Result<bool, String>)>> {
         let LastFrame { gl, gbuffers, tracer, composite, camera, .. } = *self;
         let (w, h) = (gbuffers.extent.width, gbuffers.extent.height);
         let gbuffer = Pixels::read(gl, gbuffers, tracer);
@@ -35,23 +37,21 @@ impl LastFrame<'_> {
         let uniforms = Uniforms { view: View::Final, ..self.uniforms };
         composite.draw(gl, gbuffers, tracer, &uniforms);
         let plain = composite.read(gl);
-        let mut checks =
-            vec![("composite_matches_cpu_reference", matches_reference(&gbuffer, &plain, &uniforms))];
+        let matches = matches_reference(&gbuffer, &plain, &uniforms);
         // Then with the overlays: hidden where the G-buffers say a surface is in front, shown elsewhere.
         let view_projection = camera.view_projection(w as f32 / h as f32);
         overlays.draw(gl, &composite.target(), view_projection);
         let with_lines = composite.read(gl);
         let probes = overlays.probe(&gbuffer.view_depth(), gbuffer.width, gbuffer.height, camera);
-        if let Some(hidden) = probes.hidden {
-            checks.push(("overlay_hidden_behind_a_surface", !shows_colour(&with_lines, w as usize, hidden)));
-        }
-        if let Some(visible) = probes.visible {
-            checks.push((
-                "overlay_shown_where_nothing_is_in_front",
-                shows_colour(&with_lines, w as usize, visible),
-            ));
-        }
-        Ok(checks)
+        let hidden = probes.hidden.map(|p| !shows_colour(&with_lines, w as usize, p));
+        let visible = probes.visible.map(|p| shows_colour(&with_lines, w as usize, p));
+        let none =
+            |where_| format!("no pixel of the gizmo, with 2 of room, is {where_} in this {w}x{h} view");
+        Ok(vec![
+            ("composite_matches_cpu_reference", Ok(matches)),
+            ("overlay_hidden_behind_a_surface", hidden.ok_or_else(|| none("behind a surface"))),
+            ("overlay_shown_where_nothing_is_in_front", visible.ok_or_else(|| none("in the open"))),
+        ])
     }
 
     /// Headless: a picture of each of `views` (the last frame's own, or with `--all-views` every

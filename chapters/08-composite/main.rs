@@ -230,8 +230,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             camera: &camera,
             uniforms: settings.uniforms(camera.far),
         };
-        for (name, ok) in last_frame.check(&overlays)? {
-            report.check(name, ok);
+        for (name, verdict) in last_frame.check(&overlays)? {
+            report.verdict(name, verdict);
         }
         report.set("samples", settings.samples); // rays a pixel a frame, as the keys and panel left it
         report.set("samples_per_pixel", tracer.accumulated);
@@ -275,5 +275,5 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, run)
+    common::run_chapter_in_window(CHAPTER, SMALLEST, run)
 }

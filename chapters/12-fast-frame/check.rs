@@ -64,8 +64,8 @@ pub fn after_the_frames(
             camera: d.camera,
             uniforms: d.uniforms,
         };
-        for (name, ok) in last.check(&surface) {
-            report.check(name, ok);
+        for (name, verdict) in last.check(&surface) {
+            report.verdict(name, verdict);
         }
         if let Some((out, prefix)) = &asked.pictures {
             last.write_pictures(report, &surface, out, prefix)?;
@@ -179,28 +179,29 @@ pub struct LastFrame<'a> {
 
 impl LastFrame<'_> {
     /// The composite against the CPU, then the overlays: hidden where the surface is in front.
-    pub fn check(&self, surface: &Surface) -> Vec<(&'static str, bool)> {
+    pub fn check(&self, surface: &Surface) -> Vec<(&'static str, Result<bool, String>)> {
         let LastFrame { gl, targets, composite, overlays, camera, .. } = *self;
         let uniforms = Uniforms { view: View::Final, ..self.uniforms };
         composite.draw(gl, targets, &uniforms);
         let plain = read_picture(gl, targets);
-        let mut checks =
-            vec![("composite_matches_cpu_reference", matches_reference(surface, &plain, &uniforms))];
+        let matches = matches_reference(surface, &plain, &uniforms);
         let (w, h) = (targets.extent.width, targets.extent.height);
         let view_projection = camera.view_projection(w as f32 / h as f32);
         overlays.draw(gl, &targets.overlay_target(), view_projection);
         let with_lines = read_picture(gl, targets);
         let depth: Vec<f32> = (0..surface.width * surface.height).map(|i| surface.depth(i)).collect();
         let probes = overlays.probe(&depth, surface.width, surface.height, camera);
-        // Made where the view offers such a point, as in chapter 08; said when it does not (a
-        // camera inside the pile may see no gizmo pixel with nothing in front, all around).
-        let mut probe = |name, probe: Option<(usize, usize, [u8; 3])>, shown| match probe {
-            Some(p) => checks.push((name, shows_colour(&with_lines, surface.width, p) == shown)),
-            None => eprintln!("overlay: no pixel for {name} in this view; that check is not made"),
+        // Judged where the view offers such a point, as in chapter 08; not judged, and said so,
+        // where it does not (a small window, or a camera inside the pile).
+        let shows = |probe: Option<(usize, usize, [u8; 3])>, shown, where_| {
+            let none = || format!("no pixel of the gizmo, with 2 of room, is {where_} in this {w}x{h} view");
+            probe.map(|p| shows_colour(&with_lines, surface.width, p) == shown).ok_or_else(none)
         };
-        probe("overlay_hidden_behind_a_surface", probes.hidden, false);
-        probe("overlay_shown_where_nothing_is_in_front", probes.visible, true);
-        checks
+        vec![
+            ("composite_matches_cpu_reference", Ok(matches)),
+            ("overlay_hidden_behind_a_surface", shows(probes.hidden, false, "behind a surface")),
+            ("overlay_shown_where_nothing_is_in_front", shows(probes.visible, true, "in the open")),
+        ]
     }
 
     /// The final picture (with overlays) and the blurred occlusion, as PNGs; the mean occlusion
@@ -341,7 +342,10 @@ impl Chapter08 {
         report.set("hit_pixels_inside_one_triangle", strict);
         report.set("hit_pixels_beyond_tolerance", beyond);
         report.set("hit_depth_worst_of_tolerance", (worst * 100.0).round() / 100.0);
-        report.check("rebuilt_hits_match_the_rasterised_positions", compared > 0 && beyond == 0);
+        let none =
+            format!("no covered pixel has its 3 x 3 neighbourhood covered in this {w}x{} view", s.height);
+        let verdict = if compared > 0 { Ok(beyond == 0) } else { Err(none) };
+        report.verdict("rebuilt_hits_match_the_rasterised_positions", verdict);
         // ANCHOR_END: hit_points
         // Occlusion: the same rays from (nearly) the same points. The means must agree within
         // Monte Carlo noise: four standard errors of the mean difference, counting each 8x8 tile

@@ -250,5 +250,5 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, run)
+    common::run_chapter_in_window(CHAPTER, SMALLEST, run)
 }

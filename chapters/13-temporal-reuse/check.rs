@@ -177,8 +177,8 @@ pub fn chapter_12_checks(
     surface.require_covered(chapter)?;
     surface.check_values(report);
     if let Some(last) = last_frame(p, sized, camera) {
-        for (name, ok) in last.check(&surface) {
-            report.check(name, ok);
+        for (name, verdict) in last.check(&surface) {
+            report.verdict(name, verdict);
         }
     }
     Ok(surface)

@@ -186,5 +186,5 @@ fn in_window(
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, run)
+    common::run_chapter_in_window(CHAPTER, SMALLEST, run)
 }

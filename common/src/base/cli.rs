@@ -191,8 +191,8 @@ impl Smallest {
     }
 
     /// Why the checks cannot judge a picture of `size`, if they cannot: what it is ("too small",
-    /// "too wide", "too tall") and what they need. A window, never refused, reports its checks
-    /// as not judged with it.
+    /// "too wide", "too tall") and what they need. Only headless runs are refused: a window's
+    /// checks say themselves which of them its size leaves unjudged.
     pub fn unfit(&self, size: Size) -> Option<(&'static str, String)> {
         if size.width < self.width || size.height < self.height {
             return Some((
@@ -209,21 +209,6 @@ impl Smallest {
             return Some(("too tall", format!("a height of at most {tallest} times the width ({why})")));
         }
         None
-    }
-
-    /// Each of `checks` that cannot be judged at `size`, reported so, with why; true if they can
-    /// (then the caller runs them).
-    pub fn judges(
-        &self,
-        size: Size,
-        checks: &[&str],
-        report: &mut crate::instruments::report::Report,
-    ) -> bool {
-        let Some((what, need)) = self.unfit(size) else { return true };
-        for check in checks {
-            report.not_judged(check, &format!("{size} is {what}: the check needs {need}"));
-        }
-        false
     }
 }
 // ANCHOR_END: smallest

@@ -104,6 +104,15 @@ impl Report {
         self.not_judged.insert(name.to_owned(), why.to_owned());
     }
 
+    /// A check judged (`Ok`, as [`Report::check`]) or not, with why (`Err`, as
+    /// [`Report::not_judged`]).
+    pub fn verdict(&mut self, name: &str, verdict: Result<bool, String>) {
+        match verdict {
+            Ok(ok) => _ = self.check(name, ok),
+            Err(why) => self.not_judged(name, &why),
+        }
+    }
+
     /// Adds a chapter-specific field.
     pub fn set(&mut self, key: &str, value: impl Serialize) {
         let value = serde_json::to_value(value).expect("report values are plain data");
