@@ -94,6 +94,25 @@ fn ch04_in_a_window_under_xvfb() {
     assert_eq!(report["checks"]["frames_differ_over_time"], true);
 }
 
+/// A window is never refused its size: at 8x6 the picture's checks say they were not judged,
+/// and why (headless, the size is refused).
+#[test]
+fn ch04_tiny_window_reports_what_it_cannot_judge() {
+    let Some(xvfb) = Xvfb::start("ch04_tiny_window_reports_what_it_cannot_judge") else { return };
+    let run = run_chapter_with(BIN, &["--size", "8x6", "--frames", "3"], &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    for check in ["centre_pixel_inside_triangle", "triangle_shows_computed_image", "frames_differ_over_time"]
+    {
+        assert!(report["checks"].get(check).is_none(), "{check} judged at 8x6");
+        let why = report["not_judged"][check].as_str().unwrap_or_default();
+        assert!(why.contains("8x6 frame is too small"), "{check}: {why}");
+    }
+    let headless = run_chapter_with(BIN, &["--headless", "--size", "8x6"], &[]);
+    assert_eq!(headless.output.status.code(), Some(2), "{}", headless.stderr);
+}
+
 #[test]
 fn ch04_names_a_display_without_gl_for_the_gpu() {
     // What a GPU without its own X driver meets (an NVIDIA GPU beside Xvfb): the X server offers

@@ -17,6 +17,8 @@ pub struct Checks {
     /// The first and last frames read back, with their animation times.
     first_seen: Option<(Vec<u8>, f32)>,
     last_seen: Option<(Vec<u8>, f32)>,
+    /// Why a frame read back (a window's, which is never refused its size) could not be judged.
+    unjudged: Option<String>,
     /// GPU time of each frame's dispatch and draw, and CPU time of each whole frame.
     pub times: PassTimes,
     /// What exists once a whole cycle of `--resize-every` sizes has run (back at full size).
@@ -30,15 +32,20 @@ impl Checks {
     }
 
     /// Checks one read-back frame: the triangle (its corners x, y, u, v) covers the centre and
-    /// shows the computed image.
+    /// shows the computed image. `unfit`: why the checks cannot judge a frame of this size (what
+    /// it is, what they need), if they cannot; then none of the picture's checks is judged.
     pub fn frame(
         &mut self,
         pixels: Vec<u8>,
         (width, height): (u32, u32),
         triangle: &[[f32; 4]; 3],
         image: vk::Extent2D,
-        time: f32,
+        (time, unfit): (f32, Option<(&str, String)>),
     ) {
+        if let Some((what, need)) = unfit {
+            self.unjudged = Some(format!("a {width}x{height} frame is {what}: the checks need {need}"));
+            return;
+        }
         let lit = is_lit(pixel(&pixels, width, height, [0.0, 0.0]), self.clear);
         let shows = shows_compute_image(&pixels, (width, height), triangle, image, time);
         self.centre_lit = Some(self.centre_lit.unwrap_or(true) && lit);
@@ -52,6 +59,21 @@ impl Checks {
     /// The checks, what exists at the end against after the first cycle of resizes (if it
     /// was counted), and the timings, into the report.
     pub fn report(self, report: &mut Report, gl: &GlContext) -> Result<()> {
+        if let Some(why) = &self.unjudged {
+            for check in
+                ["centre_pixel_inside_triangle", "triangle_shows_computed_image", "frames_differ_over_time"]
+            {
+                report.not_judged(check, why);
+            }
+        } else {
+            self.report_pictures(report);
+        }
+        self.census.check(gl, report)?;
+        self.times.record(report);
+        Ok(())
+    }
+
+    fn report_pictures(&self, report: &mut Report) {
         report.check("centre_pixel_inside_triangle", self.centre_lit.unwrap_or(true));
         report.check("triangle_shows_computed_image", self.shows_image.unwrap_or(true));
         match (&self.first_seen, &self.last_seen) {
@@ -67,9 +89,6 @@ impl Checks {
             }
             _ => {}
         }
-        self.census.check(gl, report)?;
-        self.times.record(report);
-        Ok(())
     }
 }
 

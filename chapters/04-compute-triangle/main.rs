@@ -14,7 +14,7 @@ mod compute;
 use anyhow::{Result, bail};
 use ash::vk;
 use check::Checks;
-use common::base::cli::Smallest;
+use common::base::cli::{Size, Smallest};
 use common::base::commands::Commands;
 use common::base::gl::{GlContext, MEMORY_EXTENSIONS, RenderTarget, layout};
 use common::base::window::{self, Key, NamedKey, Window};
@@ -276,7 +276,8 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
             let pixels = output::read_gl_rgba8(gl, width, height);
             let name = if frames == 1 { CHAPTER.to_owned() } else { format!("{CHAPTER}-frame{frame}") };
             output::save_rgba8(report, &out_dir, &name, (width, height), &pixels)?;
-            checks.frame(pixels, (width, height), &triangle, extent, time);
+            let unfit = SMALLEST.unfit(Size { width, height }); // a window's may be any size
+            checks.frame(pixels, (width, height), &triangle, extent, (time, unfit));
         }
         if let Some(window) = &mut window {
             window.show_times(|| checks.times.line());
@@ -324,5 +325,5 @@ fn scale(extent: vk::Extent2D, side: impl Fn(u32) -> u32) -> vk::Extent2D {
 }
 
 fn main() -> ExitCode {
-    common::run_chapter(CHAPTER, SMALLEST, run)
+    common::run_chapter_in_window(CHAPTER, SMALLEST, run)
 }
