@@ -109,20 +109,24 @@ pub fn gl_to_wgpu(
 }
 
 /// In a window, on the last frame: the back buffer, after GL's copy, is the outline pixel for
-/// pixel. Made when the window is the picture's size, as it is unless smaller than the smallest.
+/// pixel. Judged when the window is the picture's size, as it is unless smaller than the smallest.
 pub fn window_shows(
     gl: &glow::Context,
     outline: &[u8],
     picture: (u32, u32),
     window: (u32, u32),
-) -> Option<(&'static str, bool)> {
-    (picture == window).then(|| {
+) -> (&'static str, Result<bool, String>) {
+    let verdict = if picture == window {
         let shown = unsafe {
             gl.bind_framebuffer(glow::READ_FRAMEBUFFER, None); // the window's back buffer
             output::read_gl_rgba8(gl, window.0, window.1)
         };
-        ("the_window_shows_the_outline", shown == outline)
-    })
+        Ok(shown == outline)
+    } else {
+        let ((w, h), (pw, ph)) = (window, picture);
+        Err(format!("the {w}x{h} window shows the {pw}x{ph} picture scaled (pictures are at least 16x16)"))
+    };
+    ("the_window_shows_the_outline", verdict)
 }
 
 /// outline.wgsl's answer, on the CPU: RGBA8 `pixels` of `width`, each pixel that differs from a

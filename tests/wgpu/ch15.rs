@@ -97,3 +97,19 @@ fn ch15_shows_its_picture_in_a_window_under_xvfb() {
     // What the window showed is the outline wgpu wrote, read back from its back buffer.
     assert_eq!(report["checks"]["the_window_shows_the_outline"], true, "{}", run.stderr);
 }
+
+/// A window smaller than the pictures (at least 16x16) shows them scaled: the check that it shows
+/// the outline pixel for pixel says it was not judged, and why (headless, 8x8 is refused).
+#[test]
+fn ch15_tiny_window_reports_what_it_cannot_judge() {
+    let Some(xvfb) = harness::Xvfb::start("ch15_tiny_window_reports_what_it_cannot_judge") else { return };
+    let args = ["--size", "8x8", "--frames", "2"];
+    let run = harness::run_chapter_with(BIN, &args, &[("DISPLAY", &xvfb.display)]);
+    drop(xvfb);
+    let report = run.succeeded();
+    assert_eq!(report["window"], true, "{}", run.stderr);
+    let why = report["not_judged"]["the_window_shows_the_outline"].as_str().unwrap_or_default();
+    assert!(why.contains("8x8 window shows the 16x16 picture"), "{why}");
+    let headless = run_chapter(BIN, &["--headless", "--size", "8x8"], &[]);
+    assert_eq!(headless.output.status.code(), Some(2), "{}", headless.stderr);
+}
