@@ -297,9 +297,7 @@ fn run(args: &Flags<Args>, report: &mut Report) -> Result<()> {
     let (w, h) = (size.width, size.height);
     common::rt::ao::check_occlusion(report, gl, &gbuffers, &tracer);
     if window.is_some() {
-        let why = "a window's frames follow the wall clock; --headless checks the motion at --step";
-        report.not_judged("frames_differ_over_time", why);
-        report.set("rays_a_frame", playback.samples); // as the keys or the panel left it
+        playback.report(report); // the motion not judged, the rays a frame the keys left
     } else {
         let moved = frame > 1 && args.animation.step > 0.0; // then the frames must show it
         output::save_frames(report, &args.common.out_dir(CHAPTER), CHAPTER, (w, h), &pictures, moved)?;

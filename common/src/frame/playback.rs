@@ -6,6 +6,7 @@ use super::composite::Composite;
 use super::panel::{self, Control};
 use crate::base::cli::Size;
 use crate::base::window::{Key, NamedKey};
+use crate::instruments::report::Report;
 use crate::interop::handoff::Apis;
 use crate::rt::ao::AoTracer;
 use crate::scene::gbuffer::{GBuffers, SceneBuffers};
@@ -42,6 +43,14 @@ impl Playback {
             *time += (now - self.last).as_secs_f32();
         }
         self.last = now;
+    }
+
+    /// What a window's run reports instead of the motion check: its frames follow the wall clock,
+    /// so `frames_differ_over_time` is not judged; and the rays a frame the keys or panel left.
+    pub fn report(&self, report: &mut Report) {
+        let why = "a window's frames follow the wall clock; --headless checks the motion at --step";
+        report.not_judged("frames_differ_over_time", why);
+        report.set("rays_a_frame", self.samples);
     }
 
     /// The panel's controls for these, one a row beside its key, then the chapter's `more`.
